@@ -1,0 +1,78 @@
+// Articulated-body algorithm: qdd = M(q)^-1 (tau - C(q, qd) qd - g(q) + J^T f_ext).
+// Featherstone's FDab (spatial_v2 FDab.m) in joint frames, multi-dof joints via a small SPD solve.
+#pragma once
+
+#include "joints.h"
+
+namespace tg {
+
+template <class M, class S>
+TG_HD void aba(const S* q, const S* qd, const S* tau, const S* fext, S* qdd) {
+  const auto& d = M::data();
+  SE3<S> liMi[M::NB];
+  Sv<S> v[M::NB], c[M::NB], pA[M::NB], a[M::NB];
+  M6<S> IA[M::NB];
+  Sv<S> U[M::NB][6];
+  S u[M::NV];
+  // Forward pass: velocities, velocity-product accelerations c, bias forces pA.
+  for (int i = 0; i < M::NB; ++i) {
+    const int p = d.parent[i];
+    liMi[i] = joint_placement<M, S>(i, q);
+    const Sv<S> vJ = joint_motion<M, S>(i, qd);
+    v[i] = p < 0 ? vJ : actinv_motion(liMi[i], v[p]) + vJ;
+    c[i] = cross_motion(v[i], vJ);
+    IA[i] = body_inertia<M, S>(i);
+    pA[i] = cross_force(v[i], mul(IA[i], v[i]));
+    if (fext) pA[i] = pA[i] - Sv<S>{{fext[6 * i], fext[6 * i + 1], fext[6 * i + 2], fext[6 * i + 3], fext[6 * i + 4], fext[6 * i + 5]}};
+  }
+  // Backward pass: articulated inertias IA and bias forces pA, U = IA S, D = S^T U, u = tau - S^T pA.
+  for (int i = M::NB - 1; i >= 0; --i) {
+    const int n = d.nvj[i], vi = d.vi[i];
+    for (int k = 0; k < n; ++k) {
+      U[i][k] = mul(IA[i], joint_axis<M, S>(i, k));
+      u[vi + k] = tau[vi + k] - dot(joint_axis<M, S>(i, k), pA[i]);
+    }
+    const int p = d.parent[i];
+    if (p < 0) continue;
+    // Dinv_u = D^-1 u and Dinv_U = D^-1 U^T (n x 6), through one SPD factorisation each column.
+    S D[36], Dinv_u[6], Dinv_Ut[6][6];
+    for (int r = 0; r < n; ++r)
+      for (int k = 0; k < n; ++k) D[n * r + k] = dot(joint_axis<M, S>(i, r), U[i][k]);
+    for (int r = 0; r < n; ++r) Dinv_u[r] = u[vi + r];
+    spd_solve(n, D, Dinv_u);
+    for (int col = 0; col < 6; ++col) {
+      S x[6];
+      for (int r = 0; r < n; ++r) x[r] = U[i][r].v[col];
+      spd_solve(n, D, x);
+      for (int r = 0; r < n; ++r) Dinv_Ut[r][col] = x[r];
+    }
+    // Ia = IA - U D^-1 U^T, pa = pA + Ia c + U D^-1 u, both passed to the parent frame.
+    M6<S> Ia = IA[i];
+    for (int r = 0; r < 6; ++r)
+      for (int col = 0; col < 6; ++col)
+        for (int k = 0; k < n; ++k) Ia.m[6 * r + col] -= U[i][k].v[r] * Dinv_Ut[k][col];
+    Sv<S> pa = pA[i] + mul(Ia, c[i]);
+    for (int k = 0; k < n; ++k) pa = pa + Dinv_u[k] * U[i][k];
+    const M6<S> Ip = inertia_to_parent(liMi[i], Ia);
+    for (int k = 0; k < 36; ++k) IA[p].m[k] += Ip.m[k];
+    pA[p] = pA[p] + act_force(liMi[i], pa);
+  }
+  // Forward pass: qdd_i = D^-1 (u - U^T a'), a' the parent acceleration seen in frame i.
+  for (int i = 0; i < M::NB; ++i) {
+    const int n = d.nvj[i], vi = d.vi[i], p = d.parent[i];
+    const Sv<S> a_in = actinv_motion(liMi[i], p < 0 ? base_acceleration<M, S>() : a[p]) + c[i];
+    S D[36], x[6];
+    for (int r = 0; r < n; ++r) {
+      for (int k = 0; k < n; ++k) D[n * r + k] = dot(joint_axis<M, S>(i, r), U[i][k]);
+      x[r] = u[vi + r] - dot(U[i][r], a_in);
+    }
+    spd_solve(n, D, x);
+    a[i] = a_in;
+    for (int k = 0; k < n; ++k) {
+      qdd[vi + k] = x[k];
+      a[i] = a[i] + x[k] * joint_axis<M, S>(i, k);
+    }
+  }
+}
+
+}  // namespace tg

@@ -1,0 +1,95 @@
+// Joint models and the kinematic forward pass shared by every algorithm.
+//
+// A generated robot header provides a type `M` with compile-time sizes (NB bodies, NQ, NV, NF
+// frames, FLOATING) and `M::data()`, the tree, axes, placements and inertias as constants.
+// Body i is moved by joint i; parent[i] < i (depth-first order), -1 is the world.
+#pragma once
+
+#include "spatial.h"
+
+namespace tg {
+
+enum JointType : int { FREE = 0, REVOLUTE = 1, PRISMATIC = 2 };
+
+// Placement of joint i's frame in its parent's frame, liMi = placement * Mj(q). q is Pinocchio's
+// layout: a free joint reads [pos(3), quat xyzw(4)].
+template <class M, class S> TG_HD SE3<S> joint_placement(int i, const S* q) {
+  const auto& d = M::data();
+  SE3<S> X;
+  for (int k = 0; k < 9; ++k) X.R.m[k] = S(d.R[i][k]);
+  X.p = v3(S(d.p[i][0]), S(d.p[i][1]), S(d.p[i][2]));
+  const S* qi = q + d.qi[i];
+  const Vec3<S> a = v3(S(d.axis[i][0]), S(d.axis[i][1]), S(d.axis[i][2]));
+  switch (d.jtype[i]) {
+    case FREE:
+      X.p = X.p + mul(X.R, load3(qi));
+      X.R = mul(X.R, quat_rotation(qi[3], qi[4], qi[5], qi[6]));
+      break;
+    case REVOLUTE:
+      X.R = mul(X.R, axis_rotation(a, qi[0]));
+      break;
+    default:  // PRISMATIC
+      X.p = X.p + mul(X.R, qi[0] * a);
+      break;
+  }
+  return X;
+}
+
+// Column k of joint i's motion subspace S_i, in the joint frame.
+template <class M, class S> TG_HD Sv<S> joint_axis(int i, int k) {
+  const auto& d = M::data();
+  Sv<S> s = sv_zero<S>();
+  switch (d.jtype[i]) {
+    case FREE: s.v[k] = S(1); break;
+    case REVOLUTE: for (int c = 0; c < 3; ++c) s.v[3 + c] = S(d.axis[i][c]); break;
+    default: for (int c = 0; c < 3; ++c) s.v[c] = S(d.axis[i][c]); break;
+  }
+  return s;
+}
+
+// Joint velocity vJ = S_i qd_i in the joint frame.
+template <class M, class S> TG_HD Sv<S> joint_motion(int i, const S* qd) {
+  const auto& d = M::data();
+  const S* x = qd + d.vi[i];
+  if (d.jtype[i] == FREE) return {{x[0], x[1], x[2], x[3], x[4], x[5]}};
+  return x[0] * joint_axis<M, S>(i, 0);
+}
+
+// S_i^T f: the generalized force of joint i from a spatial force f in its frame.
+template <class M, class S> TG_HD void joint_project(int i, const Sv<S>& f, S* out) {
+  const auto& d = M::data();
+  for (int k = 0; k < d.nvj[i]; ++k) out[d.vi[i] + k] = dot(joint_axis<M, S>(i, k), f);
+}
+
+template <class M, class S> TG_HD M6<S> body_inertia(int i) {
+  const auto& d = M::data();
+  M6<S> I;
+  for (int k = 0; k < 36; ++k) I.m[k] = S(d.I6[i][k]);
+  return I;
+}
+
+// Spatial gravity acceleration seen as a base acceleration: a_0 = -g.
+template <class M, class S> TG_HD Sv<S> base_acceleration() {
+  const auto& d = M::data();
+  return {{-S(d.gravity[0]), -S(d.gravity[1]), -S(d.gravity[2]), S(0), S(0), S(0)}};
+}
+
+// Forward kinematics: local placements liMi and world placements oMi of every body.
+template <class M, class S> TG_HD void forward_kinematics(const S* q, SE3<S>* liMi, SE3<S>* oMi) {
+  const auto& d = M::data();
+  for (int i = 0; i < M::NB; ++i) {
+    liMi[i] = joint_placement<M, S>(i, q);
+    oMi[i] = d.parent[i] < 0 ? liMi[i] : oMi[d.parent[i]] * liMi[i];
+  }
+}
+
+// World placement of frame f.
+template <class M, class S> TG_HD SE3<S> frame_placement(int f, const SE3<S>* oMi) {
+  const auto& d = M::data();
+  SE3<S> X;
+  for (int k = 0; k < 9; ++k) X.R.m[k] = S(d.fR[f][k]);
+  X.p = v3(S(d.fp[f][0]), S(d.fp[f][1]), S(d.fp[f][2]));
+  return d.fparent[f] < 0 ? X : oMi[d.fparent[f]] * X;
+}
+
+}  // namespace tg

@@ -1,0 +1,118 @@
+// The ops exposed to torch: each binds per-sample input/output pointers to an algorithm and to
+// the convention's input conversion and output reframe. Shapes and argument order match the op
+// table in torch_grid/ops.py, which generates the registration.
+#pragma once
+
+#include "aba.h"
+#include "centroidal.h"
+#include "convention.h"
+#include "crba.h"
+#include "frames.h"
+#include "minv.h"
+#include "rnea.h"
+
+namespace tg {
+
+#define TG_OP_BEGIN(Name)                                                   \
+  template <class M, class S, int C> struct Name {                          \
+    TG_HD static void run(const S* const* in, S* const* out, const int* iargs, int n_iargs) { \
+      (void)iargs; (void)n_iargs;                                           \
+      const Conv<M, S, C> cv(in[0]);
+#define TG_OP_END \
+    }             \
+  };
+
+// in: q, qd, qdd, f_ext?   out: tau
+TG_OP_BEGIN(InverseDynamics)
+  S qd[M::NV], qdd[M::NV];
+  cv.velocity(in[1], qd);
+  cv.acceleration(qd, in[2], qdd);
+  rnea<M, S>(cv.q, qd, qdd, in[3], out[0]);
+  cv.force_out(out[0]);
+TG_OP_END
+
+// in: q, qd, tau, f_ext?   out: qdd
+TG_OP_BEGIN(ForwardDynamics)
+  S qd[M::NV], tau[M::NV];
+  cv.velocity(in[1], qd);
+  cv.force(in[2], tau);
+  aba<M, S>(cv.q, qd, tau, in[3], out[0]);
+  cv.acceleration_out(qd, out[0]);
+TG_OP_END
+
+// in: q   out: M
+TG_OP_BEGIN(Crba)
+  crba<M, S>(cv.q, out[0]);
+  cv.congruence_out(out[0]);
+TG_OP_END
+
+// in: q   out: M^-1
+TG_OP_BEGIN(Minv)
+  minv<M, S>(cv.q, out[0]);
+  cv.congruence_out(out[0]);
+TG_OP_END
+
+// in: q   out: g(q)
+TG_OP_BEGIN(GeneralizedGravity)
+  S zero[M::NV];
+  for (int k = 0; k < M::NV; ++k) zero[k] = S(0);
+  rnea<M, S>(cv.q, zero, zero, nullptr, out[0]);
+  cv.force_out(out[0]);
+TG_OP_END
+
+// in: q, qd   out: C(q, qd) qd + g(q); MuJoCo's qacc = 0 is a_lin = -w x v_lin in Pinocchio's.
+TG_OP_BEGIN(NonlinearEffects)
+  S qd[M::NV], zero[M::NV], qdd[M::NV];
+  for (int k = 0; k < M::NV; ++k) zero[k] = S(0);
+  cv.velocity(in[1], qd);
+  cv.acceleration(qd, zero, qdd);
+  rnea<M, S>(cv.q, qd, qdd, nullptr, out[0]);
+  cv.force_out(out[0]);
+TG_OP_END
+
+// in: q, qd   out: [kinetic, potential, mechanical]
+TG_OP_BEGIN(Energy)
+  S qd[M::NV];
+  cv.velocity(in[1], qd);
+  energy<M, S>(cv.q, qd, out[0]);
+TG_OP_END
+
+// in: q   out: com (3)
+TG_OP_BEGIN(Com)
+  com<M, S>(cv.q, out[0]);
+TG_OP_END
+
+// in: q   out: J_com (3 x NV)
+TG_OP_BEGIN(JacobianCom)
+  jacobian_com<M, S>(cv.q, out[0]);
+  cv.columns_out(out[0], 3);
+TG_OP_END
+
+// in: q, qd   out: A (6 x NV), h (6)
+TG_OP_BEGIN(Ccrba)
+  S qd[M::NV];
+  cv.velocity(in[1], qd);
+  ccrba<M, S>(cv.q, qd, out[0], out[1]);
+  cv.columns_out(out[0], 6);
+TG_OP_END
+
+// in: q   out: positions (NF x 3), rotations (NF x 3 x 3)
+TG_OP_BEGIN(ForwardKinematics)
+  frames_forward_kinematics<M, S>(cv.q, out[0], out[1]);
+TG_OP_END
+
+// in: q; iargs: frame indices   out: (n x 6) [xyz, rpy]
+TG_OP_BEGIN(EndEffectorPose)
+  end_effector_pose<M, S>(cv.q, iargs, n_iargs, out[0]);
+TG_OP_END
+
+// in: q; iargs: frame, reference   out: J (6 x NV)
+TG_OP_BEGIN(FrameJacobian)
+  frame_jacobian<M, S>(cv.q, iargs[0], iargs[1], out[0]);
+  cv.columns_out(out[0], 6);
+TG_OP_END
+
+#undef TG_OP_BEGIN
+#undef TG_OP_END
+
+}  // namespace tg

@@ -1,0 +1,35 @@
+// Recursive Newton-Euler: tau = M(q) qdd + C(q, qd) qd + g(q) - J^T f_ext.
+// Featherstone's ID (spatial_v2 ID.m) in joint frames, with Pinocchio's names.
+#pragma once
+
+#include "joints.h"
+
+namespace tg {
+
+// q, qd, qdd in Pinocchio's layout; fext (NB x 6, joint frames) may be null; tau is (NV).
+template <class M, class S>
+TG_HD void rnea(const S* q, const S* qd, const S* qdd, const S* fext, S* tau) {
+  const auto& d = M::data();
+  SE3<S> liMi[M::NB];
+  Sv<S> v[M::NB], a[M::NB], f[M::NB];
+  // Forward pass: body velocities, accelerations and the forces that produce them.
+  for (int i = 0; i < M::NB; ++i) {
+    const int p = d.parent[i];
+    liMi[i] = joint_placement<M, S>(i, q);
+    const Sv<S> vJ = joint_motion<M, S>(i, qd);
+    const Sv<S> aJ = joint_motion<M, S>(i, qdd);
+    const Sv<S> a_parent = p < 0 ? base_acceleration<M, S>() : a[p];
+    v[i] = p < 0 ? vJ : actinv_motion(liMi[i], v[p]) + vJ;
+    a[i] = actinv_motion(liMi[i], a_parent) + aJ + cross_motion(v[i], vJ);
+    const M6<S> I = body_inertia<M, S>(i);
+    f[i] = mul(I, a[i]) + cross_force(v[i], mul(I, v[i]));
+    if (fext) f[i] = f[i] - Sv<S>{{fext[6 * i], fext[6 * i + 1], fext[6 * i + 2], fext[6 * i + 3], fext[6 * i + 4], fext[6 * i + 5]}};
+  }
+  // Backward pass: project each body's force on its joint, pass it to the parent.
+  for (int i = M::NB - 1; i >= 0; --i) {
+    joint_project<M, S>(i, f[i], tau);
+    if (d.parent[i] >= 0) f[d.parent[i]] = f[d.parent[i]] + act_force(liMi[i], f[i]);
+  }
+}
+
+}  // namespace tg

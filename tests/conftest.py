@@ -1,0 +1,75 @@
+"""Session fixtures: each robot (and its kernels) is built once per test session, on first use."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # make `import oracles` work from any rootdir
+
+import oracles  # noqa: E402
+
+_ERD = oracles.erd_dir()
+
+# name -> (torch_grid.load source, floating_base argument)
+ROBOT_SPECS = {
+    "iiwa14": ("iiwa14", None),  # bundled, fixed base, 7 revolute joints
+    "go2": ("go2", None),  # bundled, floating base, 12 joints
+    "g1": (str(_ERD / "g1_description" / "urdf" / "g1_29dof_rev_1_0.urdf"), True),  # floating humanoid, 29 joints
+    "tiago": (str(_ERD / "tiago_description" / "robots" / "tiago_no_hand.urdf"), False),  # 2 continuous wheels + prismatic torso
+}
+FLOATING = {name: oracles.BUNDLED_FLOATING.get(src, False) if fb is None else fb for name, (src, fb) in ROBOT_SPECS.items()}
+
+
+class LazyCache:
+    """dict-like: `get(name)` builds `factory(name)` on first use and keeps it for the session."""
+
+    def __init__(self, factory):
+        self._factory = factory
+        self._items = {}
+
+    def get(self, name):
+        if name not in self._items:
+            self._items[name] = self._factory(name)
+        return self._items[name]
+
+    __getitem__ = get
+
+
+def _load_robot(name):
+    import torch_grid
+
+    src, fb = ROBOT_SPECS[name]
+    return torch_grid.load(src, floating_base=fb)
+
+
+def _pin_model(name):
+    src, _ = ROBOT_SPECS[name]
+    return oracles.pin_model_for(src, FLOATING[name])
+
+
+def _mj_sim(name):
+    src, _ = ROBOT_SPECS[name]
+    pmodel = _pin_model(name)
+    return oracles.mujoco_from_urdf(oracles.urdf_path_for(src), FLOATING[name], list(pmodel.names[1:]))
+
+
+@pytest.fixture(scope="session")
+def robots():
+    return LazyCache(_load_robot)
+
+
+@pytest.fixture(scope="session")
+def pin_models():
+    return LazyCache(_pin_model)
+
+
+@pytest.fixture(scope="session")
+def mj_sims():
+    return LazyCache(_mj_sim)
+
+
+@pytest.fixture(scope="session")
+def erd_robots_dir():
+    return _ERD

@@ -1,0 +1,233 @@
+"""torch_grid (Pinocchio convention) against Pinocchio itself, on four robots.
+
+float64: rel_err <= 1e-9; float32 inputs: rel_err <= 1e-4 against the float64 Pinocchio value.
+rel_err = max|ours - ref| / max(max|ref|, 1e-12) over the whole batch.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+import torch
+
+from oracles import PinOracle, batch_apply, rel_err, to_pin_q
+
+ROBOTS = ["iiwa14", "go2", "g1", "tiago"]
+TOL = {torch.float64: 1e-9, torch.float32: 1e-4}
+REFERENCES = ["local_world_aligned", "local", "world"]
+
+
+@pytest.fixture(params=ROBOTS)
+def robot_name(request):
+    return request.param
+
+
+def as_tuple(x):
+    return x if isinstance(x, tuple) else (x,)
+
+
+# --------------------------------------------------------------------------------------------
+# states and frames
+# --------------------------------------------------------------------------------------------
+def make_states(robot, batch_shape, seed=0):
+    """Random float64 states: q (pin layout), qd, qdd, tau, f_ext, from a seeded generator."""
+    g = torch.Generator().manual_seed(seed)
+    q = robot.random_configuration(*batch_shape, dtype=torch.float64, generator=g)
+    assert q.shape == (*batch_shape, robot.nq) and q.dtype == torch.float64
+    nv, nb = robot.nv, robot.nbodies
+
+    def randn(*shape, scale=1.0):
+        return scale * torch.randn(*batch_shape, *shape, generator=g, dtype=torch.float64)
+
+    return dict(q=q, qd=randn(nv), qdd=randn(nv), tau=randn(nv, scale=10.0), f_ext=randn(nb, 6, scale=5.0))
+
+
+def cast(states, dtype):
+    return {k: v.to(dtype) for k, v in states.items()}
+
+
+def frames_to_test(robot):
+    """A few frames to test, by name: the last frame, one in the middle, and the first body frame."""
+    names = robot.frame_names
+    picks = [names[-1], names[len(names) // 2]]
+    body = [f.name for f in robot.model.frames if f.kind == "body"]
+    return list(dict.fromkeys(picks + body[:1] + body[-1:]))
+
+
+def reference(robot, pmodel, s, fn, keys):
+    """Pinocchio value over the batch: fn(oracle, q_pin, *[s[k] for k in keys]) per state."""
+    oracle = PinOracle(pmodel)
+    arrays = [to_pin_q(robot, s["q"])] + [s[k].double().numpy() for k in keys]
+    return batch_apply(lambda qp, *rest: fn(oracle, qp, *rest), *arrays)
+
+
+# --------------------------------------------------------------------------------------------
+# the cases: name -> (ours(api, s), reference function on one state, the state keys it uses)
+# --------------------------------------------------------------------------------------------
+CASES = {
+    "inverse_dynamics": (lambda r, s: r.inverse_dynamics(s["q"], s["qd"], s["qdd"]),
+                         lambda o, q, v, a: o.rnea(q, v, a), ["qd", "qdd"]),
+    "inverse_dynamics_fext": (lambda r, s: r.inverse_dynamics(s["q"], s["qd"], s["qdd"], f_ext=s["f_ext"]),
+                              lambda o, q, v, a, f: o.rnea(q, v, a, f), ["qd", "qdd", "f_ext"]),
+    "rnea": (lambda r, s: r.rnea(s["q"], s["qd"], s["qdd"]), lambda o, q, v, a: o.rnea(q, v, a), ["qd", "qdd"]),
+    "forward_dynamics": (lambda r, s: r.forward_dynamics(s["q"], s["qd"], s["tau"]),
+                         lambda o, q, v, t: o.aba(q, v, t), ["qd", "tau"]),
+    "forward_dynamics_fext": (lambda r, s: r.forward_dynamics(s["q"], s["qd"], s["tau"], f_ext=s["f_ext"]),
+                              lambda o, q, v, t, f: o.aba(q, v, t, f), ["qd", "tau", "f_ext"]),
+    "aba": (lambda r, s: r.aba(s["q"], s["qd"], s["tau"]), lambda o, q, v, t: o.aba(q, v, t), ["qd", "tau"]),
+    "crba": (lambda r, s: r.crba(s["q"]), lambda o, q: o.crba(q), []),
+    "minv": (lambda r, s: r.minv(s["q"]), lambda o, q: o.minv(q), []),
+    "generalized_gravity": (lambda r, s: r.generalized_gravity(s["q"]), lambda o, q: o.gravity(q), []),
+    "nonlinear_effects": (lambda r, s: r.nonlinear_effects(s["q"], s["qd"]), lambda o, q, v: o.nle(q, v), ["qd"]),
+    "energy": (lambda r, s: r.energy(s["q"], s["qd"]), lambda o, q, v: o.energy(q, v), ["qd"]),
+    "com": (lambda r, s: r.com(s["q"]), lambda o, q: o.com(q), []),
+    "jacobian_com": (lambda r, s: r.jacobian_com(s["q"]), lambda o, q: o.jacobian_com(q), []),
+    "ccrba": (lambda r, s: r.ccrba(s["q"], s["qd"]), lambda o, q, v: o.ccrba(q, v), ["qd"]),
+    "forward_kinematics": (lambda r, s: r.forward_kinematics(s["q"]), lambda o, q: o.forward_kinematics(q), []),
+}
+
+
+def check(name, ours, ref, tol, dtype):
+    ours, ref = as_tuple(ours), as_tuple(ref)
+    assert len(ours) == len(ref), f"{name}: {len(ours)} outputs, expected {len(ref)}"
+    for k, (o, r) in enumerate(zip(ours, ref)):
+        assert isinstance(o, torch.Tensor) and o.dtype == dtype, f"{name}[{k}]: got {type(o)} {getattr(o, 'dtype', '')}"
+        err = rel_err(o, r)
+        assert err <= tol, f"{name}[{k}]: rel_err {err:.3e} > {tol:.0e} (max|ref| {np.abs(r).max():.3e})"
+
+
+# --------------------------------------------------------------------------------------------
+# tests
+# --------------------------------------------------------------------------------------------
+def test_layout_matches_pinocchio(robots, pin_models, robot_name):
+    robot, pm = robots.get(robot_name), pin_models.get(robot_name)
+    n_cont = sum(j.type == "continuous" for j in robot.model.joints)
+    assert robot.joint_names == list(pm.names[1:])
+    assert robot.frame_names == [f.name for f in pm.frames]
+    assert (robot.nq, robot.nv, robot.nbodies, robot.nframes) == (pm.nq - n_cont, pm.nv, pm.njoints - 1, pm.nframes)
+    assert robot.floating_base == (pm.joints[1].shortname() == "JointModelFreeFlyer")
+    assert to_pin_q(robot, robot.neutral_configuration()).tolist() == pytest.approx(list(pin.neutral(pm)))
+
+
+def test_random_configuration(robots, pin_models, robot_name):
+    robot, pm = robots.get(robot_name), pin_models.get(robot_name)
+    g = torch.Generator().manual_seed(1)
+    q = robot.random_configuration(3, 2, generator=g)
+    assert q.shape == (3, 2, robot.nq) and q.dtype == torch.float64
+    q2 = robot.random_configuration(3, 2, generator=torch.Generator().manual_seed(1))
+    assert torch.equal(q, q2), "same seed must give the same configurations"
+    qp = to_pin_q(robot, q)
+    for j, jm in zip(robot.model.joints, list(pm.joints)[1:]):
+        if j.type == "free":
+            quat = qp[..., jm.idx_q + 3:jm.idx_q + 7]
+            assert np.allclose(np.linalg.norm(quat, axis=-1), 1.0, atol=1e-12), "quaternion is not unit"
+        elif j.type in ("revolute", "prismatic"):
+            x = qp[..., jm.idx_q]
+            assert np.all(x >= j.lower - 1e-12) and np.all(x <= j.upper + 1e-12), f"{j.name} outside its limits"
+
+
+@pytest.mark.parametrize("batch_shape", [(5,), (2, 3), ()], ids=["b5", "b2x3", "unbatched"])
+@pytest.mark.parametrize("case", list(CASES))
+def test_against_pinocchio_float64(robots, pin_models, robot_name, case, batch_shape):
+    robot, pm = robots.get(robot_name), pin_models.get(robot_name)
+    s = make_states(robot, batch_shape, seed=10)
+    ours_fn, ref_fn, keys = CASES[case]
+    check(case, ours_fn(robot, s), reference(robot, pm, s, ref_fn, keys), TOL[torch.float64], torch.float64)
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_against_pinocchio_float32(robots, pin_models, robot_name, case):
+    robot, pm = robots.get(robot_name), pin_models.get(robot_name)
+    s = make_states(robot, (4,), seed=20)
+    ours_fn, ref_fn, keys = CASES[case]
+    ref = reference(robot, pm, s, ref_fn, keys)  # float64 reference from the float64 state
+    check(case, ours_fn(robot, cast(s, torch.float32)), ref, TOL[torch.float32], torch.float32)
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32], ids=["f64", "f32"])
+@pytest.mark.parametrize("reference_frame", REFERENCES)
+def test_frame_jacobian(robots, pin_models, robot_name, reference_frame, dtype):
+    robot, pm = robots.get(robot_name), pin_models.get(robot_name)
+    s = make_states(robot, (2, 2), seed=30)
+    for frame in frames_to_test(robot):
+        fid = pm.getFrameId(frame)
+        ref = reference(robot, pm, s, lambda o, q: o.frame_jacobian(q, fid, reference_frame), [])
+        ours = robot.frame_jacobian(s["q"].to(dtype), frame, reference=reference_frame)
+        check(f"frame_jacobian({frame!r}, {reference_frame})", ours, ref, TOL[dtype], dtype)
+    if reference_frame == "local_world_aligned":  # the default reference
+        frame = frames_to_test(robot)[0]
+        ref = reference(robot, pm, s, lambda o, q: o.frame_jacobian(q, pm.getFrameId(frame), "local_world_aligned"), [])
+        check("frame_jacobian default reference", robot.frame_jacobian(s["q"].to(dtype), frame), ref, TOL[dtype], dtype)
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32], ids=["f64", "f32"])
+def test_end_effector_pose(robots, pin_models, robot_name, dtype):
+    robot, pm = robots.get(robot_name), pin_models.get(robot_name)
+    s = make_states(robot, (3, 2), seed=40)
+    frames = frames_to_test(robot)[:2]
+    ids = [pm.getFrameId(f) for f in frames]
+    ref = reference(robot, pm, s, lambda o, q: o.end_effector_pose(q, ids), [])
+    check("end_effector_pose(names)", robot.end_effector_pose(s["q"].to(dtype), frames), ref, TOL[dtype], dtype)
+    check("end_effector_pose(indices)", robot.end_effector_pose(s["q"].to(dtype), ids), ref, TOL[dtype], dtype)
+
+
+def test_energy_is_sum(robots, robot_name):
+    robot = robots.get(robot_name)
+    s = make_states(robot, (4,), seed=50)
+    e = robot.energy(s["q"], s["qd"])
+    assert rel_err(e[..., 2], e[..., 0] + e[..., 1]) <= 1e-12
+
+
+# --------------------------------------------------------------------------------------------
+# convention selection
+# --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("robot_name", ["iiwa14", "tiago"])
+@pytest.mark.parametrize("case", list(CASES))
+def test_fixed_base_mujoco_is_noop(robots, robot_name, case):
+    robot = robots.get(robot_name)
+    s = make_states(robot, (3,), seed=60)
+    ours_fn = CASES[case][0]
+    default = as_tuple(ours_fn(robot, s))
+    for api in ("mujoco", "pin"):
+        other = as_tuple(ours_fn(getattr(robot, api), s))
+        assert len(other) == len(default)
+        for k, (o, d) in enumerate(zip(other, default)):
+            err = rel_err(o, d)
+            assert err <= 1e-12, f"{case}[{k}]: robot.{api} differs from robot on a fixed base ({err:.2e})"
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_pin_namespace_is_default(robots, case):
+    robot = robots.get("go2")
+    s = make_states(robot, (3,), seed=65)
+    ours_fn = CASES[case][0]
+    for o, d in zip(as_tuple(ours_fn(robot.pin, s)), as_tuple(ours_fn(robot, s)), strict=True):
+        assert rel_err(o, d) <= 1e-12, f"{case}: robot.pin differs from robot (default convention 'pin')"
+
+
+def test_three_ways_to_choose_mujoco_convention(robots):
+    import torch_grid
+
+    robot = robots.get("go2")
+    g = torch.Generator().manual_seed(70)
+    q_mj = robot.mujoco.random_configuration(4, generator=g)
+    qd = torch.randn(4, robot.nv, generator=g, dtype=torch.float64)
+    via_namespace = robot.mujoco.crba(q_mj)
+    id_namespace = robot.mujoco.inverse_dynamics(q_mj, qd, qd)
+    old = robot.convention
+    try:
+        robot.convention = "mujoco"
+        via_attribute = robot.crba(q_mj)
+        id_attribute = robot.inverse_dynamics(q_mj, qd, qd)
+    finally:
+        robot.convention = old
+    loaded = torch_grid.load("go2", convention="mujoco")
+    assert loaded.convention == "mujoco"
+    assert rel_err(via_attribute, via_namespace) <= 1e-12
+    assert rel_err(loaded.crba(q_mj), via_namespace) <= 1e-12
+    assert rel_err(id_attribute, id_namespace) <= 1e-12
+    assert rel_err(loaded.inverse_dynamics(q_mj, qd, qd), id_namespace) <= 1e-12
+    # and it really is a different convention on a floating base (the base block is rotated)
+    q_pin = q_mj.clone()
+    q_pin[..., 3:7] = q_mj[..., [4, 5, 6, 3]]
+    assert rel_err(robot.pin.crba(q_pin), via_namespace) > 1e-6

@@ -1,0 +1,44 @@
+"""torch_grid: robot-specific rigid-body dynamics kernels as batched torch ops (CPU and CUDA),
+in Pinocchio's or MuJoCo's convention."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from . import conventions
+from .autograd import register_autograd
+from .build import build
+from .model import Frame, Joint, RobotModel
+from .parse import BUNDLED, from_pinocchio, source_to_model
+from .robot import Robot
+
+__all__ = ["load", "Robot", "RobotModel", "Joint", "Frame", "conventions", "from_pinocchio", "BUNDLED"]
+__version__ = "0.1.0"
+
+_AUTOGRAD_DONE: set[str] = set()
+
+
+def load(source, *, floating_base: bool | None = None, convention: str = "pin", enable_mujoco_kernels: bool = True,
+         cache_dir: str | Path | None = None) -> Robot:
+    """Build (or reuse from the cache) a robot's kernels and return its `Robot`.
+
+    source: a bundled robot name ("iiwa14", "go2"), a URDF path or XML string, an MJCF path or
+    string, a saved model (.json, see Robot.save), a `pinocchio.Model` or a `RobotModel`.
+    floating_base: None takes the source's own choice (a bundled robot's default, fixed for a URDF,
+    floating when an MJCF has a free joint); True adds a free-flyer root.
+    convention: default convention of the returned handle, "pin" or "mujoco".
+    enable_mujoco_kernels: False builds Pinocchio-convention kernels only (a smaller build); a
+    floating robot then refuses convention="mujoco".
+    cache_dir: where compiled kernels are kept (default $TORCH_GRID_CACHE or ~/.cache/torch_grid).
+    """
+    if not isinstance(enable_mujoco_kernels, bool):
+        raise TypeError(f"enable_mujoco_kernels must be True or False, got {enable_mujoco_kernels!r}")
+    model = source_to_model(source, floating_base)
+    if convention not in ("pin", "pinocchio", "mujoco", "mjx"):
+        raise ValueError(f"convention must be 'pin' or 'mujoco', got {convention!r}")
+    if convention in ("mujoco", "mjx") and model.floating_base and not enable_mujoco_kernels:
+        raise ValueError("convention='mujoco' needs enable_mujoco_kernels=True for a floating-base robot")
+    namespace = build(model, mujoco=enable_mujoco_kernels, cache_dir=cache_dir)
+    if namespace not in _AUTOGRAD_DONE:
+        register_autograd(namespace)
+        _AUTOGRAD_DONE.add(namespace)
+    return Robot(model, namespace, convention=convention, mujoco_kernels=enable_mujoco_kernels)

@@ -1,0 +1,81 @@
+"""The op table: the one description of every op's arguments, output shapes and kernel.
+
+From it come the dispatcher schemas and C++ wrappers (codegen.py), the fake implementations that
+let torch.compile propagate shapes (registered here), and argument checking in `Robot`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from .model import RobotModel
+
+# Argument kinds: tensors with their trailing shape, or integers.
+TENSOR_KINDS = {"q": ("nq",), "v": ("nv",), "fext": ("nbodies", 6)}
+
+
+@dataclass(frozen=True)
+class Arg:
+    name: str
+    kind: str  # "q", "v", "fext" (tensors) or "frame", "frames", "reference" (integers)
+    optional: bool = False
+
+
+@dataclass(frozen=True)
+class OpSpec:
+    name: str
+    kernel: str  # C++ op struct in csrc/kernels/ops.h
+    args: tuple[Arg, ...]
+    outputs: tuple[tuple, ...]  # trailing shapes; symbols "nv", "nq", "nframes", "nsel"
+
+    @property
+    def tensor_args(self) -> tuple[Arg, ...]:
+        return tuple(a for a in self.args if a.kind in TENSOR_KINDS)
+
+    def schema(self) -> str:
+        types = {"frame": "int", "frames": "int[]", "reference": "int"}
+        params = [f"Tensor{'?' if a.optional else ''} {a.name}" if a.kind in TENSOR_KINDS else f"{types[a.kind]} {a.name}"
+                  for a in self.args]
+        outs = ", ".join("Tensor" for _ in self.outputs)
+        return f"{self.name}({', '.join(params + ['int convention'])}) -> " + (f"({outs})" if len(self.outputs) > 1 else outs)
+
+    def output_shapes(self, model: RobotModel, batch: tuple[int, ...], nsel: int = 0) -> list[tuple[int, ...]]:
+        sizes = {"nv": model.nv, "nq": model.nq, "nframes": len(model.frames), "nsel": nsel}
+        return [tuple(batch) + tuple(sizes.get(d, d) for d in shape) for shape in self.outputs]
+
+
+Q, QD, QDD, TAU, FEXT = Arg("q", "q"), Arg("qd", "v"), Arg("qdd", "v"), Arg("tau", "v"), Arg("f_ext", "fext", True)
+OPS: dict[str, OpSpec] = {
+    op.name: op
+    for op in (
+        OpSpec("inverse_dynamics", "InverseDynamics", (Q, QD, QDD, FEXT), (("nv",),)),
+        OpSpec("forward_dynamics", "ForwardDynamics", (Q, QD, TAU, FEXT), (("nv",),)),
+        OpSpec("crba", "Crba", (Q,), (("nv", "nv"),)),
+        OpSpec("minv", "Minv", (Q,), (("nv", "nv"),)),
+        OpSpec("generalized_gravity", "GeneralizedGravity", (Q,), (("nv",),)),
+        OpSpec("nonlinear_effects", "NonlinearEffects", (Q, QD), (("nv",),)),
+        OpSpec("energy", "Energy", (Q, QD), ((3,),)),
+        OpSpec("com", "Com", (Q,), ((3,),)),
+        OpSpec("jacobian_com", "JacobianCom", (Q,), ((3, "nv"),)),
+        OpSpec("ccrba", "Ccrba", (Q, QD), ((6, "nv"), (6,))),
+        OpSpec("forward_kinematics", "ForwardKinematics", (Q,), (("nframes", 3), ("nframes", 3, 3))),
+        OpSpec("end_effector_pose", "EndEffectorPose", (Q, Arg("frames", "frames")), (("nsel", 6),)),
+        OpSpec("frame_jacobian", "FrameJacobian", (Q, Arg("frame", "frame"), Arg("reference", "reference")), ((6, "nv"),)),
+    )
+}
+
+
+def register_fakes(namespace: str, model: RobotModel) -> None:
+    """Shape-only implementations of every op of one robot build, for torch.compile and meta tensors."""
+    for spec in OPS.values():
+        torch.library.register_fake(f"{namespace}::{spec.name}")(_fake(spec, model))
+
+
+def _fake(spec: OpSpec, model: RobotModel):
+    def fake(q, *args):
+        nsel = len(args[0]) if spec.name == "end_effector_pose" else 0
+        outs = [q.new_empty(s) for s in spec.output_shapes(model, tuple(q.shape[:-1]), nsel)]
+        return outs[0] if len(outs) == 1 else tuple(outs)
+
+    return fake

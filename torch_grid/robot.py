@@ -1,0 +1,238 @@
+"""`Robot`: a built robot's ops as torch functions, in Pinocchio's or MuJoCo's convention."""
+from __future__ import annotations
+
+import difflib
+import math
+from pathlib import Path
+from typing import Sequence
+
+import torch
+
+from .model import RobotModel
+from .ops import OPS, TENSOR_KINDS
+
+CONVENTIONS = {"pin": 0, "pinocchio": 0, "mujoco": 1, "mjx": 1}
+REFERENCES = {"world": 0, "local": 1, "local_world_aligned": 2}
+
+
+class _Functions:
+    """The rigid-body functions, evaluated in one convention (`_convention`, 0 pin or 1 mujoco).
+
+    Tensors may have any leading batch shape; batch shapes of the arguments broadcast. All tensor
+    arguments must share one device and one dtype (float32 or float64); outputs have them too.
+    """
+
+    _robot: "Robot"
+    _convention: int
+
+    def inverse_dynamics(self, q, qd, qdd, f_ext=None) -> torch.Tensor:
+        """Joint forces tau (..., nv) = M qdd + C qd + g - J^T f_ext.
+
+        q (..., nq), qd (..., nv), qdd (..., nv); f_ext (..., nbodies, 6): a spatial force
+        [force; torque] on each body, in its joint frame (Pinocchio's fext without the universe).
+        """
+        return self._call("inverse_dynamics", q, qd, qdd, f_ext)
+
+    rnea = inverse_dynamics
+
+    def forward_dynamics(self, q, qd, tau, f_ext=None) -> torch.Tensor:
+        """Joint accelerations qdd (..., nv) by the articulated-body algorithm; f_ext as in inverse_dynamics."""
+        return self._call("forward_dynamics", q, qd, tau, f_ext)
+
+    aba = forward_dynamics
+
+    def crba(self, q) -> torch.Tensor:
+        """Joint-space inertia matrix M (..., nv, nv), full and symmetric."""
+        return self._call("crba", q)
+
+    def minv(self, q) -> torch.Tensor:
+        """Inverse inertia matrix M^-1 (..., nv, nv), computed directly (not by inverting M)."""
+        return self._call("minv", q)
+
+    def generalized_gravity(self, q) -> torch.Tensor:
+        """Gravity joint forces g(q) (..., nv)."""
+        return self._call("generalized_gravity", q)
+
+    def nonlinear_effects(self, q, qd) -> torch.Tensor:
+        """C(q, qd) qd + g(q) (..., nv): inverse dynamics at zero acceleration."""
+        return self._call("nonlinear_effects", q, qd)
+
+    def energy(self, q, qd) -> torch.Tensor:
+        """[kinetic, potential, mechanical] energy (..., 3); potential is zero at the world origin."""
+        return self._call("energy", q, qd)
+
+    def com(self, q) -> torch.Tensor:
+        """Centre of mass of the whole robot in the world frame (..., 3)."""
+        return self._call("com", q)
+
+    def jacobian_com(self, q) -> torch.Tensor:
+        """Centre-of-mass Jacobian d com / d qd (..., 3, nv)."""
+        return self._call("jacobian_com", q)
+
+    def ccrba(self, q, qd) -> tuple[torch.Tensor, torch.Tensor]:
+        """Centroidal momentum matrix A (..., 6, nv) and momentum h = A qd (..., 6), [linear; angular]."""
+        return self._call("ccrba", q, qd)
+
+    def forward_kinematics(self, q) -> tuple[torch.Tensor, torch.Tensor]:
+        """World positions (..., nframes, 3) and rotations (..., nframes, 3, 3) of every frame in frame_names."""
+        return self._call("forward_kinematics", q)
+
+    def end_effector_pose(self, q, frames: Sequence[str | int]) -> torch.Tensor:
+        """[x, y, z, roll, pitch, yaw] (..., len(frames), 6) of each listed frame, R = Rz(yaw) Ry(pitch) Rx(roll)."""
+        if isinstance(frames, (str, int)):
+            raise TypeError(f"end_effector_pose: frames must be a list of frame names or indices, got {frames!r}")
+        return self._call("end_effector_pose", q, [self._robot.frame_index(f, "frames") for f in frames])
+
+    def frame_jacobian(self, q, frame: str | int, reference: str = "local_world_aligned") -> torch.Tensor:
+        """Jacobian (..., 6, nv), rows [linear; angular], of a frame, as Pinocchio's getFrameJacobian.
+
+        reference: "local_world_aligned" (frame origin, world axes), "local" (frame axes) or
+        "world" (spatial velocity at the world origin).
+        """
+        ref = REFERENCES.get(reference.lower()) if isinstance(reference, str) else None
+        if ref is None:
+            raise ValueError(f"frame_jacobian: reference must be one of {sorted(REFERENCES)}, got {reference!r}")
+        return self._call("frame_jacobian", q, self._robot.frame_index(frame, "frame"), ref)
+
+    def neutral_configuration(self, dtype: torch.dtype = torch.float64, device="cpu") -> torch.Tensor:
+        """(nq,) zero joint positions and, for a floating base, the identity orientation at the origin."""
+        q = torch.zeros(self._robot.nq, dtype=dtype, device=device)
+        if self._robot.floating_base:
+            q[3 if self._convention else 6] = 1.0  # w, first in MuJoCo's wxyz, last in xyzw
+        return q
+
+    def random_configuration(self, *batch_shape: int, dtype: torch.dtype = torch.float64, device="cpu",
+                             generator: torch.Generator | None = None) -> torch.Tensor:
+        """(*batch_shape, nq) joints uniform within their limits ([-pi, pi] or [-1, 1] when unbounded),
+        a base position in [-1, 1]^3 and a uniformly random unit quaternion."""
+        model, cols = self._robot.model, []
+        for joint in model.joints:
+            if joint.type == "free":
+                pos = 2 * torch.rand(*batch_shape, 3, dtype=torch.float64, generator=generator) - 1
+                quat = torch.randn(*batch_shape, 4, dtype=torch.float64, generator=generator)
+                quat = quat / quat.norm(dim=-1, keepdim=True)
+                if self._convention:
+                    quat = quat[..., [3, 0, 1, 2]]
+                cols += [pos, quat]
+                continue
+            default = math.pi if joint.type != "prismatic" else 1.0
+            lo = joint.lower if math.isfinite(joint.lower) else -default
+            hi = joint.upper if math.isfinite(joint.upper) else default
+            cols.append(lo + (hi - lo) * torch.rand(*batch_shape, 1, dtype=torch.float64, generator=generator))
+        return torch.cat(cols, dim=-1).to(dtype=dtype, device=device)
+
+    def _call(self, name: str, *args):
+        spec = OPS[name]
+        robot = self._robot
+        sizes = {"nq": robot.nq, "nv": robot.nv, "nbodies": robot.nbodies}
+        tensors = [(a, x) for a, x in zip(spec.args, args) if a.kind in TENSOR_KINDS and x is not None]
+        q = args[0]
+        for a, x in tensors:
+            trailing = tuple(sizes.get(d, d) for d in TENSOR_KINDS[a.kind])
+            _check_tensor(name, a.name, x, trailing, q)
+        batch = torch.broadcast_shapes(*(x.shape[: x.dim() - len(TENSOR_KINDS[a.kind])] for a, x in tensors)) \
+            if len(tensors) > 1 else None
+        call_args = []
+        for a, x in zip(spec.args, args):
+            if batch is not None and a.kind in TENSOR_KINDS and x is not None:
+                x = x.expand(*batch, *x.shape[x.dim() - len(TENSOR_KINDS[a.kind]):])
+            call_args.append(x)
+        return getattr(robot._ops, name)(*call_args, self._convention)
+
+
+class _View(_Functions):
+    """The robot's functions in a fixed convention; holds no state of its own (thread-safe)."""
+
+    def __init__(self, robot: "Robot", convention: int):
+        self._robot = robot
+        self._convention = convention
+
+    def __repr__(self) -> str:
+        return f"<{self._robot.name} functions, {'mujoco' if self._convention else 'pin'} convention>"
+
+
+class Robot(_Functions):
+    """A robot with generated kernels. Create it with `torch_grid.load`.
+
+    Its functions use the default convention (`robot.convention`); `robot.pin` and `robot.mujoco`
+    are views that always use one convention.
+    """
+
+    def __init__(self, model: RobotModel, namespace: str, convention: str = "pin", mujoco_kernels: bool = True):
+        self.model = model
+        self._ops = getattr(torch.ops, namespace)
+        self._mujoco_kernels = mujoco_kernels or not model.floating_base
+        self._frame_index = {f.name: i for i, f in enumerate(model.frames)}
+        self._robot = self
+        self.convention = convention
+
+    # -- description -----------------------------------------------------------------------
+    name = property(lambda self: self.model.name)
+    nq = property(lambda self: self.model.nq, doc="Configuration size (a continuous joint has one angle).")
+    nv = property(lambda self: self.model.nv, doc="Velocity size.")
+    nbodies = property(lambda self: self.model.nbodies, doc="Moving bodies (one per joint).")
+    nframes = property(lambda self: len(self.model.frames))
+    floating_base = property(lambda self: self.model.floating_base)
+    joint_names = property(lambda self: [j.name for j in self.model.joints])
+    frame_names = property(lambda self: [f.name for f in self.model.frames])
+
+    @property
+    def convention(self) -> str:
+        """Default convention of this handle's functions: "pin" or "mujoco"."""
+        return "mujoco" if self._convention else "pin"
+
+    @convention.setter
+    def convention(self, value: str) -> None:
+        self._convention = self._convention_code(value)
+
+    @property
+    def pin(self) -> _View:
+        return _View(self, 0)
+
+    @property
+    def mujoco(self) -> _View:
+        return _View(self, self._convention_code("mujoco"))
+
+    def frame_index(self, frame: str | int, argument: str = "frame") -> int:
+        """Index in frame_names of a frame given by name or index."""
+        if isinstance(frame, bool) or not isinstance(frame, (str, int)):
+            raise TypeError(f"{argument} must be a frame name or index, got {type(frame).__name__}")
+        if isinstance(frame, int):
+            if not 0 <= frame < self.nframes:
+                raise ValueError(f"{argument}: frame index {frame} is out of range [0, {self.nframes})")
+            return frame
+        if frame not in self._frame_index:
+            close = difflib.get_close_matches(frame, self._frame_index, n=3)
+            hint = f"; did you mean {', '.join(map(repr, close))}?" if close else ""
+            raise ValueError(f"{argument}: {self.name!r} has no frame named {frame!r}{hint}")
+        return self._frame_index[frame]
+
+    def save(self, path: str | Path) -> None:
+        """Write the model description (JSON); `torch_grid.load(path)` rebuilds it, without Pinocchio."""
+        self.model.save(path)
+
+    def _convention_code(self, value: str) -> int:
+        if not isinstance(value, str) or value.lower() not in CONVENTIONS:
+            raise ValueError(f"convention must be 'pin' or 'mujoco', got {value!r}")
+        code = CONVENTIONS[value.lower()]
+        if code and not self._mujoco_kernels:
+            raise ValueError(f"convention='mujoco': robot {self.name!r} was built with enable_mujoco_kernels=False")
+        return code
+
+    def __repr__(self) -> str:
+        base = "floating" if self.floating_base else "fixed"
+        return f"<Robot {self.name!r}: {base} base, nq={self.nq}, nv={self.nv}, {self.convention} convention>"
+
+
+def _check_tensor(op: str, name: str, x, trailing: tuple[int, ...], q) -> None:
+    if not isinstance(x, torch.Tensor):
+        raise TypeError(f"{op}: {name} must be a torch.Tensor, got {type(x).__name__}")
+    if x.dtype not in (torch.float32, torch.float64):
+        raise TypeError(f"{op}: {name} must be float32 or float64, got {x.dtype}")
+    if x is not q and x.dtype != q.dtype:
+        raise TypeError(f"{op}: {name} has dtype {x.dtype} but q has {q.dtype}; all tensors must share one dtype")
+    if x is not q and x.device != q.device:
+        raise ValueError(f"{op}: {name} is on {x.device} but q is on {q.device}; all tensors must share one device")
+    if x.dim() < len(trailing) or tuple(x.shape[x.dim() - len(trailing):]) != trailing:
+        want = ", ".join(["..."] + [str(t) for t in trailing])
+        raise ValueError(f"{op}: {name} must have shape ({want}), got {tuple(x.shape)}")
