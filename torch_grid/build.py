@@ -92,14 +92,14 @@ def _compile(model: RobotModel, mujoco: bool, cuda: bool, namespace: str, entry:
         (src / name).write_text(text)
     what = f"{'CPU + CUDA' if cuda else 'CPU'}, float32 + float64, {'pin + mujoco' if mujoco and model.floating_base else 'pin'}"
     print(f"torch_grid: building kernels for {model.name!r} ({what}) in {entry}", file=sys.stderr, flush=True)
-    flags = ["-O2", "-fno-fast-math"] + (["-DTG_WITH_CUDA"] if cuda else [])
+    flags = ["-O3", "-fno-fast-math"] + (["-DTG_WITH_CUDA"] if cuda else [])
     start = time.monotonic()
     with _progress(model.name, start):
         cpp_extension.load(
             name=namespace,
             sources=[str(src / n) for n in files if n.endswith((".cpp", ".cu"))],
             extra_cflags=flags,
-            extra_cuda_cflags=["-O2"] + (["-DTG_WITH_CUDA"] if cuda else []),
+            extra_cuda_cflags=["-O3"] + (["-DTG_WITH_CUDA"] if cuda else []),
             extra_include_paths=[str(CSRC), str(src)],
             build_directory=str(entry),
             with_cuda=cuda,

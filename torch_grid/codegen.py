@@ -10,18 +10,10 @@ _SIZE = {"nv": "Robot::NV", "nq": "Robot::NQ", "nframes": "Robot::NF", "nbodies"
          "nsel": "static_cast<int64_t>(frames.size())"}
 
 
-def spatial_inertia(mass: float, com, inertia) -> list[float]:
-    """6x6 spatial inertia (row-major) about the joint frame origin, [linear; angular] ordering."""
-    cx = [[0.0, -com[2], com[1]], [com[2], 0.0, -com[0]], [-com[1], com[0], 0.0]]
-    out = [[0.0] * 6 for _ in range(6)]
-    for r in range(3):
-        out[r][r] = mass
-        for c in range(3):
-            out[r][3 + c] = -mass * cx[r][c]
-            out[3 + r][c] = mass * cx[r][c]
-            # I_c + m [c]x [c]x^T
-            out[3 + r][3 + c] = inertia[3 * r + c] + mass * sum(cx[r][k] * cx[c][k] for k in range(3))
-    return [x for row in out for x in row]
+def inertia_about_origin(mass: float, com, inertia) -> list[float]:
+    """Rotational inertia (row-major 3x3) about the joint frame origin: I_c - m [c]x^2."""
+    c2 = sum(x * x for x in com)
+    return [inertia[3 * r + k] + mass * ((c2 if r == k else 0.0) - com[r] * com[k]) for r in range(3) for k in range(3)]
 
 
 def robot_header(model: RobotModel, mujoco: bool) -> str:
@@ -47,8 +39,9 @@ def robot_header(model: RobotModel, mujoco: bool) -> str:
         ("double", "axis", [list(x.axis) for x in j]),
         ("double", "R", [list(x.rotation) for x in j]),
         ("double", "p", [list(x.translation) for x in j]),
-        ("double", "I6", [spatial_inertia(x.mass, x.com, x.inertia) for x in j]),
         ("double", "mass", [x.mass for x in j]),
+        ("double", "h", [[x.mass * c for c in x.com] for x in j]),
+        ("double", "Io", [inertia_about_origin(x.mass, x.com, x.inertia) for x in j]),
         ("double", "com", [list(x.com) for x in j]),
         ("int", "fparent", [f.parent for f in model.frames]),
         ("double", "fR", [list(f.rotation) for f in model.frames]),

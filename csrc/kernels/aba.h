@@ -21,8 +21,9 @@ TG_HD void aba(const S* q, const S* qd, const S* tau, const S* fext, S* qdd) {
     const Sv<S> vJ = joint_motion<M, S>(i, qd);
     v[i] = p < 0 ? vJ : actinv_motion(liMi[i], v[p]) + vJ;
     c[i] = cross_motion(v[i], vJ);
-    IA[i] = body_inertia<M, S>(i);
-    pA[i] = cross_force(v[i], mul(IA[i], v[i]));
+    const Inertia<S> I = body_inertia<M, S>(i);
+    IA[i] = to_matrix(I);
+    pA[i] = cross_force(v[i], mul(I, v[i]));
     if (fext) pA[i] = pA[i] - Sv<S>{{fext[6 * i], fext[6 * i + 1], fext[6 * i + 2], fext[6 * i + 3], fext[6 * i + 4], fext[6 * i + 5]}};
   }
   // Backward pass: articulated inertias IA and bias forces pA, U = IA S, D = S^T U, u = tau - S^T pA.

@@ -77,11 +77,10 @@ template <class M, class S> TG_HD void ccrba(const S* q, const S* qd, S* A, S* h
   SE3<S> liMi[M::NB], oMi[M::NB];
   forward_kinematics<M, S>(q, liMi, oMi);
   // Composite inertia of each subtree, in the world frame.
-  M6<S> Yc[M::NB];
-  for (int i = 0; i < M::NB; ++i) Yc[i] = inertia_to_parent(oMi[i], body_inertia<M, S>(i));
+  Inertia<S> Yc[M::NB];
+  for (int i = 0; i < M::NB; ++i) Yc[i] = act(oMi[i], body_inertia<M, S>(i));
   for (int i = M::NB - 1; i >= 0; --i)
-    if (d.parent[i] >= 0)
-      for (int k = 0; k < 36; ++k) Yc[d.parent[i]].m[k] += Yc[i].m[k];
+    if (d.parent[i] >= 0) Yc[d.parent[i]] = Yc[d.parent[i]] + Yc[i];
   Vec3<S> c = v3(S(0), S(0), S(0));
   for (int i = 0; i < M::NB; ++i) c = c + S(d.mass[i]) * body_com<M, S>(i, oMi);
   c = (S(1) / total_mass<M, S>()) * c;

@@ -9,7 +9,7 @@ namespace tg {
 template <class M, class S> TG_HD void crba(const S* q, S* Mout) {
   const auto& d = M::data();
   SE3<S> liMi[M::NB];
-  M6<S> Ic[M::NB];
+  Inertia<S> Ic[M::NB];
   for (int k = 0; k < M::NV * M::NV; ++k) Mout[k] = S(0);  // entries of unrelated branches stay zero
   for (int i = 0; i < M::NB; ++i) {
     liMi[i] = joint_placement<M, S>(i, q);
@@ -33,10 +33,7 @@ template <class M, class S> TG_HD void crba(const S* q, S* Mout) {
         j = d.parent[j];
       }
     }
-    if (d.parent[i] >= 0) {
-      const M6<S> Ip = inertia_to_parent(liMi[i], Ic[i]);
-      for (int k = 0; k < 36; ++k) Ic[d.parent[i]].m[k] += Ip.m[k];
-    }
+    if (d.parent[i] >= 0) Ic[d.parent[i]] = Ic[d.parent[i]] + act(liMi[i], Ic[i]);
   }
 }
 

@@ -61,10 +61,11 @@ template <class M, class S> TG_HD void joint_project(int i, const Sv<S>& f, S* o
   for (int k = 0; k < d.nvj[i]; ++k) out[d.vi[i] + k] = dot(joint_axis<M, S>(i, k), f);
 }
 
-template <class M, class S> TG_HD M6<S> body_inertia(int i) {
+// Inertia of body i about its joint frame origin.
+template <class M, class S> TG_HD Inertia<S> body_inertia(int i) {
   const auto& d = M::data();
-  M6<S> I;
-  for (int k = 0; k < 36; ++k) I.m[k] = S(d.I6[i][k]);
+  Inertia<S> I{S(d.mass[i]), v3(S(d.h[i][0]), S(d.h[i][1]), S(d.h[i][2])), {}};
+  for (int k = 0; k < 9; ++k) I.Io.m[k] = S(d.Io[i][k]);
   return I;
 }
 

@@ -21,7 +21,7 @@ TG_HD void rnea(const S* q, const S* qd, const S* qdd, const S* fext, S* tau) {
     const Sv<S> a_parent = p < 0 ? base_acceleration<M, S>() : a[p];
     v[i] = p < 0 ? vJ : actinv_motion(liMi[i], v[p]) + vJ;
     a[i] = actinv_motion(liMi[i], a_parent) + aJ + cross_motion(v[i], vJ);
-    const M6<S> I = body_inertia<M, S>(i);
+    const Inertia<S> I = body_inertia<M, S>(i);
     f[i] = mul(I, a[i]) + cross_force(v[i], mul(I, v[i]));
     if (fext) f[i] = f[i] - Sv<S>{{fext[6 * i], fext[6 * i + 1], fext[6 * i + 2], fext[6 * i + 3], fext[6 * i + 4], fext[6 * i + 5]}};
   }

@@ -125,46 +125,100 @@ template <class S> TG_HD Sv<S> mul(const M6<S>& A, const Sv<S>& x) {
   return r;
 }
 
-// Column k of the 6x6 matrix describing actinv_motion(X, .): parent motion -> child motion.
-template <class S> TG_HD M6<S> actinv_matrix(const SE3<S>& X) {
-  M6<S> A;
-  for (int k = 0; k < 6; ++k) {
-    Sv<S> e = sv_zero<S>();
-    e.v[k] = S(1);
-    const Sv<S> c = actinv_motion(X, e);
-    for (int i = 0; i < 6; ++i) A.m[6 * i + k] = c.v[i];
-  }
-  return A;
+// Skew matrix [a]x, so that [a]x b = a x b.
+template <class S> TG_HD Mat3<S> skew(Vec3<S> a) {
+  return {{S(0), -a.x[2], a.x[1], a.x[2], S(0), -a.x[0], -a.x[1], a.x[0], S(0)}};
 }
 
-// Inertia expressed in the child frame, seen from the parent frame: A^T I A, A = actinv matrix.
+// Inertia seen from the parent frame: A^T I A with A the actinv_motion matrix of X = (R, p).
+// Rotate each 3x3 block (R I_ij R^T), then shift by p with P = [p]x:
+//   Y11 = I11, Y12 = I12 - I11 P, Y21 = Y12^T, Y22 = I22 + P I12 + (P I12)^T - P I11 P.
 template <class S> TG_HD M6<S> inertia_to_parent(const SE3<S>& X, const M6<S>& I) {
-  const M6<S> A = actinv_matrix(X);
-  M6<S> IA, out;
-  for (int i = 0; i < 6; ++i)
-    for (int j = 0; j < 6; ++j) {
-      S acc = 0;
-      for (int k = 0; k < 6; ++k) acc += I.m[6 * i + k] * A.m[6 * k + j];
-      IA.m[6 * i + j] = acc;
+  Mat3<S> B[2][2];
+  for (int bi = 0; bi < 2; ++bi)
+    for (int bj = 0; bj < 2; ++bj) {
+      Mat3<S> blk;
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) blk.m[3 * r + c] = I.m[6 * (3 * bi + r) + 3 * bj + c];
+      // R blk R^T
+      Mat3<S> RB = mul(X.R, blk), out;
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) out.m[3 * r + c] = RB.m[3 * r] * X.R.m[3 * c] + RB.m[3 * r + 1] * X.R.m[3 * c + 1] + RB.m[3 * r + 2] * X.R.m[3 * c + 2];
+      B[bi][bj] = out;
     }
-  for (int i = 0; i < 6; ++i)
-    for (int j = 0; j < 6; ++j) {
-      S acc = 0;
-      for (int k = 0; k < 6; ++k) acc += A.m[6 * k + i] * IA.m[6 * k + j];
-      out.m[6 * i + j] = acc;
+  const Mat3<S> P = skew(X.p);
+  const Mat3<S> I11P = mul(B[0][0], P), PI12 = mul(P, B[0][1]), PI11P = mul(P, I11P);
+  M6<S> Y;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) {
+      const S y12 = B[0][1].m[3 * r + c] - I11P.m[3 * r + c];
+      Y.m[6 * r + c] = B[0][0].m[3 * r + c];
+      Y.m[6 * r + 3 + c] = y12;
+      Y.m[6 * (3 + c) + r] = y12;
+      Y.m[6 * (3 + r) + 3 + c] = B[1][1].m[3 * r + c] + PI12.m[3 * r + c] + PI12.m[3 * c + r] - PI11P.m[3 * r + c];
     }
+  return Y;
+}
+
+// Rigid-body inertia: mass m, first moment h = m c, rotational inertia Io about the frame origin.
+// Cheaper to move between frames than a 6x6 matrix, and closed under sums (composite bodies).
+template <class S> struct Inertia {
+  S m;
+  Vec3<S> h;
+  Mat3<S> Io;
+};
+
+// I [v; w] = [m v - h x w; h x v + Io w].
+template <class S> TG_HD Sv<S> mul(const Inertia<S>& I, const Sv<S>& x) {
+  return sv(I.m * lin(x) - cross(I.h, ang(x)), cross(I.h, lin(x)) + mul(I.Io, ang(x)));
+}
+
+template <class S> TG_HD Inertia<S> operator+(const Inertia<S>& a, const Inertia<S>& b) {
+  Inertia<S> r{a.m + b.m, a.h + b.h, a.Io};
+  for (int k = 0; k < 9; ++k) r.Io.m[k] += b.Io.m[k];
+  return r;
+}
+
+// The inertia of a body in child coordinates, expressed in the parent frame:
+//   h' = R h + m p,  Io' = R Io R^T - ([h'']x [p]x + [p]x [h'']x) - m [p]x^2,  h'' = R h.
+template <class S> TG_HD Inertia<S> act(const SE3<S>& X, const Inertia<S>& I) {
+  const Vec3<S> hr = mul(X.R, I.h);
+  const Mat3<S> RI = mul(X.R, I.Io);
+  Inertia<S> out{I.m, hr + I.m * X.p, {}};
+  const Mat3<S> H = skew(hr), P = skew(X.p);
+  const Mat3<S> HP = mul(H, P), PP = mul(P, P);
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c)
+      out.Io.m[3 * r + c] = RI.m[3 * r] * X.R.m[3 * c] + RI.m[3 * r + 1] * X.R.m[3 * c + 1] + RI.m[3 * r + 2] * X.R.m[3 * c + 2]
+                            - HP.m[3 * r + c] - HP.m[3 * c + r] - I.m * PP.m[3 * r + c];
   return out;
 }
 
-// Solve the n x n symmetric positive-definite system D x = b in place (n <= 6, Cholesky).
-template <class S> TG_HD void spd_solve(int n, const S* D, S* b) {
-  S L[36];
+template <class S> TG_HD M6<S> to_matrix(const Inertia<S>& I) {
+  M6<S> Y;
+  const Mat3<S> H = skew(I.h);
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) {
+      Y.m[6 * r + c] = r == c ? I.m : S(0);
+      Y.m[6 * r + 3 + c] = -H.m[3 * r + c];
+      Y.m[6 * (3 + r) + c] = H.m[3 * r + c];
+      Y.m[6 * (3 + r) + 3 + c] = I.Io.m[3 * r + c];
+    }
+  return Y;
+}
+
+// Cholesky factor L (row-major, stride 6) of the n x n symmetric positive-definite D, n <= 6.
+template <class S> TG_HD void cholesky(int n, const S* D, S* L) {
   for (int i = 0; i < n; ++i)
     for (int j = 0; j <= i; ++j) {
       S acc = D[n * i + j];
       for (int k = 0; k < j; ++k) acc -= L[6 * i + k] * L[6 * j + k];
       L[6 * i + j] = (i == j) ? sqrt(acc) : acc / L[6 * j + j];
     }
+}
+
+// Solve L L^T x = b in place.
+template <class S> TG_HD void cholesky_solve(int n, const S* L, S* b) {
   for (int i = 0; i < n; ++i) {
     for (int k = 0; k < i; ++k) b[i] -= L[6 * i + k] * b[k];
     b[i] /= L[6 * i + i];
@@ -172,6 +226,33 @@ template <class S> TG_HD void spd_solve(int n, const S* D, S* b) {
   for (int i = n - 1; i >= 0; --i) {
     for (int k = i + 1; k < n; ++k) b[i] -= L[6 * k + i] * b[k];
     b[i] /= L[6 * i + i];
+  }
+}
+
+// Solve D x = b in place for the n x n symmetric positive-definite D (n <= 6).
+template <class S> TG_HD void spd_solve(int n, const S* D, S* b) {
+  if (n == 1) {  // every joint but a free root
+    b[0] /= D[0];
+    return;
+  }
+  S L[36];
+  cholesky(n, D, L);
+  cholesky_solve(n, L, b);
+}
+
+// Inverse of the n x n symmetric positive-definite D (n <= 6), one factorisation for all columns.
+template <class S> TG_HD void spd_inverse(int n, const S* D, S* Dinv) {
+  if (n == 1) {
+    Dinv[0] = S(1) / D[0];
+    return;
+  }
+  S L[36];
+  cholesky(n, D, L);
+  for (int c = 0; c < n; ++c) {
+    S e[6] = {S(0), S(0), S(0), S(0), S(0), S(0)};
+    e[c] = S(1);
+    cholesky_solve(n, L, e);
+    for (int r = 0; r < n; ++r) Dinv[n * r + c] = e[r];
   }
 }
 
