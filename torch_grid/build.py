@@ -80,16 +80,7 @@ def _compile(model: RobotModel, mujoco: bool, cuda: bool, namespace: str, entry:
             shutil.rmtree(child) if child.is_dir() else child.unlink()
     src = entry / "src"
     src.mkdir()
-    files = {
-        "robot.h": codegen.robot_header(model, mujoco),
-        "glue.cpp": codegen.glue_unit(namespace),
-        "kernels_f64.cpp": codegen.cpu_unit(model, mujoco, "double"),
-        "kernels_f32.cpp": codegen.cpu_unit(model, mujoco, "float"),
-    }
-    if cuda:
-        files["kernels_cuda.cu"] = codegen.cuda_unit(model, mujoco)
-    for name, text in files.items():
-        (src / name).write_text(text)
+    sources = codegen.write_sources(model, mujoco, cuda, namespace, src)
     what = f"{'CPU + CUDA' if cuda else 'CPU'}, float32 + float64, {'pin + mujoco' if mujoco and model.floating_base else 'pin'}"
     print(f"torch_grid: building kernels for {model.name!r} ({what}) in {entry}", file=sys.stderr, flush=True)
     flags = ["-O3", "-fno-fast-math"] + (["-DTG_WITH_CUDA"] if cuda else [])
@@ -97,7 +88,7 @@ def _compile(model: RobotModel, mujoco: bool, cuda: bool, namespace: str, entry:
     with _progress(model.name, start):
         cpp_extension.load(
             name=namespace,
-            sources=[str(src / n) for n in files if n.endswith((".cpp", ".cu"))],
+            sources=[str(p) for p in sources],
             extra_cflags=flags,
             extra_cuda_cflags=["-O3"] + (["-DTG_WITH_CUDA"] if cuda else []),
             extra_include_paths=[str(CSRC), str(src)],

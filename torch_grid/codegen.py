@@ -2,12 +2,29 @@
 kernel templates (csrc/kernels) and the generated torch op wrappers (from the op table)."""
 from __future__ import annotations
 
+from pathlib import Path
+
 from .model import RobotModel
 from .ops import OPS, TENSOR_KINDS, OpSpec
 
 _JTYPE = {"free": 0, "revolute": 1, "continuous": 1, "prismatic": 2}
 _SIZE = {"nv": "Robot::NV", "nq": "Robot::NQ", "nframes": "Robot::NF", "nbodies": "Robot::NB",
          "nsel": "static_cast<int64_t>(frames.size())"}
+
+
+def write_sources(model: RobotModel, mujoco: bool, cuda: bool, namespace: str, directory: Path) -> list[Path]:
+    """Write robot.h and the translation units into `directory`; return the units to compile."""
+    files = {
+        "robot.h": robot_header(model, mujoco),
+        "glue.cpp": glue_unit(namespace),
+        "kernels_f64.cpp": cpu_unit(model, mujoco, "double"),
+        "kernels_f32.cpp": cpu_unit(model, mujoco, "float"),
+    }
+    if cuda:
+        files["kernels_cuda.cu"] = cuda_unit(model, mujoco)
+    for name, text in files.items():
+        (directory / name).write_text(text)
+    return [directory / name for name in files if not name.endswith(".h")]
 
 
 def inertia_about_origin(mass: float, com, inertia) -> list[float]:

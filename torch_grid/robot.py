@@ -130,8 +130,7 @@ class _Functions:
         for a, x in tensors:
             trailing = tuple(sizes.get(d, d) for d in TENSOR_KINDS[a.kind])
             _check_tensor(name, a.name, x, trailing, q)
-        batch = torch.broadcast_shapes(*(x.shape[: x.dim() - len(TENSOR_KINDS[a.kind])] for a, x in tensors)) \
-            if len(tensors) > 1 else None
+        batch = _broadcast_batch(name, tensors) if len(tensors) > 1 else None
         call_args = []
         for a, x in zip(spec.args, args):
             if batch is not None and a.kind in TENSOR_KINDS and x is not None:
@@ -236,3 +235,12 @@ def _check_tensor(op: str, name: str, x, trailing: tuple[int, ...], q) -> None:
     if x.dim() < len(trailing) or tuple(x.shape[x.dim() - len(trailing):]) != trailing:
         want = ", ".join(["..."] + [str(t) for t in trailing])
         raise ValueError(f"{op}: {name} must have shape ({want}), got {tuple(x.shape)}")
+
+
+def _broadcast_batch(op: str, tensors) -> torch.Size:
+    shapes = {a.name: tuple(x.shape[: x.dim() - len(TENSOR_KINDS[a.kind])]) for a, x in tensors}
+    try:
+        return torch.broadcast_shapes(*shapes.values())
+    except RuntimeError:
+        listed = ", ".join(f"{name} {shape}" for name, shape in shapes.items())
+        raise ValueError(f"{op}: the leading batch shapes do not broadcast: {listed}") from None

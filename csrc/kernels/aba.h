@@ -29,16 +29,18 @@ TG_HD void aba(const S* q, const S* qd, const S* tau, const S* fext, S* qdd) {
   // Backward pass: articulated inertias IA and bias forces pA, U = IA S, D = S^T U, u = tau - S^T pA.
   for (int i = M::NB - 1; i >= 0; --i) {
     const int n = d.nvj[i], vi = d.vi[i];
+    Sv<S> Si[6];
     for (int k = 0; k < n; ++k) {
-      U[i][k] = mul(IA[i], joint_axis<M, S>(i, k));
-      u[vi + k] = tau[vi + k] - dot(joint_axis<M, S>(i, k), pA[i]);
+      Si[k] = joint_axis<M, S>(i, k);
+      U[i][k] = mul(IA[i], Si[k]);
+      u[vi + k] = tau[vi + k] - dot(Si[k], pA[i]);
     }
     const int p = d.parent[i];
     if (p < 0) continue;
     // Dinv_u = D^-1 u and Dinv_U = D^-1 U^T (n x 6), through one SPD factorisation each column.
     S D[36], Dinv_u[6], Dinv_Ut[6][6];
     for (int r = 0; r < n; ++r)
-      for (int k = 0; k < n; ++k) D[n * r + k] = dot(joint_axis<M, S>(i, r), U[i][k]);
+      for (int k = 0; k < n; ++k) D[n * r + k] = dot(Si[r], U[i][k]);
     for (int r = 0; r < n; ++r) Dinv_u[r] = u[vi + r];
     spd_solve(n, D, Dinv_u);
     for (int col = 0; col < 6; ++col) {

@@ -1,7 +1,7 @@
-// M(q)^-1 computed directly, without forming M (Carpentier 2018, as Pinocchio's computeMinverse).
-// An ABA over unit torques for all columns at once, in the world frame so that the column blocks
-// of subtree forces F and accelerations A need no frame changes. Per-body steps are templated on
-// the joint's dof count N (1, or 6 for a free root) so their small loops unroll.
+// M(q)^-1 computed directly, without forming M (Carpentier 2018, as Pinocchio's computeMinverse):
+// the articulated-body algorithm run for unit torques on all columns at once. Joint frames, as in
+// ABA, keep float32 accurate (world-frame inertias of distal bodies cancel catastrophically).
+// Per-body steps are templated on the joint's dof count N (1, or 6 for a free root) to unroll.
 #pragma once
 
 #include "joints.h"
@@ -10,84 +10,97 @@ namespace tg {
 
 template <class M, class S> struct MinvWork {
   static constexpr int NV = M::NV;
-  M6<S> IA[M::NB];            // articulated inertias, world frame
-  Sv<S> Sw[M::NB][6];         // joint axes, world frame
+  SE3<S> liMi[M::NB];
+  M6<S> IA[M::NB];            // articulated inertias
   Sv<S> U[M::NB][6];          // U = IA S
   S Dinv[M::NB][36];          // (S^T U)^-1, N x N
   S F[6][NV];                 // F[:, col]: force on the subtree owning col, per unit torque at col
-  S A[M::NB][6][NV];          // A[i][:, col]: world acceleration of body i per unit torque at col
+  S A[M::NB][6][NV];          // A[i][:, col]: acceleration of body i per unit torque at col
 };
 
-// Backward step of body i: U, Dinv, the subtree block of rows i of Minv, and IA of the parent.
+template <class S, int NV> TG_HD Sv<S> column(const S (&X)[6][NV], int col) {
+  return {{X[0][col], X[1][col], X[2][col], X[3][col], X[4][col], X[5][col]}};
+}
+template <class S, int NV> TG_HD void set_column(S (&X)[6][NV], int col, const Sv<S>& x) {
+  for (int s = 0; s < 6; ++s) X[s][col] = x.v[s];
+}
+
+// Backward step of body i: U, Dinv, the subtree block of rows i of Minv, then IA and F passed
+// to the parent. N == 6 is the free root: S = I, so projections are components and nothing is
+// passed on.
 template <int N, class M, class S> TG_HD void minv_backward(int i, MinvWork<M, S>& w, S* Minv) {
   const auto& d = M::data();
   constexpr int NV = M::NV;
   const int vi = d.vi[i], p = d.parent[i];
+  Sv<S> Si[N];
   S D[N * N];
-  for (int k = 0; k < N; ++k) w.U[i][k] = mul(w.IA[i], w.Sw[i][k]);
+  for (int k = 0; k < N; ++k) {
+    Si[k] = joint_axis<M, S>(i, k);
+    w.U[i][k] = mul(w.IA[i], Si[k]);
+  }
   for (int r = 0; r < N; ++r)
-    for (int k = 0; k < N; ++k) D[N * r + k] = dot(w.Sw[i][r], w.U[i][k]);
+    for (int k = 0; k < N; ++k) D[N * r + k] = N == 6 ? w.IA[i].m[6 * r + k] : dot(Si[r], w.U[i][k]);
   spd_inverse(N, D, w.Dinv[i]);
   // T = Dinv (e_col - S^T F[:, col]) becomes rows i of Minv; F[:, col] += U T.
   for (int col = vi; col < d.vend[i]; ++col) {
-    Sv<S> Fc;
-    for (int s = 0; s < 6; ++s) Fc.v[s] = w.F[s][col];
+    Sv<S> Fc = column(w.F, col);
     S rhs[N];
-    for (int r = 0; r < N; ++r) rhs[r] = (col == vi + r ? S(1) : S(0)) - dot(w.Sw[i][r], Fc);
+    for (int r = 0; r < N; ++r) rhs[r] = (col == vi + r ? S(1) : S(0)) - (N == 6 ? Fc.v[r] : dot(Si[r], Fc));
     for (int r = 0; r < N; ++r) {
       S T = 0;
       for (int k = 0; k < N; ++k) T += w.Dinv[i][N * r + k] * rhs[k];
       Minv[NV * (vi + r) + col] = T;
-      for (int s = 0; s < 6; ++s) w.F[s][col] += w.U[i][r].v[s] * T;
+      if (p >= 0) Fc = Fc + T * w.U[i][r];
     }
+    if (p >= 0) set_column(w.F, col, act_force(w.liMi[i], Fc));
   }
   if (p < 0) return;
-  // IA_parent += IA - U Dinv U^T
-  Sv<S> UD[N];
+  // IA_parent += IA - U Dinv U^T, seen from the parent.
+  M6<S> Ia = w.IA[i];
   for (int k = 0; k < N; ++k) {
-    UD[k] = sv_zero<S>();
-    for (int l = 0; l < N; ++l) UD[k] = UD[k] + w.Dinv[i][N * l + k] * w.U[i][l];
+    Sv<S> UD = sv_zero<S>();
+    for (int l = 0; l < N; ++l) UD = UD + w.Dinv[i][N * l + k] * w.U[i][l];
+    for (int r = 0; r < 6; ++r)
+      for (int c = 0; c < 6; ++c) Ia.m[6 * r + c] -= w.U[i][k].v[r] * UD.v[c];
   }
-  for (int r = 0; r < 6; ++r)
-    for (int c = 0; c < 6; ++c) {
-      S acc = w.IA[i].m[6 * r + c];
-      for (int k = 0; k < N; ++k) acc -= w.U[i][k].v[r] * UD[k].v[c];
-      w.IA[p].m[6 * r + c] += acc;
-    }
+  const M6<S> Ip = inertia_to_parent(w.liMi[i], Ia);
+  for (int k = 0; k < 36; ++k) w.IA[p].m[k] += Ip.m[k];
 }
 
-// Forward step of body i on the upper triangle: Minv_i -= Dinv U^T A_parent; A_i = A_parent + S Minv_i.
+// Forward step of body i on the upper triangle: a' = parent acceleration seen from i,
+// Minv_i -= Dinv U^T a', A_i = a' + S Minv_i.
 template <int N, class M, class S> TG_HD void minv_forward(int i, MinvWork<M, S>& w, S* Minv) {
   const auto& d = M::data();
   constexpr int NV = M::NV;
   const int vi = d.vi[i], p = d.parent[i];
+  Sv<S> Si[N];
+  for (int k = 0; k < N; ++k) Si[k] = joint_axis<M, S>(i, k);
   for (int col = vi; col < NV; ++col) {
     S x[N];
     for (int r = 0; r < N; ++r) x[r] = Minv[NV * (vi + r) + col];
-    Sv<S> Ap = sv_zero<S>();
+    Sv<S> a = sv_zero<S>();
     if (p >= 0) {
-      for (int s = 0; s < 6; ++s) Ap.v[s] = w.A[p][s][col];
+      a = actinv_motion(w.liMi[i], column(w.A[p], col));
       S UtA[N];
-      for (int k = 0; k < N; ++k) UtA[k] = dot(w.U[i][k], Ap);
+      for (int k = 0; k < N; ++k) UtA[k] = dot(w.U[i][k], a);
       for (int r = 0; r < N; ++r)
         for (int k = 0; k < N; ++k) x[r] -= w.Dinv[i][N * r + k] * UtA[k];
     }
     for (int r = 0; r < N; ++r) {
       Minv[NV * (vi + r) + col] = x[r];
-      Ap = Ap + x[r] * w.Sw[i][r];
+      if constexpr (N == 6) a.v[r] += x[r];
+      else a = a + x[r] * Si[r];
     }
-    for (int s = 0; s < 6; ++s) w.A[i][s][col] = Ap.v[s];
+    set_column(w.A[i], col, a);
   }
 }
 
 template <class M, class S> TG_HD void minv(const S* q, S* Minv) {
   const auto& d = M::data();
-  SE3<S> liMi[M::NB], oMi[M::NB];
-  forward_kinematics<M, S>(q, liMi, oMi);
   MinvWork<M, S> w;
   for (int i = 0; i < M::NB; ++i) {
-    w.IA[i] = to_matrix(act(oMi[i], body_inertia<M, S>(i)));
-    for (int k = 0; k < d.nvj[i]; ++k) w.Sw[i][k] = act_motion(oMi[i], joint_axis<M, S>(i, k));
+    w.liMi[i] = joint_placement<M, S>(i, q);
+    w.IA[i] = to_matrix(body_inertia<M, S>(i));
   }
   for (int s = 0; s < 6; ++s)
     for (int col = 0; col < M::NV; ++col) w.F[s][col] = S(0);

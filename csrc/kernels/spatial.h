@@ -130,32 +130,61 @@ template <class S> TG_HD Mat3<S> skew(Vec3<S> a) {
   return {{S(0), -a.x[2], a.x[1], a.x[2], S(0), -a.x[0], -a.x[1], a.x[0], S(0)}};
 }
 
-// Inertia seen from the parent frame: A^T I A with A the actinv_motion matrix of X = (R, p).
-// Rotate each 3x3 block (R I_ij R^T), then shift by p with P = [p]x:
-//   Y11 = I11, Y12 = I12 - I11 P, Y21 = Y12^T, Y22 = I22 + P I12 + (P I12)^T - P I11 P.
-template <class S> TG_HD M6<S> inertia_to_parent(const SE3<S>& X, const M6<S>& I) {
-  Mat3<S> B[2][2];
-  for (int bi = 0; bi < 2; ++bi)
-    for (int bj = 0; bj < 2; ++bj) {
-      Mat3<S> blk;
-      for (int r = 0; r < 3; ++r)
-        for (int c = 0; c < 3; ++c) blk.m[3 * r + c] = I.m[6 * (3 * bi + r) + 3 * bj + c];
-      // R blk R^T
-      Mat3<S> RB = mul(X.R, blk), out;
-      for (int r = 0; r < 3; ++r)
-        for (int c = 0; c < 3; ++c) out.m[3 * r + c] = RB.m[3 * r] * X.R.m[3 * c] + RB.m[3 * r + 1] * X.R.m[3 * c + 1] + RB.m[3 * r + 2] * X.R.m[3 * c + 2];
-      B[bi][bj] = out;
+// R B R^T for a symmetric B.
+template <class S> TG_HD Mat3<S> rotate_symmetric(const Mat3<S>& R, const Mat3<S>& B) {
+  const Mat3<S> RB = mul(R, B);
+  Mat3<S> out;
+  for (int r = 0; r < 3; ++r)
+    for (int c = r; c < 3; ++c) {
+      out.m[3 * r + c] = RB.m[3 * r] * R.m[3 * c] + RB.m[3 * r + 1] * R.m[3 * c + 1] + RB.m[3 * r + 2] * R.m[3 * c + 2];
+      out.m[3 * c + r] = out.m[3 * r + c];
     }
-  const Mat3<S> P = skew(X.p);
-  const Mat3<S> I11P = mul(B[0][0], P), PI12 = mul(P, B[0][1]), PI11P = mul(P, I11P);
+  return out;
+}
+
+// B P with P = [p]x: row r of B P is -(p x row r of B).
+template <class S> TG_HD Mat3<S> mul_skew(const Mat3<S>& B, Vec3<S> p) {
+  Mat3<S> out;
+  for (int r = 0; r < 3; ++r) store3(cross(load3(B.m + 3 * r), p), out.m + 3 * r);
+  return out;
+}
+
+// P B with P = [p]x: column c of P B is p x column c of B.
+template <class S> TG_HD Mat3<S> skew_mul(Vec3<S> p, const Mat3<S>& B) {
+  Mat3<S> out;
+  for (int c = 0; c < 3; ++c) {
+    const Vec3<S> col = cross(p, v3(B.m[c], B.m[3 + c], B.m[6 + c]));
+    for (int r = 0; r < 3; ++r) out.m[3 * r + c] = col.x[r];
+  }
+  return out;
+}
+
+// A symmetric 6x6 inertia seen from the parent frame: A^T I A with A the actinv_motion matrix of
+// X = (R, p). Rotate the blocks (B_ij = R I_ij R^T), then shift by p, with P = [p]x:
+//   Y11 = B11, Y12 = B12 - B11 P, Y21 = Y12^T, Y22 = B22 + P B12 + (P B12)^T - P B11 P.
+template <class S> TG_HD M6<S> inertia_to_parent(const SE3<S>& X, const M6<S>& I) {
+  Mat3<S> I11, I12, I22;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) {
+      I11.m[3 * r + c] = I.m[6 * r + c];
+      I12.m[3 * r + c] = I.m[6 * r + 3 + c];
+      I22.m[3 * r + c] = I.m[6 * (3 + r) + 3 + c];
+    }
+  const Mat3<S> B11 = rotate_symmetric(X.R, I11), B22 = rotate_symmetric(X.R, I22);
+  const Mat3<S> RI12 = mul(X.R, I12);
+  Mat3<S> B12;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c)
+      B12.m[3 * r + c] = RI12.m[3 * r] * X.R.m[3 * c] + RI12.m[3 * r + 1] * X.R.m[3 * c + 1] + RI12.m[3 * r + 2] * X.R.m[3 * c + 2];
+  const Mat3<S> B11P = mul_skew(B11, X.p), PB12 = skew_mul(X.p, B12), PB11P = skew_mul(X.p, B11P);
   M6<S> Y;
   for (int r = 0; r < 3; ++r)
     for (int c = 0; c < 3; ++c) {
-      const S y12 = B[0][1].m[3 * r + c] - I11P.m[3 * r + c];
-      Y.m[6 * r + c] = B[0][0].m[3 * r + c];
+      const S y12 = B12.m[3 * r + c] - B11P.m[3 * r + c];
+      Y.m[6 * r + c] = B11.m[3 * r + c];
       Y.m[6 * r + 3 + c] = y12;
       Y.m[6 * (3 + c) + r] = y12;
-      Y.m[6 * (3 + r) + 3 + c] = B[1][1].m[3 * r + c] + PI12.m[3 * r + c] + PI12.m[3 * c + r] - PI11P.m[3 * r + c];
+      Y.m[6 * (3 + r) + 3 + c] = B22.m[3 * r + c] + PB12.m[3 * r + c] + PB12.m[3 * c + r] - PB11P.m[3 * r + c];
     }
   return Y;
 }
@@ -183,14 +212,10 @@ template <class S> TG_HD Inertia<S> operator+(const Inertia<S>& a, const Inertia
 //   h' = R h + m p,  Io' = R Io R^T - ([h'']x [p]x + [p]x [h'']x) - m [p]x^2,  h'' = R h.
 template <class S> TG_HD Inertia<S> act(const SE3<S>& X, const Inertia<S>& I) {
   const Vec3<S> hr = mul(X.R, I.h);
-  const Mat3<S> RI = mul(X.R, I.Io);
-  Inertia<S> out{I.m, hr + I.m * X.p, {}};
-  const Mat3<S> H = skew(hr), P = skew(X.p);
-  const Mat3<S> HP = mul(H, P), PP = mul(P, P);
+  const Mat3<S> HP = skew_mul(hr, skew(X.p)), PP = skew_mul(X.p, skew(X.p));
+  Inertia<S> out{I.m, hr + I.m * X.p, rotate_symmetric(X.R, I.Io)};
   for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 3; ++c)
-      out.Io.m[3 * r + c] = RI.m[3 * r] * X.R.m[3 * c] + RI.m[3 * r + 1] * X.R.m[3 * c + 1] + RI.m[3 * r + 2] * X.R.m[3 * c + 2]
-                            - HP.m[3 * r + c] - HP.m[3 * c + r] - I.m * PP.m[3 * r + c];
+    for (int c = 0; c < 3; ++c) out.Io.m[3 * r + c] -= HP.m[3 * r + c] + HP.m[3 * c + r] + I.m * PP.m[3 * r + c];
   return out;
 }
 
@@ -207,13 +232,14 @@ template <class S> TG_HD M6<S> to_matrix(const Inertia<S>& I) {
   return Y;
 }
 
-// Cholesky factor L (row-major, stride 6) of the n x n symmetric positive-definite D, n <= 6.
+// Cholesky factor L (row-major, stride 6) of the n x n symmetric positive-definite D, n <= 6;
+// the diagonal holds 1 / L_ii so that solves multiply instead of divide.
 template <class S> TG_HD void cholesky(int n, const S* D, S* L) {
   for (int i = 0; i < n; ++i)
     for (int j = 0; j <= i; ++j) {
       S acc = D[n * i + j];
       for (int k = 0; k < j; ++k) acc -= L[6 * i + k] * L[6 * j + k];
-      L[6 * i + j] = (i == j) ? sqrt(acc) : acc / L[6 * j + j];
+      L[6 * i + j] = (i == j) ? S(1) / sqrt(acc) : acc * L[6 * j + j];
     }
 }
 
@@ -221,11 +247,11 @@ template <class S> TG_HD void cholesky(int n, const S* D, S* L) {
 template <class S> TG_HD void cholesky_solve(int n, const S* L, S* b) {
   for (int i = 0; i < n; ++i) {
     for (int k = 0; k < i; ++k) b[i] -= L[6 * i + k] * b[k];
-    b[i] /= L[6 * i + i];
+    b[i] *= L[6 * i + i];
   }
   for (int i = n - 1; i >= 0; --i) {
     for (int k = i + 1; k < n; ++k) b[i] -= L[6 * k + i] * b[k];
-    b[i] /= L[6 * i + i];
+    b[i] *= L[6 * i + i];
   }
 }
 

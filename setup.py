@@ -1,0 +1,40 @@
+"""torch_grid installs as pure Python: kernels are generated and compiled per robot at first use,
+so installing compiles nothing and needs no torch in the build environment."""
+import shutil
+from pathlib import Path
+
+from setuptools import find_packages, setup
+from setuptools.command.build_py import build_py
+
+ROOT = Path(__file__).parent
+
+
+class BuildPyWithSources(build_py):
+    """Ship csrc/ inside the package for regular (non-editable) installs."""
+
+    def run(self):
+        super().run()
+        target = Path(self.build_lib) / "torch_grid" / "csrc"
+        if target.exists():
+            shutil.rmtree(target)
+        shutil.copytree(ROOT / "csrc", target)
+
+
+setup(
+    name="torch_grid",
+    version="0.1.0",
+    description="Robot-specific rigid-body dynamics kernels as batched torch ops (CPU and CUDA), "
+    "in Pinocchio's or MuJoCo's convention",
+    long_description=(ROOT / "README.md").read_text(),
+    long_description_content_type="text/markdown",
+    license="BSD-3-Clause",
+    python_requires=">=3.9",
+    packages=find_packages(include=["torch_grid", "torch_grid.*"]),
+    package_data={"torch_grid": ["robots/*.urdf", "robots/*.json", "robots/NOTICE"]},
+    install_requires=["torch>=2.4", "ninja"],
+    extras_require={
+        "pin": ["pin>=3.4"],
+        "test": ["pytest>=8", "pin==4.1.0", "mujoco==4.0.0", "example-robot-data==6.0.0"],
+    },
+    cmdclass={"build_py": BuildPyWithSources},
+)

@@ -1,0 +1,203 @@
+"""The Python surface: batch shapes, broadcasting, dtypes, conventions, errors, torch.compile."""
+from __future__ import annotations
+
+import pytest
+import torch
+
+import torch_grid
+
+
+def _state(robot, *batch, dtype=torch.float64, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    q = robot.random_configuration(*batch, dtype=dtype, generator=g)
+    qd = torch.randn(*batch, robot.nv, generator=g, dtype=torch.float64).to(dtype)
+    return q, qd
+
+
+@pytest.mark.parametrize("batch", [(), (5,), (2, 3), (0,)])
+def test_any_leading_batch_shape(robots, batch):
+    robot = robots["go2"]
+    q, qd = _state(robot, *batch)
+    nv, nf = robot.nv, robot.nframes
+    assert robot.inverse_dynamics(q, qd, qd).shape == (*batch, nv)
+    assert robot.crba(q).shape == (*batch, nv, nv)
+    assert robot.energy(q, qd).shape == (*batch, 3)
+    A, h = robot.ccrba(q, qd)
+    assert A.shape == (*batch, 6, nv) and h.shape == (*batch, 6)
+    pos, rot = robot.forward_kinematics(q)
+    assert pos.shape == (*batch, nf, 3) and rot.shape == (*batch, nf, 3, 3)
+    assert robot.end_effector_pose(q, ["FL_foot", "RR_foot", 0]).shape == (*batch, 3, 6)
+    assert robot.frame_jacobian(q, "base").shape == (*batch, 6, nv)
+
+
+def test_batched_equals_per_sample(robots):
+    robot = robots["go2"]
+    q, qd = _state(robot, 2, 3)
+    tau = robot.inverse_dynamics(q, qd, qd)
+    for i in range(2):
+        for j in range(3):
+            assert torch.equal(tau[i, j], robot.inverse_dynamics(q[i, j], qd[i, j], qd[i, j]))
+
+
+def test_batch_shapes_broadcast(robots):
+    robot = robots["iiwa14"]
+    q, _ = _state(robot)
+    _, qd = _state(robot, 4)
+    f_ext = torch.randn(robot.nbodies, 6, dtype=torch.float64)
+    tau = robot.inverse_dynamics(q, qd, torch.zeros(robot.nv, dtype=torch.float64), f_ext)
+    assert tau.shape == (4, robot.nv)
+    for k in range(4):
+        ref = robot.inverse_dynamics(q, qd[k], torch.zeros(robot.nv, dtype=torch.float64), f_ext)
+        assert torch.allclose(tau[k], ref, rtol=0, atol=0)
+    with pytest.raises(ValueError, match=r"q \(3,\), qd \(4,\)"):
+        robot.inverse_dynamics(q.expand(3, -1), qd, qd)
+
+
+def test_non_contiguous_inputs(robots):
+    robot = robots["go2"]
+    q, qd = _state(robot, 6)
+    q_strided = q.t().contiguous().t()  # same values, column-major
+    assert not q_strided.is_contiguous()
+    assert torch.equal(robot.crba(q_strided), robot.crba(q))
+    assert torch.equal(robot.nonlinear_effects(q, qd.t().contiguous().t()), robot.nonlinear_effects(q, qd))
+
+
+def test_float32_is_computed_in_float32(robots):
+    robot = robots["go2"]
+    q, qd = _state(robot, 8)
+    out32 = robot.inverse_dynamics(q.float(), qd.float(), qd.float())
+    out64 = robot.inverse_dynamics(q, qd, qd)
+    assert out32.dtype == torch.float32
+    err = (out32.double() - out64).abs().max() / out64.abs().max()
+    assert 0 < err < 1e-5
+
+
+def test_configurations(robots):
+    robot = robots["go2"]
+    assert torch.equal(robot.neutral_configuration()[3:7], torch.tensor([0.0, 0, 0, 1], dtype=torch.float64))
+    assert torch.equal(robot.mujoco.neutral_configuration()[3:7], torch.tensor([1.0, 0, 0, 0], dtype=torch.float64))
+    q = robot.random_configuration(100, 2, generator=torch.Generator().manual_seed(3))
+    assert q.shape == (100, 2, robot.nq)
+    assert torch.allclose(q[..., 3:7].norm(dim=-1), torch.ones(100, 2, dtype=torch.float64))
+    lower = torch.tensor([j.lower for j in robot.model.joints[1:]], dtype=torch.float64)
+    upper = torch.tensor([j.upper for j in robot.model.joints[1:]], dtype=torch.float64)
+    assert bool(((q[..., 7:] >= lower) & (q[..., 7:] <= upper)).all())
+    assert robot.random_configuration(3, dtype=torch.float32).dtype == torch.float32
+    # MuJoCo's layout is the same configuration with the quaternion reordered.
+    g = torch.Generator().manual_seed(11)
+    q_pin = robot.random_configuration(5, generator=g)
+    q_mjx = robot.mujoco.random_configuration(5, generator=torch.Generator().manual_seed(11))
+    assert torch.equal(torch_grid.conventions.q_pin_to_mjx(q_pin), q_mjx)
+
+
+def test_convention_selection(robots):
+    robot = robots["go2"]
+    q, qd = _state(robot, 3)
+    assert robot.convention == "pin"
+    view = robot.mujoco
+    assert robot.convention == "pin"  # a view does not change the handle
+    try:
+        robot.convention = "mujoco"
+        assert torch.equal(robot.crba(q), view.crba(q))
+        assert torch.equal(robot.pin.crba(q), robots["go2"].pin.crba(q))
+    finally:
+        robot.convention = "pin"
+    assert not torch.allclose(robot.crba(q), view.crba(q))
+    with pytest.raises(ValueError, match="convention"):
+        robot.convention = "drake"
+
+
+@pytest.mark.parametrize(
+    "call, exc, words",
+    [
+        (lambda r, q, v: r.inverse_dynamics(q[..., :-1], v, v), ValueError, ["q", f"(..., 19)"]),
+        (lambda r, q, v: r.inverse_dynamics(q, v[..., :-1], v), ValueError, ["qd", "(..., 18)"]),
+        (lambda r, q, v: r.inverse_dynamics(q, v, v.float()), TypeError, ["qdd", "dtype"]),
+        (lambda r, q, v: r.crba(q.long()), TypeError, ["q", "float32 or float64"]),
+        (lambda r, q, v: r.crba(q.tolist()), TypeError, ["q", "torch.Tensor"]),
+        (lambda r, q, v: r.inverse_dynamics(q, v, v.to("meta")), ValueError, ["qdd", "device"]),
+        (lambda r, q, v: r.inverse_dynamics(q, v, v, torch.zeros(3, 6, dtype=torch.float64)), ValueError, ["f_ext"]),
+        (lambda r, q, v: r.frame_jacobian(q, "no_such_frame"), ValueError, ["frame", "no_such_frame"]),
+        (lambda r, q, v: r.frame_jacobian(q, "FL_fot"), ValueError, ["FL_foot"]),
+        (lambda r, q, v: r.frame_jacobian(q, 10_000), ValueError, ["frame", "range"]),
+        (lambda r, q, v: r.frame_jacobian(q, "base", "global"), ValueError, ["reference"]),
+        (lambda r, q, v: r.end_effector_pose(q, "FL_foot"), TypeError, ["frames"]),
+        (lambda r, q, v: r.end_effector_pose(q, ["FL_foot", 3.5]), TypeError, ["frames"]),
+    ],
+)
+def test_bad_arguments_raise_clear_errors(robots, call, exc, words):
+    robot = robots["go2"]
+    q, qd = _state(robot, 2)
+    with pytest.raises(exc) as info:
+        call(robot, q, qd)
+    for w in words:
+        assert w in str(info.value), f"{w!r} not in {info.value}"
+
+
+def test_raw_op_checks_arguments(robots):
+    """The dispatcher ops check shapes themselves: a direct call never reads out of bounds."""
+    robot = robots["go2"]
+    q, qd = _state(robot, 2)
+    with pytest.raises(RuntimeError, match="qd must have shape"):
+        robot._ops.inverse_dynamics(q, qd[:1], qd, None, 0)
+    with pytest.raises(RuntimeError, match="frame"):
+        robot._ops.frame_jacobian(q, 10_000, 2, 0)
+    with pytest.raises(RuntimeError, match="convention"):
+        robot._ops.crba(q, 5)
+
+
+def test_meta_tensors_propagate_shapes(robots):
+    robot = robots["go2"]
+    q = torch.empty(7, 3, robot.nq, dtype=torch.float64, device="meta")
+    assert robot.minv(q).shape == (7, 3, robot.nv, robot.nv)
+    assert robot.end_effector_pose(q, [1, 2]).shape == (7, 3, 2, 6)
+    A, h = robot.ccrba(q, torch.empty(7, 3, robot.nv, dtype=torch.float64, device="meta"))
+    assert A.shape == (7, 3, 6, robot.nv) and h.shape == (7, 3, 6)
+
+
+def test_torch_compile_fullgraph_matches_eager(robots):
+    robot = robots["go2"]
+    q, qd = _state(robot, 16)
+
+    def step(q, qd):
+        tau = robot.mujoco.nonlinear_effects(q, qd) + 0.1 * robot.generalized_gravity(q)
+        qdd = robot.forward_dynamics(q, qd, tau)
+        J = robot.frame_jacobian(q, "FL_foot")
+        return qdd, (robot.minv(q) @ tau.unsqueeze(-1)).squeeze(-1), J.sum(-1)
+
+    torch._dynamo.reset()
+    compiled = torch.compile(step, fullgraph=True, backend="aot_eager")
+    for got, ref in zip(compiled(q, qd), step(q, qd)):
+        assert torch.allclose(got, ref, rtol=1e-12, atol=1e-12)
+
+
+def test_backward_raises_until_derivatives_exist(robots):
+    robot = robots["iiwa14"]
+    q, qd = _state(robot, 2)
+    q.requires_grad_(True)
+    tau = robot.inverse_dynamics(q, qd, qd)
+    assert tau.requires_grad
+    with pytest.raises(NotImplementedError, match="inverse_dynamics has no derivative"):
+        tau.sum().backward()
+
+
+def test_fixed_base_accepts_mujoco_convention(robots):
+    robot = robots["iiwa14"]
+    q, qd = _state(robot, 4)
+    assert torch.equal(robot.mujoco.crba(q), robot.crba(q))
+    assert torch.equal(robot.mujoco.inverse_dynamics(q, qd, qd), robot.inverse_dynamics(q, qd, qd))
+
+
+def test_pin_only_build(tmp_path):
+    fixed = torch_grid.load("iiwa14", enable_mujoco_kernels=False, convention="mujoco", cache_dir=tmp_path)
+    q, _ = _state(fixed, 2)
+    assert torch.equal(fixed.mujoco.crba(q), fixed.crba(q))
+    with pytest.raises(ValueError, match="enable_mujoco_kernels"):
+        torch_grid.load("go2", enable_mujoco_kernels=False, convention="mujoco", cache_dir=tmp_path)
+    floating = torch_grid.load("go2", enable_mujoco_kernels=False, cache_dir=tmp_path)
+    with pytest.raises(ValueError, match="enable_mujoco_kernels"):
+        floating.mujoco
+    with pytest.raises(ValueError, match="enable_mujoco_kernels"):
+        floating.convention = "mujoco"
+    with pytest.raises(RuntimeError, match="enable_mujoco_kernels"):
+        floating._ops.crba(floating.random_configuration(1), 1)

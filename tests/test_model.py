@@ -1,0 +1,212 @@
+"""Robot sources and the model description: bundled robots, saved models, pinocchio.Model, MJCF,
+and refusal of what the kernels do not support."""
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pinocchio as pin
+import pytest
+import torch
+
+import torch_grid
+from torch_grid.model import RobotModel
+from torch_grid.parse import ROBOTS_DIR, source_to_model
+
+ARM_MJCF = """
+<mujoco model="arm">
+  <worldbody>
+    <body name="base" pos="0 0 0.1">
+      {free}
+      <inertial pos="0 0 0" mass="2" diaginertia="0.02 0.03 0.04"/>
+      <body name="upper" pos="0 0 0.2" quat="0.9238795 0 0.3826834 0">
+        <joint name="shoulder" type="hinge" axis="0 1 0"/>
+        <inertial pos="0.05 0 0.1" mass="1.5" diaginertia="0.01 0.012 0.005"/>
+        <body name="slider" pos="0 0 0.3">
+          <joint name="extend" type="slide" axis="0.6 0 0.8"/>
+          <inertial pos="0 0.02 0.05" mass="0.7" diaginertia="0.003 0.002 0.004"/>
+          <body name="wrist" pos="0.1 0 0">
+            <joint name="twist" type="hinge" axis="1 1 0"/>
+            <inertial pos="0 0 0.03" mass="0.3" diaginertia="0.001 0.001 0.0005"/>
+          </body>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+
+@pytest.mark.parametrize("name", sorted(torch_grid.BUNDLED))
+def test_bundled_model_equals_fresh_parse(name):
+    bundled = RobotModel.load(ROBOTS_DIR / f"{name}.json")
+    fresh = source_to_model(str(ROBOTS_DIR / f"{name}.urdf"), torch_grid.BUNDLED[name])
+    assert bundled.joints == fresh.joints and bundled.frames == fresh.frames
+    assert bundled.name == name
+
+
+def test_bundled_sizes():
+    iiwa = RobotModel.load(ROBOTS_DIR / "iiwa14.json")
+    go2 = RobotModel.load(ROBOTS_DIR / "go2.json")
+    assert (iiwa.floating_base, iiwa.nq, iiwa.nv) == (False, 7, 7)
+    assert (go2.floating_base, go2.nq, go2.nv, go2.nbodies) == (True, 19, 18, 13)
+
+
+def test_hash_is_content_hash():
+    model = RobotModel.load(ROBOTS_DIR / "iiwa14.json")
+    assert RobotModel.from_dict(model.to_dict()).hash == model.hash
+    joints = list(model.joints)
+    joints[2] = type(joints[2])(**{**joints[2].__dict__, "mass": joints[2].mass + 1e-9})
+    assert RobotModel(model.name, tuple(joints), model.frames).hash != model.hash
+
+
+def test_save_and_load_without_pinocchio(robots, tmp_path):
+    robot = robots["go2"]
+    path = tmp_path / "go2_saved.json"
+    robot.save(path)
+    script = textwrap.dedent(f"""
+        import sys
+        sys.modules["pinocchio"] = None  # any import of Pinocchio now fails
+        import torch, torch_grid
+        for source in ({str(path)!r}, "go2", "iiwa14"):
+            robot = torch_grid.load(source)
+            q = robot.random_configuration(3, generator=torch.Generator().manual_seed(0))
+            print(source, robot.nq, float(robot.crba(q).sum()))
+        try:
+            torch_grid.load({str(ROBOTS_DIR / 'iiwa14.urdf')!r})
+        except ImportError as e:
+            print("urdf needs pinocchio:", e)
+    """)
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    lines = out.stdout.splitlines()
+    q = robot.random_configuration(3, generator=torch.Generator().manual_seed(0))
+    assert lines[0].split()[1] == str(robot.nq)
+    assert float(lines[0].split()[2]) == pytest.approx(float(robot.crba(q).sum()), rel=1e-14)
+    assert "urdf needs pinocchio: Pinocchio is needed" in lines[-1]
+
+
+def test_pinocchio_model_source(robots, tmp_path):
+    model = pin.buildModelFromUrdf(str(ROBOTS_DIR / "go2.urdf"), pin.JointModelFreeFlyer())
+    robot = torch_grid.load(model, cache_dir=tmp_path)
+    assert robot.model.joints == robots["go2"].model.joints
+    assert robot.frame_names == [f.name for f in model.frames]
+    with pytest.raises(ValueError, match="floating_base=False"):
+        torch_grid.load(model, floating_base=False)
+
+
+def _mjcf_case(tmp_path, floating: bool):
+    path = tmp_path / f"arm_{floating}.xml"
+    path.write_text(ARM_MJCF.format(free='<freejoint name="root"/>' if floating else ""))
+    return path
+
+
+@pytest.mark.parametrize("floating", [False, True])
+def test_mjcf_source_matches_pinocchio_and_mujoco(tmp_path, floating):
+    import mujoco
+
+    path = _mjcf_case(tmp_path, floating)
+    robot = torch_grid.load(str(path), cache_dir=tmp_path / "cache")
+    assert robot.floating_base == floating
+    assert [j.type for j in robot.model.joints] == (["free"] if floating else []) + ["revolute", "prismatic", "revolute"]
+    pm = pin.buildModelFromMJCF(str(path))
+    pd = pm.createData()
+    m = mujoco.MjModel.from_xml_path(str(path))
+    d = mujoco.MjData(m)
+    g = torch.Generator().manual_seed(5)
+    for _ in range(3):
+        q = robot.random_configuration(generator=g)
+        qd = torch.randn(robot.nv, dtype=torch.float64, generator=g)
+        qdd = torch.randn(robot.nv, dtype=torch.float64, generator=g)
+        ref = pin.rnea(pm, pd, q.numpy(), qd.numpy(), qdd.numpy())
+        assert np.abs(robot.inverse_dynamics(q, qd, qdd).numpy() - ref).max() <= 1e-9 * np.abs(ref).max()
+        # MuJoCo itself, in its own convention.
+        qpos = torch_grid.conventions.q_pin_to_mjx(q, floating)
+        d.qpos[:], d.qvel[:] = qpos.numpy(), qd.numpy()
+        mujoco.mj_forward(m, d)
+        M = np.zeros((m.nv, m.nv))
+        mujoco.mj_fullM(m, d, M)
+        ours = robot.mujoco.crba(qpos).numpy()
+        assert np.abs(ours - M).max() <= 1e-9 * np.abs(M).max()
+
+
+def test_mjcf_string_source(tmp_path):
+    text = ARM_MJCF.format(free="")
+    robot = torch_grid.load(text, cache_dir=tmp_path)
+    assert robot.nv == 3 and not robot.floating_base
+
+
+def test_continuous_joint_has_one_coordinate(robots):
+    robot = robots["tiago"]
+    kinds = [j.type for j in robot.model.joints]
+    assert "continuous" in kinds and "prismatic" in kinds
+    pm = pin.buildModelFromUrdf(source_to_tiago())
+    assert robot.nq == pm.nq - kinds.count("continuous") and robot.nv == pm.nv
+
+
+def source_to_tiago():
+    from conftest import ROBOT_SPECS
+
+    return ROBOT_SPECS["tiago"][0]
+
+
+URDF_TEMPLATE = """<robot name="bad">
+  <link name="a"><inertial><mass value="1"/><inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial></link>
+  <link name="b"><inertial><mass value="1"/><inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial></link>
+  <link name="c"><inertial><mass value="1"/><inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial></link>
+  <joint name="j1" type="revolute"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/>
+    <limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
+  <joint name="j2" type="{kind}"><parent link="b"/><child link="c"/><axis xyz="0 1 0"/>
+    <limit lower="-1" upper="1" effort="1" velocity="1"/>{extra}</joint>
+</robot>"""
+
+
+@pytest.mark.parametrize(
+    "kind, extra, words",
+    [
+        ("planar", "", ["'j2'", "planar"]),
+        ("floating", "", ["'j2'", "floating"]),
+        ("revolute", '<mimic joint="j1" multiplier="2"/>', ["'j2'", "mimic"]),
+    ],
+)
+def test_unsupported_urdf_joints_are_refused(kind, extra, words):
+    with pytest.raises(ValueError) as info:
+        torch_grid.load(URDF_TEMPLATE.format(kind=kind, extra=extra))
+    for w in words:
+        assert w in str(info.value)
+
+
+def test_unsupported_mjcf_joint_is_refused(tmp_path):
+    path = tmp_path / "ball.xml"
+    path.write_text(ARM_MJCF.format(free="").replace('type="slide" axis="0.6 0 0.8"', 'type="ball"'))
+    with pytest.raises(ValueError, match="'extend' has type ball"):
+        torch_grid.load(str(path))
+
+
+@pytest.mark.parametrize(
+    "source, exc, words",
+    [
+        ("/no/such/robot.urdf", ValueError, ["source", "/no/such/robot.urdf"]),
+        ("not_a_robot", ValueError, ["not_a_robot", "iiwa14"]),
+        ("<robot name='x'><link name='a'></robot>", ValueError, ["source", "XML"]),
+        ("<robot name='x'><joint name='j' type='revolute'/></robot>", ValueError, ["source"]),
+        ("<sdf version='1.6'/>", ValueError, ["<sdf>"]),
+        (3.5, TypeError, ["source", "float"]),
+    ],
+)
+def test_bad_sources_raise(source, exc, words):
+    with pytest.raises(exc) as info:
+        torch_grid.load(source)
+    for w in words:
+        assert w in str(info.value), f"{w!r} not in {info.value}"
+
+
+def test_bad_load_options_raise():
+    with pytest.raises(ValueError, match="convention"):
+        torch_grid.load("iiwa14", convention="drake")
+    with pytest.raises(TypeError, match="floating_base"):
+        torch_grid.load("iiwa14", floating_base="yes")
+    with pytest.raises(TypeError, match="enable_mujoco_kernels"):
+        torch_grid.load("iiwa14", enable_mujoco_kernels=1)
