@@ -6,7 +6,7 @@ from pathlib import Path
 
 from . import conventions
 from .autograd import register_autograd
-from .build import build
+from .build import build as _build
 from .model import Frame, Joint, RobotModel
 from .parse import BUNDLED, from_pinocchio, source_to_model
 from .robot import Robot
@@ -37,7 +37,7 @@ def load(source, *, floating_base: bool | None = None, convention: str = "pin", 
         raise ValueError(f"convention must be 'pin' or 'mujoco', got {convention!r}")
     if convention in ("mujoco", "mjx") and model.floating_base and not enable_mujoco_kernels:
         raise ValueError("convention='mujoco' needs enable_mujoco_kernels=True for a floating-base robot")
-    namespace = build(model, mujoco=enable_mujoco_kernels, cache_dir=cache_dir)
+    namespace = _build(model, mujoco=enable_mujoco_kernels, cache_dir=cache_dir)
     if namespace not in _AUTOGRAD_DONE:
         register_autograd(namespace)
         _AUTOGRAD_DONE.add(namespace)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import fcntl
 import hashlib
 import os
+import platform
 import shutil
 import subprocess
 import sys
@@ -83,14 +84,15 @@ def _compile(model: RobotModel, mujoco: bool, cuda: bool, namespace: str, entry:
     sources = codegen.write_sources(model, mujoco, cuda, namespace, src)
     what = f"{'CPU + CUDA' if cuda else 'CPU'}, float32 + float64, {'pin + mujoco' if mujoco and model.floating_base else 'pin'}"
     print(f"torch_grid: building kernels for {model.name!r} ({what}) in {entry}", file=sys.stderr, flush=True)
-    flags = ["-O3", "-fno-fast-math"] + (["-DTG_WITH_CUDA"] if cuda else [])
+    cflags, cuda_cflags, ldflags = _flags(cuda)
     start = time.monotonic()
     with _progress(model.name, start):
         cpp_extension.load(
             name=namespace,
             sources=[str(p) for p in sources],
-            extra_cflags=flags,
-            extra_cuda_cflags=["-O3"] + (["-DTG_WITH_CUDA"] if cuda else []),
+            extra_cflags=cflags,
+            extra_ldflags=ldflags,
+            extra_cuda_cflags=cuda_cflags,
             extra_include_paths=[str(CSRC), str(src)],
             build_directory=str(entry),
             with_cuda=cuda,
@@ -98,6 +100,32 @@ def _compile(model: RobotModel, mujoco: bool, cuda: bool, namespace: str, entry:
             verbose=os.environ.get("TORCH_GRID_VERBOSE") == "1",
         )
     print(f"torch_grid: built {model.name!r} in {time.monotonic() - start:.0f} s", file=sys.stderr, flush=True)
+
+
+def _flags(cuda: bool) -> tuple[list[str], list[str], list[str]]:
+    """Compiler flags: host C++, CUDA, linker."""
+    cuda_define = ["-DTG_WITH_CUDA"] if cuda else []
+    # at::parallel_for is inline: with an OpenMP build of torch its pragma is compiled here.
+    openmp = ["-fopenmp"] if torch.backends.openmp.is_available() else []
+    # Tuned for this CPU (AVX2/FMA where present, ~1.4x faster); the CPU is part of the cache key.
+    native = ["-march=native"] if platform.machine() in ("x86_64", "AMD64") and not os.environ.get("TORCH_GRID_PORTABLE") else []
+    return ["-O3", "-fno-fast-math"] + native + cuda_define + openmp, ["-O3"] + cuda_define, openmp
+
+
+@lru_cache(maxsize=None)
+def _cpu_identity() -> str:
+    """Model name and feature flags of this CPU: a -march=native binary runs only where they match."""
+    try:
+        lines = Path("/proc/cpuinfo").read_text().splitlines()
+    except OSError:
+        return platform.processor() or platform.machine()
+    keep = {}
+    for line in lines:
+        key, _, value = line.partition(":")
+        key = key.strip()
+        if key in ("model name", "flags", "Features", "CPU part") and key not in keep:
+            keep[key] = value.strip()
+    return platform.machine() + "|" + "|".join(f"{k}={v}" for k, v in sorted(keep.items()))
 
 
 @contextmanager
@@ -131,7 +159,8 @@ def _file_lock(path: Path):
 def _cache_key(model: RobotModel, mujoco: bool, cuda: bool) -> str:
     h = hashlib.sha256()
     h.update(model.hash.encode())
-    h.update(f"mujoco={mujoco} cuda={cuda}".encode())
+    h.update(f"mujoco={mujoco} cuda={cuda} flags={_flags(cuda)}".encode())
+    h.update(_cpu_identity().encode())
     for path in sorted(CSRC.rglob("*")):
         if path.is_file():
             h.update(path.relative_to(CSRC).as_posix().encode())

@@ -37,15 +37,22 @@ template <class M, class S> TG_HD void end_effector_pose(const S* q, const int* 
   }
 }
 
-// Jacobian (6 x NV, rows [linear; angular]) of frame f in the given reference.
+// Jacobian (6 x NV, rows [linear; angular]) of frame f in the given reference. Only the bodies
+// supporting the frame are placed.
 template <class M, class S> TG_HD void frame_jacobian(const S* q, int f, int reference, S* J) {
   const auto& d = M::data();
-  SE3<S> liMi[M::NB], oMi[M::NB];
-  forward_kinematics<M, S>(q, liMi, oMi);
+  int chain[M::NB], n = 0;  // support chain, frame's body first
+  for (int j = d.fparent[f]; j >= 0; j = d.parent[j]) chain[n++] = j;
+  SE3<S> oMi[M::NB];
+  for (int k = n - 1; k >= 0; --k) {
+    const SE3<S> liMi = joint_placement<M, S>(chain[k], q);
+    oMi[chain[k]] = k == n - 1 ? liMi : oMi[chain[k + 1]] * liMi;
+  }
   const SE3<S> oMf = frame_placement<M, S>(f, oMi);
   for (int k = 0; k < 6 * M::NV; ++k) J[k] = S(0);
-  // Each joint on the support chain contributes its world axis, expressed as asked.
-  for (int j = d.fparent[f]; j >= 0; j = d.parent[j])
+  // Each joint on the chain contributes its world axis, expressed as asked.
+  for (int c = 0; c < n; ++c) {
+    const int j = chain[c];
     for (int k = 0; k < d.nvj[j]; ++k) {
       const Sv<S> s = act_motion(oMi[j], joint_axis<M, S>(j, k));
       Vec3<S> l = lin(s), w = ang(s);
@@ -59,6 +66,7 @@ template <class M, class S> TG_HD void frame_jacobian(const S* q, int f, int ref
         J[M::NV * (3 + r) + d.vi[j] + k] = w.x[r];
       }
     }
+  }
 }
 
 }  // namespace tg
