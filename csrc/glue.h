@@ -6,7 +6,13 @@
 #include <ATen/Parallel.h>
 #include <ATen/core/Tensor.h>
 #include <ATen/ops/empty.h>
+#include <ATen/ops/from_blob.h>
 #include <torch/library.h>
+
+#include <cstdlib>
+#if defined(__linux__)
+#include <sys/mman.h>
+#endif
 
 #include <string>
 #include <vector>
@@ -76,7 +82,7 @@ class Call {
   at::Tensor output(std::vector<int64_t> trailing) {
     std::vector<int64_t> shape = batch_shape_;
     shape.insert(shape.end(), trailing.begin(), trailing.end());
-    at::Tensor t = at::empty(shape, at::TensorOptions().dtype(dtype_).device(device_));
+    at::Tensor t = empty(shape, at::TensorOptions().dtype(dtype_).device(device_));
     const int k = n_out_++;
     batch_.out[k] = t.data_ptr();
     batch_.out_stride[k] = numel(trailing);
@@ -119,6 +125,24 @@ class Call {
     }
     const Batch& b = batch_;
     at::parallel_for(0, n_, 16, [&b](int64_t begin, int64_t end) { cpu_range<Op, Robot, S, C>(b, begin, end); });
+  }
+
+  // A large CPU output is backed by transparent huge pages: a fresh batch of matrices otherwise
+  // costs one page fault per 4 KiB on first touch, more than computing it for big robots.
+  static at::Tensor empty(const std::vector<int64_t>& shape, const at::TensorOptions& options) {
+#if defined(__linux__) && defined(MADV_HUGEPAGE)
+    constexpr size_t kHuge = size_t(2) << 20;
+    const size_t bytes = static_cast<size_t>(numel(shape)) * options.dtype().itemsize();
+    void* data = nullptr;
+    if (options.device().is_cpu() && bytes >= 2 * kHuge) {
+      const size_t size = (bytes + kHuge - 1) / kHuge * kHuge;
+      if (posix_memalign(&data, kHuge, size) == 0) {
+        madvise(data, size, MADV_HUGEPAGE);
+        return at::from_blob(data, shape, [](void* p) { std::free(p); }, options);
+      }
+    }
+#endif
+    return at::empty(shape, options);
   }
 
   void push_int(int64_t v) {

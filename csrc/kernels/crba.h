@@ -1,5 +1,7 @@
 // Composite rigid-body algorithm: the joint-space inertia matrix M(q), full and symmetric.
-// Featherstone's HandC (spatial_v2) / Pinocchio's crba, in joint frames.
+// Featherstone's HandC (spatial_v2) / Pinocchio's crba. Composite inertias build up in joint
+// frames; each column's force F = Ic S is moved to the world once, where every entry of the
+// column is a dot product with a joint axis (also moved once), without a frame change per level.
 #pragma once
 
 #include "joints.h"
@@ -8,30 +10,28 @@ namespace tg {
 
 template <class M, class S> TG_HD void crba(const S* q, S* Mout) {
   const auto& d = M::data();
-  SE3<S> liMi[M::NB];
+  SE3<S> liMi[M::NB], oMi[M::NB];
+  forward_kinematics<M, S>(q, liMi, oMi);
   Inertia<S> Ic[M::NB];
+  Sv<S> Sw[M::NB][6];  // joint axes, world frame
   for (int k = 0; k < M::NV * M::NV; ++k) Mout[k] = S(0);  // entries of unrelated branches stay zero
   for (int i = 0; i < M::NB; ++i) {
-    liMi[i] = joint_placement<M, S>(i, q);
     Ic[i] = body_inertia<M, S>(i);
+    for (int k = 0; k < d.nvj[i]; ++k) Sw[i][k] = act_motion(oMi[i], joint_axis<M, S>(i, k));
   }
-  // Backward pass: composite inertia of each subtree, then the columns of M it produces.
+  // Backward pass: composite inertia of each subtree, then the column entries it produces on
+  // the support chain: M[j, i] = S_j^T F for every ancestor j of i (i included).
   for (int i = M::NB - 1; i >= 0; --i) {
     for (int k = 0; k < d.nvj[i]; ++k) {
       const int col = d.vi[i] + k;
-      // F: force needed to accelerate subtree i along S_i[:, k], carried up the support chain.
-      Sv<S> F = mul(Ic[i], joint_axis<M, S>(i, k));
-      for (int j = i;;) {
+      const Sv<S> F = act_force(oMi[i], mul(Ic[i], joint_axis<M, S>(i, k)));
+      for (int j = i; j >= 0; j = d.parent[j])
         for (int l = 0; l < d.nvj[j]; ++l) {
           const int row = d.vi[j] + l;
-          const S m = dot(joint_axis<M, S>(j, l), F);
+          const S m = dot(Sw[j][l], F);
           Mout[M::NV * row + col] = m;
           Mout[M::NV * col + row] = m;
         }
-        if (d.parent[j] < 0) break;
-        F = act_force(liMi[j], F);
-        j = d.parent[j];
-      }
     }
     if (d.parent[i] >= 0) Ic[d.parent[i]] = Ic[d.parent[i]] + act(liMi[i], Ic[i]);
   }
