@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import os
 import platform
 import statistics
@@ -92,24 +91,16 @@ def cases(name: str):
     }
 
 
-def one_thread_with_huge_pages(name: str) -> dict[str, float]:
-    """One-thread times in a child process whose torch allocator uses transparent huge pages."""
-    env = dict(os.environ, THP_MEM_ALLOC_ENABLE="1")
-    out = subprocess.run([sys.executable, __file__, "--child", name], env=env, capture_output=True, text=True, check=True)
-    return json.loads(out.stdout.splitlines()[-1])
-
-
 def bench_robot(name: str) -> list[tuple]:
     rows = []
     threads = torch.get_num_threads()
-    thp = one_thread_with_huge_pages(name)
     for fn_name, (ours, theirs) in cases(name).items():
         torch.set_num_threads(1)
         one = per_sample_us(ours, B)
         torch.set_num_threads(threads)
         many = per_sample_us(ours, B)
         ref = per_call_us(theirs)
-        rows.append((name, fn_name, one, thp[fn_name], many, ref))
+        rows.append((name, fn_name, one, many, ref))
     return rows
 
 
@@ -117,20 +108,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robots", nargs="*", default=list(ROBOTS))
     parser.add_argument("--write", action="store_true", help="write bench/RESULTS.md")
-    parser.add_argument("--child", help=argparse.SUPPRESS)
     args = parser.parse_args()
-    if args.child:
-        torch.set_num_threads(1)
-        print(json.dumps({fn: per_sample_us(ours, B) for fn, (ours, _) in cases(args.child).items()}))
-        return
     threads = torch.get_num_threads()
-    lines = [f"| robot | function | 1 thread | 1 thread, huge pages | {threads} threads | Pinocchio per call | "
-             "1 thread ≤ Pinocchio |", "|---|---|---|---|---|---|---|"]
+    lines = [f"| robot | function | 1 thread | {threads} threads | Pinocchio per call | 1 thread ≤ Pinocchio |",
+             "|---|---|---|---|---|---|"]
     builds = ["| robot | nq | nv | first build (s) | warm load, new process (s) |", "|---|---|---|---|---|"]
     for name in args.robots:
-        for robot, fn, one, thp, many, ref in bench_robot(name):
-            verdict = "yes" if one <= ref else ("with huge pages" if thp <= ref else "NO")
-            lines.append(f"| {robot} | {fn} | {one:.3f} | {thp:.3f} | {many:.3f} | {ref:.3f} | {verdict} |")
+        for robot, fn, one, many, ref in bench_robot(name):
+            lines.append(f"| {robot} | {fn} | {one:.3f} | {many:.3f} | {ref:.3f} | {'yes' if one <= ref else 'NO'} |")
             print(lines[-1], flush=True)
         first, warm = build_times(name)
         src, floating, bundled = ROBOTS[name]
@@ -145,10 +130,7 @@ def main() -> None:
     header = (f"## CPU, {datetime.date.today()}\n\nMachine: {cpu}, {os.cpu_count()} cores; torch {torch.__version__}, "
               f"Pinocchio {pin.__version__}; batch B = {B}, float64. Pinocchio is called once per sample from "
               "Python (its usual use); torch_grid's time is one batched call divided by B, in µs per sample, "
-              "including the allocation of the batched output. 'huge pages' runs with THP_MEM_ALLOC_ENABLE=1, "
-              "torch's switch to back large CPU tensors with transparent huge pages: on this machine first-touch "
-              "page faults of a fresh output cost up to ~1 µs per 4 KiB page, which dominates the matrix-valued "
-              "ops (an nv x nv float64 output per sample).\n")
+              "including the allocation of the batched output.\n")
     text = header + "\n" + "\n".join(lines) + "\n\nFirst build: all functions, both conventions, float32 + float64, CPU, " \
         "into an empty cache; warm load: `torch_grid.load` in a new process after `import torch`.\n\n" + "\n".join(builds) + "\n"
     print(text)

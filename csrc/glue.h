@@ -51,6 +51,7 @@ class Call {
     TORCH_CHECK(t.sizes().vec() == want, op_, ": ", name, " must have shape ", at::IntArrayRef(want), ", got ", t.sizes());
     TORCH_CHECK(t.scalar_type() == dtype_, op_, ": ", name, " must have dtype ", dtype_, " like q, got ", t.scalar_type());
     TORCH_CHECK(t.device() == device_, op_, ": ", name, " must be on ", device_, " like q, got ", t.device());
+    TORCH_CHECK(n_in_ < kMaxIn, op_, ": more than ", kMaxIn, " tensor inputs");
     keep_.push_back(t.contiguous());
     const int k = n_in_++;
     batch_.in[k] = keep_.back().data_ptr();
@@ -60,6 +61,7 @@ class Call {
     if (t.has_value()) {
       input(*t, name, std::move(trailing));
     } else {
+      TORCH_CHECK(n_in_ < kMaxIn, op_, ": more than ", kMaxIn, " tensor inputs");
       batch_.in[n_in_++] = nullptr;
     }
   }
@@ -82,6 +84,7 @@ class Call {
   at::Tensor output(std::vector<int64_t> trailing) {
     std::vector<int64_t> shape = batch_shape_;
     shape.insert(shape.end(), trailing.begin(), trailing.end());
+    TORCH_CHECK(n_out_ < kMaxOut, op_, ": more than ", kMaxOut, " outputs");
     at::Tensor t = empty(shape, at::TensorOptions().dtype(dtype_).device(device_));
     const int k = n_out_++;
     batch_.out[k] = t.data_ptr();

@@ -171,16 +171,6 @@ def test_torch_compile_fullgraph_matches_eager(robots):
         assert torch.allclose(got, ref, rtol=1e-12, atol=1e-12)
 
 
-def test_backward_raises_until_derivatives_exist(robots):
-    robot = robots["iiwa14"]
-    q, qd = _state(robot, 2)
-    q.requires_grad_(True)
-    tau = robot.inverse_dynamics(q, qd, qd)
-    assert tau.requires_grad
-    with pytest.raises(NotImplementedError, match="inverse_dynamics has no derivative"):
-        tau.sum().backward()
-
-
 def test_fixed_base_accepts_mujoco_convention(robots):
     robot = robots["iiwa14"]
     q, qd = _state(robot, 4)

@@ -178,6 +178,14 @@ def test_unsupported_urdf_joints_are_refused(kind, extra, words):
         assert w in str(info.value)
 
 
+def test_kinematic_loop_is_refused():
+    loop = URDF_TEMPLATE.format(kind="revolute", extra="").replace(
+        "</robot>", '<joint name="j3" type="revolute"><parent link="a"/><child link="c"/><axis xyz="1 0 0"/>'
+        '<limit lower="-1" upper="1" effort="1" velocity="1"/></joint></robot>')
+    with pytest.raises(ValueError, match="'c' is the child of several joints"):
+        torch_grid.load(loop)
+
+
 def test_unsupported_mjcf_joint_is_refused(tmp_path):
     path = tmp_path / "ball.xml"
     path.write_text(ARM_MJCF.format(free="").replace('type="slide" axis="0.6 0 0.8"', 'type="ball"'))

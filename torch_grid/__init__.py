@@ -39,6 +39,6 @@ def load(source, *, floating_base: bool | None = None, convention: str = "pin", 
         raise ValueError("convention='mujoco' needs enable_mujoco_kernels=True for a floating-base robot")
     namespace = _build(model, mujoco=enable_mujoco_kernels, cache_dir=cache_dir)
     if namespace not in _AUTOGRAD_DONE:
-        register_autograd(namespace)
+        register_autograd(namespace, model)
         _AUTOGRAD_DONE.add(namespace)
     return Robot(model, namespace, convention=convention, mujoco_kernels=enable_mujoco_kernels)

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import torch
 
-from . import codegen
+from . import codegen, ops
 from .model import RobotModel
 from .ops import register_fakes
 
@@ -165,7 +165,9 @@ def _cache_key(model: RobotModel, mujoco: bool, cuda: bool) -> str:
         if path.is_file():
             h.update(path.relative_to(CSRC).as_posix().encode())
             h.update(path.read_bytes())
-    h.update(Path(codegen.__file__).read_bytes())
+    # The generators: the op table and the emitter of the per-robot C++.
+    for module in (codegen, ops):
+        h.update(Path(module.__file__).read_bytes())
     h.update(_compiler_version("c++").encode())
     if cuda:
         h.update(_compiler_version("nvcc").encode())

@@ -27,7 +27,7 @@ class OpSpec:
     name: str
     kernel: str  # C++ op struct in csrc/kernels/ops.h
     args: tuple[Arg, ...]
-    outputs: tuple[tuple, ...]  # trailing shapes; symbols "nv", "nq", "nframes", "nsel"
+    outputs: tuple[tuple, ...]  # trailing shapes; symbols "nv", "nq", "nbodies", "nframes", "nsel"
 
     @property
     def tensor_args(self) -> tuple[Arg, ...]:
@@ -41,7 +41,7 @@ class OpSpec:
         return f"{self.name}({', '.join(params + ['int convention'])}) -> " + (f"({outs})" if len(self.outputs) > 1 else outs)
 
     def output_shapes(self, model: RobotModel, batch: tuple[int, ...], nsel: int = 0) -> list[tuple[int, ...]]:
-        sizes = {"nv": model.nv, "nq": model.nq, "nframes": len(model.frames), "nsel": nsel}
+        sizes = {"nv": model.nv, "nq": model.nq, "nbodies": model.nbodies, "nframes": len(model.frames), "nsel": nsel}
         return [tuple(batch) + tuple(sizes.get(d, d) for d in shape) for shape in self.outputs]
 
 
@@ -62,6 +62,10 @@ OPS: dict[str, OpSpec] = {
         OpSpec("forward_kinematics", "ForwardKinematics", (Q,), (("nframes", 3), ("nframes", 3, 3))),
         OpSpec("end_effector_pose", "EndEffectorPose", (Q, Arg("frames", "frames")), (("nsel", 6),)),
         OpSpec("frame_jacobian", "FrameJacobian", (Q, Arg("frame", "frame"), Arg("reference", "reference")), ((6, "nv"),)),
+        OpSpec("body_velocities", "BodyVelocities", (Q, QD), (("nbodies", 6),)),
+        OpSpec("inverse_dynamics_gradient", "InverseDynamicsGradient", (Q, QD, QDD, FEXT), (("nv", "nv"), ("nv", "nv"))),
+        OpSpec("forward_dynamics_gradient", "ForwardDynamicsGradient", (Q, QD, TAU, FEXT),
+               (("nv", "nv"), ("nv", "nv"), ("nv", "nv"))),
     )
 }
 

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import numbers
 from pathlib import Path
 from typing import Sequence
 
@@ -93,6 +94,26 @@ class _Functions:
         if ref is None:
             raise ValueError(f"frame_jacobian: reference must be one of {sorted(REFERENCES)}, got {reference!r}")
         return self._call("frame_jacobian", q, self._robot.frame_index(frame, "frame"), ref)
+
+    def body_velocities(self, q, qd) -> torch.Tensor:
+        """Spatial velocity [linear; angular] (..., nbodies, 6) of each body, in its joint frame."""
+        return self._call("body_velocities", q, qd)
+
+    def inverse_dynamics_gradient(self, q, qd, qdd, f_ext=None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Analytic (d tau / dq, d tau / dqd), each (..., nv, nv), of inverse_dynamics.
+
+        Derivatives along the tangent space: for a floating base in Pinocchio's convention, the
+        local increment q (+) dq (as pinocchio.computeRNEADerivatives); in MuJoCo's convention,
+        mj_integratePos's increment, with qvel and qacc held fixed in MuJoCo's frame.
+        """
+        return self._call("inverse_dynamics_gradient", q, qd, qdd, f_ext)
+
+    def forward_dynamics_gradient(self, q, qd, tau, f_ext=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Analytic (d qdd / dq, d qdd / dqd, d qdd / dtau), each (..., nv, nv), of forward_dynamics.
+
+        Tangent derivatives as in inverse_dynamics_gradient; d qdd / dtau = M^-1.
+        """
+        return self._call("forward_dynamics_gradient", q, qd, tau, f_ext)
 
     def neutral_configuration(self, dtype: torch.dtype = torch.float64, device="cpu") -> torch.Tensor:
         """(nq,) zero joint positions and, for a floating base, the identity orientation at the origin."""
@@ -194,9 +215,10 @@ class Robot(_Functions):
 
     def frame_index(self, frame: str | int, argument: str = "frame") -> int:
         """Index in frame_names of a frame given by name or index."""
-        if isinstance(frame, bool) or not isinstance(frame, (str, int)):
+        if isinstance(frame, bool) or not isinstance(frame, (str, numbers.Integral)):
             raise TypeError(f"{argument} must be a frame name or index, got {type(frame).__name__}")
-        if isinstance(frame, int):
+        if isinstance(frame, numbers.Integral):
+            frame = int(frame)
             if not 0 <= frame < self.nframes:
                 raise ValueError(f"{argument}: frame index {frame} is out of range [0, {self.nframes})")
             return frame

@@ -51,11 +51,70 @@ template <class M, class S, int C> struct Conv {
   TG_HD void congruence_out(S* X) const {
     if constexpr (active) {
       columns_out(X, M::NV);
-      for (int c = 0; c < M::NV; ++c) {
-        const Vec3<S> col = mul(R, v3(X[c], X[M::NV + c], X[2 * M::NV + c]));
-        for (int r = 0; r < 3; ++r) X[M::NV * r + c] = col.x[r];
+      for (int c = 0; c < M::NV; ++c) store3_column(X, c, mul(R, load3_column(X, c)));
+    }
+  }
+
+  // Inverse-dynamics derivatives out. MuJoCo holds qvel and qacc fixed in its own frame, so moving
+  // the base rotation also moves the Pinocchio-frame v and a (Jv_q, Ja_q), and changes G (pref):
+  //   dtau/dq_mjx  = G (dtau/dq G^-1 + dtau/dqd Jv_q + M Ja_q) + pref
+  //   dtau/dqd_mjx = G (dtau/dqd G^-1 + M Ja_v)
+  // with, for the base rotation a, on the base-linear rows (v, a in Pinocchio's convention):
+  //   Jv_q[:, ang a] = -(e_a x v_lin)
+  //   Ja_q[:, ang a] = -(e_a x a_lin) - e_a x (w x v_lin) + w x (e_a x v_lin)
+  //   Ja_v[:, lin a] = -w x (R^T e_a),  Ja_v[:, ang a] = -(e_a x v_lin),  pref[lin, ang a] = R (e_a x tau_lin).
+  TG_HD void inverse_dynamics_gradient_out(const S* v, const S* a, const S* tau, const S* Mass, S* dq, S* dv) const {
+    if constexpr (active) {
+      constexpr int NV = M::NV;
+      const Vec3<S> vl = load3(v), w = load3(v + 3), al = load3(a);
+      Vec3<S> Jv[3], Jaq[3], Jav_lin[3], Jav_ang[3];  // columns, base-linear rows only
+      for (int c = 0; c < 3; ++c) {
+        Vec3<S> e = v3(S(0), S(0), S(0));
+        e.x[c] = S(1);
+        Jv[c] = cross(vl, e);
+        Jaq[c] = cross(al, e) - cross(e, cross(w, vl)) + cross(w, cross(e, vl));
+        Jav_lin[c] = S(-1) * cross(w, mulT(R, e));
+        Jav_ang[c] = cross(vl, e);
+      }
+      for (int r = 0; r < NV; ++r) {
+        S* q_row = dq + NV * r;
+        S* v_row = dv + NV * r;
+        const Vec3<S> Mr = load3(Mass + NV * r), dvr = load3(v_row);
+        S add_q[3], add_vl[3], add_va[3];
+        for (int c = 0; c < 3; ++c) {
+          add_q[c] = dot(dvr, Jv[c]) + dot(Mr, Jaq[c]);
+          add_vl[c] = dot(Mr, Jav_lin[c]);
+          add_va[c] = dot(Mr, Jav_ang[c]);
+        }
+        store3(mul(R, load3(q_row)), q_row);  // X G^-1: base-linear columns times R^T
+        store3(mul(R, load3(v_row)), v_row);
+        for (int c = 0; c < 3; ++c) {
+          q_row[3 + c] += add_q[c];
+          v_row[c] += add_vl[c];
+          v_row[3 + c] += add_va[c];
+        }
+      }
+      // G (.): base-linear rows times R; then pref.
+      for (int c = 0; c < NV; ++c) {
+        store3_column(dq, c, mul(R, load3_column(dq, c)));
+        store3_column(dv, c, mul(R, load3_column(dv, c)));
+      }
+      const Vec3<S> tl = load3(tau);
+      for (int c = 0; c < 3; ++c) {
+        Vec3<S> e = v3(S(0), S(0), S(0));
+        e.x[c] = S(1);
+        const Vec3<S> pref = mul(R, cross(e, tl));
+        for (int r = 0; r < 3; ++r) dq[NV * r + 3 + c] += pref.x[r];
       }
     }
+  }
+
+ private:
+  TG_HD static Vec3<S> load3_column(const S* X, int c) { return v3(X[c], X[M::NV + c], X[2 * M::NV + c]); }
+  TG_HD static void store3_column(S* X, int c, Vec3<S> x) {
+    X[c] = x.x[0];
+    X[M::NV + c] = x.x[1];
+    X[2 * M::NV + c] = x.x[2];
   }
 };
 

@@ -93,4 +93,15 @@ template <class M, class S> TG_HD SE3<S> frame_placement(int f, const SE3<S>* oM
   return d.fparent[f] < 0 ? X : oMi[d.fparent[f]] * X;
 }
 
+// Spatial velocity of every body in its joint frame (NB x 6): v_i = X_i v_parent + S_i qd_i.
+template <class M, class S> TG_HD void body_velocities(const S* q, const S* qd, S* out) {
+  const auto& d = M::data();
+  Sv<S> v[M::NB];
+  for (int i = 0; i < M::NB; ++i) {
+    const Sv<S> vJ = joint_motion<M, S>(i, qd);
+    v[i] = d.parent[i] < 0 ? vJ : actinv_motion(joint_placement<M, S>(i, q), v[d.parent[i]]) + vJ;
+    for (int k = 0; k < 6; ++k) out[6 * i + k] = v[i].v[k];
+  }
+}
+
 }  // namespace tg

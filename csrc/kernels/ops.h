@@ -10,6 +10,7 @@
 #include "frames.h"
 #include "minv.h"
 #include "rnea.h"
+#include "rnea_derivatives.h"
 
 namespace tg {
 
@@ -110,6 +111,58 @@ TG_OP_END
 TG_OP_BEGIN(FrameJacobian)
   frame_jacobian<M, S>(cv.q, iargs[0], iargs[1], out[0]);
   cv.columns_out(out[0], 6);
+TG_OP_END
+
+// in: q, qd, qdd, f_ext?   out: dtau/dq, dtau/dqd (tangent derivatives)
+TG_OP_BEGIN(InverseDynamicsGradient)
+  S qd[M::NV], qdd[M::NV], tau[M::NV];
+  cv.velocity(in[1], qd);
+  cv.acceleration(qd, in[2], qdd);
+  rnea_derivatives<M, S>(cv.q, qd, qdd, in[3], tau, out[0], out[1]);
+  if constexpr (Conv<M, S, C>::active) {
+    S Mass[M::NV * M::NV];
+    crba<M, S>(cv.q, Mass);
+    cv.inverse_dynamics_gradient_out(qd, qdd, tau, Mass, out[0], out[1]);
+  }
+TG_OP_END
+
+// in: q, qd   out: spatial velocity [v; w] of each body in its joint frame (NB x 6)
+TG_OP_BEGIN(BodyVelocities)
+  S qd[M::NV];
+  cv.velocity(in[1], qd);
+  body_velocities<M, S>(cv.q, qd, out[0]);
+TG_OP_END
+
+// X <- -A X for NV x NV row-major matrices, one column at a time.
+template <class M, class S> TG_HD void negate_left_multiply(const S* A, S* X) {
+  for (int c = 0; c < M::NV; ++c) {
+    S col[M::NV];
+    for (int r = 0; r < M::NV; ++r) {
+      S acc = 0;
+      for (int k = 0; k < M::NV; ++k) acc += A[M::NV * r + k] * X[M::NV * k + c];
+      col[r] = -acc;
+    }
+    for (int r = 0; r < M::NV; ++r) X[M::NV * r + c] = col[r];
+  }
+}
+
+// in: q, qd, tau, f_ext?   out: dqdd/dq, dqdd/dqd, dqdd/dtau. Since ID(q, qd, FD(q, qd, tau)) = tau,
+// dqdd/dx = -M^-1 dtau/dx at qdd = FD(q, qd, tau), and dqdd/dtau = M^-1, in either convention.
+TG_OP_BEGIN(ForwardDynamicsGradient)
+  S qd[M::NV], u[M::NV], qdd[M::NV], tau[M::NV];
+  cv.velocity(in[1], qd);
+  cv.force(in[2], u);
+  aba<M, S>(cv.q, qd, u, in[3], qdd);
+  rnea_derivatives<M, S>(cv.q, qd, qdd, in[3], tau, out[0], out[1]);
+  minv<M, S>(cv.q, out[2]);
+  if constexpr (Conv<M, S, C>::active) {
+    S Mass[M::NV * M::NV];
+    crba<M, S>(cv.q, Mass);
+    cv.inverse_dynamics_gradient_out(qd, qdd, tau, Mass, out[0], out[1]);
+    cv.congruence_out(out[2]);
+  }
+  negate_left_multiply<M, S>(out[2], out[0]);
+  negate_left_multiply<M, S>(out[2], out[1]);
 TG_OP_END
 
 #undef TG_OP_BEGIN

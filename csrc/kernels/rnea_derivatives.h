@@ -1,0 +1,126 @@
+// Analytic derivatives of inverse dynamics, d tau / dq and d tau / dqd (Carpentier & Mansard,
+// RSS 2018; as Pinocchio's computeRNEADerivatives), in the world frame.
+//
+// q moves along its tangent: a free root by the local increment q (+) dq, as Pinocchio. Moving
+// joint j's coordinate along its world axis s carries its whole subtree by the twist s: every
+// world quantity X of the subtree changes by s x X, except that the parent's velocity and
+// acceleration do not move with it. That leaves, per column of joint j with parent p:
+//   w = v_p x s,   u = a_p x s + v_p x w          (d/dq)     alpha = (v_p + v_j) x s   (d/dqd)
+// and, with Yc the composite inertia, F the composite force and B = sum (dI + [. x* h]) over a
+// subtree (dI = v x* I - I v x, the inertia's rate, h = I v):
+//   rows m above j:          d tau_m / dq_j  = S_m^T (Yc_j u + B_j w + s x* F_j)
+//   rows m in j's subtree:   d tau_m / dq_j  = u . (Yc_m S_m) + w . (B_m^T S_m)
+//   and for qd:              alpha replaces u, s replaces w, and no s x* F term.
+#pragma once
+
+#include "joints.h"
+
+namespace tg {
+
+template <class M, class S> struct RneaDerivativesWork {
+  SE3<S> oMi[M::NB];
+  Sv<S> Sw[M::NB][6];                    // joint axes, world frame
+  Sv<S> v[M::NB], a[M::NB], F[M::NB];    // world velocity, acceleration (gravity included), subtree force
+  Inertia<S> Yc[M::NB];                  // subtree inertia, world frame
+  M6<S> B[M::NB];                        // subtree sum of dI + [. x* h]
+  Sv<S> w[M::NV], u[M::NV], alpha[M::NV];  // per column, see above
+};
+
+// The 6x6 matrix of x -> dI x + x x* h with dI = v x* I - I v x and h = I v: the rate of change of
+// the momentum I v of a body when its velocity v changes by x while it moves with velocity v.
+template <class S> TG_HD M6<S> momentum_rate_matrix(const Inertia<S>& I, const Sv<S>& v) {
+  const Sv<S> h = mul(I, v);
+  M6<S> B;
+  for (int c = 0; c < 6; ++c) {
+    Sv<S> e = sv_zero<S>();
+    e.v[c] = S(1);
+    const Sv<S> col = cross_force(v, mul(I, e)) - mul(I, cross_motion(v, e)) + cross_force(e, h);
+    for (int r = 0; r < 6; ++r) B.m[6 * r + c] = col.v[r];
+  }
+  return B;
+}
+
+template <class S> TG_HD Sv<S> mul_transpose(const M6<S>& A, const Sv<S>& x) {
+  Sv<S> r;
+  for (int c = 0; c < 6; ++c) {
+    S acc = 0;
+    for (int k = 0; k < 6; ++k) acc += A.m[6 * k + c] * x.v[k];
+    r.v[c] = acc;
+  }
+  return r;
+}
+
+// tau (NV), dtau_dq and dtau_dqd (NV x NV, row-major) at (q, qd, qdd), fext (NB x 6, joint frames)
+// may be null. q, qd, qdd in Pinocchio's convention.
+template <class M, class S>
+TG_HD void rnea_derivatives(const S* q, const S* qd, const S* qdd, const S* fext, S* tau, S* dtau_dq, S* dtau_dqd) {
+  const auto& d = M::data();
+  constexpr int NV = M::NV;
+  RneaDerivativesWork<M, S> W;
+  for (int k = 0; k < NV * NV; ++k) dtau_dq[k] = dtau_dqd[k] = S(0);
+  // Forward pass: world placements, axes, velocities, accelerations, body forces.
+  for (int i = 0; i < M::NB; ++i) {
+    const int p = d.parent[i], n = d.nvj[i], vi = d.vi[i];
+    const SE3<S> liMi = joint_placement<M, S>(i, q);
+    W.oMi[i] = p < 0 ? liMi : W.oMi[p] * liMi;
+    const Sv<S> vp = p < 0 ? sv_zero<S>() : W.v[p];
+    const Sv<S> ap = p < 0 ? base_acceleration<M, S>() : W.a[p];
+    W.v[i] = vp;
+    for (int k = 0; k < n; ++k) {
+      W.Sw[i][k] = act_motion(W.oMi[i], joint_axis<M, S>(i, k));
+      W.v[i] = W.v[i] + qd[vi + k] * W.Sw[i][k];
+    }
+    W.a[i] = ap;
+    for (int k = 0; k < n; ++k)
+      W.a[i] = W.a[i] + qdd[vi + k] * W.Sw[i][k] + qd[vi + k] * cross_motion(W.v[i], W.Sw[i][k]);
+    for (int k = 0; k < n; ++k) {
+      const Sv<S>& s = W.Sw[i][k];
+      W.w[vi + k] = cross_motion(vp, s);
+      W.u[vi + k] = cross_motion(ap, s) + cross_motion(vp, W.w[vi + k]);
+      W.alpha[vi + k] = cross_motion(vp + W.v[i], s);
+    }
+    W.Yc[i] = act(W.oMi[i], body_inertia<M, S>(i));
+    W.B[i] = momentum_rate_matrix(W.Yc[i], W.v[i]);
+    W.F[i] = mul(W.Yc[i], W.a[i]) + cross_force(W.v[i], mul(W.Yc[i], W.v[i]));
+    if (fext) {
+      const Sv<S> fe = {{fext[6 * i], fext[6 * i + 1], fext[6 * i + 2], fext[6 * i + 3], fext[6 * i + 4], fext[6 * i + 5]}};
+      W.F[i] = W.F[i] - act_force(W.oMi[i], fe);
+    }
+  }
+  // Backward pass: subtree sums, then the entries each subtree produces.
+  for (int i = M::NB - 1; i >= 0; --i) {
+    const int p = d.parent[i], n = d.nvj[i], vi = d.vi[i];
+    for (int l = 0; l < n; ++l) {
+      const int row = vi + l;
+      tau[row] = dot(W.Sw[i][l], W.F[i]);
+      // Row of joint i, columns of its ancestors and itself.
+      const Sv<S> P = mul(W.Yc[i], W.Sw[i][l]);
+      const Sv<S> Q = mul_transpose(W.B[i], W.Sw[i][l]);
+      for (int j = i; j >= 0; j = d.parent[j])
+        for (int c = 0; c < d.nvj[j]; ++c) {
+          const int col = d.vi[j] + c;
+          dtau_dq[NV * row + col] = dot(W.u[col], P) + dot(W.w[col], Q);
+          dtau_dqd[NV * row + col] = dot(W.alpha[col], P) + dot(W.Sw[j][c], Q);
+        }
+    }
+    // Columns of joint i, rows of its strict ancestors.
+    for (int c = 0; c < n; ++c) {
+      const int col = vi + c;
+      const Sv<S>& s = W.Sw[i][c];
+      const Sv<S> dFq = mul(W.Yc[i], W.u[col]) + mul(W.B[i], W.w[col]) + cross_force(s, W.F[i]);
+      const Sv<S> dFv = mul(W.Yc[i], W.alpha[col]) + mul(W.B[i], s);
+      for (int m = p; m >= 0; m = d.parent[m])
+        for (int l = 0; l < d.nvj[m]; ++l) {
+          dtau_dq[NV * (d.vi[m] + l) + col] = dot(W.Sw[m][l], dFq);
+          dtau_dqd[NV * (d.vi[m] + l) + col] = dot(W.Sw[m][l], dFv);
+        }
+    }
+    if (p >= 0) {
+      W.Yc[p] = W.Yc[p] + W.Yc[i];
+      for (int k = 0; k < 36; ++k) W.B[p].m[k] += W.B[i].m[k];
+      W.F[p] = W.F[p] + W.F[i];
+    }
+  }
+}
+
+}  // namespace tg

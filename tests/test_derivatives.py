@@ -1,0 +1,166 @@
+"""Analytic derivatives of inverse and forward dynamics, and the autograd built on them.
+
+pin: vs pinocchio.computeRNEADerivatives / computeABADerivatives (float64, <= 1e-8).
+mjx: vs central finite differences of real MuJoCo (mj_inverse, mj_forward), qpos moved by
+mj_integratePos, qvel/qacc/qfrc directly (float64, <= 1e-6).
+autograd: gradcheck with respect to every input, torch.compile(fullgraph=True).
+"""
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pinocchio as pin
+import pytest
+import torch
+
+from oracles import pin_forces, rel_err, to_pin_q
+
+ROBOTS = ["iiwa14", "go2", "g1", "tiago"]
+FLOATING = ["go2", "g1"]
+
+
+def _states(robot, batch=3, seed=0, convention="pin"):
+    g = torch.Generator().manual_seed(seed)
+    view = getattr(robot, convention)
+    q = view.random_configuration(batch, generator=g)
+    qd, x = (torch.randn(batch, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
+    f = 5 * torch.randn(batch, robot.nbodies, 6, dtype=torch.float64, generator=g)
+    return q, qd, x, f
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_inverse_dynamics_gradient_vs_pinocchio(robots, pin_models, name):
+    robot, pm = robots[name], pin_models[name]
+    pd = pm.createData()
+    q, qd, qdd, f = _states(robot)
+    dq, dqd = robot.inverse_dynamics_gradient(q, qd, qdd, f)
+    for b in range(q.shape[0]):
+        ref = pin.computeRNEADerivatives(pm, pd, to_pin_q(robot, q[b]), qd[b].numpy(), qdd[b].numpy(), pin_forces(pm, f[b]))
+        assert rel_err(dq[b], ref[0]) <= 1e-8 and rel_err(dqd[b], ref[1]) <= 1e-8
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_forward_dynamics_gradient_vs_pinocchio(robots, pin_models, name):
+    robot, pm = robots[name], pin_models[name]
+    pd = pm.createData()
+    q, qd, tau, f = _states(robot, seed=1)
+    outs = robot.forward_dynamics_gradient(q, qd, tau, f)
+    for b in range(q.shape[0]):
+        pin.computeABADerivatives(pm, pd, to_pin_q(robot, q[b]), qd[b].numpy(), tau[b].numpy(), pin_forces(pm, f[b]))
+        minv = np.triu(pd.Minv) + np.triu(pd.Minv, 1).T
+        for ours, ref in zip(outs, (pd.ddq_dq, pd.ddq_dv, minv)):
+            assert rel_err(ours[b], ref) <= 1e-8
+
+
+@pytest.mark.parametrize("name", ["iiwa14", "go2", "tiago"])
+def test_body_velocities_vs_pinocchio(robots, pin_models, name):
+    robot, pm = robots[name], pin_models[name]
+    pd = pm.createData()
+    q, qd, _, _ = _states(robot, seed=2)
+    ours = robot.body_velocities(q, qd)
+    for b in range(q.shape[0]):
+        pin.forwardKinematics(pm, pd, to_pin_q(robot, q[b]), qd[b].numpy())
+        assert rel_err(ours[b], np.stack([pd.v[i].vector for i in range(1, pm.njoints)])) <= 1e-12
+
+
+def _central(fn, x, k, eps, perturb):
+    return (fn(perturb(x, k, eps)) - fn(perturb(x, k, -eps))) / (2 * eps)
+
+
+def _move_qpos(m):
+    def perturb(qpos, k, eps):
+        out, dq = qpos.copy(), np.zeros(m.nv)
+        dq[k] = eps
+        mujoco.mj_integratePos(m, out, dq, 1.0)
+        return out
+
+    return perturb
+
+
+def _move(x, k, eps):
+    out = x.copy()
+    out[k] += eps
+    return out
+
+
+@pytest.mark.parametrize("name", FLOATING)
+def test_mujoco_inverse_dynamics_gradient_vs_finite_differences(robots, mj_sims, name):
+    robot, sim = robots[name], mj_sims[name]
+    q, qd, qdd, _ = (x[0].numpy() for x in _states(robot, batch=1, seed=3, convention="mujoco"))
+    dq, dqd = (x.numpy() for x in robot.mujoco.inverse_dynamics_gradient(*(torch.from_numpy(x) for x in (q, qd, qdd))))
+    eps = 1e-6
+    fd_q = np.stack([_central(lambda p: sim.qfrc_inverse(p, qd, qdd), q, k, eps, _move_qpos(sim.m)) for k in range(robot.nv)], 1)
+    fd_v = np.stack([_central(lambda v: sim.qfrc_inverse(q, v, qdd), qd, k, eps, _move) for k in range(robot.nv)], 1)
+    assert rel_err(dq, fd_q) <= 1e-6 and rel_err(dqd, fd_v) <= 1e-6
+
+
+@pytest.mark.parametrize("name", FLOATING)
+def test_mujoco_forward_dynamics_gradient_vs_finite_differences(robots, mj_sims, name):
+    robot, sim = robots[name], mj_sims[name]
+    q, qd, u, _ = (x[0].numpy() for x in _states(robot, batch=1, seed=4, convention="mujoco"))
+    outs = [x.numpy() for x in robot.mujoco.forward_dynamics_gradient(*(torch.from_numpy(x) for x in (q, qd, u)))]
+    eps = 1e-6
+    fd_q = np.stack([_central(lambda p: sim.qacc(p, qd, u), q, k, eps, _move_qpos(sim.m)) for k in range(robot.nv)], 1)
+    fd_v = np.stack([_central(lambda v: sim.qacc(q, v, u), qd, k, eps, _move) for k in range(robot.nv)], 1)
+    fd_u = np.stack([_central(lambda t: sim.qacc(q, qd, t), u, k, eps, _move) for k in range(robot.nv)], 1)
+    for ours, ref in zip(outs, (fd_q, fd_v, fd_u)):
+        assert rel_err(ours, ref) <= 1e-6
+
+
+@pytest.mark.parametrize("name", ["iiwa14", "go2"])
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+@pytest.mark.parametrize("function", ["inverse_dynamics", "forward_dynamics"])
+def test_gradcheck_every_input(robots, name, convention, function):
+    robot = robots[name]
+    view = getattr(robot, convention)
+    q, qd, x, f = _states(robot, batch=2, seed=5, convention=convention)
+    if robot.floating_base:  # a non-unit quaternion: the exact derivative through the normalisation
+        q[:, 3:7] *= 1.7
+    inputs = [t.clone().requires_grad_(True) for t in (q, qd, x, f)]
+    assert torch.autograd.gradcheck(getattr(view, function), inputs, eps=1e-6, atol=1e-6, rtol=1e-5)
+
+
+def test_quaternion_gradient_is_tangent_to_its_norm(robots):
+    """The function ignores the quaternion's norm, so its gradient has no radial component."""
+    robot = robots["go2"]
+    q, qd, qdd, _ = _states(robot, batch=4, seed=6)
+    q = (q * torch.tensor([1.0] * 3 + [2.5] * 4 + [1.0] * 12, dtype=torch.float64)).requires_grad_(True)
+    robot.inverse_dynamics(q, qd, qdd).square().sum().backward()
+    radial = (q.grad[:, 3:7] * q.detach()[:, 3:7]).sum(-1)
+    assert radial.abs().max() <= 1e-12 * q.grad.abs().max()
+
+
+def test_torch_compile_forward_and_backward(robots):
+    robot = robots["go2"]
+    q, qd, tau, f = _states(robot, batch=8, seed=7)
+
+    def loss(q, qd, tau, f):
+        qdd = robot.forward_dynamics(q, qd, tau, f)
+        return robot.mujoco.inverse_dynamics(q[:, [0, 1, 2, 6, 3, 4, 5] + list(range(7, robot.nq))], qd, qdd).square().sum()
+
+    def grads(fn):
+        inputs = [t.clone().requires_grad_(True) for t in (q, qd, tau, f)]
+        fn(*inputs).backward()
+        return [t.grad for t in inputs]
+
+    torch._dynamo.reset()
+    compiled = torch.compile(loss, fullgraph=True, backend="aot_eager")
+    for got, ref in zip(grads(compiled), grads(loss)):
+        assert torch.allclose(got, ref, rtol=1e-10, atol=1e-10)
+
+
+def test_second_derivative_raises(robots):
+    robot = robots["iiwa14"]
+    q, qd, qdd, _ = _states(robot, batch=2, seed=8)
+    q.requires_grad_(True)
+    tau = robot.inverse_dynamics(q, qd, qdd).sum()
+    with pytest.raises(NotImplementedError, match="second derivatives"):
+        torch.autograd.grad(tau, q, create_graph=True)
+
+
+def test_ops_without_derivatives_raise(robots):
+    robot = robots["iiwa14"]
+    q, _, _, _ = _states(robot, batch=2, seed=9)
+    q.requires_grad_(True)
+    with pytest.raises(NotImplementedError, match="crba has no derivative yet"):
+        robot.crba(q).sum().backward()
