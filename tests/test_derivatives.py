@@ -107,17 +107,56 @@ def test_mujoco_forward_dynamics_gradient_vs_finite_differences(robots, mj_sims,
         assert rel_err(ours, ref) <= 1e-6
 
 
+# function -> which of (q, qd, qdd or tau, f_ext) it takes
+DIFFERENTIABLE = {
+    "inverse_dynamics": 4, "forward_dynamics": 4, "nonlinear_effects": 2, "energy": 2,
+    "generalized_gravity": 1, "com": 1, "forward_kinematics": 1, "end_effector_pose": 1,
+}
+
+
 @pytest.mark.parametrize("name", ["iiwa14", "go2"])
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
-@pytest.mark.parametrize("function", ["inverse_dynamics", "forward_dynamics"])
+@pytest.mark.parametrize("function", sorted(DIFFERENTIABLE))
 def test_gradcheck_every_input(robots, name, convention, function):
     robot = robots[name]
     view = getattr(robot, convention)
     q, qd, x, f = _states(robot, batch=2, seed=5, convention=convention)
     if robot.floating_base:  # a non-unit quaternion: the exact derivative through the normalisation
         q[:, 3:7] *= 1.7
-    inputs = [t.clone().requires_grad_(True) for t in (q, qd, x, f)]
-    assert torch.autograd.gradcheck(getattr(view, function), inputs, eps=1e-6, atol=1e-6, rtol=1e-5)
+    inputs = [t.clone().requires_grad_(True) for t in (q, qd, x, f)][: DIFFERENTIABLE[function]]
+    fn = getattr(view, function)
+    if function == "end_effector_pose":
+        frames = [robot.nframes - 1, 2, robot.nframes - 1]
+        fn = lambda q: view.end_effector_pose(q, frames)  # noqa: E731
+    assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-6, rtol=1e-5)
+
+
+@pytest.mark.parametrize("name", ["iiwa14", "go2"])
+def test_end_effector_pose_gradient_vs_pinocchio_retraction(robots, pin_models, name):
+    """Central differences of the pose along Pinocchio's own integrate (its tangent)."""
+    robot, pm = robots[name], pin_models[name]
+    q, _, _, _ = _states(robot, batch=1, seed=10)
+    frames = [robot.nframes - 1, 3]
+    ours = robot.end_effector_pose_gradient(q, frames)[0].numpy()
+    q_pin = to_pin_q(robot, q[0])
+    pose = lambda qp: robot.end_effector_pose(_from_pin_q(robot, qp), frames).numpy()  # noqa: E731
+    eps = 1e-6
+    fd = np.stack([(pose(pin.integrate(pm, q_pin, eps * e)) - pose(pin.integrate(pm, q_pin, -eps * e))) / (2 * eps)
+                   for e in np.eye(robot.nv)], axis=-1)
+    assert rel_err(ours, fd) <= 1e-6
+
+
+def _from_pin_q(robot, q_pin):
+    """Pinocchio's q -> torch_grid's (a continuous joint's (cos, sin) -> angle)."""
+    out, k = [], 0
+    for joint in robot.model.joints:
+        if joint.type == "continuous":
+            out.append(np.arctan2(q_pin[k + 1], q_pin[k]))
+            k += 2
+        else:
+            out.extend(q_pin[k:k + joint.nq])
+            k += joint.nq
+    return torch.tensor(np.array(out, dtype=float))
 
 
 def test_quaternion_gradient_is_tangent_to_its_norm(robots):
@@ -159,6 +198,7 @@ def test_second_derivative_raises(robots):
 
 
 def test_ops_without_derivatives_raise(robots):
+    """Until their derivative kernels exist, these refuse to back-propagate rather than drop it."""
     robot = robots["iiwa14"]
     q, _, _, _ = _states(robot, batch=2, seed=9)
     q.requires_grad_(True)

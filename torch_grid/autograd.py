@@ -35,6 +35,7 @@ def _save_nothing(ctx, inputs, output) -> None:
 
 def _save_inputs(ctx, inputs, output) -> None:
     ctx.inputs = inputs
+    ctx.output = output
 
 
 def _no_backward(name: str) -> Callable:
@@ -45,19 +46,22 @@ def _no_backward(name: str) -> Callable:
 
 
 def _backward(name: str, formula: Callable, ops, model: RobotModel) -> Callable:
-    def backward(ctx, grad):
+    """formula(ops, model, grads, output, *inputs) -> one gradient (or None) per input."""
+
+    def backward(ctx, *grads):
         if torch.is_grad_enabled():
             raise NotImplementedError(
                 f"torch_grid: the backward of {name} is not differentiable yet (second derivatives); "
                 "call backward without create_graph=True"
             )
-        return formula(ops, model, grad, *ctx.inputs)
+        return formula(ops, model, grads, ctx.output, *ctx.inputs)
 
     return backward
 
 
-def _inverse_dynamics(ops, model, grad, q, qd, qdd, f_ext, convention):
+def _inverse_dynamics(ops, model, grads, output, q, qd, qdd, f_ext, convention):
     """tau = ID(q, qd, qdd, f_ext): d/dq and d/dqd from the kernel, d/dqdd = M, d/df_ext = -J^T."""
+    grad = grads[0]
     needs = _needs(q, qd, qdd, f_ext)
     dq = dqd = dqdd = df = None
     if needs[0] or needs[1]:
@@ -73,8 +77,9 @@ def _inverse_dynamics(ops, model, grad, q, qd, qdd, f_ext, convention):
     return dq, dqd, dqdd, df, None
 
 
-def _forward_dynamics(ops, model, grad, q, qd, tau, f_ext, convention):
+def _forward_dynamics(ops, model, grads, output, q, qd, tau, f_ext, convention):
     """qdd = FD(q, qd, tau, f_ext): from the kernel; d/df_ext = M^-1 J^T since d/dtau = M^-1."""
+    grad = grads[0]
     needs = _needs(q, qd, tau, f_ext)
     dqdd_dq, dqdd_dqd, minv = ops.forward_dynamics_gradient(q, qd, tau, f_ext, convention)
     dq = _tangent_to_ambient(model, q, _vjp(dqdd_dq, grad), convention) if needs[0] else None
@@ -84,7 +89,88 @@ def _forward_dynamics(ops, model, grad, q, qd, tau, f_ext, convention):
     return dq, dqd, dtau if needs[2] else None, df, None
 
 
-_BACKWARDS = {"inverse_dynamics": _inverse_dynamics, "forward_dynamics": _forward_dynamics}
+def _generalized_gravity(ops, model, grads, output, q, convention):
+    """g(q) = ID(q, 0, 0)."""
+    grad = grads[0]
+    zero = torch.zeros(*q.shape[:-1], model.nv, dtype=q.dtype, device=q.device)
+    dtau_dq, _ = ops.inverse_dynamics_gradient(q, zero, zero, None, convention)
+    return _tangent_to_ambient(model, q, _vjp(dtau_dq, grad), convention), None
+
+
+def _nonlinear_effects(ops, model, grads, output, q, qd, convention):
+    """nle(q, qd) = ID(q, qd, 0): MuJoCo's qacc = 0 in MuJoCo's convention, as the op itself."""
+    grad = grads[0]
+    dtau_dq, dtau_dqd = ops.inverse_dynamics_gradient(q, qd, torch.zeros_like(qd), None, convention)
+    return _tangent_to_ambient(model, q, _vjp(dtau_dq, grad), convention), _vjp(dtau_dqd, grad), None
+
+
+def _com(ops, model, grads, output, q, convention):
+    """d com / dq = J_com along the tangent."""
+    grad = grads[0]
+    return _tangent_to_ambient(model, q, _vjp(ops.jacobian_com(q, convention), grad), convention), None
+
+
+def _energy(ops, model, grads, output, q, qd, convention):
+    """KE = qd^T M qd / 2, PE: d PE/dq = g(q); d KE/dqd = M qd; d KE/dq = qd^T d(M qd)/dq / 2, where
+    d(M qd)/dq is the ID gradient at (velocity 0, acceleration qd) less its gravity part at (0, 0)."""
+    grad = grads[0]
+    g_kinetic = grad[..., 0:1] + grad[..., 2:3]
+    g_potential = grad[..., 1:2] + grad[..., 2:3]
+    zero = torch.zeros_like(qd)
+    dmv_dq, _ = ops.inverse_dynamics_gradient(q, zero, qd, None, convention)
+    dg_dq, _ = ops.inverse_dynamics_gradient(q, zero, zero, None, convention)
+    dke_dq = 0.5 * _vjp(dmv_dq - dg_dq, qd)
+    dpe_dq = ops.generalized_gravity(q, convention)
+    dq = _tangent_to_ambient(model, q, g_kinetic * dke_dq + g_potential * dpe_dq, convention)
+    dqd = g_kinetic * _vjp(ops.crba(q, convention), qd)
+    return dq, dqd, None
+
+
+def _forward_kinematics(ops, model, grads, output, q, convention):
+    """Frame positions move with the linear rows of their LOCAL_WORLD_ALIGNED Jacobians; a rotation
+    R moves by dR = [w]x R with w the angular rows, so <G, dR> = w . axial(R G^T - G R^T)."""
+    g_pos, g_rot = grads
+    rotations = output[1]
+    weights = torch.zeros(*q.shape[:-1], len(model.frames), 6, dtype=q.dtype, device=q.device)
+    if g_pos is not None:
+        weights[..., :3] = g_pos
+    if g_rot is not None:
+        A = rotations @ g_rot.transpose(-1, -2)
+        weights[..., 3:] = torch.stack([A[..., 1, 2] - A[..., 2, 1], A[..., 2, 0] - A[..., 0, 2],
+                                        A[..., 0, 1] - A[..., 1, 0]], dim=-1)
+    return _tangent_to_ambient(model, q, ops.frames_vjp(q, weights, convention), convention), None
+
+
+def _end_effector_pose(ops, model, grads, output, q, frames, convention):
+    """[xyz, rpy] of the listed frames: xyz as forward_kinematics; the world angular velocity is
+    w = E(rpy) d(rpy)/dt, so the rpy gradient maps to w through E^-T."""
+    grad = grads[0]
+    weights = torch.zeros(*q.shape[:-1], len(model.frames), 6, dtype=q.dtype, device=q.device)
+    index = torch.tensor(frames, device=q.device)
+    w_ang = torch.linalg.solve(rpy_rate_matrix(output[..., 3:]).transpose(-1, -2), grad[..., 3:].unsqueeze(-1))
+    weights.index_add_(-2, index, torch.cat([grad[..., :3], w_ang.squeeze(-1)], dim=-1))
+    return _tangent_to_ambient(model, q, ops.frames_vjp(q, weights, convention), convention), None, None
+
+
+def rpy_rate_matrix(rpy: torch.Tensor) -> torch.Tensor:
+    """(..., 3, 3) E with world angular velocity w = E d(roll, pitch, yaw)/dt, R = Rz(y) Ry(p) Rx(r)."""
+    p, y = rpy[..., 1], rpy[..., 2]
+    cp, sp, cy, sy = torch.cos(p), torch.sin(p), torch.cos(y), torch.sin(y)
+    zero, one = torch.zeros_like(p), torch.ones_like(p)
+    return torch.stack([torch.stack([cy * cp, -sy, zero], -1), torch.stack([sy * cp, cy, zero], -1),
+                        torch.stack([-sp, zero, one], -1)], dim=-2)
+
+
+_BACKWARDS = {
+    "forward_kinematics": _forward_kinematics,
+    "end_effector_pose": _end_effector_pose,
+    "inverse_dynamics": _inverse_dynamics,
+    "forward_dynamics": _forward_dynamics,
+    "generalized_gravity": _generalized_gravity,
+    "nonlinear_effects": _nonlinear_effects,
+    "com": _com,
+    "energy": _energy,
+}
 
 
 def _needs(*inputs) -> list[bool]:

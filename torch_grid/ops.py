@@ -12,7 +12,7 @@ import torch
 from .model import RobotModel
 
 # Argument kinds: tensors with their trailing shape, or integers.
-TENSOR_KINDS = {"q": ("nq",), "v": ("nv",), "fext": ("nbodies", 6)}
+TENSOR_KINDS = {"q": ("nq",), "v": ("nv",), "fext": ("nbodies", 6), "frame_weights": ("nframes", 6)}
 
 
 @dataclass(frozen=True)
@@ -63,6 +63,7 @@ OPS: dict[str, OpSpec] = {
         OpSpec("end_effector_pose", "EndEffectorPose", (Q, Arg("frames", "frames")), (("nsel", 6),)),
         OpSpec("frame_jacobian", "FrameJacobian", (Q, Arg("frame", "frame"), Arg("reference", "reference")), ((6, "nv"),)),
         OpSpec("body_velocities", "BodyVelocities", (Q, QD), (("nbodies", 6),)),
+        OpSpec("frames_vjp", "FramesVjp", (Q, Arg("weights", "frame_weights")), (("nv",),)),
         OpSpec("inverse_dynamics_gradient", "InverseDynamicsGradient", (Q, QD, QDD, FEXT), (("nv", "nv"), ("nv", "nv"))),
         OpSpec("forward_dynamics_gradient", "ForwardDynamicsGradient", (Q, QD, TAU, FEXT),
                (("nv", "nv"), ("nv", "nv"), ("nv", "nv"))),

@@ -115,6 +115,20 @@ class _Functions:
         """
         return self._call("forward_dynamics_gradient", q, qd, tau, f_ext)
 
+    def end_effector_pose_gradient(self, q, frames: Sequence[str | int]) -> torch.Tensor:
+        """d end_effector_pose / dq along the tangent, (..., len(frames), 6, nv): [xyz; rpy] rows.
+
+        xyz rows are the LOCAL_WORLD_ALIGNED linear Jacobian rows; rpy rows are E^-1 J_angular with
+        E the rpy rate matrix (singular at pitch = +-pi/2, as rpy itself).
+        """
+        from .autograd import rpy_rate_matrix
+
+        if isinstance(frames, (str, int)):
+            raise TypeError(f"end_effector_pose_gradient: frames must be a list of frame names or indices, got {frames!r}")
+        rpy = self.end_effector_pose(q, frames)[..., 3:]
+        J = torch.stack([self.frame_jacobian(q, f, "local_world_aligned") for f in frames], dim=-3)
+        return torch.cat([J[..., :3, :], torch.linalg.solve(rpy_rate_matrix(rpy), J[..., 3:, :])], dim=-2)
+
     def neutral_configuration(self, dtype: torch.dtype = torch.float64, device="cpu") -> torch.Tensor:
         """(nq,) zero joint positions and, for a floating base, the identity orientation at the origin."""
         q = torch.zeros(self._robot.nq, dtype=dtype, device=device)
@@ -145,7 +159,7 @@ class _Functions:
     def _call(self, name: str, *args):
         spec = OPS[name]
         robot = self._robot
-        sizes = {"nq": robot.nq, "nv": robot.nv, "nbodies": robot.nbodies}
+        sizes = {"nq": robot.nq, "nv": robot.nv, "nbodies": robot.nbodies, "nframes": robot.nframes}
         tensors = [(a, x) for a, x in zip(spec.args, args) if a.kind in TENSOR_KINDS and x is not None]
         q = args[0]
         for a, x in tensors:

@@ -69,4 +69,25 @@ template <class M, class S> TG_HD void frame_jacobian(const S* q, int f, int ref
   }
 }
 
+// sum_f J_f^T w_f over every frame f (NV), J_f the LOCAL_WORLD_ALIGNED Jacobian and w (NF x 6)
+// [linear; angular] weights: the gradient of sum_f w_f . (frame velocity) with respect to qd.
+// Each weight acts as the spatial force [w_lin; p_f x w_lin + w_ang] at the world origin; a
+// joint collects the forces of its subtree, projected on its world axes.
+template <class M, class S> TG_HD void frames_vjp(const S* q, const S* w, S* out) {
+  const auto& d = M::data();
+  SE3<S> liMi[M::NB], oMi[M::NB];
+  forward_kinematics<M, S>(q, liMi, oMi);
+  Sv<S> F[M::NB];
+  for (int i = 0; i < M::NB; ++i) F[i] = sv_zero<S>();
+  for (int f = 0; f < M::NF; ++f) {
+    if (d.fparent[f] < 0) continue;  // world frames do not move
+    const Vec3<S> p = frame_placement<M, S>(f, oMi).p, wl = load3(w + 6 * f), wa = load3(w + 6 * f + 3);
+    F[d.fparent[f]] = F[d.fparent[f]] + sv(wl, cross(p, wl) + wa);
+  }
+  for (int i = M::NB - 1; i >= 0; --i) {
+    for (int k = 0; k < d.nvj[i]; ++k) out[d.vi[i] + k] = dot(act_motion(oMi[i], joint_axis<M, S>(i, k)), F[i]);
+    if (d.parent[i] >= 0) F[d.parent[i]] = F[d.parent[i]] + F[i];
+  }
+}
+
 }  // namespace tg

@@ -133,6 +133,12 @@ TG_OP_BEGIN(BodyVelocities)
   body_velocities<M, S>(cv.q, qd, out[0]);
 TG_OP_END
 
+// in: q, w (NF x 6)   out: sum_f J_f^T w_f (NV), the frames' vector-Jacobian product
+TG_OP_BEGIN(FramesVjp)
+  frames_vjp<M, S>(cv.q, in[1], out[0]);
+  cv.force_out(out[0]);
+TG_OP_END
+
 // X <- -A X for NV x NV row-major matrices, one column at a time.
 template <class M, class S> TG_HD void negate_left_multiply(const S* A, S* X) {
   for (int c = 0; c < M::NV; ++c) {
