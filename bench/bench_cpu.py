@@ -88,7 +88,31 @@ def cases(name: str):
         "forward_dynamics": (lambda: robot.forward_dynamics(q, qd, qdd), lambda: pin.aba(model, data, qn, vn, an)),
         "frame_jacobian": (lambda: robot.frame_jacobian(q, frame),
                            lambda: pin.computeFrameJacobian(model, data, qn, frame, pin.LOCAL_WORLD_ALIGNED)),
+        "inverse_dynamics_gradient": (lambda: robot.inverse_dynamics_gradient(q, qd, qdd),
+                                      lambda: pin.computeRNEADerivatives(model, data, qn, vn, an)),
+        "forward_dynamics_gradient": (lambda: robot.forward_dynamics_gradient(q, qd, qdd),
+                                      lambda: pin.computeABADerivatives(model, data, qn, vn, an)),
     }
+
+
+def backward_ratio(name: str) -> tuple[float, float]:
+    """Per-sample time of forward_dynamics alone and of forward + backward (all inputs), 1 thread."""
+    src, floating, bundled = ROBOTS[name]
+    robot = torch_grid.load(bundled or src, floating_base=floating)
+    g = torch.Generator().manual_seed(0)
+    inputs = [robot.random_configuration(B, generator=g)] + \
+        [torch.randn(B, robot.nv, dtype=torch.float64, generator=g) for _ in range(2)]
+
+    def forward_backward():
+        leaves = [x.detach().requires_grad_(True) for x in inputs]
+        robot.forward_dynamics(*leaves).sum().backward()
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    forward = per_sample_us(lambda: robot.forward_dynamics(*inputs), B)
+    both = per_sample_us(forward_backward, B)
+    torch.set_num_threads(threads)
+    return forward, both
 
 
 def bench_robot(name: str) -> list[tuple]:
@@ -113,10 +137,14 @@ def main() -> None:
     lines = [f"| robot | function | 1 thread | {threads} threads | Pinocchio per call | 1 thread ≤ Pinocchio |",
              "|---|---|---|---|---|---|"]
     builds = ["| robot | nq | nv | first build (s) | warm load, new process (s) |", "|---|---|---|---|---|"]
+    grads = ["| robot | forward_dynamics (µs/sample) | forward + backward (µs/sample) | ratio |", "|---|---|---|---|"]
     for name in args.robots:
         for robot, fn, one, many, ref in bench_robot(name):
             lines.append(f"| {robot} | {fn} | {one:.3f} | {many:.3f} | {ref:.3f} | {'yes' if one <= ref else 'NO'} |")
             print(lines[-1], flush=True)
+        forward, both = backward_ratio(name)
+        grads.append(f"| {name} | {forward:.3f} | {both:.3f} | {both / forward:.2f} |")
+        print(grads[-1], flush=True)
         first, warm = build_times(name)
         src, floating, bundled = ROBOTS[name]
         r = torch_grid.load(bundled or src, floating_base=floating)
@@ -132,7 +160,9 @@ def main() -> None:
               "Python (its usual use); torch_grid's time is one batched call divided by B, in µs per sample, "
               "including the allocation of the batched output.\n")
     text = header + "\n" + "\n".join(lines) + "\n\nFirst build: all functions, both conventions, float32 + float64, CPU, " \
-        "into an empty cache; warm load: `torch_grid.load` in a new process after `import torch`.\n\n" + "\n".join(builds) + "\n"
+        "into an empty cache; warm load: `torch_grid.load` in a new process after `import torch`.\n\n" + "\n".join(builds) + \
+        "\n\nAutograd: forward_dynamics alone against forward + backward with respect to q, qd and tau " \
+        "(one thread, float64, B = 4096).\n\n" + "\n".join(grads) + "\n"
     print(text)
     if args.write:
         (HERE / "RESULTS.md").write_text("# Benchmark results\n\nProduced by `python bench/bench_cpu.py --write`.\n\n" + text)

@@ -139,17 +139,21 @@ TG_OP_BEGIN(FramesVjp)
   cv.force_out(out[0]);
 TG_OP_END
 
-// X <- -A X for NV x NV row-major matrices, one column at a time.
+// X <- -A X for NV x NV row-major matrices: rows of the product are sums of rows of X, which
+// keeps the inner loop contiguous (it vectorises).
 template <class M, class S> TG_HD void negate_left_multiply(const S* A, S* X) {
-  for (int c = 0; c < M::NV; ++c) {
-    S col[M::NV];
-    for (int r = 0; r < M::NV; ++r) {
-      S acc = 0;
-      for (int k = 0; k < M::NV; ++k) acc += A[M::NV * r + k] * X[M::NV * k + c];
-      col[r] = -acc;
+  constexpr int NV = M::NV;
+  S T[NV * NV];
+  for (int r = 0; r < NV; ++r) {
+    S* t = T + NV * r;
+    for (int c = 0; c < NV; ++c) t[c] = S(0);
+    for (int k = 0; k < NV; ++k) {
+      const S a = A[NV * r + k];
+      const S* x = X + NV * k;
+      for (int c = 0; c < NV; ++c) t[c] -= a * x[c];
     }
-    for (int r = 0; r < M::NV; ++r) X[M::NV * r + c] = col[r];
   }
+  for (int k = 0; k < NV * NV; ++k) X[k] = T[k];
 }
 
 // in: q, qd, tau, f_ext?   out: dqdd/dq, dqdd/dqd, dqdd/dtau. Since ID(q, qd, FD(q, qd, tau)) = tau,
@@ -158,9 +162,16 @@ TG_OP_BEGIN(ForwardDynamicsGradient)
   S qd[M::NV], u[M::NV], qdd[M::NV], tau[M::NV];
   cv.velocity(in[1], qd);
   cv.force(in[2], u);
-  aba<M, S>(cv.q, qd, u, in[3], qdd);
-  rnea_derivatives<M, S>(cv.q, qd, qdd, in[3], tau, out[0], out[1]);
+  // qdd = M^-1 (tau - nle): M^-1 is needed anyway, so no separate ABA.
   minv<M, S>(cv.q, out[2]);
+  for (int k = 0; k < M::NV; ++k) qdd[k] = S(0);
+  rnea<M, S>(cv.q, qd, qdd, in[3], tau);
+  for (int r = 0; r < M::NV; ++r) {
+    S acc = 0;
+    for (int k = 0; k < M::NV; ++k) acc += out[2][M::NV * r + k] * (u[k] - tau[k]);
+    qdd[r] = acc;
+  }
+  rnea_derivatives<M, S>(cv.q, qd, qdd, in[3], tau, out[0], out[1]);
   if constexpr (Conv<M, S, C>::active) {
     S Mass[M::NV * M::NV];
     crba<M, S>(cv.q, Mass);
