@@ -204,3 +204,69 @@ def test_ops_without_derivatives_raise(robots):
     q.requires_grad_(True)
     with pytest.raises(NotImplementedError, match="crba has no derivative yet"):
         robot.crba(q).sum().backward()
+
+
+# --------------------------------------------------------------------------------------------
+# inertial-parameter regressors
+# --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", ROBOTS)
+def test_regressors_vs_pinocchio(robots, pin_models, name):
+    robot, pm = robots[name], pin_models[name]
+    pd = pm.createData()
+    q, qd, qdd, _ = _states(robot, seed=11)
+    pi = robot.inertial_parameters()
+    assert rel_err(pi, np.concatenate([pm.inertias[i].toDynamicParameters() for i in range(1, pm.njoints)])) <= 1e-14
+    Y, Yk, Yp = robot.inverse_dynamics_regressor(q, qd, qdd), robot.kinetic_energy_regressor(q, qd), \
+        robot.potential_energy_regressor(q)
+    for b in range(q.shape[0]):
+        qp = to_pin_q(robot, q[b])
+        assert rel_err(Y[b], pin.computeJointTorqueRegressor(pm, pd, qp, qd[b].numpy(), qdd[b].numpy())) <= 1e-8
+        assert rel_err(Yk[b], pin.computeKineticEnergyRegressor(pm, pd, qp, qd[b].numpy())) <= 1e-8
+        assert rel_err(Yp[b], pin.computePotentialEnergyRegressor(pm, pd, qp)) <= 1e-8
+    energy = robot.energy(q, qd)
+    assert rel_err(Yk @ pi, energy[..., 0]) <= 1e-12 and rel_err(Yp @ pi, energy[..., 1]) <= 1e-12
+
+
+@pytest.mark.parametrize("name", FLOATING)
+def test_mujoco_regressors(robots, mj_sims, name):
+    """In MuJoCo's convention Y pi is MuJoCo's inverse dynamics; the energy regressors are invariant."""
+    robot, sim = robots[name], mj_sims[name]
+    q, qd, qdd, _ = _states(robot, batch=2, seed=12, convention="mujoco")
+    pi = robot.inertial_parameters()
+    Y = robot.mujoco.inverse_dynamics_regressor(q, qd, qdd)
+    for b in range(2):
+        assert rel_err(Y[b] @ pi, sim.qfrc_inverse(q[b].numpy(), qd[b].numpy(), qdd[b].numpy())) <= 1e-9
+        kinetic, potential = sim.energy(q[b].numpy(), qd[b].numpy())[:2]
+        assert abs(float(robot.mujoco.kinetic_energy_regressor(q[b], qd[b]) @ pi) - kinetic) <= 1e-9 * max(1, abs(kinetic))
+        assert abs(float(robot.mujoco.potential_energy_regressor(q[b]) @ pi) - potential) <= 1e-9 * max(1, abs(potential))
+
+
+def test_forward_dynamics_parameter_gradient_vs_finite_differences(robots, tmp_path):
+    """Perturb one body's dynamic parameters in the model itself, rebuild, and difference qdd."""
+    import torch_grid
+    from torch_grid.model import Joint, RobotModel
+
+    robot = robots["go2"]
+    body = robot.nbodies - 1
+    joint = robot.model.joints[body]
+
+    def robot_with_mass(delta):
+        # Adding mass at fixed first moment h and fixed I about the origin moves parameter 0 alone.
+        mass = joint.mass + delta
+        com = tuple(joint.mass * c / mass for c in joint.com)
+        c2, c2_new = sum(c * c for c in joint.com), sum(c * c for c in com)
+        inertia = tuple(x + (joint.mass * (c2 if r == k else 0) - joint.mass * joint.com[r] * joint.com[k])
+                        - (mass * (c2_new if r == k else 0) - mass * com[r] * com[k])
+                        for r in range(3) for k in range(3) for x in [joint.inertia[3 * r + k]])
+        joints = list(robot.model.joints)
+        joints[body] = Joint(**{**joint.__dict__, "mass": mass, "com": com, "inertia": inertia})
+        return torch_grid.load(RobotModel(robot.name + "_fd", tuple(joints), robot.model.frames), cache_dir=tmp_path)
+
+    eps = 1e-4
+    plus, minus = robot_with_mass(eps), robot_with_mass(-eps)
+    for convention in ("pin", "mujoco"):
+        q, qd, tau, _ = _states(robot, batch=1, seed=13, convention=convention)
+        ours = getattr(robot, convention).forward_dynamics_parameter_gradient(q, qd, tau)[0]
+        fd = (getattr(plus, convention).forward_dynamics(q, qd, tau)[0]
+              - getattr(minus, convention).forward_dynamics(q, qd, tau)[0]) / (2 * eps)
+        assert rel_err(ours[:, 10 * body], fd) <= 1e-6, convention

@@ -8,7 +8,7 @@ from .model import RobotModel
 from .ops import OPS, TENSOR_KINDS, OpSpec
 
 _JTYPE = {"free": 0, "revolute": 1, "continuous": 1, "prismatic": 2}
-_SIZE = {"nv": "Robot::NV", "nq": "Robot::NQ", "nframes": "Robot::NF", "nbodies": "Robot::NB",
+_SIZE = {"nv": "Robot::NV", "nq": "Robot::NQ", "nframes": "Robot::NF", "nbodies": "Robot::NB", "nparams": "10 * Robot::NB",
          "nsel": "static_cast<int64_t>(frames.size())"}
 
 

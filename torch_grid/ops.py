@@ -27,7 +27,7 @@ class OpSpec:
     name: str
     kernel: str  # C++ op struct in csrc/kernels/ops.h
     args: tuple[Arg, ...]
-    outputs: tuple[tuple, ...]  # trailing shapes; symbols "nv", "nq", "nbodies", "nframes", "nsel"
+    outputs: tuple[tuple, ...]  # trailing shapes; symbols "nv", "nq", "nbodies", "nparams", "nframes", "nsel"
 
     @property
     def tensor_args(self) -> tuple[Arg, ...]:
@@ -41,7 +41,8 @@ class OpSpec:
         return f"{self.name}({', '.join(params + ['int convention'])}) -> " + (f"({outs})" if len(self.outputs) > 1 else outs)
 
     def output_shapes(self, model: RobotModel, batch: tuple[int, ...], nsel: int = 0) -> list[tuple[int, ...]]:
-        sizes = {"nv": model.nv, "nq": model.nq, "nbodies": model.nbodies, "nframes": len(model.frames), "nsel": nsel}
+        sizes = {"nv": model.nv, "nq": model.nq, "nbodies": model.nbodies, "nparams": 10 * model.nbodies,
+                 "nframes": len(model.frames), "nsel": nsel}
         return [tuple(batch) + tuple(sizes.get(d, d) for d in shape) for shape in self.outputs]
 
 
@@ -67,6 +68,11 @@ OPS: dict[str, OpSpec] = {
         OpSpec("inverse_dynamics_gradient", "InverseDynamicsGradient", (Q, QD, QDD, FEXT), (("nv", "nv"), ("nv", "nv"))),
         OpSpec("forward_dynamics_gradient", "ForwardDynamicsGradient", (Q, QD, TAU, FEXT),
                (("nv", "nv"), ("nv", "nv"), ("nv", "nv"))),
+        OpSpec("inverse_dynamics_regressor", "InverseDynamicsRegressor", (Q, QD, QDD), (("nv", "nparams"),)),
+        OpSpec("kinetic_energy_regressor", "KineticEnergyRegressor", (Q, QD), (("nparams",),)),
+        OpSpec("potential_energy_regressor", "PotentialEnergyRegressor", (Q,), (("nparams",),)),
+        OpSpec("forward_dynamics_parameter_gradient", "ForwardDynamicsParameterGradient", (Q, QD, TAU),
+               (("nv", "nparams"),)),
     )
 }
 

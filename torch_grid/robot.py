@@ -129,6 +129,33 @@ class _Functions:
         J = torch.stack([self.frame_jacobian(q, f, "local_world_aligned") for f in frames], dim=-3)
         return torch.cat([J[..., :3, :], torch.linalg.solve(rpy_rate_matrix(rpy), J[..., 3:, :])], dim=-2)
 
+    def inverse_dynamics_regressor(self, q, qd, qdd) -> torch.Tensor:
+        """Y (..., nv, 10 nbodies) with inverse_dynamics(q, qd, qdd) = Y @ inertial_parameters()."""
+        return self._call("inverse_dynamics_regressor", q, qd, qdd)
+
+    def kinetic_energy_regressor(self, q, qd) -> torch.Tensor:
+        """(..., 10 nbodies) with kinetic energy = regressor @ inertial_parameters()."""
+        return self._call("kinetic_energy_regressor", q, qd)
+
+    def potential_energy_regressor(self, q) -> torch.Tensor:
+        """(..., 10 nbodies) with potential energy = regressor @ inertial_parameters()."""
+        return self._call("potential_energy_regressor", q)
+
+    def forward_dynamics_parameter_gradient(self, q, qd, tau) -> torch.Tensor:
+        """d forward_dynamics / d inertial_parameters (..., nv, 10 nbodies) = -M^-1 Y at qdd = FD."""
+        return self._call("forward_dynamics_parameter_gradient", q, qd, tau)
+
+    def inertial_parameters(self, dtype: torch.dtype = torch.float64, device="cpu") -> torch.Tensor:
+        """(10 nbodies,) each body's [m, m c, I_xx, I_xy, I_yy, I_xz, I_yz, I_zz] in Pinocchio's order:
+        c the centre of mass and I the rotational inertia about the joint frame origin."""
+        from .codegen import inertia_about_origin
+
+        rows = []
+        for j in self._robot.model.joints:
+            I = inertia_about_origin(j.mass, j.com, j.inertia)
+            rows.append([j.mass, *(j.mass * c for c in j.com), I[0], I[1], I[4], I[2], I[5], I[8]])
+        return torch.tensor(rows, dtype=dtype, device=device).reshape(-1)
+
     def neutral_configuration(self, dtype: torch.dtype = torch.float64, device="cpu") -> torch.Tensor:
         """(nq,) zero joint positions and, for a floating base, the identity orientation at the origin."""
         q = torch.zeros(self._robot.nq, dtype=dtype, device=device)

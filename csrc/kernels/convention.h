@@ -47,11 +47,21 @@ template <class M, class S, int C> struct Conv {
     if constexpr (active)
       for (int r = 0; r < rows; ++r) store3(mul(R, load3(J + M::NV * r)), J + M::NV * r);
   }
+  // Matrix (NV x cols) of generalized forces out: base-linear rows left-multiplied by R (G X).
+  TG_HD void force_rows_out(S* X, int cols) const {
+    if constexpr (active)
+      for (int c = 0; c < cols; ++c) {
+        const Vec3<S> x = mul(R, v3(X[c], X[cols + c], X[2 * cols + c]));
+        X[c] = x.x[0];
+        X[cols + c] = x.x[1];
+        X[2 * cols + c] = x.x[2];
+      }
+  }
   // Symmetric NV x NV matrix out: congruence G X G^T.
   TG_HD void congruence_out(S* X) const {
     if constexpr (active) {
       columns_out(X, M::NV);
-      for (int c = 0; c < M::NV; ++c) store3_column(X, c, mul(R, load3_column(X, c)));
+      force_rows_out(X, M::NV);
     }
   }
 

@@ -9,6 +9,7 @@
 #include "crba.h"
 #include "frames.h"
 #include "minv.h"
+#include "regressors.h"
 #include "rnea.h"
 #include "rnea_derivatives.h"
 
@@ -180,6 +181,56 @@ TG_OP_BEGIN(ForwardDynamicsGradient)
   }
   negate_left_multiply<M, S>(out[2], out[0]);
   negate_left_multiply<M, S>(out[2], out[1]);
+TG_OP_END
+
+// in: q, qd, qdd   out: Y (NV x 10 NB), tau = Y pi
+TG_OP_BEGIN(InverseDynamicsRegressor)
+  S qd[M::NV], qdd[M::NV];
+  cv.velocity(in[1], qd);
+  cv.acceleration(qd, in[2], qdd);
+  inverse_dynamics_regressor<M, S>(cv.q, qd, qdd, out[0]);
+  cv.force_rows_out(out[0], 10 * M::NB);
+TG_OP_END
+
+// in: q, qd   out: Yk (10 NB), KE = Yk . pi
+TG_OP_BEGIN(KineticEnergyRegressor)
+  S qd[M::NV];
+  cv.velocity(in[1], qd);
+  kinetic_energy_regressor<M, S>(cv.q, qd, out[0]);
+TG_OP_END
+
+// in: q   out: Yp (10 NB), PE = Yp . pi
+TG_OP_BEGIN(PotentialEnergyRegressor)
+  potential_energy_regressor<M, S>(cv.q, out[0]);
+TG_OP_END
+
+// in: q, qd, tau   out: d qdd / d pi (NV x 10 NB) = -M^-1 Y(q, qd, qdd) at qdd = FD(q, qd, tau).
+// MuJoCo's qdd differs from Pinocchio's by G and a term free of pi, so the twin is G (.).
+TG_OP_BEGIN(ForwardDynamicsParameterGradient)
+  constexpr int NP = 10 * M::NB;
+  S qd[M::NV], u[M::NV], qdd[M::NV], nle[M::NV], Minv[M::NV * M::NV];
+  cv.velocity(in[1], qd);
+  cv.force(in[2], u);
+  minv<M, S>(cv.q, Minv);
+  for (int k = 0; k < M::NV; ++k) qdd[k] = S(0);
+  rnea<M, S>(cv.q, qd, qdd, nullptr, nle);
+  for (int k = 0; k < M::NV; ++k) u[k] -= nle[k];
+  for (int r = 0; r < M::NV; ++r) {
+    S acc = 0;
+    for (int k = 0; k < M::NV; ++k) acc += Minv[M::NV * r + k] * u[k];
+    qdd[r] = acc;
+  }
+  inverse_dynamics_regressor<M, S>(cv.q, qd, qdd, out[0]);
+  for (int c = 0; c < NP; ++c) {  // -M^-1 Y, a column at a time
+    S y[M::NV];
+    for (int r = 0; r < M::NV; ++r) {
+      S acc = 0;
+      for (int k = 0; k < M::NV; ++k) acc += Minv[M::NV * r + k] * out[0][NP * k + c];
+      y[r] = -acc;
+    }
+    for (int r = 0; r < M::NV; ++r) out[0][NP * r + c] = y[r];
+  }
+  cv.force_rows_out(out[0], NP);
 TG_OP_END
 
 #undef TG_OP_BEGIN

@@ -1,0 +1,94 @@
+// Inertial-parameter regressors: tau = Y pi, KE = Yk . pi, PE = Yp . pi, with pi stacking each
+// body's dynamic parameters in Pinocchio's order [m, h_x, h_y, h_z, I_xx, I_xy, I_yy, I_xz, I_yz,
+// I_zz], h = m c and I the rotational inertia about the joint frame origin.
+#pragma once
+
+#include "joints.h"
+
+namespace tg {
+
+// Body force f = I a + v x* (I v) as 10 columns, one per dynamic parameter (joint frame).
+template <class S> TG_HD void body_force_regressor(const Sv<S>& v, const Sv<S>& a, Sv<S>* cols) {
+  const Vec3<S> vl = lin(v), va = ang(v), al = lin(a), aa = ang(a);
+  const Vec3<S> zero = v3(S(0), S(0), S(0));
+  cols[0] = sv(al + cross(va, vl), zero);
+  for (int k = 0; k < 3; ++k) {
+    Vec3<S> e = zero;
+    e.x[k] = S(1);
+    // I v with h = e: [v_a x e; e x v_l]; then v x* (I v) added to I a.
+    const Vec3<S> p = cross(va, e), n = cross(e, vl);
+    cols[1 + k] = sv(cross(aa, e) + cross(va, p), cross(e, al) + cross(va, n) + cross(vl, p));
+  }
+  // I_o basis (symmetric): xx, xy, yy, xz, yz, zz.
+  const int rows[6] = {0, 0, 1, 0, 1, 2}, colsk[6] = {0, 1, 1, 2, 2, 2};
+  for (int k = 0; k < 6; ++k) {
+    Mat3<S> E{};
+    E.m[3 * rows[k] + colsk[k]] = S(1);
+    E.m[3 * colsk[k] + rows[k]] = S(1);
+    cols[4 + k] = sv(zero, mul(E, aa) + cross(va, mul(E, va)));
+  }
+}
+
+// Y (NV x 10 NB): column block i holds body i's regressor, carried to each joint above it.
+template <class M, class S> TG_HD void inverse_dynamics_regressor(const S* q, const S* qd, const S* qdd, S* Y) {
+  const auto& d = M::data();
+  constexpr int NP = 10 * M::NB;
+  SE3<S> liMi[M::NB];
+  Sv<S> v[M::NB], a[M::NB];
+  for (int k = 0; k < M::NV * NP; ++k) Y[k] = S(0);
+  for (int i = 0; i < M::NB; ++i) {
+    const int p = d.parent[i];
+    liMi[i] = joint_placement<M, S>(i, q);
+    const Sv<S> vJ = joint_motion<M, S>(i, qd);
+    v[i] = p < 0 ? vJ : actinv_motion(liMi[i], v[p]) + vJ;
+    a[i] = actinv_motion(liMi[i], p < 0 ? base_acceleration<M, S>() : a[p]) + joint_motion<M, S>(i, qdd) +
+           cross_motion(v[i], vJ);
+    Sv<S> cols[10];
+    body_force_regressor(v[i], a[i], cols);
+    for (int c = 0; c < 10; ++c) {
+      Sv<S> f = cols[c];
+      for (int j = i;;) {
+        for (int l = 0; l < d.nvj[j]; ++l) Y[NP * (d.vi[j] + l) + 10 * i + c] = dot(joint_axis<M, S>(j, l), f);
+        if (d.parent[j] < 0) break;
+        f = act_force(liMi[j], f);
+        j = d.parent[j];
+      }
+    }
+  }
+}
+
+// Kinetic energy KE = Yk . pi (10 NB): per body [|v_l|^2 / 2, v_l x v_a, v_a v_a^T / 2 (sym)].
+template <class M, class S> TG_HD void kinetic_energy_regressor(const S* q, const S* qd, S* Yk) {
+  const auto& d = M::data();
+  Sv<S> v[M::NB];
+  for (int i = 0; i < M::NB; ++i) {
+    const Sv<S> vJ = joint_motion<M, S>(i, qd);
+    v[i] = d.parent[i] < 0 ? vJ : actinv_motion(joint_placement<M, S>(i, q), v[d.parent[i]]) + vJ;
+    const Vec3<S> vl = lin(v[i]), w = ang(v[i]), h = cross(vl, w);
+    S* y = Yk + 10 * i;
+    y[0] = S(0.5) * dot(vl, vl);
+    for (int k = 0; k < 3; ++k) y[1 + k] = h.x[k];
+    y[4] = S(0.5) * w.x[0] * w.x[0];
+    y[5] = w.x[0] * w.x[1];
+    y[6] = S(0.5) * w.x[1] * w.x[1];
+    y[7] = w.x[0] * w.x[2];
+    y[8] = w.x[1] * w.x[2];
+    y[9] = S(0.5) * w.x[2] * w.x[2];
+  }
+}
+
+// Potential energy PE = Yp . pi (10 NB): PE_i = -g . (m p_i + R_i h), p_i, R_i the joint frame's placement.
+template <class M, class S> TG_HD void potential_energy_regressor(const S* q, S* Yp) {
+  const auto& d = M::data();
+  SE3<S> liMi[M::NB], oMi[M::NB];
+  forward_kinematics<M, S>(q, liMi, oMi);
+  const Vec3<S> g = v3(S(d.gravity[0]), S(d.gravity[1]), S(d.gravity[2]));
+  for (int i = 0; i < M::NB; ++i) {
+    S* y = Yp + 10 * i;
+    y[0] = -dot(g, oMi[i].p);
+    store3(S(-1) * mulT(oMi[i].R, g), y + 1);
+    for (int k = 4; k < 10; ++k) y[k] = S(0);
+  }
+}
+
+}  // namespace tg
