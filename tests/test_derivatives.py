@@ -270,3 +270,49 @@ def test_forward_dynamics_parameter_gradient_vs_finite_differences(robots, tmp_p
         fd = (getattr(plus, convention).forward_dynamics(q, qd, tau)[0]
               - getattr(minus, convention).forward_dynamics(q, qd, tau)[0]) / (2 * eps)
         assert rel_err(ours[:, 10 * body], fd) <= 1e-6, convention
+
+
+# --------------------------------------------------------------------------------------------
+# Jacobian time variation
+# --------------------------------------------------------------------------------------------
+def _limb_frames(robot):
+    """Frames on the last body and on a middle one: they move with several joints."""
+    last = next(i for i in reversed(range(robot.nframes)) if robot.model.frames[i].parent == robot.nbodies - 1)
+    middle = next(i for i, f in enumerate(robot.model.frames) if f.parent == robot.nbodies // 2)
+    return [last, middle]
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+@pytest.mark.parametrize("reference, pin_reference", [("world", pin.WORLD), ("local", pin.LOCAL),
+                                                      ("local_world_aligned", pin.LOCAL_WORLD_ALIGNED)])
+def test_frame_jacobian_dot_vs_pinocchio(robots, pin_models, name, reference, pin_reference):
+    robot, pm = robots[name], pin_models[name]
+    pd = pm.createData()
+    q, qd, _, _ = _states(robot, batch=2, seed=14)
+    for frame in _limb_frames(robot):
+        ours = robot.frame_jacobian_dot(q, qd, frame, reference)
+        for b in range(2):
+            pin.computeJointJacobiansTimeVariation(pm, pd, to_pin_q(robot, q[b]), qd[b].numpy())
+            pin.updateFramePlacements(pm, pd)
+            assert rel_err(ours[b], pin.getFrameJacobianTimeVariation(pm, pd, frame, pin_reference)) <= 1e-8
+
+
+@pytest.mark.parametrize("name", FLOATING)
+def test_mujoco_frame_jacobian_dot_vs_finite_differences(robots, mj_sims, name):
+    """d/dt of mj_jacBody along qpos(t) = mj_integratePos(qpos, qvel, t), qvel fixed in MuJoCo's frame."""
+    robot, sim = robots[name], mj_sims[name]
+    q, qd, _, _ = (x[0].numpy() for x in _states(robot, batch=1, seed=15, convention="mujoco"))
+    for frame in _limb_frames(robot):
+        body = robot.model.frames[frame].name if robot.model.frames[frame].kind == "body" else None
+        if body is None:
+            body = next(f.name for f in robot.model.frames if f.kind == "body" and f.parent == robot.model.frames[frame].parent)
+        index = robot.frame_index(body)
+        ours = robot.mujoco.frame_jacobian_dot(torch.from_numpy(q), torch.from_numpy(qd), index).numpy()
+        dt = 1e-6
+
+        def jac(t):
+            moved = q.copy()
+            mujoco.mj_integratePos(sim.m, moved, qd, t)
+            return sim.jac_body(moved, body)
+
+        assert rel_err(ours, (jac(dt) - jac(-dt)) / (2 * dt)) <= 1e-6

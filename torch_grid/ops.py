@@ -63,6 +63,8 @@ OPS: dict[str, OpSpec] = {
         OpSpec("forward_kinematics", "ForwardKinematics", (Q,), (("nframes", 3), ("nframes", 3, 3))),
         OpSpec("end_effector_pose", "EndEffectorPose", (Q, Arg("frames", "frames")), (("nsel", 6),)),
         OpSpec("frame_jacobian", "FrameJacobian", (Q, Arg("frame", "frame"), Arg("reference", "reference")), ((6, "nv"),)),
+        OpSpec("frame_jacobian_dot", "FrameJacobianDot", (Q, QD, Arg("frame", "frame"), Arg("reference", "reference")),
+               ((6, "nv"),)),
         OpSpec("body_velocities", "BodyVelocities", (Q, QD), (("nbodies", 6),)),
         OpSpec("frames_vjp", "FramesVjp", (Q, Arg("weights", "frame_weights")), (("nv",),)),
         OpSpec("inverse_dynamics_gradient", "InverseDynamicsGradient", (Q, QD, QDD, FEXT), (("nv", "nv"), ("nv", "nv"))),

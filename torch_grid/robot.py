@@ -90,10 +90,12 @@ class _Functions:
         reference: "local_world_aligned" (frame origin, world axes), "local" (frame axes) or
         "world" (spatial velocity at the world origin).
         """
-        ref = REFERENCES.get(reference.lower()) if isinstance(reference, str) else None
-        if ref is None:
-            raise ValueError(f"frame_jacobian: reference must be one of {sorted(REFERENCES)}, got {reference!r}")
-        return self._call("frame_jacobian", q, self._robot.frame_index(frame, "frame"), ref)
+        return self._call("frame_jacobian", q, self._robot.frame_index(frame, "frame"), _reference(reference))
+
+    def frame_jacobian_dot(self, q, qd, frame: str | int, reference: str = "local_world_aligned") -> torch.Tensor:
+        """Time derivative (..., 6, nv) of frame_jacobian at velocity qd (Pinocchio's
+        getFrameJacobianTimeVariation); in MuJoCo's convention, of its Jacobian with qvel fixed."""
+        return self._call("frame_jacobian_dot", q, qd, self._robot.frame_index(frame, "frame"), _reference(reference))
 
     def body_velocities(self, q, qd) -> torch.Tensor:
         """Spatial velocity [linear; angular] (..., nbodies, 6) of each body, in its joint frame."""
@@ -298,6 +300,13 @@ def _check_tensor(op: str, name: str, x, trailing: tuple[int, ...], q) -> None:
     if x.dim() < len(trailing) or tuple(x.shape[x.dim() - len(trailing):]) != trailing:
         want = ", ".join(["..."] + [str(t) for t in trailing])
         raise ValueError(f"{op}: {name} must have shape ({want}), got {tuple(x.shape)}")
+
+
+def _reference(reference) -> int:
+    ref = REFERENCES.get(reference.lower()) if isinstance(reference, str) else None
+    if ref is None:
+        raise ValueError(f"reference must be one of {sorted(REFERENCES)}, got {reference!r}")
+    return ref
 
 
 def _broadcast_batch(op: str, tensors) -> torch.Size:

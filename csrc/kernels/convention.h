@@ -47,6 +47,18 @@ template <class M, class S, int C> struct Conv {
     if constexpr (active)
       for (int r = 0; r < rows; ++r) store3(mul(R, load3(J + M::NV * r)), J + M::NV * r);
   }
+  // Jacobian time derivative out: d/dt (J G^-1) = Jdot G^-1 + J d(G^-1)/dt, and d(R^T)/dt = -[w]x R^T
+  // with w = qd[3:6] the base's local angular velocity (qd in Pinocchio's convention).
+  TG_HD void jacobian_dot_out(const S* qd, const S* J, S* Jdot, int rows) const {
+    if constexpr (active) {
+      const Vec3<S> w = load3(qd + 3);
+      for (int r = 0; r < rows; ++r) {
+        // row r of J [w]x is J_r x w
+        const Vec3<S> jd = load3(Jdot + M::NV * r), j = load3(J + M::NV * r);
+        store3(mul(R, jd - cross(j, w)), Jdot + M::NV * r);
+      }
+    }
+  }
   // Matrix (NV x cols) of generalized forces out: base-linear rows left-multiplied by R (G X).
   TG_HD void force_rows_out(S* X, int cols) const {
     if constexpr (active)

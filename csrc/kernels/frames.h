@@ -90,4 +90,54 @@ template <class M, class S> TG_HD void frames_vjp(const S* q, const S* w, S* out
   }
 }
 
+// Time derivative of frame_jacobian (6 x NV) at velocity qd, and the Jacobian itself (J may be
+// null). A world axis S_j moves with its body: dS_j/dt = v_j x S_j (world velocities); the frame
+// origin p moves at pdot, and a LOCAL Jacobian also turns with the frame's angular velocity w.
+template <class M, class S>
+TG_HD void frame_jacobian_dot(const S* q, const S* qd, int f, int reference, S* Jdot, S* J) {
+  const auto& d = M::data();
+  int chain[M::NB], n = 0;  // support chain, frame's body first
+  for (int j = d.fparent[f]; j >= 0; j = d.parent[j]) chain[n++] = j;
+  SE3<S> oMi[M::NB];
+  Sv<S> v[M::NB];
+  for (int k = n - 1; k >= 0; --k) {
+    const int i = chain[k];
+    const SE3<S> liMi = joint_placement<M, S>(i, q);
+    oMi[i] = k == n - 1 ? liMi : oMi[chain[k + 1]] * liMi;
+    v[i] = act_motion(oMi[i], joint_motion<M, S>(i, qd)) + (k == n - 1 ? sv_zero<S>() : v[chain[k + 1]]);
+  }
+  const SE3<S> oMf = frame_placement<M, S>(f, oMi);
+  const Sv<S> vf = n > 0 ? v[chain[0]] : sv_zero<S>();
+  const Vec3<S> w = ang(vf), pdot = lin(vf) + cross(w, oMf.p);
+  for (int k = 0; k < 6 * M::NV; ++k) {
+    Jdot[k] = S(0);
+    if (J) J[k] = S(0);
+  }
+  for (int c = 0; c < n; ++c) {
+    const int j = chain[c];
+    for (int k = 0; k < d.nvj[j]; ++k) {
+      const Sv<S> s = act_motion(oMi[j], joint_axis<M, S>(j, k)), sd = cross_motion(v[j], s);
+      Vec3<S> l = lin(s), a = ang(s), ld = lin(sd), ad = ang(sd);
+      if (reference != WORLD) {
+        ld = ld + cross(ad, oMf.p) + cross(a, pdot);
+        l = l + cross(a, oMf.p);
+      }
+      if (reference == LOCAL) {
+        ld = mulT(oMf.R, ld - cross(w, l));
+        ad = mulT(oMf.R, ad - cross(w, a));
+        l = mulT(oMf.R, l);
+        a = mulT(oMf.R, a);
+      }
+      for (int r = 0; r < 3; ++r) {
+        Jdot[M::NV * r + d.vi[j] + k] = ld.x[r];
+        Jdot[M::NV * (3 + r) + d.vi[j] + k] = ad.x[r];
+        if (J) {
+          J[M::NV * r + d.vi[j] + k] = l.x[r];
+          J[M::NV * (3 + r) + d.vi[j] + k] = a.x[r];
+        }
+      }
+    }
+  }
+}
+
 }  // namespace tg

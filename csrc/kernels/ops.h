@@ -134,6 +134,19 @@ TG_OP_BEGIN(BodyVelocities)
   body_velocities<M, S>(cv.q, qd, out[0]);
 TG_OP_END
 
+// in: q, qd; iargs: frame, reference   out: d/dt frame_jacobian (6 x NV)
+TG_OP_BEGIN(FrameJacobianDot)
+  S qd[M::NV];
+  cv.velocity(in[1], qd);
+  if constexpr (Conv<M, S, C>::active) {
+    S J[6 * M::NV];
+    frame_jacobian_dot<M, S>(cv.q, qd, iargs[0], iargs[1], out[0], J);
+    cv.jacobian_dot_out(qd, J, out[0], 6);
+  } else {
+    frame_jacobian_dot<M, S>(cv.q, qd, iargs[0], iargs[1], out[0], nullptr);
+  }
+TG_OP_END
+
 // in: q, w (NF x 6)   out: sum_f J_f^T w_f (NV), the frames' vector-Jacobian product
 TG_OP_BEGIN(FramesVjp)
   frames_vjp<M, S>(cv.q, in[1], out[0]);
