@@ -316,3 +316,33 @@ def test_mujoco_frame_jacobian_dot_vs_finite_differences(robots, mj_sims, name):
             return sim.jac_body(moved, body)
 
         assert rel_err(ours, (jac(dt) - jac(-dt)) / (2 * dt)) <= 1e-6
+
+
+# --------------------------------------------------------------------------------------------
+# Coriolis matrix
+# --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", ROBOTS)
+def test_coriolis_matrix_vs_pinocchio(robots, pin_models, name):
+    robot, pm = robots[name], pin_models[name]
+    pd = pm.createData()
+    q, qd, _, _ = _states(robot, seed=16)
+    C = robot.coriolis_matrix(q, qd)
+    for b in range(q.shape[0]):
+        assert rel_err(C[b], pin.computeCoriolisMatrix(pm, pd, to_pin_q(robot, q[b]), qd[b].numpy())) <= 1e-8
+    # dM/dt - 2 C is skew-symmetric; dM/dt by central differences along Pinocchio's integrate.
+    qp, v = to_pin_q(robot, q[0]), qd[0].numpy()
+    crba = lambda x: robot.crba(torch.from_numpy(_from_pin_q(robot, x).numpy()))  # noqa: E731
+    dt = 1e-6
+    Mdot = (crba(pin.integrate(pm, qp, dt * v)) - crba(pin.integrate(pm, qp, -dt * v))) / (2 * dt)
+    N = Mdot - 2 * C[0]
+    assert (N + N.T).abs().max() <= 1e-6 * Mdot.abs().max()
+
+
+@pytest.mark.parametrize("name", FLOATING)
+def test_mujoco_coriolis_matrix_gives_bias_force(robots, mj_sims, name):
+    robot, sim = robots[name], mj_sims[name]
+    q, qd, _, _ = _states(robot, batch=2, seed=17, convention="mujoco")
+    bias = robot.mujoco.coriolis_matrix(q, qd) @ qd.unsqueeze(-1)
+    bias = bias.squeeze(-1) + robot.mujoco.generalized_gravity(q)
+    for b in range(2):
+        assert rel_err(bias[b], sim.qfrc_bias(q[b].numpy(), qd[b].numpy())) <= 1e-9

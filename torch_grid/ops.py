@@ -70,6 +70,7 @@ OPS: dict[str, OpSpec] = {
         OpSpec("inverse_dynamics_gradient", "InverseDynamicsGradient", (Q, QD, QDD, FEXT), (("nv", "nv"), ("nv", "nv"))),
         OpSpec("forward_dynamics_gradient", "ForwardDynamicsGradient", (Q, QD, TAU, FEXT),
                (("nv", "nv"), ("nv", "nv"), ("nv", "nv"))),
+        OpSpec("coriolis_matrix", "CoriolisMatrix", (Q, QD), (("nv", "nv"),)),
         OpSpec("inverse_dynamics_regressor", "InverseDynamicsRegressor", (Q, QD, QDD), (("nv", "nparams"),)),
         OpSpec("kinetic_energy_regressor", "KineticEnergyRegressor", (Q, QD), (("nparams",),)),
         OpSpec("potential_energy_regressor", "PotentialEnergyRegressor", (Q,), (("nparams",),)),

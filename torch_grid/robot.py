@@ -131,6 +131,12 @@ class _Functions:
         J = torch.stack([self.frame_jacobian(q, f, "local_world_aligned") for f in frames], dim=-3)
         return torch.cat([J[..., :3, :], torch.linalg.solve(rpy_rate_matrix(rpy), J[..., 3:, :])], dim=-2)
 
+    def coriolis_matrix(self, q, qd) -> torch.Tensor:
+        """C (..., nv, nv) with C qd + g = nonlinear_effects: Pinocchio's computeCoriolisMatrix (dM/dt - 2C
+        skew-symmetric). In MuJoCo's convention C = G (C_pin G^T + M K), K qd the base acceleration
+        MuJoCo's qacc = 0 means, so that C qd + g is MuJoCo's bias force."""
+        return self._call("coriolis_matrix", q, qd)
+
     def inverse_dynamics_regressor(self, q, qd, qdd) -> torch.Tensor:
         """Y (..., nv, 10 nbodies) with inverse_dynamics(q, qd, qdd) = Y @ inertial_parameters()."""
         return self._call("inverse_dynamics_regressor", q, qd, qdd)

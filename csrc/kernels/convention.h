@@ -59,6 +59,23 @@ template <class M, class S, int C> struct Conv {
       }
     }
   }
+  // Coriolis matrix out: C_mjx = G (C G^T + M K) with K qd = [v_lin x w; 0], Pinocchio's base
+  // acceleration at MuJoCo's qacc = 0, so that C_mjx qd + g_mjx = MuJoCo's bias force.
+  TG_HD void coriolis_out(const S* v, const S* Mass, S* Cq) const {
+    if constexpr (active) {
+      const Vec3<S> vl = load3(v);
+      columns_out(Cq, M::NV);
+      for (int r = 0; r < M::NV; ++r) {
+        const Vec3<S> m = load3(Mass + M::NV * r);
+        for (int c = 0; c < 3; ++c) {
+          Vec3<S> e = v3(S(0), S(0), S(0));
+          e.x[c] = S(1);
+          Cq[M::NV * r + 3 + c] += dot(m, cross(vl, e));
+        }
+      }
+      force_rows_out(Cq, M::NV);
+    }
+  }
   // Matrix (NV x cols) of generalized forces out: base-linear rows left-multiplied by R (G X).
   TG_HD void force_rows_out(S* X, int cols) const {
     if constexpr (active)

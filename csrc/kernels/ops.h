@@ -153,6 +153,18 @@ TG_OP_BEGIN(FramesVjp)
   cv.force_out(out[0]);
 TG_OP_END
 
+// in: q, qd   out: C (NV x NV), C qd + g = nonlinear effects
+TG_OP_BEGIN(CoriolisMatrix)
+  S qd[M::NV];
+  cv.velocity(in[1], qd);
+  coriolis_matrix<M, S>(cv.q, qd, out[0]);
+  if constexpr (Conv<M, S, C>::active) {
+    S Mass[M::NV * M::NV];
+    crba<M, S>(cv.q, Mass);
+    cv.coriolis_out(qd, Mass, out[0]);
+  }
+TG_OP_END
+
 // X <- -A X for NV x NV row-major matrices: rows of the product are sums of rows of X, which
 // keeps the inner loop contiguous (it vectorises).
 template <class M, class S> TG_HD void negate_left_multiply(const S* A, S* X) {

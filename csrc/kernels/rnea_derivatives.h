@@ -11,6 +11,7 @@
 //   rows m above j:          d tau_m / dq_j  = S_m^T (Yc_j u + B_j w + s x* F_j)
 //   rows m in j's subtree:   d tau_m / dq_j  = u . (Yc_m S_m) + w . (B_m^T S_m)
 //   and for qd:              alpha replaces u, s replaces w, and no s x* F term.
+// Pinocchio's Coriolis matrix has the same pairs with dS/dt = v x S in place of alpha, S / 2 for s.
 #pragma once
 
 #include "joints.h"
@@ -23,7 +24,7 @@ template <class M, class S> struct RneaDerivativesWork {
   Sv<S> v[M::NB], a[M::NB], F[M::NB];    // world velocity, acceleration (gravity included), subtree force
   Inertia<S> Yc[M::NB];                  // subtree inertia, world frame
   M6<S> B[M::NB];                        // subtree sum of dI + [. x* h]
-  Sv<S> w[M::NV], u[M::NV], alpha[M::NV];  // per column, see above
+  Sv<S> s[M::NV], w[M::NV], u[M::NV], alpha[M::NV], sdot[M::NV];  // per column, see above
 };
 
 // The 6x6 matrix of x -> dI x + x x* h with dI = v x* I - I v x and h = I v: the rate of change of
@@ -62,15 +63,11 @@ template <class S> TG_HD Sv<S> mul_transpose(const M6<S>& A, const Sv<S>& x) {
   return r;
 }
 
-// tau (NV), dtau_dq and dtau_dqd (NV x NV, row-major) at (q, qd, qdd), fext (NB x 6, joint frames)
-// may be null. q, qd, qdd in Pinocchio's convention.
+// Forward pass (world placements, axes, velocities, accelerations, body forces and the per-column
+// terms), then the subtree sums Yc, B, F.
 template <class M, class S>
-TG_HD void rnea_derivatives(const S* q, const S* qd, const S* qdd, const S* fext, S* tau, S* dtau_dq, S* dtau_dqd) {
+TG_HD void rnea_derivatives_setup(const S* q, const S* qd, const S* qdd, const S* fext, RneaDerivativesWork<M, S>& W) {
   const auto& d = M::data();
-  constexpr int NV = M::NV;
-  RneaDerivativesWork<M, S> W;
-  for (int k = 0; k < NV * NV; ++k) dtau_dq[k] = dtau_dqd[k] = S(0);
-  // Forward pass: world placements, axes, velocities, accelerations, body forces.
   for (int i = 0; i < M::NB; ++i) {
     const int p = d.parent[i], n = d.nvj[i], vi = d.vi[i];
     const SE3<S> liMi = joint_placement<M, S>(i, q);
@@ -79,7 +76,7 @@ TG_HD void rnea_derivatives(const S* q, const S* qd, const S* qdd, const S* fext
     const Sv<S> ap = p < 0 ? base_acceleration<M, S>() : W.a[p];
     W.v[i] = vp;
     for (int k = 0; k < n; ++k) {
-      W.Sw[i][k] = act_motion(W.oMi[i], joint_axis<M, S>(i, k));
+      W.Sw[i][k] = W.s[vi + k] = act_motion(W.oMi[i], joint_axis<M, S>(i, k));
       W.v[i] = W.v[i] + qd[vi + k] * W.Sw[i][k];
     }
     W.a[i] = ap;
@@ -90,6 +87,7 @@ TG_HD void rnea_derivatives(const S* q, const S* qd, const S* qdd, const S* fext
       W.w[vi + k] = cross_motion(vp, s);
       W.u[vi + k] = cross_motion(ap, s) + cross_motion(vp, W.w[vi + k]);
       W.alpha[vi + k] = cross_motion(vp + W.v[i], s);
+      W.sdot[vi + k] = cross_motion(W.v[i], s);
     }
     W.Yc[i] = act(W.oMi[i], body_inertia<M, S>(i));
     W.B[i] = momentum_rate_matrix(W.Yc[i], W.v[i]);
@@ -99,40 +97,70 @@ TG_HD void rnea_derivatives(const S* q, const S* qd, const S* qdd, const S* fext
       W.F[i] = W.F[i] - act_force(W.oMi[i], fe);
     }
   }
-  // Backward pass: subtree sums, then the entries each subtree produces.
-  for (int i = M::NB - 1; i >= 0; --i) {
-    const int p = d.parent[i], n = d.nvj[i], vi = d.vi[i];
-    for (int l = 0; l < n; ++l) {
-      const int row = vi + l;
-      tau[row] = dot(W.Sw[i][l], W.F[i]);
-      // Row of joint i, columns of its ancestors and itself.
-      const Sv<S> P = mul(W.Yc[i], W.Sw[i][l]);
-      const Sv<S> Q = mul_transpose(W.B[i], W.Sw[i][l]);
+  for (int i = M::NB - 1; i > 0; --i) {
+    const int p = d.parent[i];
+    if (p < 0) continue;
+    W.Yc[p] = W.Yc[p] + W.Yc[i];
+    for (int k = 0; k < 36; ++k) W.B[p].m[k] += W.B[i].m[k];
+    W.F[p] = W.F[p] + W.F[i];
+  }
+}
+
+// The NV x NV matrix (row-major) with, for every joint j and each joint m on its support chain
+// (j included), per-column motions X, Y:
+//   row m, column j:  S_m^T (Yc_m X_j + B_m Y_j)                        (m below or at j)
+//   row m, column j:  S_m^T (Yc_j X_j + B_j Y_j [+ s_j x* F_j])          (m strictly above j)
+// Entries of unrelated branches are zero.
+template <class M, class S>
+TG_HD void ancestor_pairs(const RneaDerivativesWork<M, S>& W, const Sv<S>* X, const Sv<S>* Y, bool force_term, S* out) {
+  const auto& d = M::data();
+  constexpr int NV = M::NV;
+  for (int k = 0; k < NV * NV; ++k) out[k] = S(0);
+  for (int i = 0; i < M::NB; ++i) {
+    // Rows of joint i, columns of its ancestors and itself.
+    for (int l = 0; l < d.nvj[i]; ++l) {
+      const int row = d.vi[i] + l;
+      const Sv<S> P = mul(W.Yc[i], W.Sw[i][l]), Q = mul_transpose(W.B[i], W.Sw[i][l]);
       for (int j = i; j >= 0; j = d.parent[j])
         for (int c = 0; c < d.nvj[j]; ++c) {
           const int col = d.vi[j] + c;
-          dtau_dq[NV * row + col] = dot(W.u[col], P) + dot(W.w[col], Q);
-          dtau_dqd[NV * row + col] = dot(W.alpha[col], P) + dot(W.Sw[j][c], Q);
+          out[NV * row + col] = dot(X[col], P) + dot(Y[col], Q);
         }
     }
     // Columns of joint i, rows of its strict ancestors.
-    for (int c = 0; c < n; ++c) {
-      const int col = vi + c;
-      const Sv<S>& s = W.Sw[i][c];
-      const Sv<S> dFq = mul(W.Yc[i], W.u[col]) + mul(W.B[i], W.w[col]) + cross_force(s, W.F[i]);
-      const Sv<S> dFv = mul(W.Yc[i], W.alpha[col]) + mul(W.B[i], s);
-      for (int m = p; m >= 0; m = d.parent[m])
-        for (int l = 0; l < d.nvj[m]; ++l) {
-          dtau_dq[NV * (d.vi[m] + l) + col] = dot(W.Sw[m][l], dFq);
-          dtau_dqd[NV * (d.vi[m] + l) + col] = dot(W.Sw[m][l], dFv);
-        }
-    }
-    if (p >= 0) {
-      W.Yc[p] = W.Yc[p] + W.Yc[i];
-      for (int k = 0; k < 36; ++k) W.B[p].m[k] += W.B[i].m[k];
-      W.F[p] = W.F[p] + W.F[i];
+    for (int c = 0; c < d.nvj[i]; ++c) {
+      const int col = d.vi[i] + c;
+      Sv<S> dF = mul(W.Yc[i], X[col]) + mul(W.B[i], Y[col]);
+      if (force_term) dF = dF + cross_force(W.s[col], W.F[i]);
+      for (int m = d.parent[i]; m >= 0; m = d.parent[m])
+        for (int l = 0; l < d.nvj[m]; ++l) out[NV * (d.vi[m] + l) + col] = dot(W.Sw[m][l], dF);
     }
   }
+}
+
+// tau (NV), dtau_dq and dtau_dqd (NV x NV, row-major) at (q, qd, qdd), fext (NB x 6, joint frames)
+// may be null. q, qd, qdd in Pinocchio's convention.
+template <class M, class S>
+TG_HD void rnea_derivatives(const S* q, const S* qd, const S* qdd, const S* fext, S* tau, S* dtau_dq, S* dtau_dqd) {
+  const auto& d = M::data();
+  RneaDerivativesWork<M, S> W;
+  rnea_derivatives_setup<M, S>(q, qd, qdd, fext, W);
+  for (int i = 0; i < M::NB; ++i)
+    for (int l = 0; l < d.nvj[i]; ++l) tau[d.vi[i] + l] = dot(W.Sw[i][l], W.F[i]);
+  ancestor_pairs<M, S>(W, W.u, W.w, true, dtau_dq);
+  ancestor_pairs<M, S>(W, W.alpha, W.s, false, dtau_dqd);
+}
+
+// Coriolis matrix C (NV x NV) with C qd = nonlinear effects - gravity, Pinocchio's factorisation
+// (dM/dt - 2 C skew-symmetric): the pairs above with X = dS/dt = v x S and Y = S / 2.
+template <class M, class S> TG_HD void coriolis_matrix(const S* q, const S* qd, S* C) {
+  S zero[M::NV];
+  for (int k = 0; k < M::NV; ++k) zero[k] = S(0);
+  RneaDerivativesWork<M, S> W;
+  rnea_derivatives_setup<M, S>(q, qd, zero, nullptr, W);
+  Sv<S> half_s[M::NV];
+  for (int k = 0; k < M::NV; ++k) half_s[k] = S(0.5) * W.s[k];
+  ancestor_pairs<M, S>(W, W.sdot, half_s, false, C);
 }
 
 }  // namespace tg
