@@ -346,3 +346,52 @@ def test_mujoco_coriolis_matrix_gives_bias_force(robots, mj_sims, name):
     bias = bias.squeeze(-1) + robot.mujoco.generalized_gravity(q)
     for b in range(2):
         assert rel_err(bias[b], sim.qfrc_bias(q[b].numpy(), qd[b].numpy())) <= 1e-9
+
+
+# --------------------------------------------------------------------------------------------
+# external forces, operational-space inertia
+# --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", ROBOTS)
+def test_external_force_gradients_vs_pinocchio(robots, pin_models, name):
+    """ID and FD are affine in f_ext: the Jacobians must reproduce Pinocchio's differences."""
+    robot, pm = robots[name], pin_models[name]
+    pd = pm.createData()
+    q, qd, x, f = _states(robot, batch=2, seed=18)
+    dtau, dqdd = robot.inverse_dynamics_external_force_gradient(q), robot.forward_dynamics_external_force_gradient(q)
+    for b in range(2):
+        qp, v, a = to_pin_q(robot, q[b]), qd[b].numpy(), x[b].numpy()
+        ref_tau = pin.rnea(pm, pd, qp, v, a, pin_forces(pm, f[b])) - pin.rnea(pm, pd, qp, v, a)
+        ref_qdd = pin.aba(pm, pd, qp, v, a, pin_forces(pm, f[b])) - pin.aba(pm, pd, qp, v, a)
+        assert rel_err(dtau[b].reshape(robot.nv, -1) @ f[b].reshape(-1), ref_tau) <= 1e-9
+        assert rel_err(dqdd[b].reshape(robot.nv, -1) @ f[b].reshape(-1), ref_qdd) <= 1e-9
+
+
+@pytest.mark.parametrize("name", FLOATING)
+def test_mujoco_external_force_gradients(robots, name):
+    robot = robots[name]
+    q, qd, x, f = _states(robot, batch=2, seed=19, convention="mujoco")
+    view = robot.mujoco
+    tau = view.inverse_dynamics(q, qd, x, f) - view.inverse_dynamics(q, qd, x)
+    qdd = view.forward_dynamics(q, qd, x, f) - view.forward_dynamics(q, qd, x)
+    flat = f.reshape(2, -1, 1)
+    assert rel_err((view.inverse_dynamics_external_force_gradient(q).reshape(2, robot.nv, -1) @ flat)[..., 0], tau) <= 1e-12
+    assert rel_err((view.forward_dynamics_external_force_gradient(q).reshape(2, robot.nv, -1) @ flat)[..., 0], qdd) <= 1e-12
+
+
+@pytest.mark.parametrize("name", ["iiwa14", "go2", "g1"])
+@pytest.mark.parametrize("reference, pin_reference", [("local", pin.LOCAL), ("local_world_aligned", pin.LOCAL_WORLD_ALIGNED)])
+def test_osc_inertia_vs_pinocchio(robots, pin_models, name, reference, pin_reference):
+    robot, pm = robots[name], pin_models[name]
+    pd = pm.createData()
+    q, _, _, _ = _states(robot, batch=2, seed=20)
+    frame = _limb_frames(robot)[0]
+    ours = robot.osc_inertia(q, frame, reference)
+    for b in range(2):
+        qp = to_pin_q(robot, q[b])
+        minv = pin.computeMinverse(pm, pd, qp)
+        minv = np.triu(minv) + np.triu(minv, 1).T
+        J = pin.computeFrameJacobian(pm, pd, qp, frame, pin_reference)
+        assert rel_err(ours[b], np.linalg.inv(J @ minv @ J.T)) <= 1e-8
+    if robot.floating_base:  # invariant under the convention
+        mjx = robot.mujoco.osc_inertia(torch.cat([q[:, :3], q[:, [6, 3, 4, 5]], q[:, 7:]], -1), frame, reference)
+        assert rel_err(mjx, ours) <= 1e-12

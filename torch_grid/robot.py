@@ -131,6 +131,19 @@ class _Functions:
         J = torch.stack([self.frame_jacobian(q, f, "local_world_aligned") for f in frames], dim=-3)
         return torch.cat([J[..., :3, :], torch.linalg.solve(rpy_rate_matrix(rpy), J[..., 3:, :])], dim=-2)
 
+    def inverse_dynamics_external_force_gradient(self, q) -> torch.Tensor:
+        """d inverse_dynamics / d f_ext (..., nv, nbodies, 6) = -J_k^T, J_k body k's Jacobian in its joint frame."""
+        return self._call("inverse_dynamics_external_force_gradient", q)
+
+    def forward_dynamics_external_force_gradient(self, q) -> torch.Tensor:
+        """d forward_dynamics / d f_ext (..., nv, nbodies, 6) = M^-1 J_k^T."""
+        return self._call("forward_dynamics_external_force_gradient", q)
+
+    def osc_inertia(self, q, frame: str | int, reference: str = "local_world_aligned") -> torch.Tensor:
+        """Operational-space inertia Lambda = (J M^-1 J^T)^-1 (..., 6, 6) of a frame, J its Jacobian in
+        `reference` (as frame_jacobian). The frame needs full 6-dof mobility, else Lambda does not exist."""
+        return self._call("osc_inertia", q, self._robot.frame_index(frame, "frame"), _reference(reference))
+
     def coriolis_matrix(self, q, qd) -> torch.Tensor:
         """C (..., nv, nv) with C qd + g = nonlinear_effects: Pinocchio's computeCoriolisMatrix (dM/dt - 2C
         skew-symmetric). In MuJoCo's convention C = G (C_pin G^T + M K), K qd the base acceleration

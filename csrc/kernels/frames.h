@@ -140,4 +140,20 @@ TG_HD void frame_jacobian_dot(const S* q, const S* qd, int f, int reference, S* 
   }
 }
 
+// d tau / d f_ext (NV x NB x 6): tau = ... - sum_k J_k^T f_k with J_k body k's Jacobian in its joint
+// frame, so column (k, c) is minus row c of J_k: joint j's axis seen from body k's frame.
+template <class M, class S> TG_HD void external_force_jacobian(const S* q, S* out) {
+  const auto& d = M::data();
+  constexpr int NF6 = 6 * M::NB;
+  SE3<S> liMi[M::NB], oMi[M::NB];
+  forward_kinematics<M, S>(q, liMi, oMi);
+  for (int k = 0; k < M::NV * NF6; ++k) out[k] = S(0);
+  for (int k = 0; k < M::NB; ++k)
+    for (int j = k; j >= 0; j = d.parent[j])
+      for (int l = 0; l < d.nvj[j]; ++l) {
+        const Sv<S> s = actinv_motion(oMi[k], act_motion(oMi[j], joint_axis<M, S>(j, l)));
+        for (int c = 0; c < 6; ++c) out[NF6 * (d.vi[j] + l) + 6 * k + c] = -s.v[c];
+      }
+}
+
 }  // namespace tg

@@ -165,6 +165,50 @@ TG_OP_BEGIN(CoriolisMatrix)
   }
 TG_OP_END
 
+// in: q   out: d tau / d f_ext (NV x NB x 6)
+TG_OP_BEGIN(InverseDynamicsExternalForceGradient)
+  external_force_jacobian<M, S>(cv.q, out[0]);
+  cv.force_rows_out(out[0], 6 * M::NB);
+TG_OP_END
+
+// in: q   out: d qdd / d f_ext (NV x NB x 6) = -M^-1 d tau / d f_ext
+TG_OP_BEGIN(ForwardDynamicsExternalForceGradient)
+  constexpr int NC = 6 * M::NB;
+  S Minv[M::NV * M::NV];
+  minv<M, S>(cv.q, Minv);
+  external_force_jacobian<M, S>(cv.q, out[0]);
+  for (int c = 0; c < NC; ++c) {
+    S y[M::NV];
+    for (int r = 0; r < M::NV; ++r) {
+      S acc = 0;
+      for (int k = 0; k < M::NV; ++k) acc += Minv[M::NV * r + k] * out[0][NC * k + c];
+      y[r] = -acc;
+    }
+    for (int r = 0; r < M::NV; ++r) out[0][NC * r + c] = y[r];
+  }
+  cv.force_rows_out(out[0], NC);
+TG_OP_END
+
+// in: q; iargs: frame, reference   out: Lambda = (J M^-1 J^T)^-1 (6 x 6)
+TG_OP_BEGIN(OscInertia)
+  S Minv[M::NV * M::NV], J[6 * M::NV], JMinv[6 * M::NV], A[36];
+  minv<M, S>(cv.q, Minv);
+  frame_jacobian<M, S>(cv.q, iargs[0], iargs[1], J);
+  for (int r = 0; r < 6; ++r)
+    for (int c = 0; c < M::NV; ++c) {
+      S acc = 0;
+      for (int k = 0; k < M::NV; ++k) acc += J[M::NV * r + k] * Minv[M::NV * k + c];
+      JMinv[M::NV * r + c] = acc;
+    }
+  for (int r = 0; r < 6; ++r)
+    for (int c = 0; c < 6; ++c) {
+      S acc = 0;
+      for (int k = 0; k < M::NV; ++k) acc += JMinv[M::NV * r + k] * J[M::NV * c + k];
+      A[6 * r + c] = acc;
+    }
+  spd_inverse(6, A, out[0]);
+TG_OP_END
+
 // X <- -A X for NV x NV row-major matrices: rows of the product are sums of rows of X, which
 // keeps the inner loop contiguous (it vectorises).
 template <class M, class S> TG_HD void negate_left_multiply(const S* A, S* X) {
