@@ -395,3 +395,52 @@ def test_osc_inertia_vs_pinocchio(robots, pin_models, name, reference, pin_refer
     if robot.floating_base:  # invariant under the convention
         mjx = robot.mujoco.osc_inertia(torch.cat([q[:, :3], q[:, [6, 3, 4, 5]], q[:, 7:]], -1), frame, reference)
         assert rel_err(mjx, ours) <= 1e-12
+
+
+# --------------------------------------------------------------------------------------------
+# centroidal derivatives
+# --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", ROBOTS)
+def test_centroidal_derivatives_vs_pinocchio(robots, pin_models, name):
+    robot, pm = robots[name], pin_models[name]
+    pd = pm.createData()
+    q, qd, qdd, _ = _states(robot, batch=2, seed=21)
+    dAg, dh = robot.cmm_time_variation(q, qd), robot.dccrba(q, qd)
+    for b in range(2):
+        qp = to_pin_q(robot, q[b])
+        pin.computeCentroidalMapTimeVariation(pm, pd, qp, qd[b].numpy())
+        assert rel_err(dAg[b], pd.dAg) <= 1e-8
+        ref = pin.computeCentroidalDynamicsDerivatives(pm, pd, qp, qd[b].numpy(), qdd[b].numpy())
+        assert rel_err(dh[b], ref[0]) <= 1e-8
+
+
+def _mujoco_momentum(sim, qpos, qvel):
+    """Centroidal momentum [linear; angular about the com] from MuJoCo's subtree quantities."""
+    sim._set(qpos, qvel)
+    mujoco.mj_forward(sim.m, sim.d)
+    mujoco.mj_subtreeVel(sim.m, sim.d)
+    mass = sim.m.body_subtreemass[1]
+    return np.concatenate([mass * sim.d.subtree_linvel[1], sim.d.subtree_angmom[1]])
+
+
+@pytest.mark.parametrize("name", FLOATING)
+def test_mujoco_centroidal_derivatives_vs_finite_differences(robots, mj_sims, name):
+    robot, sim = robots[name], mj_sims[name]
+    q, qd, _, _ = (x[0].numpy() for x in _states(robot, batch=1, seed=22, convention="mujoco"))
+    view = robot.mujoco
+    A, h = (x.numpy() for x in view.ccrba(torch.from_numpy(q), torch.from_numpy(qd)))
+    assert rel_err(h, _mujoco_momentum(sim, q, qd)) <= 1e-9
+    dh = view.dccrba(torch.from_numpy(q), torch.from_numpy(qd)).numpy()
+    eps = 1e-6
+    fd = np.stack([_central(lambda p: _mujoco_momentum(sim, p, qd), q, k, eps, _move_qpos(sim.m))
+                   for k in range(robot.nv)], 1)
+    assert rel_err(dh, fd) <= 1e-6
+    # h_dot = A qacc + dAg qvel; with qacc = 0, along qpos(t) = mj_integratePos(qpos, qvel, t).
+    dAg = view.cmm_time_variation(torch.from_numpy(q), torch.from_numpy(qd)).numpy()
+
+    def momentum_at(t):
+        moved = q.copy()
+        mujoco.mj_integratePos(sim.m, moved, qd, t)
+        return _mujoco_momentum(sim, moved, qd)
+
+    assert rel_err(dAg @ qd, (momentum_at(eps) - momentum_at(-eps)) / (2 * eps)) <= 1e-6

@@ -75,6 +75,8 @@ OPS: dict[str, OpSpec] = {
         OpSpec("forward_dynamics_external_force_gradient", "ForwardDynamicsExternalForceGradient", (Q,),
                (("nv", "nbodies", 6),)),
         OpSpec("osc_inertia", "OscInertia", (Q, Arg("frame", "frame"), Arg("reference", "reference")), ((6, 6),)),
+        OpSpec("cmm_time_variation", "CmmTimeVariation", (Q, QD), ((6, "nv"),)),
+        OpSpec("dccrba", "Dccrba", (Q, QD), ((6, "nv"),)),
         OpSpec("coriolis_matrix", "CoriolisMatrix", (Q, QD), (("nv", "nv"),)),
         OpSpec("inverse_dynamics_regressor", "InverseDynamicsRegressor", (Q, QD, QDD), (("nv", "nparams"),)),
         OpSpec("kinetic_energy_regressor", "KineticEnergyRegressor", (Q, QD), (("nparams",),)),

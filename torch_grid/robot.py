@@ -144,6 +144,16 @@ class _Functions:
         `reference` (as frame_jacobian). The frame needs full 6-dof mobility, else Lambda does not exist."""
         return self._call("osc_inertia", q, self._robot.frame_index(frame, "frame"), _reference(reference))
 
+    def cmm_time_variation(self, q, qd) -> torch.Tensor:
+        """Time derivative dA/dt (..., 6, nv) of the centroidal momentum matrix (Pinocchio's
+        computeCentroidalMapTimeVariation); in MuJoCo's convention, of its A at fixed qvel."""
+        return self._call("cmm_time_variation", q, qd)
+
+    def dccrba(self, q, qd) -> torch.Tensor:
+        """d h / dq (..., 6, nv) of the centroidal momentum h = A qd, qd held fixed (in MuJoCo's
+        convention, qvel fixed in MuJoCo's frame); dh/dqd is A itself."""
+        return self._call("dccrba", q, qd)
+
     def coriolis_matrix(self, q, qd) -> torch.Tensor:
         """C (..., nv, nv) with C qd + g = nonlinear_effects: Pinocchio's computeCoriolisMatrix (dM/dt - 2C
         skew-symmetric). In MuJoCo's convention C = G (C_pin G^T + M K), K qd the base acceleration

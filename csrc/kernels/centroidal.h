@@ -101,4 +101,104 @@ template <class M, class S> TG_HD void ccrba(const S* q, const S* qd, S* A, S* h
   }
 }
 
+// Shared by the centroidal derivatives: world placements and velocities, joint axes and their
+// rates, subtree inertias Yc, inertia rates dYc and momenta H, total mass and com.
+template <class M, class S> struct CentroidalWork {
+  SE3<S> oMi[M::NB];
+  Sv<S> v[M::NB], H[M::NB], s[M::NV], sdot[M::NV], w[M::NV];  // w = v_parent x s
+  Inertia<S> Yc[M::NB];
+  M6<S> dYc[M::NB];
+  S m;
+  Vec3<S> c;
+};
+
+template <class M, class S> TG_HD void centroidal_setup(const S* q, const S* qd, CentroidalWork<M, S>& W) {
+  const auto& d = M::data();
+  W.m = total_mass<M, S>();
+  W.c = v3(S(0), S(0), S(0));
+  for (int i = 0; i < M::NB; ++i) {
+    const int p = d.parent[i];
+    const SE3<S> liMi = joint_placement<M, S>(i, q);
+    W.oMi[i] = p < 0 ? liMi : W.oMi[p] * liMi;
+    const Sv<S> vp = p < 0 ? sv_zero<S>() : W.v[p];
+    W.v[i] = vp;
+    for (int k = 0; k < d.nvj[i]; ++k) {
+      W.s[d.vi[i] + k] = act_motion(W.oMi[i], joint_axis<M, S>(i, k));
+      W.v[i] = W.v[i] + qd[d.vi[i] + k] * W.s[d.vi[i] + k];
+    }
+    for (int k = 0; k < d.nvj[i]; ++k) {
+      W.sdot[d.vi[i] + k] = cross_motion(W.v[i], W.s[d.vi[i] + k]);
+      W.w[d.vi[i] + k] = cross_motion(vp, W.s[d.vi[i] + k]);
+    }
+    W.Yc[i] = act(W.oMi[i], body_inertia<M, S>(i));
+    W.dYc[i] = inertia_rate_matrix(W.Yc[i], W.v[i]);
+    W.H[i] = mul(W.Yc[i], W.v[i]);
+    W.c = W.c + S(d.mass[i]) * body_com<M, S>(i, W.oMi);
+  }
+  W.c = (S(1) / W.m) * W.c;
+  for (int i = M::NB - 1; i >= 0; --i) {
+    const int p = d.parent[i];
+    if (p < 0) continue;
+    W.Yc[p] = W.Yc[p] + W.Yc[i];
+    for (int k = 0; k < 36; ++k) W.dYc[p].m[k] += W.dYc[i].m[k];
+    W.H[p] = W.H[p] + W.H[i];
+  }
+}
+
+// A force at the world origin seen at the com: [f; n - c x f].
+template <class S> TG_HD Sv<S> at_point(const Sv<S>& f, Vec3<S> c) { return sv(lin(f), ang(f) - cross(c, lin(f))); }
+
+// Pinocchio's dAg (6 x NV): the time variation of the centroidal map with h_dot = A qdd + dAg qd,
+// and A itself (may be null). Column j of A is Yc_j S_j seen at the com; dAg's is dYc_j S_j +
+// Yc_j dS_j/dt seen at the com. (The elementwise dA/dt adds -cdot x (A_j)_lin to the angular
+// rows, which sums to -cdot x m cdot = 0 against qd; Pinocchio leaves it out, and so do we.)
+template <class M, class S> TG_HD void cmm_time_variation(const S* q, const S* qd, S* Adot, S* A) {
+  const auto& d = M::data();
+  CentroidalWork<M, S> W;
+  centroidal_setup<M, S>(q, qd, W);
+  for (int i = 0; i < M::NB; ++i)
+    for (int k = 0; k < d.nvj[i]; ++k) {
+      const int col = d.vi[i] + k;
+      const Sv<S> dF = at_point(mul(W.dYc[i], W.s[col]) + mul(W.Yc[i], W.sdot[col]), W.c);
+      const Sv<S> F = at_point(mul(W.Yc[i], W.s[col]), W.c);
+      for (int r = 0; r < 6; ++r) {
+        Adot[M::NV * r + col] = dF.v[r];
+        if (A) A[M::NV * r + col] = F.v[r];
+      }
+    }
+}
+
+// d h / dq (6 x NV), h the centroidal momentum at fixed qd. Moving joint j carries its subtree's
+// momentum H_j by the twist s (s x* H_j) while the parent's velocity stays (Yc_j (v_parent x s));
+// the com moves by J_com's column, shifting the angular part by -(dc x h_lin).
+template <class M, class S> TG_HD void dccrba(const S* q, const S* qd, S* dh_dq) {
+  const auto& d = M::data();
+  CentroidalWork<M, S> W;
+  centroidal_setup<M, S>(q, qd, W);
+  Sv<S> total = sv_zero<S>();
+  for (int i = 0; i < M::NB; ++i)
+    if (d.parent[i] < 0) total = total + W.H[i];
+  // Subtree mass and mass-weighted com, for the com's motion.
+  S ms[M::NB];
+  Vec3<S> mc[M::NB];
+  for (int i = 0; i < M::NB; ++i) {
+    ms[i] = S(d.mass[i]);
+    mc[i] = ms[i] * body_com<M, S>(i, W.oMi);
+  }
+  for (int i = M::NB - 1; i >= 0; --i)
+    if (d.parent[i] >= 0) {
+      ms[d.parent[i]] += ms[i];
+      mc[d.parent[i]] = mc[d.parent[i]] + mc[i];
+    }
+  for (int i = 0; i < M::NB; ++i)
+    for (int k = 0; k < d.nvj[i]; ++k) {
+      const int col = d.vi[i] + k;
+      const Sv<S>& s = W.s[col];
+      const Sv<S> dH = cross_force(s, W.H[i]) + mul(W.Yc[i], W.w[col]);
+      const Vec3<S> dc = (S(1) / W.m) * (ms[i] * lin(s) + cross(ang(s), mc[i]));
+      const Sv<S> col6 = at_point(dH, W.c) - sv(v3(S(0), S(0), S(0)), cross(dc, lin(total)));
+      for (int r = 0; r < 6; ++r) dh_dq[M::NV * r + col] = col6.v[r];
+    }
+}
+
 }  // namespace tg

@@ -59,6 +59,22 @@ template <class M, class S, int C> struct Conv {
       }
     }
   }
+  // Centroidal momentum derivative out: MuJoCo holds qvel fixed, so turning the base also turns
+  // Pinocchio's v_lin (Jv_q[:, ang a] = -(e_a x v_lin)): dh/dq_mjx = dh/dq G^-1 + A_pin Jv_q.
+  TG_HD void momentum_gradient_out(const S* v, const S* A, S* dh) const {
+    if constexpr (active) {
+      const Vec3<S> vl = load3(v);
+      for (int r = 0; r < 6; ++r) {
+        const Vec3<S> a = load3(A + M::NV * r);
+        for (int c = 0; c < 3; ++c) {
+          Vec3<S> e = v3(S(0), S(0), S(0));
+          e.x[c] = S(1);
+          dh[M::NV * r + 3 + c] += dot(a, cross(vl, e));
+        }
+      }
+      columns_out(dh, 6);
+    }
+  }
   // Coriolis matrix out: C_mjx = G (C G^T + M K) with K qd = [v_lin x w; 0], Pinocchio's base
   // acceleration at MuJoCo's qacc = 0, so that C_mjx qd + g_mjx = MuJoCo's bias force.
   TG_HD void coriolis_out(const S* v, const S* Mass, S* Cq) const {

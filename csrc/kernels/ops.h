@@ -153,6 +153,31 @@ TG_OP_BEGIN(FramesVjp)
   cv.force_out(out[0]);
 TG_OP_END
 
+// in: q, qd   out: dA/dt (6 x NV); MuJoCo's as the time derivative of its A at fixed qvel
+TG_OP_BEGIN(CmmTimeVariation)
+  S qd[M::NV];
+  cv.velocity(in[1], qd);
+  if constexpr (Conv<M, S, C>::active) {
+    S A[6 * M::NV];
+    cmm_time_variation<M, S>(cv.q, qd, out[0], A);
+    cv.jacobian_dot_out(qd, A, out[0], 6);
+  } else {
+    cmm_time_variation<M, S>(cv.q, qd, out[0], nullptr);
+  }
+TG_OP_END
+
+// in: q, qd   out: dh/dq (6 x NV), h the centroidal momentum
+TG_OP_BEGIN(Dccrba)
+  S qd[M::NV];
+  cv.velocity(in[1], qd);
+  dccrba<M, S>(cv.q, qd, out[0]);
+  if constexpr (Conv<M, S, C>::active) {
+    S A[6 * M::NV], Adot[6 * M::NV];
+    cmm_time_variation<M, S>(cv.q, qd, Adot, A);
+    cv.momentum_gradient_out(qd, A, out[0]);
+  }
+TG_OP_END
+
 // in: q, qd   out: C (NV x NV), C qd + g = nonlinear effects
 TG_OP_BEGIN(CoriolisMatrix)
   S qd[M::NV];

@@ -29,20 +29,10 @@ template <class M, class S> struct RneaDerivativesWork {
 
 // The 6x6 matrix of x -> dI x + x x* h with dI = v x* I - I v x and h = I v: the rate of change of
 // the momentum I v of a body when its velocity v changes by x while it moves with velocity v.
-// Assembled as [v x*] I6 - I6 [v x] plus the matrix of x -> x x* h.
 template <class S> TG_HD M6<S> momentum_rate_matrix(const Inertia<S>& I, const Sv<S>& v) {
-  const M6<S> I6 = to_matrix(I);
-  const Sv<S> h = mul(I, v);
-  M6<S> B;
-  for (int c = 0; c < 6; ++c) {  // [v x*] I6, column by column
-    const Sv<S> col = cross_force(v, Sv<S>{{I6.m[c], I6.m[6 + c], I6.m[12 + c], I6.m[18 + c], I6.m[24 + c], I6.m[30 + c]}});
-    for (int r = 0; r < 6; ++r) B.m[6 * r + c] = col.v[r];
-  }
-  for (int r = 0; r < 6; ++r) {  // - I6 [v x]: row r of I6 [v x] is -(v x* row r), I6 symmetric
-    const Sv<S> row = cross_force(v, Sv<S>{{I6.m[6 * r], I6.m[6 * r + 1], I6.m[6 * r + 2], I6.m[6 * r + 3], I6.m[6 * r + 4], I6.m[6 * r + 5]}});
-    for (int c = 0; c < 6; ++c) B.m[6 * r + c] += row.v[c];
-  }
+  M6<S> B = inertia_rate_matrix(I, v);
   // x x* h = [-h_lin x x_ang; -h_lin x x_lin - h_ang x x_ang]
+  const Sv<S> h = mul(I, v);
   const Mat3<S> Hl = skew(lin(h)), Ha = skew(ang(h));
   for (int r = 0; r < 3; ++r)
     for (int c = 0; c < 3; ++c) {

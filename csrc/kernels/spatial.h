@@ -232,6 +232,22 @@ template <class S> TG_HD M6<S> to_matrix(const Inertia<S>& I) {
   return Y;
 }
 
+// Rate of change dI = v x* I - I v x (6x6) of a world-frame inertia moving with velocity v,
+// assembled as [v x*] I6 - I6 [v x] (row r of I6 [v x] is -(v x* row r), I6 symmetric).
+template <class S> TG_HD M6<S> inertia_rate_matrix(const Inertia<S>& I, const Sv<S>& v) {
+  const M6<S> I6 = to_matrix(I);
+  M6<S> B;
+  for (int c = 0; c < 6; ++c) {
+    const Sv<S> col = cross_force(v, Sv<S>{{I6.m[c], I6.m[6 + c], I6.m[12 + c], I6.m[18 + c], I6.m[24 + c], I6.m[30 + c]}});
+    for (int r = 0; r < 6; ++r) B.m[6 * r + c] = col.v[r];
+  }
+  for (int r = 0; r < 6; ++r) {
+    const Sv<S> row = cross_force(v, Sv<S>{{I6.m[6 * r], I6.m[6 * r + 1], I6.m[6 * r + 2], I6.m[6 * r + 3], I6.m[6 * r + 4], I6.m[6 * r + 5]}});
+    for (int c = 0; c < 6; ++c) B.m[6 * r + c] += row.v[c];
+  }
+  return B;
+}
+
 // Cholesky factor L (row-major, stride 6) of the n x n symmetric positive-definite D, n <= 6;
 // the diagonal holds 1 / L_ii so that solves multiply instead of divide.
 template <class S> TG_HD void cholesky(int n, const S* D, S* L) {
