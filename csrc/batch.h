@@ -9,7 +9,7 @@
 
 namespace tg {
 
-constexpr int kMaxIn = 4, kMaxOut = 3;
+constexpr int kMaxIn = 5, kMaxOut = 3;
 
 struct Batch {
   int64_t n = 0;                        // number of samples

@@ -60,14 +60,15 @@ def _backward(name: str, formula: Callable, ops, model: RobotModel) -> Callable:
 
 
 def _inverse_dynamics(ops, model, grads, output, q, qd, qdd, f_ext, convention):
-    """tau = ID(q, qd, qdd, f_ext): d/dq and d/dqd from the kernel, d/dqdd = M, d/df_ext = -J^T."""
+    """tau = ID(q, qd, qdd, f_ext): d/dq and d/dqd as one O(n) vector-Jacobian product, d/dqdd = M,
+    d/df_ext = -J^T."""
     grad = grads[0]
     needs = _needs(q, qd, qdd, f_ext)
     dq = dqd = dqdd = df = None
     if needs[0] or needs[1]:
-        dtau_dq, dtau_dqd = ops.inverse_dynamics_gradient(q, qd, qdd, f_ext, convention)
-        dq = _tangent_to_ambient(model, q, _vjp(dtau_dq, grad), convention) if needs[0] else None
-        dqd = _vjp(dtau_dqd, grad) if needs[1] else None
+        g_q, g_qd = ops.inverse_dynamics_vjp(q, qd, qdd, f_ext, grad, convention)
+        dq = _tangent_to_ambient(model, q, g_q, convention) if needs[0] else None
+        dqd = g_qd if needs[1] else None
     if needs[2]:
         dqdd = _vjp(ops.crba(q, convention), grad)
     if needs[3]:
@@ -78,15 +79,18 @@ def _inverse_dynamics(ops, model, grads, output, q, qd, qdd, f_ext, convention):
 
 
 def _forward_dynamics(ops, model, grads, output, q, qd, tau, f_ext, convention):
-    """qdd = FD(q, qd, tau, f_ext): from the kernel; d/df_ext = M^-1 J^T since d/dtau = M^-1."""
-    grad = grads[0]
+    """qdd = FD(q, qd, tau, f_ext) solves ID(q, qd, qdd, f_ext) = tau, so with lambda = M^-1 grad:
+    d/dx = -lambda^T d tau/dx for x = q, qd (at the saved qdd, one O(n) product), d/dtau = lambda
+    and d/df_ext = J lambda."""
     needs = _needs(q, qd, tau, f_ext)
-    dqdd_dq, dqdd_dqd, minv = ops.forward_dynamics_gradient(q, qd, tau, f_ext, convention)
-    dq = _tangent_to_ambient(model, q, _vjp(dqdd_dq, grad), convention) if needs[0] else None
-    dqd = _vjp(dqdd_dqd, grad) if needs[1] else None
-    dtau = _vjp(minv, grad) if needs[2] or needs[3] else None
-    df = ops.body_velocities(q, dtau, convention) if needs[3] else None
-    return dq, dqd, dtau if needs[2] else None, df, None
+    lam = ops.inertia_solve(q, grads[0], convention)
+    dq = dqd = None
+    if needs[0] or needs[1]:
+        g_q, g_qd = ops.inverse_dynamics_vjp(q, qd, output, f_ext, lam, convention)
+        dq = _tangent_to_ambient(model, q, -g_q, convention) if needs[0] else None
+        dqd = -g_qd if needs[1] else None
+    df = ops.body_velocities(q, lam, convention) if needs[3] else None
+    return dq, dqd, lam if needs[2] else None, df, None
 
 
 def _generalized_gravity(ops, model, grads, output, q, convention):

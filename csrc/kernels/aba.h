@@ -6,7 +6,8 @@
 
 namespace tg {
 
-template <class M, class S>
+// Gravity = false with qd = 0 and no fext solves M qdd = tau: M^-1 tau in O(n).
+template <class M, class S, bool Gravity = true>
 TG_HD void aba(const S* q, const S* qd, const S* tau, const S* fext, S* qdd) {
   const auto& d = M::data();
   SE3<S> liMi[M::NB];
@@ -63,7 +64,8 @@ TG_HD void aba(const S* q, const S* qd, const S* tau, const S* fext, S* qdd) {
   // Forward pass: qdd_i = D^-1 (u - U^T a'), a' the parent acceleration seen in frame i.
   for (int i = 0; i < M::NB; ++i) {
     const int n = d.nvj[i], vi = d.vi[i], p = d.parent[i];
-    const Sv<S> a_in = actinv_motion(liMi[i], p < 0 ? base_acceleration<M, S>() : a[p]) + c[i];
+    const Sv<S> a0 = Gravity ? base_acceleration<M, S>() : sv_zero<S>();
+    const Sv<S> a_in = actinv_motion(liMi[i], p < 0 ? a0 : a[p]) + c[i];
     S D[36], x[6];
     for (int r = 0; r < n; ++r) {
       for (int k = 0; k < n; ++k) D[n * r + k] = dot(joint_axis<M, S>(i, r), U[i][k]);

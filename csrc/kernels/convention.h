@@ -75,6 +75,23 @@ template <class M, class S, int C> struct Conv {
       columns_out(dh, 6);
     }
   }
+  // The same for a vector-Jacobian product: lambda^T (MuJoCo's d tau/dq, d tau/dqd) from Pinocchio's
+  // mu^T d tau/dq, mu^T d tau/dqd with mu = G^T lambda, and M mu and tau (Pinocchio's).
+  TG_HD void inverse_dynamics_vjp_out(const S* v, const S* a, const S* tau, const S* Mmu, const S* mu, S* g_q, S* g_qd) const {
+    if constexpr (active) {
+      const GradientColumns g = gradient_columns(v, a);
+      const Vec3<S> gv = load3(g_qd), mm = load3(Mmu), ml = load3(mu), tl = load3(tau);
+      force_out(g_q);  // x^T G^-1: base-linear part rotated by R
+      force_out(g_qd);
+      for (int c = 0; c < 3; ++c) {
+        Vec3<S> e = v3(S(0), S(0), S(0));
+        e.x[c] = S(1);
+        g_q[3 + c] += dot(gv, g.Jv[c]) + dot(mm, g.Jaq[c]) + dot(ml, cross(e, tl));
+        g_qd[c] += dot(mm, g.Jav_lin[c]);
+        g_qd[3 + c] += dot(mm, g.Jav_ang[c]);
+      }
+    }
+  }
   // Coriolis matrix out: C_mjx = G (C G^T + M K) with K qd = [v_lin x w; 0], Pinocchio's base
   // acceleration at MuJoCo's qacc = 0, so that C_mjx qd + g_mjx = MuJoCo's bias force.
   TG_HD void coriolis_out(const S* v, const S* Mass, S* Cq) const {
@@ -118,19 +135,32 @@ template <class M, class S, int C> struct Conv {
   //   Jv_q[:, ang a] = -(e_a x v_lin)
   //   Ja_q[:, ang a] = -(e_a x a_lin) - e_a x (w x v_lin) + w x (e_a x v_lin)
   //   Ja_v[:, lin a] = -w x (R^T e_a),  Ja_v[:, ang a] = -(e_a x v_lin),  pref[lin, ang a] = R (e_a x tau_lin).
+  // Columns (base-linear rows only) of Jv_q, Ja_q and Ja_v above, for the base rotation c = 0..2.
+  struct GradientColumns {
+    Vec3<S> Jv[3], Jaq[3], Jav_lin[3], Jav_ang[3];
+  };
+  TG_HD GradientColumns gradient_columns(const S* v, const S* a) const {
+    const Vec3<S> vl = load3(v), w = load3(v + 3), al = load3(a);
+    GradientColumns g;
+    for (int c = 0; c < 3; ++c) {
+      Vec3<S> e = v3(S(0), S(0), S(0));
+      e.x[c] = S(1);
+      g.Jv[c] = cross(vl, e);
+      g.Jaq[c] = cross(al, e) - cross(e, cross(w, vl)) + cross(w, cross(e, vl));
+      g.Jav_lin[c] = S(-1) * cross(w, mulT(R, e));
+      g.Jav_ang[c] = cross(vl, e);
+    }
+    return g;
+  }
+
   TG_HD void inverse_dynamics_gradient_out(const S* v, const S* a, const S* tau, const S* Mass, S* dq, S* dv) const {
     if constexpr (active) {
       constexpr int NV = M::NV;
-      const Vec3<S> vl = load3(v), w = load3(v + 3), al = load3(a);
-      Vec3<S> Jv[3], Jaq[3], Jav_lin[3], Jav_ang[3];  // columns, base-linear rows only
-      for (int c = 0; c < 3; ++c) {
-        Vec3<S> e = v3(S(0), S(0), S(0));
-        e.x[c] = S(1);
-        Jv[c] = cross(vl, e);
-        Jaq[c] = cross(al, e) - cross(e, cross(w, vl)) + cross(w, cross(e, vl));
-        Jav_lin[c] = S(-1) * cross(w, mulT(R, e));
-        Jav_ang[c] = cross(vl, e);
-      }
+      const GradientColumns g = gradient_columns(v, a);
+      const Vec3<S>* Jv = g.Jv;
+      const Vec3<S>* Jaq = g.Jaq;
+      const Vec3<S>* Jav_lin = g.Jav_lin;
+      const Vec3<S>* Jav_ang = g.Jav_ang;
       for (int r = 0; r < NV; ++r) {
         S* q_row = dq + NV * r;
         S* v_row = dv + NV * r;

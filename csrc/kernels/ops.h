@@ -147,6 +147,15 @@ TG_OP_BEGIN(FrameJacobianDot)
   }
 TG_OP_END
 
+// in: q, x   out: M^-1 x, by ABA without velocity or gravity (MuJoCo's: G M^-1 G^T x)
+TG_OP_BEGIN(InertiaSolve)
+  S zero[M::NV], x[M::NV];
+  for (int k = 0; k < M::NV; ++k) zero[k] = S(0);
+  cv.force(in[1], x);
+  aba<M, S, false>(cv.q, zero, x, nullptr, out[0]);
+  cv.force_out(out[0]);
+TG_OP_END
+
 // in: q, w (NF x 6)   out: sum_f J_f^T w_f (NV), the frames' vector-Jacobian product
 TG_OP_BEGIN(FramesVjp)
   frames_vjp<M, S>(cv.q, in[1], out[0]);
@@ -232,6 +241,21 @@ TG_OP_BEGIN(OscInertia)
       A[6 * r + c] = acc;
     }
   spd_inverse(6, A, out[0]);
+TG_OP_END
+
+// in: q, qd, qdd, f_ext?, lambda   out: lambda^T d tau/dq, lambda^T d tau/dqd (NV each), in O(n)
+TG_OP_BEGIN(InverseDynamicsVjp)
+  S qd[M::NV], qdd[M::NV], mu[M::NV], tau[M::NV];
+  cv.velocity(in[1], qd);
+  cv.acceleration(qd, in[2], qdd);
+  cv.force(in[4], mu);  // G^T lambda
+  rnea_vjp<M, S>(cv.q, qd, qdd, in[3], mu, tau, out[0], out[1]);
+  if constexpr (Conv<M, S, C>::active) {
+    S zero[M::NV], Mmu[M::NV];
+    for (int k = 0; k < M::NV; ++k) zero[k] = S(0);
+    rnea<M, S, false>(cv.q, zero, mu, nullptr, Mmu);
+    cv.inverse_dynamics_vjp_out(qd, qdd, tau, Mmu, mu, out[0], out[1]);
+  }
 TG_OP_END
 
 // X <- -A X for NV x NV row-major matrices: rows of the product are sums of rows of X, which

@@ -7,7 +7,8 @@
 namespace tg {
 
 // q, qd, qdd in Pinocchio's layout; fext (NB x 6, joint frames) may be null; tau is (NV).
-template <class M, class S>
+// Gravity = false with qd = 0 gives M qdd.
+template <class M, class S, bool Gravity = true>
 TG_HD void rnea(const S* q, const S* qd, const S* qdd, const S* fext, S* tau) {
   const auto& d = M::data();
   SE3<S> liMi[M::NB];
@@ -18,7 +19,7 @@ TG_HD void rnea(const S* q, const S* qd, const S* qdd, const S* fext, S* tau) {
     liMi[i] = joint_placement<M, S>(i, q);
     const Sv<S> vJ = joint_motion<M, S>(i, qd);
     const Sv<S> aJ = joint_motion<M, S>(i, qdd);
-    const Sv<S> a_parent = p < 0 ? base_acceleration<M, S>() : a[p];
+    const Sv<S> a_parent = p < 0 ? (Gravity ? base_acceleration<M, S>() : sv_zero<S>()) : a[p];
     v[i] = p < 0 ? vJ : actinv_motion(liMi[i], v[p]) + vJ;
     a[i] = actinv_motion(liMi[i], a_parent) + aJ + cross_motion(v[i], vJ);
     const Inertia<S> I = body_inertia<M, S>(i);

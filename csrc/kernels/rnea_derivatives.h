@@ -141,6 +141,49 @@ TG_HD void rnea_derivatives(const S* q, const S* qd, const S* qdd, const S* fext
   ancestor_pairs<M, S>(W, W.alpha, W.s, false, dtau_dqd);
 }
 
+// lambda^T d tau / dq and lambda^T d tau / dqd (NV each) without forming the matrices, in O(n):
+// over the pairs above, with P_j, Q_j the subtree sums of lambda_m Yc_m S_m and lambda_m B_m^T S_m
+// and L_j the sum of lambda_m S_m over j's strict ancestors,
+//   (lambda^T d tau/dq)_j = u_j . P_j + w_j . Q_j + L_j . (Yc_j u_j + B_j w_j + s_j x* F_j)
+// and alike for qd with alpha and s. tau is written too.
+template <class M, class S>
+TG_HD void rnea_vjp(const S* q, const S* qd, const S* qdd, const S* fext, const S* lambda, S* tau, S* g_q, S* g_qd) {
+  const auto& d = M::data();
+  RneaDerivativesWork<M, S> W;
+  rnea_derivatives_setup<M, S>(q, qd, qdd, fext, W);
+  Sv<S> P[M::NB], Q[M::NB], L[M::NB];
+  for (int i = 0; i < M::NB; ++i) {
+    P[i] = Q[i] = sv_zero<S>();
+    for (int l = 0; l < d.nvj[i]; ++l) {
+      const S lam = lambda[d.vi[i] + l];
+      tau[d.vi[i] + l] = dot(W.Sw[i][l], W.F[i]);
+      P[i] = P[i] + lam * mul(W.Yc[i], W.Sw[i][l]);
+      Q[i] = Q[i] + lam * mul_transpose(W.B[i], W.Sw[i][l]);
+    }
+  }
+  for (int i = M::NB - 1; i >= 0; --i)
+    if (d.parent[i] >= 0) {
+      P[d.parent[i]] = P[d.parent[i]] + P[i];
+      Q[d.parent[i]] = Q[d.parent[i]] + Q[i];
+    }
+  for (int i = 0; i < M::NB; ++i) {
+    const int p = d.parent[i];
+    L[i] = sv_zero<S>();
+    if (p >= 0) {
+      L[i] = L[p];
+      for (int l = 0; l < d.nvj[p]; ++l) L[i] = L[i] + lambda[d.vi[p] + l] * W.Sw[p][l];
+    }
+    for (int c = 0; c < d.nvj[i]; ++c) {
+      const int col = d.vi[i] + c;
+      const Sv<S>& s = W.s[col];
+      const Sv<S> dFq = mul(W.Yc[i], W.u[col]) + mul(W.B[i], W.w[col]) + cross_force(s, W.F[i]);
+      const Sv<S> dFv = mul(W.Yc[i], W.alpha[col]) + mul(W.B[i], s);
+      g_q[col] = dot(W.u[col], P[i]) + dot(W.w[col], Q[i]) + dot(L[i], dFq);
+      g_qd[col] = dot(W.alpha[col], P[i]) + dot(s, Q[i]) + dot(L[i], dFv);
+    }
+  }
+}
+
 // Coriolis matrix C (NV x NV) with C qd = nonlinear effects - gravity, Pinocchio's factorisation
 // (dM/dt - 2 C skew-symmetric): the pairs above with X = dS/dt = v x S and Y = S / 2.
 template <class M, class S> TG_HD void coriolis_matrix(const S* q, const S* qd, S* C) {
