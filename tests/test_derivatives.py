@@ -486,3 +486,15 @@ def test_cuda_graph_replays_forward_and_backward(robots):
     torch.cuda.synchronize()
     for got, ref in zip(captured, eager):
         assert torch.allclose(got, ref, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", FLOATING)
+def test_mujoco_end_effector_pose_gradient_vs_finite_differences(robots, mj_sims, name):
+    """Central differences of the pose along MuJoCo's own mj_integratePos."""
+    robot, sim = robots[name], mj_sims[name]
+    q, _, _, _ = _states(robot, batch=1, seed=25, convention="mujoco")
+    frames = _limb_frames(robot)
+    ours = robot.mujoco.end_effector_pose_gradient(q, frames)[0].numpy()
+    pose = lambda p: robot.mujoco.end_effector_pose(torch.from_numpy(p), frames).numpy()  # noqa: E731
+    fd = np.stack([_central(pose, q[0].numpy(), k, 1e-6, _move_qpos(sim.m)) for k in range(robot.nv)], -1)
+    assert rel_err(ours, fd) <= 1e-6
