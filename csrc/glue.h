@@ -130,14 +130,15 @@ class Call {
     at::parallel_for(0, n_, 16, [&b](int64_t begin, int64_t end) { cpu_range<Op, Robot, S, C>(b, begin, end); });
   }
 
-  // A large CPU output is backed by transparent huge pages: a fresh batch of matrices otherwise
-  // costs one page fault per 4 KiB on first touch, more than computing it for big robots.
+  // A CPU output above glibc's largest mmap threshold (32 MiB) is mapped afresh on every call and
+  // costs one page fault per 4 KiB on first touch, more than computing it for big robots: back it
+  // with transparent huge pages instead. Smaller outputs reuse the heap without faults.
   static at::Tensor empty(const std::vector<int64_t>& shape, const at::TensorOptions& options) {
 #if defined(__linux__) && defined(MADV_HUGEPAGE)
-    constexpr size_t kHuge = size_t(2) << 20;
+    constexpr size_t kHuge = size_t(2) << 20, kMmapMax = size_t(32) << 20;
     const size_t bytes = static_cast<size_t>(numel(shape)) * options.dtype().itemsize();
     void* data = nullptr;
-    if (options.device().is_cpu() && bytes >= 2 * kHuge) {
+    if (options.device().is_cpu() && bytes > kMmapMax) {
       const size_t size = (bytes + kHuge - 1) / kHuge * kHuge;
       if (posix_memalign(&data, kHuge, size) == 0) {
         madvise(data, size, MADV_HUGEPAGE);

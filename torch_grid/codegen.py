@@ -49,6 +49,7 @@ def robot_header(model: RobotModel, mujoco: bool) -> str:
     fields = [
         ("int", "parent", [x.parent for x in j]),
         ("int", "jtype", [_JTYPE[x.type] for x in j]),
+        ("int", "axis_index", [_cardinal(x.axis) for x in j]),
         ("int", "qi", qi),
         ("int", "vi", vi),
         ("int", "nvj", [x.nv for x in j]),
@@ -157,6 +158,14 @@ def _wrapper(op: OpSpec) -> str:
         ret, value = f"std::tuple<{', '.join('at::Tensor' for _ in outs)}>", f"std::make_tuple({', '.join(outs)})"
     body.append(f"  return {value};")
     return f"{ret} {op.name}({', '.join(params)}) {{\n" + "\n".join(body) + "\n}\n"
+
+
+def _cardinal(axis) -> int:
+    """0, 1 or 2 when the axis is +x, +y or +z exactly, else -1 (the general rotation)."""
+    for k in range(3):
+        if tuple(axis) == tuple(1.0 if c == k else 0.0 for c in range(3)):
+            return k
+    return -1
 
 
 def _unit(includes: list[str], lines: list[str]) -> str:

@@ -19,17 +19,28 @@ template <class M, class S> TG_HD SE3<S> joint_placement(int i, const S* q) {
   for (int k = 0; k < 9; ++k) X.R.m[k] = S(d.R[i][k]);
   X.p = v3(S(d.p[i][0]), S(d.p[i][1]), S(d.p[i][2]));
   const S* qi = q + d.qi[i];
-  const Vec3<S> a = v3(S(d.axis[i][0]), S(d.axis[i][1]), S(d.axis[i][2]));
+  const int k = d.axis_index[i];  // 0, 1, 2 for a cardinal axis, -1 otherwise
   switch (d.jtype[i]) {
     case FREE:
       X.p = X.p + mul(X.R, load3(qi));
       X.R = mul(X.R, quat_rotation(qi[3], qi[4], qi[5], qi[6]));
       break;
     case REVOLUTE:
-      X.R = mul(X.R, axis_rotation(a, qi[0]));
+      if (k >= 0) {
+        // R Rot(e_k, t) mixes only the two columns other than k.
+        const int a = (k + 1) % 3, b = (k + 2) % 3;
+        const S c = cos(qi[0]), s = sin(qi[0]);
+        for (int r = 0; r < 3; ++r) {
+          const S ra = X.R.m[3 * r + a], rb = X.R.m[3 * r + b];
+          X.R.m[3 * r + a] = c * ra + s * rb;
+          X.R.m[3 * r + b] = c * rb - s * ra;
+        }
+      } else {
+        X.R = mul(X.R, axis_rotation(v3(S(d.axis[i][0]), S(d.axis[i][1]), S(d.axis[i][2])), qi[0]));
+      }
       break;
     default:  // PRISMATIC
-      X.p = X.p + mul(X.R, qi[0] * a);
+      X.p = X.p + mul(X.R, qi[0] * v3(S(d.axis[i][0]), S(d.axis[i][1]), S(d.axis[i][2])));
       break;
   }
   return X;
