@@ -24,6 +24,36 @@ namespace tg {
     }             \
   };
 
+// X <- -A X for an NV x NV matrix A and an NV x COLS row-major X: rows of the product are sums of
+// rows of X, which keeps the inner loop contiguous (it vectorises).
+template <class M, class S, int COLS> TG_HD void negate_left_multiply(const S* A, S* X) {
+  constexpr int NV = M::NV;
+  S T[NV * COLS];
+  for (int r = 0; r < NV; ++r) {
+    S* t = T + COLS * r;
+    for (int c = 0; c < COLS; ++c) t[c] = S(0);
+    for (int k = 0; k < NV; ++k) {
+      const S a = A[NV * r + k];
+      const S* x = X + COLS * k;
+      for (int c = 0; c < COLS; ++c) t[c] -= a * x[c];
+    }
+  }
+  for (int k = 0; k < NV * COLS; ++k) X[k] = T[k];
+}
+
+// qdd = M^-1 (tau - nle(q, qd, f_ext)) from a computed M^-1 (Pinocchio's convention).
+template <class M, class S>
+TG_HD void forward_dynamics_from_minv(const S* q, const S* qd, const S* tau, const S* fext, const S* Minv, S* qdd) {
+  S zero[M::NV], nle[M::NV];
+  for (int k = 0; k < M::NV; ++k) zero[k] = S(0);
+  rnea<M, S>(q, qd, zero, fext, nle);
+  for (int r = 0; r < M::NV; ++r) {
+    S acc = 0;
+    for (int k = 0; k < M::NV; ++k) acc += Minv[M::NV * r + k] * (tau[k] - nle[k]);
+    qdd[r] = acc;
+  }
+}
+
 // in: q, qd, qdd, f_ext?   out: tau
 TG_OP_BEGIN(InverseDynamics)
   S qd[M::NV], qdd[M::NV];
@@ -207,20 +237,11 @@ TG_OP_END
 
 // in: q   out: d qdd / d f_ext (NV x NB x 6) = -M^-1 d tau / d f_ext
 TG_OP_BEGIN(ForwardDynamicsExternalForceGradient)
-  constexpr int NC = 6 * M::NB;
   S Minv[M::NV * M::NV];
   minv<M, S>(cv.q, Minv);
   external_force_jacobian<M, S>(cv.q, out[0]);
-  for (int c = 0; c < NC; ++c) {
-    S y[M::NV];
-    for (int r = 0; r < M::NV; ++r) {
-      S acc = 0;
-      for (int k = 0; k < M::NV; ++k) acc += Minv[M::NV * r + k] * out[0][NC * k + c];
-      y[r] = -acc;
-    }
-    for (int r = 0; r < M::NV; ++r) out[0][NC * r + c] = y[r];
-  }
-  cv.force_rows_out(out[0], NC);
+  negate_left_multiply<M, S, 6 * M::NB>(Minv, out[0]);
+  cv.force_rows_out(out[0], 6 * M::NB);
 TG_OP_END
 
 // in: q; iargs: frame, reference   out: Lambda = (J M^-1 J^T)^-1 (6 x 6)
@@ -258,38 +279,14 @@ TG_OP_BEGIN(InverseDynamicsVjp)
   }
 TG_OP_END
 
-// X <- -A X for NV x NV row-major matrices: rows of the product are sums of rows of X, which
-// keeps the inner loop contiguous (it vectorises).
-template <class M, class S> TG_HD void negate_left_multiply(const S* A, S* X) {
-  constexpr int NV = M::NV;
-  S T[NV * NV];
-  for (int r = 0; r < NV; ++r) {
-    S* t = T + NV * r;
-    for (int c = 0; c < NV; ++c) t[c] = S(0);
-    for (int k = 0; k < NV; ++k) {
-      const S a = A[NV * r + k];
-      const S* x = X + NV * k;
-      for (int c = 0; c < NV; ++c) t[c] -= a * x[c];
-    }
-  }
-  for (int k = 0; k < NV * NV; ++k) X[k] = T[k];
-}
-
 // in: q, qd, tau, f_ext?   out: dqdd/dq, dqdd/dqd, dqdd/dtau. Since ID(q, qd, FD(q, qd, tau)) = tau,
 // dqdd/dx = -M^-1 dtau/dx at qdd = FD(q, qd, tau), and dqdd/dtau = M^-1, in either convention.
 TG_OP_BEGIN(ForwardDynamicsGradient)
   S qd[M::NV], u[M::NV], qdd[M::NV], tau[M::NV];
   cv.velocity(in[1], qd);
   cv.force(in[2], u);
-  // qdd = M^-1 (tau - nle): M^-1 is needed anyway, so no separate ABA.
-  minv<M, S>(cv.q, out[2]);
-  for (int k = 0; k < M::NV; ++k) qdd[k] = S(0);
-  rnea<M, S>(cv.q, qd, qdd, in[3], tau);
-  for (int r = 0; r < M::NV; ++r) {
-    S acc = 0;
-    for (int k = 0; k < M::NV; ++k) acc += out[2][M::NV * r + k] * (u[k] - tau[k]);
-    qdd[r] = acc;
-  }
+  minv<M, S>(cv.q, out[2]);  // needed anyway, so qdd comes from it rather than from ABA
+  forward_dynamics_from_minv<M, S>(cv.q, qd, u, in[3], out[2], qdd);
   rnea_derivatives<M, S>(cv.q, qd, qdd, in[3], tau, out[0], out[1]);
   if constexpr (Conv<M, S, C>::active) {
     S Mass[M::NV * M::NV];
@@ -297,8 +294,8 @@ TG_OP_BEGIN(ForwardDynamicsGradient)
     cv.inverse_dynamics_gradient_out(qd, qdd, tau, Mass, out[0], out[1]);
     cv.congruence_out(out[2]);
   }
-  negate_left_multiply<M, S>(out[2], out[0]);
-  negate_left_multiply<M, S>(out[2], out[1]);
+  negate_left_multiply<M, S, M::NV>(out[2], out[0]);
+  negate_left_multiply<M, S, M::NV>(out[2], out[1]);
 TG_OP_END
 
 // in: q, qd, qdd   out: Y (NV x 10 NB), tau = Y pi
@@ -325,30 +322,14 @@ TG_OP_END
 // in: q, qd, tau   out: d qdd / d pi (NV x 10 NB) = -M^-1 Y(q, qd, qdd) at qdd = FD(q, qd, tau).
 // MuJoCo's qdd differs from Pinocchio's by G and a term free of pi, so the twin is G (.).
 TG_OP_BEGIN(ForwardDynamicsParameterGradient)
-  constexpr int NP = 10 * M::NB;
-  S qd[M::NV], u[M::NV], qdd[M::NV], nle[M::NV], Minv[M::NV * M::NV];
+  S qd[M::NV], u[M::NV], qdd[M::NV], Minv[M::NV * M::NV];
   cv.velocity(in[1], qd);
   cv.force(in[2], u);
   minv<M, S>(cv.q, Minv);
-  for (int k = 0; k < M::NV; ++k) qdd[k] = S(0);
-  rnea<M, S>(cv.q, qd, qdd, nullptr, nle);
-  for (int k = 0; k < M::NV; ++k) u[k] -= nle[k];
-  for (int r = 0; r < M::NV; ++r) {
-    S acc = 0;
-    for (int k = 0; k < M::NV; ++k) acc += Minv[M::NV * r + k] * u[k];
-    qdd[r] = acc;
-  }
+  forward_dynamics_from_minv<M, S>(cv.q, qd, u, nullptr, Minv, qdd);
   inverse_dynamics_regressor<M, S>(cv.q, qd, qdd, out[0]);
-  for (int c = 0; c < NP; ++c) {  // -M^-1 Y, a column at a time
-    S y[M::NV];
-    for (int r = 0; r < M::NV; ++r) {
-      S acc = 0;
-      for (int k = 0; k < M::NV; ++k) acc += Minv[M::NV * r + k] * out[0][NP * k + c];
-      y[r] = -acc;
-    }
-    for (int r = 0; r < M::NV; ++r) out[0][NP * r + c] = y[r];
-  }
-  cv.force_rows_out(out[0], NP);
+  negate_left_multiply<M, S, 10 * M::NB>(Minv, out[0]);
+  cv.force_rows_out(out[0], 10 * M::NB);
 TG_OP_END
 
 #undef TG_OP_BEGIN

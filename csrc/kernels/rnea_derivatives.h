@@ -43,16 +43,6 @@ template <class S> TG_HD M6<S> momentum_rate_matrix(const Inertia<S>& I, const S
   return B;
 }
 
-template <class S> TG_HD Sv<S> mul_transpose(const M6<S>& A, const Sv<S>& x) {
-  Sv<S> r;
-  for (int c = 0; c < 6; ++c) {
-    S acc = 0;
-    for (int k = 0; k < 6; ++k) acc += A.m[6 * k + c] * x.v[k];
-    r.v[c] = acc;
-  }
-  return r;
-}
-
 // Forward pass (world placements, axes, velocities, accelerations, body forces and the per-column
 // terms), then the subtree sums Yc, B, F.
 template <class M, class S>

@@ -125,6 +125,17 @@ template <class S> TG_HD Sv<S> mul(const M6<S>& A, const Sv<S>& x) {
   return r;
 }
 
+// A^T x.
+template <class S> TG_HD Sv<S> mul_transpose(const M6<S>& A, const Sv<S>& x) {
+  Sv<S> r;
+  for (int c = 0; c < 6; ++c) {
+    S acc = 0;
+    for (int k = 0; k < 6; ++k) acc += A.m[6 * k + c] * x.v[k];
+    r.v[c] = acc;
+  }
+  return r;
+}
+
 // Skew matrix [a]x, so that [a]x b = a x b.
 template <class S> TG_HD Mat3<S> skew(Vec3<S> a) {
   return {{S(0), -a.x[2], a.x[1], a.x[2], S(0), -a.x[0], -a.x[1], a.x[0], S(0)}};
