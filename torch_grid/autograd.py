@@ -1,8 +1,9 @@
 """Autograd for the ops, backed by the analytic derivative kernels.
 
-inverse_dynamics and forward_dynamics differentiate with respect to every tensor input. Their
-kernels give derivatives along the tangent space; the gradient with respect to q is mapped to
-the ambient coordinates the caller passed (a free-flyer quaternion through its normalisation).
+The ops in _BACKWARDS differentiate with respect to every tensor input, mostly through one O(n)
+vector-Jacobian product of inverse dynamics. The kernels give derivatives along the tangent
+space; the gradient with respect to q is mapped to the ambient coordinates the caller passed (a
+free-flyer quaternion through its normalisation).
 Ops without derivative kernels yet raise a clear error when back-propagated through, as does
 differentiating any backward a second time.
 """
@@ -12,6 +13,7 @@ from typing import Callable
 
 import torch
 
+from .conventions import base_rotation
 from .model import RobotModel
 from .ops import OPS
 
@@ -95,35 +97,32 @@ def _forward_dynamics(ops, model, grads, output, q, qd, tau, f_ext, convention):
 
 def _generalized_gravity(ops, model, grads, output, q, convention):
     """g(q) = ID(q, 0, 0)."""
-    grad = grads[0]
     zero = torch.zeros(*q.shape[:-1], model.nv, dtype=q.dtype, device=q.device)
-    dtau_dq, _ = ops.inverse_dynamics_gradient(q, zero, zero, None, convention)
-    return _tangent_to_ambient(model, q, _vjp(dtau_dq, grad), convention), None
+    g_q, _ = ops.inverse_dynamics_vjp(q, zero, zero, None, grads[0], convention)
+    return _tangent_to_ambient(model, q, g_q, convention), None
 
 
 def _nonlinear_effects(ops, model, grads, output, q, qd, convention):
     """nle(q, qd) = ID(q, qd, 0): MuJoCo's qacc = 0 in MuJoCo's convention, as the op itself."""
-    grad = grads[0]
-    dtau_dq, dtau_dqd = ops.inverse_dynamics_gradient(q, qd, torch.zeros_like(qd), None, convention)
-    return _tangent_to_ambient(model, q, _vjp(dtau_dq, grad), convention), _vjp(dtau_dqd, grad), None
+    g_q, g_qd = ops.inverse_dynamics_vjp(q, qd, torch.zeros_like(qd), None, grads[0], convention)
+    return _tangent_to_ambient(model, q, g_q, convention), g_qd, None
 
 
 def _com(ops, model, grads, output, q, convention):
     """d com / dq = J_com along the tangent."""
-    grad = grads[0]
-    return _tangent_to_ambient(model, q, _vjp(ops.jacobian_com(q, convention), grad), convention), None
+    return _tangent_to_ambient(model, q, _vjp(ops.jacobian_com(q, convention), grads[0]), convention), None
 
 
 def _energy(ops, model, grads, output, q, qd, convention):
     """KE = qd^T M qd / 2, PE: d PE/dq = g(q); d KE/dqd = M qd; d KE/dq = qd^T d(M qd)/dq / 2, where
-    d(M qd)/dq is the ID gradient at (velocity 0, acceleration qd) less its gravity part at (0, 0)."""
+    qd^T d(M qd)/dq is the ID product at (velocity 0, acceleration qd) less its gravity part at (0, 0)."""
     grad = grads[0]
     g_kinetic = grad[..., 0:1] + grad[..., 2:3]
     g_potential = grad[..., 1:2] + grad[..., 2:3]
     zero = torch.zeros_like(qd)
-    dmv_dq, _ = ops.inverse_dynamics_gradient(q, zero, qd, None, convention)
-    dg_dq, _ = ops.inverse_dynamics_gradient(q, zero, zero, None, convention)
-    dke_dq = 0.5 * _vjp(dmv_dq - dg_dq, qd)
+    with_qd, _ = ops.inverse_dynamics_vjp(q, zero, qd, None, qd, convention)
+    gravity_only, _ = ops.inverse_dynamics_vjp(q, zero, zero, None, qd, convention)
+    dke_dq = 0.5 * (with_qd - gravity_only)
     dpe_dq = ops.generalized_gravity(q, convention)
     dq = _tangent_to_ambient(model, q, g_kinetic * dke_dq + g_potential * dpe_dq, convention)
     dqd = g_kinetic * _vjp(ops.crba(q, convention), qd)
@@ -202,12 +201,7 @@ def _tangent_to_ambient(model: RobotModel, q: torch.Tensor, g: torch.Tensor, con
     norm = torch.cat([xyz, w], dim=-1).norm(dim=-1, keepdim=True)
     xyz_n, w_n = xyz / norm, w / norm
     g_lin, g_ang = g[..., :3], g[..., 3:6]
-    if convention:
-        g_pos = g_lin
-    else:
-        from .conventions import base_rotation
-
-        g_pos = (base_rotation(q) @ g_lin.unsqueeze(-1)).squeeze(-1)
+    g_pos = g_lin if convention else (base_rotation(q) @ g_lin.unsqueeze(-1)).squeeze(-1)
     g_xyz = 2 / norm * (w_n * g_ang + torch.cross(xyz_n, g_ang, dim=-1))
     g_w = -2 / norm * (xyz_n * g_ang).sum(-1, keepdim=True)
     g_quat = torch.cat([g_w, g_xyz], dim=-1) if convention else torch.cat([g_xyz, g_w], dim=-1)

@@ -9,6 +9,8 @@ from typing import Sequence
 
 import torch
 
+from .autograd import rpy_rate_matrix
+from .codegen import inertia_about_origin
 from .model import RobotModel
 from .ops import OPS, TENSOR_KINDS
 
@@ -123,8 +125,6 @@ class _Functions:
         xyz rows are the LOCAL_WORLD_ALIGNED linear Jacobian rows; rpy rows are E^-1 J_angular with
         E the rpy rate matrix (singular at pitch = +-pi/2, as rpy itself).
         """
-        from .autograd import rpy_rate_matrix
-
         if isinstance(frames, (str, int)):
             raise TypeError(f"end_effector_pose_gradient: frames must be a list of frame names or indices, got {frames!r}")
         rpy = self.end_effector_pose(q, frames)[..., 3:]
@@ -179,8 +179,6 @@ class _Functions:
     def inertial_parameters(self, dtype: torch.dtype = torch.float64, device="cpu") -> torch.Tensor:
         """(10 nbodies,) each body's [m, m c, I_xx, I_xy, I_yy, I_xz, I_yz, I_zz] in Pinocchio's order:
         c the centre of mass and I the rotational inertia about the joint frame origin."""
-        from .codegen import inertia_about_origin
-
         rows = []
         for j in self._robot.model.joints:
             I = inertia_about_origin(j.mass, j.com, j.inertia)

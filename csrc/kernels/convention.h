@@ -157,33 +157,26 @@ template <class M, class S, int C> struct Conv {
     if constexpr (active) {
       constexpr int NV = M::NV;
       const GradientColumns g = gradient_columns(v, a);
-      const Vec3<S>* Jv = g.Jv;
-      const Vec3<S>* Jaq = g.Jaq;
-      const Vec3<S>* Jav_lin = g.Jav_lin;
-      const Vec3<S>* Jav_ang = g.Jav_ang;
+      // The Jv_q and Ja terms read Pinocchio's dtau/dqd and M before any reframe.
+      S add_q[NV][3], add_vl[NV][3], add_va[NV][3];
       for (int r = 0; r < NV; ++r) {
-        S* q_row = dq + NV * r;
-        S* v_row = dv + NV * r;
-        const Vec3<S> Mr = load3(Mass + NV * r), dvr = load3(v_row);
-        S add_q[3], add_vl[3], add_va[3];
+        const Vec3<S> Mr = load3(Mass + NV * r), dvr = load3(dv + NV * r);
         for (int c = 0; c < 3; ++c) {
-          add_q[c] = dot(dvr, Jv[c]) + dot(Mr, Jaq[c]);
-          add_vl[c] = dot(Mr, Jav_lin[c]);
-          add_va[c] = dot(Mr, Jav_ang[c]);
-        }
-        store3(mul(R, load3(q_row)), q_row);  // X G^-1: base-linear columns times R^T
-        store3(mul(R, load3(v_row)), v_row);
-        for (int c = 0; c < 3; ++c) {
-          q_row[3 + c] += add_q[c];
-          v_row[c] += add_vl[c];
-          v_row[3 + c] += add_va[c];
+          add_q[r][c] = dot(dvr, g.Jv[c]) + dot(Mr, g.Jaq[c]);
+          add_vl[r][c] = dot(Mr, g.Jav_lin[c]);
+          add_va[r][c] = dot(Mr, g.Jav_ang[c]);
         }
       }
-      // G (.): base-linear rows times R; then pref.
-      for (int c = 0; c < NV; ++c) {
-        store3_column(dq, c, mul(R, load3_column(dq, c)));
-        store3_column(dv, c, mul(R, load3_column(dv, c)));
-      }
+      columns_out(dq, NV);  // X G^-1
+      columns_out(dv, NV);
+      for (int r = 0; r < NV; ++r)
+        for (int c = 0; c < 3; ++c) {
+          dq[NV * r + 3 + c] += add_q[r][c];
+          dv[NV * r + c] += add_vl[r][c];
+          dv[NV * r + 3 + c] += add_va[r][c];
+        }
+      force_rows_out(dq, NV);  // G (.)
+      force_rows_out(dv, NV);
       const Vec3<S> tl = load3(tau);
       for (int c = 0; c < 3; ++c) {
         Vec3<S> e = v3(S(0), S(0), S(0));
@@ -192,14 +185,6 @@ template <class M, class S, int C> struct Conv {
         for (int r = 0; r < 3; ++r) dq[NV * r + 3 + c] += pref.x[r];
       }
     }
-  }
-
- private:
-  TG_HD static Vec3<S> load3_column(const S* X, int c) { return v3(X[c], X[M::NV + c], X[2 * M::NV + c]); }
-  TG_HD static void store3_column(S* X, int c, Vec3<S> x) {
-    X[c] = x.x[0];
-    X[M::NV + c] = x.x[1];
-    X[2 * M::NV + c] = x.x[2];
   }
 };
 

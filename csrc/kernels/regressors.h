@@ -59,12 +59,10 @@ template <class M, class S> TG_HD void inverse_dynamics_regressor(const S* q, co
 
 // Kinetic energy KE = Yk . pi (10 NB): per body [|v_l|^2 / 2, v_l x v_a, v_a v_a^T / 2 (sym)].
 template <class M, class S> TG_HD void kinetic_energy_regressor(const S* q, const S* qd, S* Yk) {
-  const auto& d = M::data();
-  Sv<S> v[M::NB];
+  S v[6 * M::NB];
+  body_velocities<M, S>(q, qd, v);
   for (int i = 0; i < M::NB; ++i) {
-    const Sv<S> vJ = joint_motion<M, S>(i, qd);
-    v[i] = d.parent[i] < 0 ? vJ : actinv_motion(joint_placement<M, S>(i, q), v[d.parent[i]]) + vJ;
-    const Vec3<S> vl = lin(v[i]), w = ang(v[i]), h = cross(vl, w);
+    const Vec3<S> vl = load3(v + 6 * i), w = load3(v + 6 * i + 3), h = cross(vl, w);
     S* y = Yk + 10 * i;
     y[0] = S(0.5) * dot(vl, vl);
     for (int k = 0; k < 3; ++k) y[1 + k] = h.x[k];
