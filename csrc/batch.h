@@ -9,7 +9,7 @@
 
 namespace tg {
 
-constexpr int kMaxIn = 5, kMaxOut = 3;
+constexpr int kMaxIn = 8, kMaxOut = 4;
 
 struct Batch {
   int64_t n = 0;                        // number of samples
@@ -17,7 +17,7 @@ struct Batch {
   int64_t in_stride[kMaxIn] = {};       // elements between samples
   void* out[kMaxOut] = {};
   int64_t out_stride[kMaxOut] = {};
-  int iargs[TG_MAX_IARGS] = {};         // integer arguments (frame indices, reference)
+  int iargs[TG_MAX_IARGS] = {};         // integer arguments (frame indices, reference, mask)
   int n_iargs = 0;
 };
 

@@ -15,7 +15,7 @@ import torch
 
 from .conventions import base_rotation
 from .model import RobotModel
-from .ops import OPS
+from .ops import FORWARD_MODE_BACKWARD, OPS, OpSpec
 
 
 def register_autograd(namespace: str, model: RobotModel) -> None:
@@ -23,6 +23,8 @@ def register_autograd(namespace: str, model: RobotModel) -> None:
     ops = getattr(torch.ops, namespace)
     for spec in OPS.values():
         backward = _BACKWARDS.get(spec.name)
+        if spec.name in FORWARD_MODE_BACKWARD:
+            backward = _forward_mode(spec)
         if backward is None:
             torch.library.register_autograd(f"{namespace}::{spec.name}", _no_backward(spec.name),
                                             setup_context=_save_nothing)
@@ -59,6 +61,25 @@ def _backward(name: str, formula: Callable, ops, model: RobotModel) -> Callable:
         return formula(ops, model, grads, ctx.output, *ctx.inputs)
 
     return backward
+
+
+def _forward_mode(spec: OpSpec) -> Callable:
+    """The backward of an op whose kernel is differentiated in forward mode by `<op>_backward`. Its
+    q gradient is already with respect to the coordinates passed (through any normalisation)."""
+
+    def formula(ops, model, grads, output, *inputs):
+        needs = _needs(*inputs)
+        tensors = [k for k, a in enumerate(spec.args) if a.is_tensor]
+        mask = sum(1 << i for i, k in enumerate(tensors) if needs[k])
+        cotangents = [g if g is None else g.contiguous() for g in grads]
+        result = getattr(ops, f"{spec.name}_backward")(*inputs[:-1], *cotangents, mask, inputs[-1])
+        result = result if isinstance(result, tuple) else (result,)
+        gradients = [None] * len(inputs)
+        for i, k in enumerate(tensors):
+            gradients[k] = result[i] if needs[k] else None
+        return tuple(gradients)
+
+    return formula
 
 
 def _inverse_dynamics(ops, model, grads, output, q, qd, qdd, f_ext, convention):

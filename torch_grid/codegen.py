@@ -5,9 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from .model import RobotModel
-from .ops import OPS, TENSOR_KINDS, OpSpec
+from .ops import OPS, OpSpec
 
 _JTYPE = {"free": 0, "revolute": 1, "continuous": 1, "prismatic": 2}
+_KERNEL_SIZE = {"nv": "M::NV", "nq": "M::NQ", "nframes": "M::NF", "nbodies": "M::NB", "nparams": "10 * M::NB"}
 _SIZE = {"nv": "Robot::NV", "nq": "Robot::NQ", "nframes": "Robot::NF", "nbodies": "Robot::NB", "nparams": "10 * Robot::NB",
          "nsel": "static_cast<int64_t>(frames.size())"}
 
@@ -17,8 +18,10 @@ def write_sources(model: RobotModel, mujoco: bool, cuda: bool, namespace: str, d
     files = {
         "robot.h": robot_header(model, mujoco),
         "glue.cpp": glue_unit(namespace),
-        "kernels_f64.cpp": cpu_unit(model, mujoco, "double"),
-        "kernels_f32.cpp": cpu_unit(model, mujoco, "float"),
+        "kernels_f64.cpp": cpu_unit(model, mujoco, "double", backward=False),
+        "kernels_f32.cpp": cpu_unit(model, mujoco, "float", backward=False),
+        "backward_f64.cpp": cpu_unit(model, mujoco, "double", backward=True),
+        "backward_f32.cpp": cpu_unit(model, mujoco, "float", backward=True),
     }
     if cuda:
         files["kernels_cuda.cu"] = cuda_unit(model, mujoco)
@@ -109,18 +112,34 @@ def conventions(model: RobotModel, mujoco: bool) -> list[str]:
     return ["tg::PIN", "tg::MJX"] if mujoco and model.floating_base else ["tg::PIN"]
 
 
-def cpu_unit(model: RobotModel, mujoco: bool, scalar: str) -> str:
-    """Instantiate the CPU batch loop of every op for one scalar type."""
+def cpu_unit(model: RobotModel, mujoco: bool, scalar: str, backward: bool) -> str:
+    """Instantiate the CPU batch loop for one scalar type of the value ops, or of the forward-mode
+    backward ops (a unit of their own, so the two compile in parallel)."""
     lines = [f"template void tg::cpu_range<tg::{op.kernel}, Robot, {scalar}, {c}>(const tg::Batch&, int64_t, int64_t);"
-             for op in OPS.values() for c in conventions(model, mujoco)]
-    return _unit(["kernels/ops.h", "cpu_range.h"], lines)
+             for op in OPS.values() if bool(op.forward_mode_of) == backward for c in conventions(model, mujoco)]
+    return _unit(["kernels/ops.h", "kernels/forward_mode.h", "cpu_range.h"], [forward_mode_kernels()] + lines)
 
 
 def cuda_unit(model: RobotModel, mujoco: bool) -> str:
     """Instantiate the CUDA launch of every op, both scalar types."""
     lines = [f"template int tg::cuda_launch<tg::{op.kernel}, Robot, {s}, {c}>(const tg::Batch&, void*);"
              for op in OPS.values() for s in ("float", "double") for c in conventions(model, mujoco)]
-    return _unit(["kernels/ops.h", "cuda_launch.cuh"], lines)
+    return _unit(["kernels/ops.h", "kernels/forward_mode.h", "cuda_launch.cuh"], [forward_mode_kernels()] + lines)
+
+
+def forward_mode_kernels() -> str:
+    """The backward op structs: each op's kernel under ForwardModeVjp, with its tensor sizes."""
+    def sizes(shapes) -> str:
+        return "tg::Sizes<" + ", ".join(" * ".join(_KERNEL_SIZE.get(d, str(d)) for d in shape) for shape in shapes) + ">"
+
+    structs = []
+    for op in OPS.values():
+        if op.forward_mode_of:
+            value = OPS[op.forward_mode_of]
+            structs.append(f"template <class M, class S, int C> struct {op.kernel}\n"
+                           f"    : ForwardModeVjp<{value.kernel}, M, S, C, {sizes(a.trailing for a in value.tensor_args)}, "
+                           f"{sizes(value.outputs)}> {{}};")
+    return "namespace tg {\n" + "\n".join(structs) + "\n}  // namespace tg\n"
 
 
 def glue_unit(namespace: str) -> str:
@@ -137,12 +156,12 @@ def glue_unit(namespace: str) -> str:
 
 
 def _wrapper(op: OpSpec) -> str:
-    ctype = {"frame": "int64_t", "frames": "at::IntArrayRef", "reference": "int64_t"}
+    ctype = {"frame": "int64_t", "frames": "at::IntArrayRef", "reference": "int64_t", "mask": "int64_t"}
     params, body = [], [f'  tg::Call call("{op.name}", q, convention);']
     for a in op.args:
-        if a.kind in TENSOR_KINDS:
+        if a.is_tensor:
             params.append(f"const {'std::optional<at::Tensor>' if a.optional else 'at::Tensor'}& {a.name}")
-            dims = ", ".join(_SIZE.get(d, str(d)) for d in TENSOR_KINDS[a.kind])
+            dims = ", ".join(_SIZE.get(d, str(d)) for d in a.trailing)
             body.append(f'  call.input({a.name}, "{a.name}", {{{dims}}});')
         else:
             params.append(f"{ctype[a.kind]} {a.name}")

@@ -18,8 +18,17 @@ TENSOR_KINDS = {"q": ("nq",), "v": ("nv",), "fext": ("nbodies", 6), "frame_weigh
 @dataclass(frozen=True)
 class Arg:
     name: str
-    kind: str  # "q", "v", "fext" (tensors) or "frame", "frames", "reference" (integers)
+    kind: str  # "q", "v", "fext", "frame_weights", "cotangent" (tensors) or "frame", "frames", "reference", "mask"
     optional: bool = False
+    shape: tuple = ()  # trailing shape of a cotangent
+
+    @property
+    def is_tensor(self) -> bool:
+        return self.kind in TENSOR_KINDS or self.kind == "cotangent"
+
+    @property
+    def trailing(self) -> tuple:
+        return TENSOR_KINDS.get(self.kind, self.shape)
 
 
 @dataclass(frozen=True)
@@ -28,14 +37,15 @@ class OpSpec:
     kernel: str  # C++ op struct in csrc/kernels/ops.h
     args: tuple[Arg, ...]
     outputs: tuple[tuple, ...]  # trailing shapes; symbols "nv", "nq", "nbodies", "nparams", "nframes", "nsel"
+    forward_mode_of: str = ""  # set on the vector-Jacobian product of that op by forward-mode kernels
 
     @property
     def tensor_args(self) -> tuple[Arg, ...]:
-        return tuple(a for a in self.args if a.kind in TENSOR_KINDS)
+        return tuple(a for a in self.args if a.is_tensor)
 
     def schema(self) -> str:
-        types = {"frame": "int", "frames": "int[]", "reference": "int"}
-        params = [f"Tensor{'?' if a.optional else ''} {a.name}" if a.kind in TENSOR_KINDS else f"{types[a.kind]} {a.name}"
+        types = {"frame": "int", "frames": "int[]", "reference": "int", "mask": "int"}
+        params = [f"Tensor{'?' if a.optional else ''} {a.name}" if a.is_tensor else f"{types[a.kind]} {a.name}"
                   for a in self.args]
         outs = ", ".join("Tensor" for _ in self.outputs)
         return f"{self.name}({', '.join(params + ['int convention'])}) -> " + (f"({outs})" if len(self.outputs) > 1 else outs)
@@ -47,9 +57,7 @@ class OpSpec:
 
 
 Q, QD, QDD, TAU, FEXT = Arg("q", "q"), Arg("qd", "v"), Arg("qdd", "v"), Arg("tau", "v"), Arg("f_ext", "fext", True)
-OPS: dict[str, OpSpec] = {
-    op.name: op
-    for op in (
+_VALUE_OPS = (
         OpSpec("inverse_dynamics", "InverseDynamics", (Q, QD, QDD, FEXT), (("nv",),)),
         OpSpec("forward_dynamics", "ForwardDynamics", (Q, QD, TAU, FEXT), (("nv",),)),
         OpSpec("crba", "Crba", (Q,), (("nv", "nv"),)),
@@ -86,8 +94,30 @@ OPS: dict[str, OpSpec] = {
         OpSpec("potential_energy_regressor", "PotentialEnergyRegressor", (Q,), (("nparams",),)),
         OpSpec("forward_dynamics_parameter_gradient", "ForwardDynamicsParameterGradient", (Q, QD, TAU),
                (("nv", "nparams"),)),
-    )
-}
+)
+
+# Ops whose backward runs their own kernel on dual numbers (csrc/kernels/forward_mode.h): those whose
+# outputs are already derivatives, or matrices of the configuration, where the gradient is a
+# second-order quantity.
+FORWARD_MODE_BACKWARD = (
+    "crba", "minv", "jacobian_com", "ccrba", "frame_jacobian", "frame_jacobian_dot", "body_velocities",
+    "inverse_dynamics_gradient", "forward_dynamics_gradient", "inverse_dynamics_external_force_gradient",
+    "forward_dynamics_external_force_gradient", "osc_inertia", "cmm_time_variation", "dccrba", "coriolis_matrix",
+    "inverse_dynamics_regressor", "kinetic_energy_regressor", "potential_energy_regressor",
+    "forward_dynamics_parameter_gradient",
+)
+
+
+def forward_mode_backward(op: OpSpec) -> OpSpec:
+    """`<op>_backward(inputs..., cotangents..., needs)`: the gradient of sum(cotangent * output) for
+    each tensor input (bit i of `needs` asks for input i; the others come back zero)."""
+    cotangents = tuple(Arg(f"grad_{k}", "cotangent", True, shape) for k, shape in enumerate(op.outputs))
+    return OpSpec(f"{op.name}_backward", f"{op.kernel}Backward", op.args + cotangents + (Arg("needs", "mask"),),
+                  tuple(a.trailing for a in op.tensor_args), forward_mode_of=op.name)
+
+
+OPS: dict[str, OpSpec] = {op.name: op for op in _VALUE_OPS}
+OPS.update({f"{name}_backward": forward_mode_backward(OPS[name]) for name in FORWARD_MODE_BACKWARD})
 
 
 def register_fakes(namespace: str, model: RobotModel) -> None:

@@ -1,0 +1,117 @@
+// Forward-mode differentiation of any op: the op's kernel run on dual numbers a + b eps
+// (eps^2 = 0) carries the exact directional derivative beside every value. It backs the
+// vector-Jacobian products of the ops whose outputs are themselves derivatives (M(q), J(q),
+// dtau/dq, ...), where a hand-written second-order kernel would be one more algorithm per op.
+#pragma once
+
+#include <type_traits>
+
+#include "spatial.h"
+
+namespace tg {
+
+template <class S> struct Dual {
+  S v, d;  // value, tangent
+  Dual() = default;
+  TG_HD constexpr Dual(S value, S tangent) : v(value), d(tangent) {}
+  template <class T, class = std::enable_if_t<std::is_arithmetic_v<T>>>
+  TG_HD constexpr Dual(T value) : v(static_cast<S>(value)), d(0) {}
+
+  TG_HD Dual& operator+=(const Dual& b) { v += b.v; d += b.d; return *this; }
+  TG_HD Dual& operator-=(const Dual& b) { v -= b.v; d -= b.d; return *this; }
+  TG_HD Dual& operator*=(const Dual& b) { d = d * b.v + v * b.d; v *= b.v; return *this; }
+  TG_HD Dual& operator/=(const Dual& b) { *this = *this / b; return *this; }
+  TG_HD friend Dual operator-(const Dual& a) { return {-a.v, -a.d}; }
+  TG_HD friend Dual operator+(const Dual& a, const Dual& b) { return {a.v + b.v, a.d + b.d}; }
+  TG_HD friend Dual operator-(const Dual& a, const Dual& b) { return {a.v - b.v, a.d - b.d}; }
+  TG_HD friend Dual operator*(const Dual& a, const Dual& b) { return {a.v * b.v, a.d * b.v + a.v * b.d}; }
+  TG_HD friend Dual operator/(const Dual& a, const Dual& b) {
+    const S r = a.v / b.v;
+    return {r, (a.d - r * b.d) / b.v};
+  }
+  // Branches follow the values, so a kernel takes the same path as on plain numbers.
+  TG_HD friend bool operator<(const Dual& a, const Dual& b) { return a.v < b.v; }
+  TG_HD friend bool operator>(const Dual& a, const Dual& b) { return a.v > b.v; }
+  TG_HD friend bool operator<=(const Dual& a, const Dual& b) { return a.v <= b.v; }
+  TG_HD friend bool operator>=(const Dual& a, const Dual& b) { return a.v >= b.v; }
+  TG_HD friend bool operator==(const Dual& a, const Dual& b) { return a.v == b.v; }
+  TG_HD friend bool operator!=(const Dual& a, const Dual& b) { return a.v != b.v; }
+};
+
+// Mixed arithmetic with plain numbers (literals and the robot's constants).
+#define TG_DUAL_MIXED(op)                                                                                   \
+  template <class S, class T, class = std::enable_if_t<std::is_arithmetic_v<T>>>                            \
+  TG_HD auto operator op(const Dual<S>& a, T b) { return a op Dual<S>(b); }                                 \
+  template <class S, class T, class = std::enable_if_t<std::is_arithmetic_v<T>>>                            \
+  TG_HD auto operator op(T a, const Dual<S>& b) { return Dual<S>(a) op b; }
+TG_DUAL_MIXED(+)
+TG_DUAL_MIXED(-)
+TG_DUAL_MIXED(*)
+TG_DUAL_MIXED(/)
+TG_DUAL_MIXED(<)
+TG_DUAL_MIXED(>)
+TG_DUAL_MIXED(<=)
+TG_DUAL_MIXED(>=)
+#undef TG_DUAL_MIXED
+
+template <class S> TG_HD Dual<S> sqrt(const Dual<S>& a) {
+  const S r = sqrt(a.v);
+  return {r, a.d / (S(2) * r)};
+}
+template <class S> TG_HD Dual<S> sin(const Dual<S>& a) { return {sin(a.v), a.d * cos(a.v)}; }
+template <class S> TG_HD Dual<S> cos(const Dual<S>& a) { return {cos(a.v), -a.d * sin(a.v)}; }
+template <class S> TG_HD Dual<S> atan2(const Dual<S>& y, const Dual<S>& x) {
+  return {atan2(y.v, x.v), (x.v * y.d - y.v * x.d) / (x.v * x.v + y.v * y.v)};
+}
+
+template <int... N> struct Sizes {
+  static constexpr int count = sizeof...(N);
+  static constexpr int total = (0 + ... + N);
+  TG_HD static int at(int k) {
+    const int s[] = {N...};
+    return s[k];
+  }
+};
+
+// The vector-Jacobian product of Op with respect to its tensor inputs, one forward pass on dual
+// numbers per input coordinate: in = Op's inputs (sizes In), then one cotangent per output (sizes
+// Out, null for zero); iargs = Op's integer arguments, then a bit mask of the inputs to
+// differentiate; out = one gradient per input (zero where not asked).
+template <template <class, class, int> class Op, class M, class S, int C, class In, class Out>
+struct ForwardModeVjp {
+  TG_HD static void run(const S* const* in, S* const* out, const int* iargs, int n_iargs) {
+    using D = Dual<S>;
+    constexpr int NI = In::count, NO = Out::count;
+    const int mask = iargs[n_iargs - 1];
+    D x[In::total], y[Out::total];
+    const D* xs[NI];
+    D* ys[NO];
+    // dual copies of the inputs with zero tangents
+    for (int i = 0, off = 0; i < NI; off += In::at(i), ++i) {
+      xs[i] = in[i] ? x + off : nullptr;
+      if (in[i])
+        for (int k = 0; k < In::at(i); ++k) x[off + k] = D(in[i][k], S(0));
+    }
+    for (int o = 0, off = 0; o < NO; off += Out::at(o), ++o) ys[o] = y + off;
+    // one pass per coordinate: seed its tangent, dot the output tangents with the cotangents
+    for (int i = 0, off = 0; i < NI; off += In::at(i), ++i) {
+      const bool wanted = in[i] && (mask >> i & 1);
+      for (int k = 0; k < In::at(i); ++k) {
+        if (!wanted) {
+          out[i][k] = S(0);
+          continue;
+        }
+        x[off + k].d = S(1);
+        Op<M, D, C>::run(xs, ys, iargs, n_iargs - 1);
+        x[off + k].d = S(0);
+        S acc = S(0);
+        for (int o = 0, yoff = 0; o < NO; yoff += Out::at(o), ++o)
+          if (in[NI + o])
+            for (int m = 0; m < Out::at(o); ++m) acc += in[NI + o][m] * y[yoff + m].d;
+        out[i][k] = acc;
+      }
+    }
+  }
+};
+
+}  // namespace tg
