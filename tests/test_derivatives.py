@@ -1,9 +1,9 @@
-"""Analytic derivatives of inverse and forward dynamics, and the autograd built on them.
+"""The derivative functions against their oracles (autograd is in test_autograd.py).
 
-pin: vs pinocchio.computeRNEADerivatives / computeABADerivatives (float64, <= 1e-8).
-mjx: vs central finite differences of real MuJoCo (mj_inverse, mj_forward), qpos moved by
-mj_integratePos, qvel/qacc/qfrc directly (float64, <= 1e-6).
-autograd: gradcheck with respect to every input, torch.compile(fullgraph=True).
+pin: vs Pinocchio's derivative algorithms (computeRNEADerivatives, computeABADerivatives, ...),
+or central differences along pinocchio.integrate where it has none (float64, <= 1e-8 / 1e-6).
+mjx: vs central finite differences of real MuJoCo (mj_inverse, mj_forward, mj_jacBody, ...), qpos
+moved by mj_integratePos, qvel/qacc/qfrc directly (float64, <= 1e-6).
 """
 from __future__ import annotations
 
@@ -107,30 +107,6 @@ def test_mujoco_forward_dynamics_gradient_vs_finite_differences(robots, mj_sims,
         assert rel_err(ours, ref) <= 1e-6
 
 
-# function -> which of (q, qd, qdd or tau, f_ext) it takes
-DIFFERENTIABLE = {
-    "inverse_dynamics": 4, "forward_dynamics": 4, "nonlinear_effects": 2, "energy": 2,
-    "generalized_gravity": 1, "com": 1, "forward_kinematics": 1, "end_effector_pose": 1,
-}
-
-
-@pytest.mark.parametrize("name", ["iiwa14", "go2"])
-@pytest.mark.parametrize("convention", ["pin", "mujoco"])
-@pytest.mark.parametrize("function", sorted(DIFFERENTIABLE))
-def test_gradcheck_every_input(robots, name, convention, function):
-    robot = robots[name]
-    view = getattr(robot, convention)
-    q, qd, x, f = _states(robot, batch=2, seed=5, convention=convention)
-    if robot.floating_base:  # a non-unit quaternion: the exact derivative through the normalisation
-        q[:, 3:7] *= 1.7
-    inputs = [t.clone().requires_grad_(True) for t in (q, qd, x, f)][: DIFFERENTIABLE[function]]
-    fn = getattr(view, function)
-    if function == "end_effector_pose":
-        frames = [robot.nframes - 1, 2, robot.nframes - 1]
-        fn = lambda q: view.end_effector_pose(q, frames)  # noqa: E731
-    assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-6, rtol=1e-5)
-
-
 @pytest.mark.parametrize("name", ["iiwa14", "go2"])
 def test_end_effector_pose_gradient_vs_pinocchio_retraction(robots, pin_models, name):
     """Central differences of the pose along Pinocchio's own integrate (its tangent)."""
@@ -157,53 +133,6 @@ def _from_pin_q(robot, q_pin):
             out.extend(q_pin[k:k + joint.nq])
             k += joint.nq
     return torch.tensor(np.array(out, dtype=float))
-
-
-def test_quaternion_gradient_is_tangent_to_its_norm(robots):
-    """The function ignores the quaternion's norm, so its gradient has no radial component."""
-    robot = robots["go2"]
-    q, qd, qdd, _ = _states(robot, batch=4, seed=6)
-    q = (q * torch.tensor([1.0] * 3 + [2.5] * 4 + [1.0] * 12, dtype=torch.float64)).requires_grad_(True)
-    robot.inverse_dynamics(q, qd, qdd).square().sum().backward()
-    radial = (q.grad[:, 3:7] * q.detach()[:, 3:7]).sum(-1)
-    assert radial.abs().max() <= 1e-12 * q.grad.abs().max()
-
-
-def test_torch_compile_forward_and_backward(robots):
-    robot = robots["go2"]
-    q, qd, tau, f = _states(robot, batch=8, seed=7)
-
-    def loss(q, qd, tau, f):
-        qdd = robot.forward_dynamics(q, qd, tau, f)
-        return robot.mujoco.inverse_dynamics(q[:, [0, 1, 2, 6, 3, 4, 5] + list(range(7, robot.nq))], qd, qdd).square().sum()
-
-    def grads(fn):
-        inputs = [t.clone().requires_grad_(True) for t in (q, qd, tau, f)]
-        fn(*inputs).backward()
-        return [t.grad for t in inputs]
-
-    torch._dynamo.reset()
-    compiled = torch.compile(loss, fullgraph=True, backend="aot_eager")
-    for got, ref in zip(grads(compiled), grads(loss)):
-        assert torch.allclose(got, ref, rtol=1e-10, atol=1e-10)
-
-
-def test_second_derivative_raises(robots):
-    robot = robots["iiwa14"]
-    q, qd, qdd, _ = _states(robot, batch=2, seed=8)
-    q.requires_grad_(True)
-    tau = robot.inverse_dynamics(q, qd, qdd).sum()
-    with pytest.raises(NotImplementedError, match="second derivatives"):
-        torch.autograd.grad(tau, q, create_graph=True)
-
-
-def test_ops_without_derivatives_raise(robots):
-    """Until their derivative kernels exist, these refuse to back-propagate rather than drop it."""
-    robot = robots["iiwa14"]
-    q, _, _, _ = _states(robot, batch=2, seed=9)
-    q.requires_grad_(True)
-    with pytest.raises(NotImplementedError, match="crba has no derivative yet"):
-        robot.crba(q).sum().backward()
 
 
 # --------------------------------------------------------------------------------------------
@@ -447,6 +376,38 @@ def test_mujoco_centroidal_derivatives_vs_finite_differences(robots, mj_sims, na
 
 
 @pytest.mark.parametrize("name", ["iiwa14", "go2", "g1"])
+def test_centroidal_map_gradient_vs_pinocchio(robots, pin_models, name):
+    """d A / dq against central differences of pinocchio.ccrba's Ag along pinocchio.integrate."""
+    robot, pm = robots[name], pin_models[name]
+    data = pm.createData()
+    q, _, _, _ = _states(robot, batch=1, seed=26)
+    ours = robot.centroidal_map_gradient(q)[0].numpy()
+    q_pin = to_pin_q(robot, q[0])
+
+    def A(qp):
+        pin.ccrba(pm, data, qp, np.zeros(pm.nv))
+        return data.Ag.copy()
+
+    eps = 1e-6
+    fd = np.stack([(A(pin.integrate(pm, q_pin, eps * e)) - A(pin.integrate(pm, q_pin, -eps * e))) / (2 * eps)
+                   for e in np.eye(pm.nv)], axis=-1)
+    assert ours.shape == (6, robot.nv, robot.nv)
+    assert rel_err(ours, fd) <= 1e-6
+
+
+@pytest.mark.parametrize("name", FLOATING)
+def test_mujoco_centroidal_map_gradient_vs_finite_differences(robots, mj_sims, name):
+    """Column j of MuJoCo's A is its momentum at qvel = e_j: differences of that along mj_integratePos."""
+    robot, sim = robots[name], mj_sims[name]
+    q, _, _, _ = _states(robot, batch=1, seed=27, convention="mujoco")
+    ours = robot.mujoco.centroidal_map_gradient(q)[0].numpy()
+    qpos, eps = q[0].numpy(), 1e-6
+    fd = np.stack([np.stack([_central(lambda p: _mujoco_momentum(sim, p, unit), qpos, k, eps, _move_qpos(sim.m))
+                             for k in range(robot.nv)], 1) for unit in np.eye(robot.nv)], 1)
+    assert rel_err(ours, fd) <= 1e-6
+
+
+@pytest.mark.parametrize("name", ["iiwa14", "go2", "g1"])
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
 def test_vector_jacobian_products_match_the_matrices(robots, name, convention):
     """The O(n) products behind autograd equal the dense derivatives contracted with a vector."""
@@ -459,33 +420,6 @@ def test_vector_jacobian_products_match_the_matrices(robots, name, convention):
     assert rel_err(g_q, (lam.unsqueeze(-2) @ dq).squeeze(-2)) <= 1e-12
     assert rel_err(g_qd, (lam.unsqueeze(-2) @ dqd).squeeze(-2)) <= 1e-12
     assert rel_err(robot._ops.inertia_solve(q, lam, view._convention), (view.minv(q) @ lam.unsqueeze(-1)).squeeze(-1)) <= 1e-12
-
-
-@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
-def test_cuda_graph_replays_forward_and_backward(robots):
-    robot = robots["go2"]
-    q, qd, tau, _ = (x.cuda() for x in _states(robot, batch=256, seed=24))
-    leaves = [x.clone().requires_grad_(True) for x in (q, qd, tau)]
-
-    def step():
-        for leaf in leaves:
-            leaf.grad = None
-        robot.forward_dynamics(*leaves).square().sum().backward()
-        return [leaf.grad.clone() for leaf in leaves]
-
-    eager = step()
-    stream = torch.cuda.Stream()
-    stream.wait_stream(torch.cuda.current_stream())
-    with torch.cuda.stream(stream):
-        step()  # warm-up on a side stream, as torch.cuda.graphs requires
-    torch.cuda.current_stream().wait_stream(stream)
-    graph = torch.cuda.CUDAGraph()
-    with torch.cuda.graph(graph):
-        captured = step()
-    graph.replay()
-    torch.cuda.synchronize()
-    for got, ref in zip(captured, eager):
-        assert torch.allclose(got, ref, rtol=1e-12, atol=1e-12)
 
 
 @pytest.mark.parametrize("name", FLOATING)

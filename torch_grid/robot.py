@@ -154,6 +154,16 @@ class _Functions:
         convention, qvel fixed in MuJoCo's frame); dh/dqd is A itself."""
         return self._call("dccrba", q, qd)
 
+    def centroidal_map_gradient(self, q) -> torch.Tensor:
+        """d A / dq (..., 6, nv, nv) of the centroidal momentum matrix: [..., i, j, k] = d A_ij / dq_k
+        along the tangent (as dccrba). Column j of A is the momentum at qd = e_j, so this is
+        dccrba at each unit velocity: nv times its cost."""
+        nv = self._robot.nv
+        _check_tensor("centroidal_map_gradient", "q", q, (self._robot.nq,), q)
+        unit = torch.eye(nv, dtype=q.dtype, device=q.device)
+        dh = self.dccrba(q.unsqueeze(-2).expand(*q.shape[:-1], nv, q.shape[-1]), unit.expand(*q.shape[:-1], nv, nv))
+        return dh.movedim(-3, -2)
+
     def coriolis_matrix(self, q, qd) -> torch.Tensor:
         """C (..., nv, nv) with C qd + g = nonlinear_effects: Pinocchio's computeCoriolisMatrix (dM/dt - 2C
         skew-symmetric). In MuJoCo's convention C = G (C_pin G^T + M K), K qd the base acceleration

@@ -1,0 +1,186 @@
+"""Autograd through every differentiable op: torch.autograd.gradcheck with respect to every tensor
+input (float64, a fixed and a floating robot, both conventions, a non-unit quaternion),
+torch.compile(fullgraph=True) of forward + backward against eager, and the refusals.
+"""
+from __future__ import annotations
+
+import pytest
+import torch
+
+from torch_grid.ops import FORWARD_MODE_BACKWARD
+
+
+def _states(robot, batch, seed, convention):
+    g = torch.Generator().manual_seed(seed)
+    q = getattr(robot, convention).random_configuration(batch, generator=g)
+    if robot.floating_base:  # a non-unit quaternion: the exact derivative through the normalisation
+        q[..., 3:7] *= 1.7
+    qd, x = (torch.randn(batch, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
+    f = 5 * torch.randn(batch, robot.nbodies, 6, dtype=torch.float64, generator=g)
+    return q, qd, x, f
+
+
+def _last(robot):
+    return robot.nframes - 1
+
+
+# function -> (call on a view with the robot and (q, qd, qdd or tau, f_ext), how many of those it takes)
+FUNCTIONS = {
+    "inverse_dynamics": (lambda v, r, *x: v.inverse_dynamics(*x), 4),
+    "forward_dynamics": (lambda v, r, *x: v.forward_dynamics(*x), 4),
+    "nonlinear_effects": (lambda v, r, *x: v.nonlinear_effects(*x), 2),
+    "energy": (lambda v, r, *x: v.energy(*x), 2),
+    "generalized_gravity": (lambda v, r, q: v.generalized_gravity(q), 1),
+    "com": (lambda v, r, q: v.com(q), 1),
+    "forward_kinematics": (lambda v, r, q: v.forward_kinematics(q), 1),
+    "end_effector_pose": (lambda v, r, q: v.end_effector_pose(q, [_last(r), 2, _last(r)]), 1),
+    "crba": (lambda v, r, q: v.crba(q), 1),
+    "minv": (lambda v, r, q: v.minv(q), 1),
+    "jacobian_com": (lambda v, r, q: v.jacobian_com(q), 1),
+    "ccrba": (lambda v, r, q, qd: v.ccrba(q, qd), 2),
+    "frame_jacobian": (lambda v, r, q: torch.stack([v.frame_jacobian(q, _last(r), ref)
+                                                    for ref in ("world", "local", "local_world_aligned")]), 1),
+    "frame_jacobian_dot": (lambda v, r, q, qd: torch.stack([v.frame_jacobian_dot(q, qd, _last(r), ref)
+                                                            for ref in ("world", "local", "local_world_aligned")]), 2),
+    "end_effector_pose_gradient": (lambda v, r, q: v.end_effector_pose_gradient(q, [_last(r), 2]), 1),
+    "body_velocities": (lambda v, r, *x: v.body_velocities(*x), 2),
+    "inverse_dynamics_gradient": (lambda v, r, *x: v.inverse_dynamics_gradient(*x), 4),
+    "forward_dynamics_gradient": (lambda v, r, *x: v.forward_dynamics_gradient(*x), 4),
+    "inverse_dynamics_external_force_gradient": (lambda v, r, q: v.inverse_dynamics_external_force_gradient(q), 1),
+    "forward_dynamics_external_force_gradient": (lambda v, r, q: v.forward_dynamics_external_force_gradient(q), 1),
+    "osc_inertia": (lambda v, r, q: v.osc_inertia(q, _last(r), "local"), 1),
+    "cmm_time_variation": (lambda v, r, *x: v.cmm_time_variation(*x), 2),
+    "dccrba": (lambda v, r, *x: v.dccrba(*x), 2),
+    "centroidal_map_gradient": (lambda v, r, q: v.centroidal_map_gradient(q), 1),
+    "coriolis_matrix": (lambda v, r, *x: v.coriolis_matrix(*x), 2),
+    "inverse_dynamics_regressor": (lambda v, r, *x: v.inverse_dynamics_regressor(*x), 3),
+    "kinetic_energy_regressor": (lambda v, r, *x: v.kinetic_energy_regressor(*x), 2),
+    "potential_energy_regressor": (lambda v, r, q: v.potential_energy_regressor(q), 1),
+    "forward_dynamics_parameter_gradient": (lambda v, r, *x: v.forward_dynamics_parameter_gradient(*x), 3),
+}
+
+
+def test_every_public_op_is_covered():
+    assert set(FORWARD_MODE_BACKWARD) <= set(FUNCTIONS)
+
+
+@pytest.mark.parametrize("name", ["iiwa14", "go2"])
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+@pytest.mark.parametrize("function", sorted(FUNCTIONS))
+def test_gradcheck_every_input(robots, name, convention, function):
+    robot = robots[name]
+    call, arity = FUNCTIONS[function]
+    view = getattr(robot, convention)
+    inputs = [t.requires_grad_(True) for t in _states(robot, 2, 5, convention)[:arity]]
+    fn = lambda *x: call(view, robot, *x)  # noqa: E731
+    # Ops whose backward is the second-order forward-mode pass are checked on random projections
+    # (fast mode): the full Jacobian of a matrix-valued op would take thousands of backward calls.
+    fast = function in FORWARD_MODE_BACKWARD or function in ("end_effector_pose_gradient", "centroidal_map_gradient")
+    assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-6, rtol=1e-5, fast_mode=fast)
+
+
+@pytest.mark.parametrize("function", ["crba", "frame_jacobian", "inverse_dynamics_gradient", "coriolis_matrix"])
+def test_gradcheck_g1_and_tiago(robots, function):
+    """The same on the humanoid (35 dofs) and on continuous + prismatic joints."""
+    call, arity = FUNCTIONS[function]
+    for name in ("g1", "tiago"):
+        robot = robots[name]
+        inputs = [t.requires_grad_(True) for t in _states(robot, 1, 6, "pin")[:arity]]
+        assert torch.autograd.gradcheck(lambda *x: call(robot.pin, robot, *x), inputs, eps=1e-6, atol=1e-6,
+                                        rtol=1e-5, fast_mode=True)
+
+
+def test_float32_backward_matches_float64(robots):
+    robot = robots["go2"]
+    q, qd, qdd, f = _states(robot, 3, 7, "pin")
+    grads = []
+    for dtype in (torch.float64, torch.float32):
+        leaves = [t.detach().to(dtype).requires_grad_(True) for t in (q, qd, qdd, f)]
+        dq, dqd = robot.inverse_dynamics_gradient(*leaves)
+        (dq.square().sum() + dqd.square().sum()).backward()
+        grads.append([t.grad.double() for t in leaves])
+    for g64, g32 in zip(*grads):
+        assert (g64 - g32).abs().max() <= 2e-3 * g64.abs().max()
+
+
+def test_quaternion_gradient_is_tangent_to_its_norm(robots):
+    """The functions ignore the quaternion's norm, so their gradients have no radial component."""
+    robot = robots["go2"]
+    q, qd, qdd, _ = _states(robot, 4, 6, "pin")
+    for fn in (lambda q: robot.inverse_dynamics(q, qd, qdd), lambda q: robot.crba(q), lambda q: robot.dccrba(q, qd)):
+        leaf = q.clone().requires_grad_(True)
+        fn(leaf).square().sum().backward()
+        radial = (leaf.grad[:, 3:7] * q[:, 3:7]).sum(-1)
+        assert radial.abs().max() <= 1e-10 * leaf.grad.abs().max()
+
+
+@pytest.mark.parametrize("function", sorted(FUNCTIONS))
+def test_torch_compile_forward_and_backward(robots, function):
+    """fullgraph=True: forward and backward trace without a graph break and match eager."""
+    robot = robots["go2"]
+    call, arity = FUNCTIONS[function]
+    states = _states(robot, 4, 8, "mujoco" if function.startswith("f") else "pin")[:arity]
+    view = robot.mujoco if function.startswith("f") else robot.pin
+
+    def loss(*x):
+        out = call(view, robot, *x)
+        outs = out if isinstance(out, tuple) else (out,)
+        return sum((o * torch.linspace(0.5, 1.5, o.numel(), dtype=o.dtype).view(o.shape)).sum() for o in outs)
+
+    def grads(fn):
+        leaves = [t.clone().requires_grad_(True) for t in states]
+        fn(*leaves).backward()
+        return [t.grad for t in leaves]
+
+    torch._dynamo.reset()
+    compiled = torch.compile(loss, fullgraph=True, backend="aot_eager")
+    for got, ref in zip(grads(compiled), grads(loss)):
+        assert torch.allclose(got, ref, rtol=1e-10, atol=1e-10)
+
+
+@pytest.mark.parametrize("function", ["inverse_dynamics", "crba"])
+def test_second_derivative_raises(robots, function):
+    robot = robots["iiwa14"]
+    call, arity = FUNCTIONS[function]
+    inputs = [t.requires_grad_(True) for t in _states(robot, 2, 9, "pin")[:arity]]
+    out = call(robot.pin, robot, *inputs).sum()
+    with pytest.raises(NotImplementedError, match="second derivatives"):
+        torch.autograd.grad(out, inputs[0], create_graph=True)
+
+
+def test_internal_ops_refuse_to_back_propagate(robots):
+    """The products used inside backwards are not differentiable themselves: an error, not a dropped gradient."""
+    robot = robots["iiwa14"]
+    q, _, x, _ = _states(robot, 2, 10, "pin")
+    q.requires_grad_(True)
+    with pytest.raises(NotImplementedError, match="inertia_solve has no derivative yet"):
+        robot._ops.inertia_solve(q, x, 0).sum().backward()
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+@pytest.mark.parametrize("function", ["forward_dynamics", "crba", "inverse_dynamics_gradient"])
+def test_cuda_graph_replays_forward_and_backward(robots, function):
+    robot = robots["go2"]
+    call, arity = FUNCTIONS[function]
+    leaves = [x.cuda().requires_grad_(True) for x in _states(robot, 256, 11, "pin")[:arity]]
+
+    def step():
+        for leaf in leaves:
+            leaf.grad = None
+        out = call(robot.pin, robot, *leaves)
+        sum(o.square().sum() for o in (out if isinstance(out, tuple) else (out,))).backward()
+        return [leaf.grad.clone() for leaf in leaves]
+
+    eager = step()
+    stream = torch.cuda.Stream()
+    stream.wait_stream(torch.cuda.current_stream())
+    with torch.cuda.stream(stream):
+        step()  # warm-up on a side stream, as torch.cuda.graphs requires
+    torch.cuda.current_stream().wait_stream(stream)
+    graph = torch.cuda.CUDAGraph()
+    with torch.cuda.graph(graph):
+        captured = step()
+    graph.replay()
+    torch.cuda.synchronize()
+    for got, ref in zip(captured, eager):
+        assert torch.allclose(got, ref, rtol=1e-12, atol=1e-12)
