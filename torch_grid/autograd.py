@@ -1,11 +1,13 @@
-"""Autograd for the ops, backed by the analytic derivative kernels.
+"""Autograd for the ops, backed by the derivative kernels.
 
-The ops in _BACKWARDS differentiate with respect to every tensor input, mostly through one O(n)
-vector-Jacobian product of inverse dynamics. The kernels give derivatives along the tangent
+The ops in _BACKWARDS differentiate with respect to every tensor input, mostly through the O(n)
+vector-Jacobian product of inverse dynamics. Those kernels give derivatives along the tangent
 space; the gradient with respect to q is mapped to the ambient coordinates the caller passed (a
 free-flyer quaternion through its normalisation).
-Ops without derivative kernels yet raise a clear error when back-propagated through, as does
-differentiating any backward a second time.
+The ops in ops.FORWARD_MODE_BACKWARD (outputs that are already derivatives) use `<op>_backward`,
+their own kernel run on dual numbers, whose q gradient is already in ambient coordinates.
+The internal products raise a clear error when back-propagated through, as does differentiating
+any backward a second time.
 """
 from __future__ import annotations
 
@@ -23,7 +25,7 @@ def register_autograd(namespace: str, model: RobotModel) -> None:
     ops = getattr(torch.ops, namespace)
     for spec in OPS.values():
         backward = _BACKWARDS.get(spec.name)
-        if spec.name in FORWARD_MODE_BACKWARD:
+        if backward is None and spec.name in FORWARD_MODE_BACKWARD:
             backward = _forward_mode(spec)
         if backward is None:
             torch.library.register_autograd(f"{namespace}::{spec.name}", _no_backward(spec.name),
@@ -116,6 +118,31 @@ def _forward_dynamics(ops, model, grads, output, q, qd, tau, f_ext, convention):
     return dq, dqd, lam if needs[2] else None, df, None
 
 
+def _crba(ops, model, grads, output, q, convention):
+    """<G, M(q)>: ID(q, 0, e_j) = M e_j + g(q) in either convention, so the q gradient is the sum over
+    j of the O(n) ID products with cotangent column j of G at (0, e_j), less one gravity product at
+    (0, 0): nv + 1 products, O(n^2), instead of a second-order kernel."""
+    return _tangent_to_ambient(model, q, _inertia_vjp(ops, model, q, grads[0], convention), convention), None
+
+
+def _minv(ops, model, grads, output, q, convention):
+    """d(M^-1) = -M^-1 dM M^-1, so the gradient is the crba one for -M^-T G M^-T, from the saved M^-1."""
+    inner = -output.transpose(-1, -2) @ grads[0] @ output.transpose(-1, -2)
+    return _tangent_to_ambient(model, q, _inertia_vjp(ops, model, q, inner, convention), convention), None
+
+
+def _inertia_vjp(ops, model, q, G, convention):
+    """d <G, M(q)> / dq along the tangent, (..., nv)."""
+    nv = model.nv
+    batch = q.shape[:-1]
+    zero = torch.zeros(*batch, nv, nv, dtype=q.dtype, device=q.device)
+    unit = torch.eye(nv, dtype=q.dtype, device=q.device).expand(*batch, nv, nv)
+    columns, _ = ops.inverse_dynamics_vjp(q.unsqueeze(-2).expand(*batch, nv, q.shape[-1]), zero, unit, None,
+                                          G.transpose(-1, -2).contiguous(), convention)
+    gravity, _ = ops.inverse_dynamics_vjp(q, zero[..., 0, :], zero[..., 0, :], None, G.sum(-1), convention)
+    return columns.sum(-2) - gravity
+
+
 def _generalized_gravity(ops, model, grads, output, q, convention):
     """g(q) = ID(q, 0, 0)."""
     zero = torch.zeros(*q.shape[:-1], model.nv, dtype=q.dtype, device=q.device)
@@ -186,6 +213,8 @@ def rpy_rate_matrix(rpy: torch.Tensor) -> torch.Tensor:
 
 
 _BACKWARDS = {
+    "crba": _crba,
+    "minv": _minv,
     "forward_kinematics": _forward_kinematics,
     "end_effector_pose": _end_effector_pose,
     "inverse_dynamics": _inverse_dynamics,

@@ -15,16 +15,13 @@ _SIZE = {"nv": "Robot::NV", "nq": "Robot::NQ", "nframes": "Robot::NF", "nbodies"
 
 def write_sources(model: RobotModel, mujoco: bool, cuda: bool, namespace: str, directory: Path) -> list[Path]:
     """Write robot.h and the translation units into `directory`; return the units to compile."""
-    files = {
-        "robot.h": robot_header(model, mujoco),
-        "glue.cpp": glue_unit(namespace),
-        "kernels_f64.cpp": cpu_unit(model, mujoco, "double", backward=False),
-        "kernels_f32.cpp": cpu_unit(model, mujoco, "float", backward=False),
-        "backward_f64.cpp": cpu_unit(model, mujoco, "double", backward=True),
-        "backward_f32.cpp": cpu_unit(model, mujoco, "float", backward=True),
-    }
-    if cuda:
-        files["kernels_cuda.cu"] = cuda_unit(model, mujoco)
+    files = {"robot.h": robot_header(model, mujoco), "glue.cpp": glue_unit(namespace)}
+    # Value ops and forward-mode backward ops per scalar type: four units, so builds run in parallel.
+    for scalar, suffix in (("double", "f64"), ("float", "f32")):
+        for backward, stem in ((False, "kernels"), (True, "backward")):
+            files[f"{stem}_{suffix}.cpp"] = kernel_unit(model, mujoco, scalar, backward, cuda=False)
+            if cuda:
+                files[f"{stem}_cuda_{suffix}.cu"] = kernel_unit(model, mujoco, scalar, backward, cuda=True)
     for name, text in files.items():
         (directory / name).write_text(text)
     return [directory / name for name in files if not name.endswith(".h")]
@@ -112,19 +109,17 @@ def conventions(model: RobotModel, mujoco: bool) -> list[str]:
     return ["tg::PIN", "tg::MJX"] if mujoco and model.floating_base else ["tg::PIN"]
 
 
-def cpu_unit(model: RobotModel, mujoco: bool, scalar: str, backward: bool) -> str:
-    """Instantiate the CPU batch loop for one scalar type of the value ops, or of the forward-mode
-    backward ops (a unit of their own, so the two compile in parallel)."""
-    lines = [f"template void tg::cpu_range<tg::{op.kernel}, Robot, {scalar}, {c}>(const tg::Batch&, int64_t, int64_t);"
+def kernel_unit(model: RobotModel, mujoco: bool, scalar: str, backward: bool, cuda: bool) -> str:
+    """Instantiate the CPU batch loop or the CUDA launch, for one scalar type, of the value ops or of
+    the forward-mode backward ops."""
+    if cuda:
+        template, launch = "template int tg::cuda_launch<tg::{}, Robot, {}, {}>(const tg::Batch&, void*);", "cuda_launch.cuh"
+    else:
+        template, launch = ("template void tg::cpu_range<tg::{}, Robot, {}, {}>(const tg::Batch&, int64_t, int64_t);",
+                            "cpu_range.h")
+    lines = [template.format(op.kernel, scalar, c)
              for op in OPS.values() if bool(op.forward_mode_of) == backward for c in conventions(model, mujoco)]
-    return _unit(["kernels/ops.h", "kernels/forward_mode.h", "cpu_range.h"], [forward_mode_kernels()] + lines)
-
-
-def cuda_unit(model: RobotModel, mujoco: bool) -> str:
-    """Instantiate the CUDA launch of every op, both scalar types."""
-    lines = [f"template int tg::cuda_launch<tg::{op.kernel}, Robot, {s}, {c}>(const tg::Batch&, void*);"
-             for op in OPS.values() for s in ("float", "double") for c in conventions(model, mujoco)]
-    return _unit(["kernels/ops.h", "kernels/forward_mode.h", "cuda_launch.cuh"], [forward_mode_kernels()] + lines)
+    return _unit(["kernels/ops.h", "kernels/forward_mode.h", launch], [forward_mode_kernels()] + lines)
 
 
 def forward_mode_kernels() -> str:
