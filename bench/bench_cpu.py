@@ -115,6 +115,36 @@ def backward_ratio(name: str) -> tuple[float, float]:
     return forward, both
 
 
+def second_order(name: str, batch: int = 256) -> list[tuple[str, float, float]]:
+    """(function, forward, forward + backward) per sample, 1 thread, for functions whose backward is
+    second order (q, qd and qdd all requiring grad)."""
+    src, floating, bundled = ROBOTS[name]
+    robot = torch_grid.load(bundled or src, floating_base=floating)
+    g = torch.Generator().manual_seed(0)
+    q = robot.random_configuration(batch, generator=g)
+    qd, qdd = (torch.randn(batch, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
+    frame = robot.nframes - 1
+    functions = {
+        "crba": (lambda q, qd, qdd: robot.crba(q)),
+        "minv": (lambda q, qd, qdd: robot.minv(q)),
+        "frame_jacobian": (lambda q, qd, qdd: robot.frame_jacobian(q, frame)),
+        "coriolis_matrix": (lambda q, qd, qdd: robot.coriolis_matrix(q, qd)),
+        "inverse_dynamics_gradient": (lambda q, qd, qdd: robot.inverse_dynamics_gradient(q, qd, qdd)),
+    }
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    rows = []
+    for fn_name, fn in functions.items():
+        def both():
+            leaves = [x.detach().requires_grad_(True) for x in (q, qd, qdd)]
+            out = fn(*leaves)
+            sum(o.sum() for o in (out if isinstance(out, tuple) else (out,))).backward()
+
+        rows.append((fn_name, per_sample_us(lambda: fn(q, qd, qdd), batch), per_sample_us(both, batch, seconds=0.5)))
+    torch.set_num_threads(threads)
+    return rows
+
+
 def bench_robot(name: str) -> list[tuple]:
     rows = []
     threads = torch.get_num_threads()
@@ -138,6 +168,7 @@ def main() -> None:
              "|---|---|---|---|---|---|"]
     builds = ["| robot | nq | nv | first build (s) | warm load, new process (s) |", "|---|---|---|---|---|"]
     grads = ["| robot | forward_dynamics (µs/sample) | forward + backward (µs/sample) | ratio |", "|---|---|---|---|"]
+    second = ["| robot | function | forward (µs/sample) | forward + backward (µs/sample) |", "|---|---|---|---|"]
     for name in args.robots:
         for robot, fn, one, many, ref in bench_robot(name):
             lines.append(f"| {robot} | {fn} | {one:.3f} | {many:.3f} | {ref:.3f} | {'yes' if one <= ref else 'NO'} |")
@@ -145,6 +176,9 @@ def main() -> None:
         forward, both = backward_ratio(name)
         grads.append(f"| {name} | {forward:.3f} | {both:.3f} | {both / forward:.2f} |")
         print(grads[-1], flush=True)
+        for fn, forward, both in second_order(name):
+            second.append(f"| {name} | {fn} | {forward:.2f} | {both:.1f} |")
+            print(second[-1], flush=True)
         first, warm = build_times(name)
         src, floating, bundled = ROBOTS[name]
         r = torch_grid.load(bundled or src, floating_base=floating)
@@ -162,7 +196,9 @@ def main() -> None:
     text = header + "\n" + "\n".join(lines) + "\n\nFirst build: all functions, both conventions, float32 + float64, CPU, " \
         "into an empty cache; warm load: `torch_grid.load` in a new process after `import torch`.\n\n" + "\n".join(builds) + \
         "\n\nAutograd: forward_dynamics alone against forward + backward with respect to q, qd and tau " \
-        "(one thread, float64, B = 4096).\n\n" + "\n".join(grads) + "\n"
+        "(one thread, float64, B = 4096).\n\n" + "\n".join(grads) + \
+        "\n\nSecond-order backwards (M, M^-1 from inverse-dynamics products; the others by the forward-mode " \
+        "dual-number kernels), with respect to every input, one thread, float64, B = 256.\n\n" + "\n".join(second) + "\n"
     print(text)
     if args.write:
         (HERE / "RESULTS.md").write_text("# Benchmark results\n\nProduced by `python bench/bench_cpu.py --write`.\n\n" + text)

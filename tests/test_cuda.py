@@ -49,7 +49,7 @@ def test_every_kernel_compiles_with_nvcc(go2_sources):
         assert "warning" not in result.stderr.lower(), result.stderr[-4000:]
     symbols = subprocess.run(["nm", "-C", *(str(u.with_suffix(".o")) for u in units)], capture_output=True, text=True).stdout
     assert "tg::batch_kernel<tg::Minv, Robot, double, 1>" in symbols
-    assert "tg::batch_kernel<tg::CrbaBackward, Robot, float, 1>" in symbols
+    assert "tg::batch_kernel<tg::FrameJacobianBackward, Robot, float, 1>" in symbols
 
 
 @needs_nvcc
