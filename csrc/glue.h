@@ -79,9 +79,9 @@ class Call {
     TORCH_CHECK(r >= 0 && r <= 2, op_, ": ", name, " must be 0 (world), 1 (local) or 2 (local_world_aligned), got ", r);
     push_int(r);
   }
-  // The inputs a backward op differentiates: bit i for tensor input i.
-  void mask(int64_t m, const char* name) {
-    TORCH_CHECK(m >= 0 && m < (int64_t(1) << n_in_), op_, ": ", name, " must be a bit mask of the inputs, got ", m);
+  // The inputs a backward op differentiates: bit i for the i-th of its n differentiable inputs.
+  void mask(int64_t m, const char* name, int n) {
+    TORCH_CHECK(m >= 0 && m < (int64_t(1) << n), op_, ": ", name, " must be a bit mask of ", n, " inputs, got ", m);
     push_int(m);
   }
 

@@ -16,6 +16,8 @@ from torch_grid import codegen
 from torch_grid.build import CSRC
 from torch_grid.ops import OPS
 
+from test_autograd import FUNCTIONS
+
 NVCC = shutil.which("nvcc") or (os.environ.get("CUDA_HOME") and str(Path(os.environ["CUDA_HOME"]) / "bin" / "nvcc"))
 needs_nvcc = pytest.mark.skipif(not NVCC or not Path(NVCC).exists(), reason="nvcc is not installed")
 needs_gpu = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
@@ -96,6 +98,20 @@ def _calls(view, q, v, a, f):
     yield "end_effector_pose", view.end_effector_pose(q, [frame, 1])
     for ref in ("world", "local", "local_world_aligned"):
         yield f"frame_jacobian_{ref}", view.frame_jacobian(q, frame, ref)
+    for name, (call, arity) in FUNCTIONS.items():
+        out = call(view, view._robot, *(q, v, a, f)[:arity])
+        yield name, torch.cat([x.flatten(1) for x in (out if isinstance(out, tuple) else (out,))], 1)
+
+
+def _gradients(view, q, v, a, f):
+    """name -> gradients of a fixed weighting of each function's outputs, with respect to its inputs."""
+    for name, (call, arity) in FUNCTIONS.items():
+        leaves = [x.clone().requires_grad_(True) for x in (q, v, a, f)[:arity]]
+        out = call(view, view._robot, *leaves)
+        outs = out if isinstance(out, tuple) else (out,)
+        weights = [torch.linspace(-1, 1, o.numel(), dtype=o.dtype, device=o.device).view(o.shape) for o in outs]
+        torch.autograd.backward(outs, weights)
+        yield name, torch.cat([leaf.grad.flatten(1) for leaf in leaves], 1)
 
 
 @needs_gpu
@@ -112,6 +128,19 @@ def test_cuda_equals_cpu(robots, name, dtype, tol, convention):
         assert got.device.type == "cuda" and got.dtype == dtype
         err = (got.cpu() - ref).abs().max() / ref.abs().max().clamp_min(1e-30)
         assert err <= tol, f"{name} {convention} {key}: CUDA vs CPU relative error {err:.2e}"
+
+
+@needs_gpu
+@pytest.mark.parametrize("name", ["iiwa14", "go2"])
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+def test_cuda_gradients_equal_cpu(robots, name, convention):
+    """Every backward (first order, inverse-dynamics products, forward-mode kernels) on CUDA."""
+    view = getattr(robots[name], convention)
+    cpu = dict(_gradients(view, *_inputs(robots[name], torch.float64, "cpu")))
+    cuda = dict(_gradients(view, *_inputs(robots[name], torch.float64, "cuda")))
+    for key, ref in cpu.items():
+        err = (cuda[key].cpu() - ref).abs().max() / ref.abs().max().clamp_min(1e-30)
+        assert err <= 1e-10, f"{name} {convention} {key}: CUDA vs CPU gradient relative error {err:.2e}"
 
 
 @needs_gpu

@@ -52,15 +52,16 @@ def _no_backward(name: str) -> Callable:
 
 
 def _backward(name: str, formula: Callable, ops, model: RobotModel) -> Callable:
-    """formula(ops, model, grads, output, *inputs) -> one gradient (or None) per input."""
+    """formula(ops, model, needs, grads, output, *inputs) -> one gradient (or None) per input, where
+    needs[i] says whether input i's gradient is wanted (ctx.needs_input_grad)."""
 
     def backward(ctx, *grads):
         if torch.is_grad_enabled():
             raise NotImplementedError(
-                f"torch_grid: the backward of {name} is not differentiable yet (second derivatives); "
+                f"torch_grid: the backward of {name} is not differentiable (no derivatives of backwards); "
                 "call backward without create_graph=True"
             )
-        return formula(ops, model, grads, ctx.output, *ctx.inputs)
+        return formula(ops, model, ctx.needs_input_grad, grads, ctx.output, *ctx.inputs)
 
     return backward
 
@@ -69,12 +70,10 @@ def _forward_mode(spec: OpSpec) -> Callable:
     """The backward of an op whose kernel is differentiated in forward mode by `<op>_backward`. Its
     q gradient is already with respect to the coordinates passed (through any normalisation)."""
 
-    def formula(ops, model, grads, output, *inputs):
-        needs = _needs(*inputs)
+    def formula(ops, model, needs, grads, output, *inputs):
         tensors = [k for k, a in enumerate(spec.args) if a.is_tensor]
         mask = sum(1 << i for i, k in enumerate(tensors) if needs[k])
-        cotangents = [g if g is None else g.contiguous() for g in grads]
-        result = getattr(ops, f"{spec.name}_backward")(*inputs[:-1], *cotangents, mask, inputs[-1])
+        result = getattr(ops, f"{spec.name}_backward")(*inputs[:-1], *grads, mask, inputs[-1])
         result = result if isinstance(result, tuple) else (result,)
         gradients = [None] * len(inputs)
         for i, k in enumerate(tensors):
@@ -84,11 +83,10 @@ def _forward_mode(spec: OpSpec) -> Callable:
     return formula
 
 
-def _inverse_dynamics(ops, model, grads, output, q, qd, qdd, f_ext, convention):
+def _inverse_dynamics(ops, model, needs, grads, output, q, qd, qdd, f_ext, convention):
     """tau = ID(q, qd, qdd, f_ext): d/dq and d/dqd as one O(n) vector-Jacobian product, d/dqdd = M,
     d/df_ext = -J^T."""
     grad = grads[0]
-    needs = _needs(q, qd, qdd, f_ext)
     dq = dqd = dqdd = df = None
     if needs[0] or needs[1]:
         g_q, g_qd = ops.inverse_dynamics_vjp(q, qd, qdd, f_ext, grad, convention)
@@ -103,11 +101,10 @@ def _inverse_dynamics(ops, model, grads, output, q, qd, qdd, f_ext, convention):
     return dq, dqd, dqdd, df, None
 
 
-def _forward_dynamics(ops, model, grads, output, q, qd, tau, f_ext, convention):
+def _forward_dynamics(ops, model, needs, grads, output, q, qd, tau, f_ext, convention):
     """qdd = FD(q, qd, tau, f_ext) solves ID(q, qd, qdd, f_ext) = tau, so with lambda = M^-1 grad:
     d/dx = -lambda^T d tau/dx for x = q, qd (at the saved qdd, one O(n) product), d/dtau = lambda
     and d/df_ext = J lambda."""
-    needs = _needs(q, qd, tau, f_ext)
     lam = ops.inertia_solve(q, grads[0], convention)
     dq = dqd = None
     if needs[0] or needs[1]:
@@ -118,14 +115,14 @@ def _forward_dynamics(ops, model, grads, output, q, qd, tau, f_ext, convention):
     return dq, dqd, lam if needs[2] else None, df, None
 
 
-def _crba(ops, model, grads, output, q, convention):
+def _crba(ops, model, needs, grads, output, q, convention):
     """<G, M(q)>: ID(q, 0, e_j) = M e_j + g(q) in either convention, so the q gradient is the sum over
     j of the O(n) ID products with cotangent column j of G at (0, e_j), less one gravity product at
     (0, 0): nv + 1 products, O(n^2), instead of a second-order kernel."""
     return _tangent_to_ambient(model, q, _inertia_vjp(ops, model, q, grads[0], convention), convention), None
 
 
-def _minv(ops, model, grads, output, q, convention):
+def _minv(ops, model, needs, grads, output, q, convention):
     """d(M^-1) = -M^-1 dM M^-1, so the gradient is the crba one for -M^-T G M^-T, from the saved M^-1."""
     inner = -output.transpose(-1, -2) @ grads[0] @ output.transpose(-1, -2)
     return _tangent_to_ambient(model, q, _inertia_vjp(ops, model, q, inner, convention), convention), None
@@ -143,25 +140,25 @@ def _inertia_vjp(ops, model, q, G, convention):
     return columns.sum(-2) - gravity
 
 
-def _generalized_gravity(ops, model, grads, output, q, convention):
+def _generalized_gravity(ops, model, needs, grads, output, q, convention):
     """g(q) = ID(q, 0, 0)."""
     zero = torch.zeros(*q.shape[:-1], model.nv, dtype=q.dtype, device=q.device)
     g_q, _ = ops.inverse_dynamics_vjp(q, zero, zero, None, grads[0], convention)
     return _tangent_to_ambient(model, q, g_q, convention), None
 
 
-def _nonlinear_effects(ops, model, grads, output, q, qd, convention):
+def _nonlinear_effects(ops, model, needs, grads, output, q, qd, convention):
     """nle(q, qd) = ID(q, qd, 0): MuJoCo's qacc = 0 in MuJoCo's convention, as the op itself."""
     g_q, g_qd = ops.inverse_dynamics_vjp(q, qd, torch.zeros_like(qd), None, grads[0], convention)
     return _tangent_to_ambient(model, q, g_q, convention), g_qd, None
 
 
-def _com(ops, model, grads, output, q, convention):
+def _com(ops, model, needs, grads, output, q, convention):
     """d com / dq = J_com along the tangent."""
     return _tangent_to_ambient(model, q, _vjp(ops.jacobian_com(q, convention), grads[0]), convention), None
 
 
-def _energy(ops, model, grads, output, q, qd, convention):
+def _energy(ops, model, needs, grads, output, q, qd, convention):
     """KE = qd^T M qd / 2, PE: d PE/dq = g(q); d KE/dqd = M qd; d KE/dq = qd^T d(M qd)/dq / 2, where
     qd^T d(M qd)/dq is the ID product at (velocity 0, acceleration qd) less its gravity part at (0, 0)."""
     grad = grads[0]
@@ -177,7 +174,7 @@ def _energy(ops, model, grads, output, q, qd, convention):
     return dq, dqd, None
 
 
-def _forward_kinematics(ops, model, grads, output, q, convention):
+def _forward_kinematics(ops, model, needs, grads, output, q, convention):
     """Frame positions move with the linear rows of their LOCAL_WORLD_ALIGNED Jacobians; a rotation
     R moves by dR = [w]x R with w the angular rows, so <G, dR> = w . axial(R G^T - G R^T)."""
     g_pos, g_rot = grads
@@ -192,7 +189,7 @@ def _forward_kinematics(ops, model, grads, output, q, convention):
     return _tangent_to_ambient(model, q, ops.frames_vjp(q, weights, convention), convention), None
 
 
-def _end_effector_pose(ops, model, grads, output, q, frames, convention):
+def _end_effector_pose(ops, model, needs, grads, output, q, frames, convention):
     """[xyz, rpy] of the listed frames: xyz as forward_kinematics; the world angular velocity is
     w = E(rpy) d(rpy)/dt, so the rpy gradient maps to w through E^-T."""
     grad = grads[0]
@@ -224,10 +221,6 @@ _BACKWARDS = {
     "com": _com,
     "energy": _energy,
 }
-
-
-def _needs(*inputs) -> list[bool]:
-    return [isinstance(x, torch.Tensor) and x.requires_grad for x in inputs]
 
 
 def _vjp(jacobian: torch.Tensor, grad: torch.Tensor) -> torch.Tensor:

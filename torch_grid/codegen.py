@@ -119,13 +119,22 @@ def kernel_unit(model: RobotModel, mujoco: bool, scalar: str, backward: bool, cu
                             "cpu_range.h")
     lines = [template.format(op.kernel, scalar, c)
              for op in OPS.values() if bool(op.forward_mode_of) == backward for c in conventions(model, mujoco)]
+    if not backward:
+        return _unit(["kernels/ops.h", launch], lines)
     return _unit(["kernels/ops.h", "kernels/forward_mode.h", launch], [forward_mode_kernels()] + lines)
 
 
 def forward_mode_kernels() -> str:
     """The backward op structs: each op's kernel under ForwardModeVjp, with its tensor sizes."""
+    def size(d) -> str:
+        if isinstance(d, int):
+            return str(d)
+        if d not in _KERNEL_SIZE:
+            raise ValueError(f"a forward-mode backward needs compile-time sizes; {d!r} is known only at run time")
+        return _KERNEL_SIZE[d]
+
     def sizes(shapes) -> str:
-        return "tg::Sizes<" + ", ".join(" * ".join(_KERNEL_SIZE.get(d, str(d)) for d in shape) for shape in shapes) + ">"
+        return "tg::Sizes<" + ", ".join(" * ".join(size(d) for d in shape) for shape in shapes) + ">"
 
     structs = []
     for op in OPS.values():
@@ -160,7 +169,8 @@ def _wrapper(op: OpSpec) -> str:
             body.append(f'  call.input({a.name}, "{a.name}", {{{dims}}});')
         else:
             params.append(f"{ctype[a.kind]} {a.name}")
-            body.append(f'  call.{a.kind}({a.name}, "{a.name}");')
+            extra = f", {len(OPS[op.forward_mode_of].tensor_args)}" if a.kind == "mask" else ""
+            body.append(f'  call.{a.kind}({a.name}, "{a.name}"{extra});')
     params.append("int64_t convention")
     outs = [f"out{k}" for k in range(len(op.outputs))]
     for name, shape in zip(outs, op.outputs):

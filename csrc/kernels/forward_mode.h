@@ -64,6 +64,7 @@ template <class S> TG_HD Dual<S> atan2(const Dual<S>& y, const Dual<S>& x) {
   return {atan2(y.v, x.v), (x.v * y.d - y.v * x.d) / (x.v * x.v + y.v * y.v)};
 }
 
+// The flattened sizes of an op's tensor inputs or outputs, known at compile time.
 template <int... N> struct Sizes {
   static constexpr int count = sizeof...(N);
   static constexpr int total = (0 + ... + N);
