@@ -95,24 +95,29 @@ def cases(name: str):
     }
 
 
+def forward_and_backward_us(fn, inputs, batch: int, seconds: float = 1.0) -> tuple[float, float]:
+    """Per-sample time of fn(*inputs) alone and of it plus a backward with respect to every input,
+    one thread."""
+    def both():
+        leaves = [x.detach().requires_grad_(True) for x in inputs]
+        out = fn(*leaves)
+        sum(o.sum() for o in (out if isinstance(out, tuple) else (out,))).backward()
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    times = per_sample_us(lambda: fn(*inputs), batch), per_sample_us(both, batch, seconds)
+    torch.set_num_threads(threads)
+    return times
+
+
 def backward_ratio(name: str) -> tuple[float, float]:
-    """Per-sample time of forward_dynamics alone and of forward + backward (all inputs), 1 thread."""
+    """forward_dynamics alone and forward + backward (q, qd, tau), per sample, 1 thread."""
     src, floating, bundled = ROBOTS[name]
     robot = torch_grid.load(bundled or src, floating_base=floating)
     g = torch.Generator().manual_seed(0)
     inputs = [robot.random_configuration(B, generator=g)] + \
         [torch.randn(B, robot.nv, dtype=torch.float64, generator=g) for _ in range(2)]
-
-    def forward_backward():
-        leaves = [x.detach().requires_grad_(True) for x in inputs]
-        robot.forward_dynamics(*leaves).sum().backward()
-
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    forward = per_sample_us(lambda: robot.forward_dynamics(*inputs), B)
-    both = per_sample_us(forward_backward, B)
-    torch.set_num_threads(threads)
-    return forward, both
+    return forward_and_backward_us(robot.forward_dynamics, inputs, B)
 
 
 def second_order(name: str, batch: int = 256) -> list[tuple[str, float, float]]:
@@ -121,8 +126,8 @@ def second_order(name: str, batch: int = 256) -> list[tuple[str, float, float]]:
     src, floating, bundled = ROBOTS[name]
     robot = torch_grid.load(bundled or src, floating_base=floating)
     g = torch.Generator().manual_seed(0)
-    q = robot.random_configuration(batch, generator=g)
-    qd, qdd = (torch.randn(batch, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
+    inputs = [robot.random_configuration(batch, generator=g)] + \
+        [torch.randn(batch, robot.nv, dtype=torch.float64, generator=g) for _ in range(2)]
     frame = robot.nframes - 1
     functions = {
         "crba": (lambda q, qd, qdd: robot.crba(q)),
@@ -131,18 +136,7 @@ def second_order(name: str, batch: int = 256) -> list[tuple[str, float, float]]:
         "coriolis_matrix": (lambda q, qd, qdd: robot.coriolis_matrix(q, qd)),
         "inverse_dynamics_gradient": (lambda q, qd, qdd: robot.inverse_dynamics_gradient(q, qd, qdd)),
     }
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    rows = []
-    for fn_name, fn in functions.items():
-        def both():
-            leaves = [x.detach().requires_grad_(True) for x in (q, qd, qdd)]
-            out = fn(*leaves)
-            sum(o.sum() for o in (out if isinstance(out, tuple) else (out,))).backward()
-
-        rows.append((fn_name, per_sample_us(lambda: fn(q, qd, qdd), batch), per_sample_us(both, batch, seconds=0.5)))
-    torch.set_num_threads(threads)
-    return rows
+    return [(fn_name, *forward_and_backward_us(fn, inputs, batch, seconds=0.5)) for fn_name, fn in functions.items()]
 
 
 def bench_robot(name: str) -> list[tuple]:

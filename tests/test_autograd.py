@@ -7,16 +7,14 @@ from __future__ import annotations
 import pytest
 import torch
 
+from test_derivatives import _states as random_states
 from torch_grid.ops import FORWARD_MODE_BACKWARD
 
 
 def _states(robot, batch, seed, convention):
-    g = torch.Generator().manual_seed(seed)
-    q = getattr(robot, convention).random_configuration(batch, generator=g)
+    q, qd, x, f = random_states(robot, batch, seed, convention)
     if robot.floating_base:  # a non-unit quaternion: the exact derivative through the normalisation
         q[..., 3:7] *= 1.7
-    qd, x = (torch.randn(batch, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
-    f = 5 * torch.randn(batch, robot.nbodies, 6, dtype=torch.float64, generator=g)
     return q, qd, x, f
 
 

@@ -83,21 +83,7 @@ def _inputs(robot, dtype, device, batch=64):
 
 
 def _calls(view, q, v, a, f):
-    frame = view._robot.nframes - 1
-    yield "inverse_dynamics", view.inverse_dynamics(q, v, a, f)
-    yield "forward_dynamics", view.forward_dynamics(q, v, a, f)
-    yield "crba", view.crba(q)
-    yield "minv", view.minv(q)
-    yield "generalized_gravity", view.generalized_gravity(q)
-    yield "nonlinear_effects", view.nonlinear_effects(q, v)
-    yield "energy", view.energy(q, v)
-    yield "com", view.com(q)
-    yield "jacobian_com", view.jacobian_com(q)
-    yield "ccrba", torch.cat([x.flatten(1) for x in view.ccrba(q, v)], 1)
-    yield "forward_kinematics", torch.cat([x.flatten(1) for x in view.forward_kinematics(q)], 1)
-    yield "end_effector_pose", view.end_effector_pose(q, [frame, 1])
-    for ref in ("world", "local", "local_world_aligned"):
-        yield f"frame_jacobian_{ref}", view.frame_jacobian(q, frame, ref)
+    """name -> every public function's outputs, flattened, on these inputs."""
     for name, (call, arity) in FUNCTIONS.items():
         out = call(view, view._robot, *(q, v, a, f)[:arity])
         yield name, torch.cat([x.flatten(1) for x in (out if isinstance(out, tuple) else (out,))], 1)

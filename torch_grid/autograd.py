@@ -70,8 +70,9 @@ def _forward_mode(spec: OpSpec) -> Callable:
     """The backward of an op whose kernel is differentiated in forward mode by `<op>_backward`. Its
     q gradient is already with respect to the coordinates passed (through any normalisation)."""
 
+    tensors = [k for k, a in enumerate(spec.args) if a.is_tensor]
+
     def formula(ops, model, needs, grads, output, *inputs):
-        tensors = [k for k, a in enumerate(spec.args) if a.is_tensor]
         mask = sum(1 << i for i, k in enumerate(tensors) if needs[k])
         result = getattr(ops, f"{spec.name}_backward")(*inputs[:-1], *grads, mask, inputs[-1])
         result = result if isinstance(result, tuple) else (result,)
@@ -116,28 +117,29 @@ def _forward_dynamics(ops, model, needs, grads, output, q, qd, tau, f_ext, conve
 
 
 def _crba(ops, model, needs, grads, output, q, convention):
-    """<G, M(q)>: ID(q, 0, e_j) = M e_j + g(q) in either convention, so the q gradient is the sum over
-    j of the O(n) ID products with cotangent column j of G at (0, e_j), less one gravity product at
-    (0, 0): nv + 1 products, O(n^2), instead of a second-order kernel."""
-    return _tangent_to_ambient(model, q, _inertia_vjp(ops, model, q, grads[0], convention), convention), None
+    """<G, M(q)> = sum_j G[:, j]^T M e_j: nv + 1 of the O(n) ID products, O(n^2), instead of a
+    second-order kernel."""
+    unit = torch.eye(model.nv, dtype=q.dtype, device=q.device).expand(grads[0].shape)
+    dq = _mass_product_vjp(ops, q, unit, grads[0].transpose(-1, -2), convention)
+    return _tangent_to_ambient(model, q, dq, convention), None
 
 
 def _minv(ops, model, needs, grads, output, q, convention):
     """d(M^-1) = -M^-1 dM M^-1, so the gradient is the crba one for -M^-T G M^-T, from the saved M^-1."""
     inner = -output.transpose(-1, -2) @ grads[0] @ output.transpose(-1, -2)
-    return _tangent_to_ambient(model, q, _inertia_vjp(ops, model, q, inner, convention), convention), None
+    return _crba(ops, model, needs, (inner,), None, q, convention)
 
 
-def _inertia_vjp(ops, model, q, G, convention):
-    """d <G, M(q)> / dq along the tangent, (..., nv)."""
-    nv = model.nv
-    batch = q.shape[:-1]
-    zero = torch.zeros(*batch, nv, nv, dtype=q.dtype, device=q.device)
-    unit = torch.eye(nv, dtype=q.dtype, device=q.device).expand(*batch, nv, nv)
-    columns, _ = ops.inverse_dynamics_vjp(q.unsqueeze(-2).expand(*batch, nv, q.shape[-1]), zero, unit, None,
-                                          G.transpose(-1, -2).contiguous(), convention)
-    gravity, _ = ops.inverse_dynamics_vjp(q, zero[..., 0, :], zero[..., 0, :], None, G.sum(-1), convention)
-    return columns.sum(-2) - gravity
+def _mass_product_vjp(ops, q, a, lam, convention):
+    """d/dq sum_m lam_m^T M(q) a_m along the tangent, (..., nv), for a and lam of shape (..., m, nv).
+    ID(q, 0, a) = M a + g(q) in either convention, so it is the ID products at (0, a_m) with
+    cotangents lam_m, less one gravity product at (0, 0) with cotangent sum_m lam_m."""
+    m = a.shape[-2]
+    zero = torch.zeros_like(a)
+    products, _ = ops.inverse_dynamics_vjp(q.unsqueeze(-2).expand(*q.shape[:-1], m, q.shape[-1]), zero, a, None, lam,
+                                           convention)
+    gravity, _ = ops.inverse_dynamics_vjp(q, zero[..., 0, :], zero[..., 0, :], None, lam.sum(-2), convention)
+    return products.sum(-2) - gravity
 
 
 def _generalized_gravity(ops, model, needs, grads, output, q, convention):
@@ -159,15 +161,11 @@ def _com(ops, model, needs, grads, output, q, convention):
 
 
 def _energy(ops, model, needs, grads, output, q, qd, convention):
-    """KE = qd^T M qd / 2, PE: d PE/dq = g(q); d KE/dqd = M qd; d KE/dq = qd^T d(M qd)/dq / 2, where
-    qd^T d(M qd)/dq is the ID product at (velocity 0, acceleration qd) less its gravity part at (0, 0)."""
+    """KE = qd^T M qd / 2, PE: d PE/dq = g(q); d KE/dqd = M qd; d KE/dq = qd^T d(M qd)/dq / 2."""
     grad = grads[0]
     g_kinetic = grad[..., 0:1] + grad[..., 2:3]
     g_potential = grad[..., 1:2] + grad[..., 2:3]
-    zero = torch.zeros_like(qd)
-    with_qd, _ = ops.inverse_dynamics_vjp(q, zero, qd, None, qd, convention)
-    gravity_only, _ = ops.inverse_dynamics_vjp(q, zero, zero, None, qd, convention)
-    dke_dq = 0.5 * (with_qd - gravity_only)
+    dke_dq = 0.5 * _mass_product_vjp(ops, q, qd.unsqueeze(-2), qd.unsqueeze(-2), convention)
     dpe_dq = ops.generalized_gravity(q, convention)
     dq = _tangent_to_ambient(model, q, g_kinetic * dke_dq + g_potential * dpe_dq, convention)
     dqd = g_kinetic * _vjp(ops.crba(q, convention), qd)

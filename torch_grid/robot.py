@@ -12,7 +12,7 @@ import torch
 from .autograd import rpy_rate_matrix
 from .codegen import inertia_about_origin
 from .model import RobotModel
-from .ops import OPS, TENSOR_KINDS
+from .ops import OPS
 
 CONVENTIONS = {"pin": 0, "pinocchio": 0, "mujoco": 1, "mjx": 1}
 REFERENCES = {"world": 0, "local": 1, "local_world_aligned": 2}
@@ -226,16 +226,16 @@ class _Functions:
         spec = OPS[name]
         robot = self._robot
         sizes = {"nq": robot.nq, "nv": robot.nv, "nbodies": robot.nbodies, "nframes": robot.nframes}
-        tensors = [(a, x) for a, x in zip(spec.args, args) if a.kind in TENSOR_KINDS and x is not None]
+        tensors = [(a, x) for a, x in zip(spec.args, args) if a.is_tensor and x is not None]
         q = args[0]
         for a, x in tensors:
-            trailing = tuple(sizes.get(d, d) for d in TENSOR_KINDS[a.kind])
+            trailing = tuple(sizes.get(d, d) for d in a.trailing)
             _check_tensor(name, a.name, x, trailing, q)
         batch = _broadcast_batch(name, tensors) if len(tensors) > 1 else None
         call_args = []
         for a, x in zip(spec.args, args):
-            if batch is not None and a.kind in TENSOR_KINDS and x is not None:
-                x = x.expand(*batch, *x.shape[x.dim() - len(TENSOR_KINDS[a.kind]):])
+            if batch is not None and a.is_tensor and x is not None:
+                x = x.expand(*batch, *x.shape[x.dim() - len(a.trailing):])
             call_args.append(x)
         return getattr(robot._ops, name)(*call_args, self._convention)
 
@@ -347,7 +347,7 @@ def _reference(reference) -> int:
 
 
 def _broadcast_batch(op: str, tensors) -> torch.Size:
-    shapes = {a.name: tuple(x.shape[: x.dim() - len(TENSOR_KINDS[a.kind])]) for a, x in tensors}
+    shapes = {a.name: tuple(x.shape[: x.dim() - len(a.trailing)]) for a, x in tensors}
     try:
         return torch.broadcast_shapes(*shapes.values())
     except RuntimeError:
