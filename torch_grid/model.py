@@ -63,16 +63,7 @@ class RobotModel:
     _hash: str = field(default="", compare=False, repr=False)
 
     def __post_init__(self) -> None:
-        for i, j in enumerate(self.joints):
-            if j.type not in JOINT_TYPES:
-                raise ValueError(f"joint {j.name!r}: type must be one of {JOINT_TYPES}, got {j.type!r}")
-            if not -1 <= j.parent < i:
-                raise ValueError(f"joint {j.name!r}: parent {j.parent} must precede it (depth-first order)")
-            if j.type == "free" and j.parent != -1:
-                raise ValueError(f"joint {j.name!r}: a free joint is only supported at the root")
-        for f in self.frames:
-            if not -1 <= f.parent < len(self.joints):
-                raise ValueError(f"frame {f.name!r}: parent {f.parent} is not a body index")
+        validate(self)
         object.__setattr__(self, "_hash", hashlib.sha256(self.to_json().encode()).hexdigest())
 
     # -- sizes and layout --------------------------------------------------------------------
@@ -131,6 +122,199 @@ class RobotModel:
     @classmethod
     def load(cls, path: str | Path) -> "RobotModel":
         return cls.from_dict(json.loads(Path(path).read_text()))
+
+
+# -- validation --------------------------------------------------------------------------------
+# URDF and MJCF inertias are decimals rounded to a few digits, and Pinocchio rounds again when it
+# merges fixed links, so the inertia checks allow an excess this small relative to the trace of the
+# body's inertia about its joint origin, the scale at which the body enters the joint-space inertia M.
+INERTIA_RTOL = 1e-6
+# A joint's diagonal block of M counts as zero below this, relative to the same scale: float rounding.
+SINGULAR_RTOL = 1e-12
+# Axis norms and rotation matrices: rounding of a computed value passes, a hand-typed approximation not.
+UNIT_TOL = 1e-9
+
+
+def validate(model: RobotModel) -> None:
+    """Raise ValueError, naming the joint, link or frame and the offending value, for a model the
+    kernels would turn into silently wrong numbers (or that they do not support)."""
+    joints = model.joints
+    for i, j in enumerate(joints):
+        if j.type not in JOINT_TYPES:
+            raise ValueError(f"joint {j.name!r}: type must be one of {JOINT_TYPES}, got {j.type!r}")
+        if not -1 <= j.parent < i:
+            raise ValueError(f"joint {j.name!r}: parent {j.parent} must precede it (depth-first order)")
+        # Depth-first: each subtree is one run of indices (the kernels rely on it), so the parent is
+        # the previous joint or one of its ancestors.
+        ancestor = i - 1
+        while ancestor > j.parent:
+            ancestor = joints[ancestor].parent
+        if i > 0 and ancestor != j.parent:
+            raise ValueError(f"joint {j.name!r}: joints must be in depth-first order (each subtree contiguous), but "
+                             f"its parent {joints[j.parent].name if j.parent >= 0 else 'world'!r} is not an ancestor of "
+                             f"the joint before it, {joints[i - 1].name!r}")
+        if j.type == "free" and j.parent != -1:
+            raise ValueError(f"joint {j.name!r}: a free joint is only supported at the root")
+    for f in model.frames:
+        if not -1 <= f.parent < len(joints):
+            raise ValueError(f"frame {f.name!r}: parent {f.parent} is not a body index")
+    _check_vector("gravity", model.gravity, 3)
+    links = _link_names(model)
+    for i, j in enumerate(joints):
+        _check_joint(j, links.get(i))
+    for f in model.frames:
+        _check_placement(f"frame {f.name!r}", f.rotation, f.translation)
+    _check_moves_inertia(joints)
+
+
+def _link_names(model: RobotModel) -> dict[int, str]:
+    """Body index -> its first body frame, the link the source file names (absent in hand-built models)."""
+    names: dict[int, str] = {}
+    for f in model.frames:
+        if f.kind == "body" and f.parent >= 0:
+            names.setdefault(f.parent, f.name)
+    return names
+
+
+def _check_joint(j: Joint, link: str | None) -> None:
+    who = f"joint {j.name!r}"
+    body = who if link is None else f"{who} (link {link!r})"
+    _check_vector(f"{who}: axis", j.axis, 3)
+    _check_placement(who, j.rotation, j.translation)
+    for limit in ("lower", "upper"):
+        value = getattr(j, limit)
+        if not _is_number(value) or math.isnan(value):
+            raise ValueError(f"{who}: {limit} limit must be a number or +-inf (unbounded), got {value!r}")
+    if j.type != "free":
+        norm = math.hypot(*j.axis)
+        if abs(norm - 1) > UNIT_TOL:
+            raise ValueError(f"{who}: axis must be a unit vector, got {j.axis!r} (norm {norm:.9g})")
+    _check_number(f"{body}: mass", j.mass)
+    if j.mass < 0:
+        raise ValueError(f"{body}: mass must be >= 0, got {j.mass!r}")
+    _check_vector(f"{body}: com", j.com, 3)
+    _check_vector(f"{body}: inertia", j.inertia, 9)
+    _check_inertia(body, j)
+
+
+def _check_inertia(body: str, j: Joint) -> None:
+    """Symmetric, positive semi-definite, and principal moments that satisfy the triangle inequality
+    (each at most the sum of the other two), as for any distribution of mass."""
+    inertia = j.inertia
+    tol = INERTIA_RTOL * _origin_inertia_trace(j)
+    for r, k in ((0, 1), (0, 2), (1, 2)):
+        if abs(inertia[3 * r + k] - inertia[3 * k + r]) > tol:
+            rk, kr = "xyz"[r] + "xyz"[k], "xyz"[k] + "xyz"[r]
+            raise ValueError(f"{body}: inertia must be symmetric, got I{rk}={inertia[3 * r + k]!r} "
+                             f"but I{kr}={inertia[3 * k + r]!r}")
+    low, mid, high = _symmetric_eigenvalues(inertia)
+    moments = f"principal moments ({low:.9g}, {mid:.9g}, {high:.9g})"
+    if low < -tol:
+        raise ValueError(f"{body}: inertia about the centre of mass must be positive semi-definite, got {moments}")
+    if high > low + mid + tol:
+        raise ValueError(f"{body}: inertia about the centre of mass has {moments}, which break the triangle "
+                         f"inequality: {high:.9g} > {low:.9g} + {mid:.9g} (no rigid body has a principal "
+                         "moment larger than the sum of the other two)")
+
+
+def _check_moves_inertia(joints: tuple[Joint, ...]) -> None:
+    """Refuse a joint whose motion moves neither mass nor inertia: M is then singular at every q.
+
+    Where the joint's subtree holds mass beyond its own body, whether M is singular depends on the
+    configuration, so only joints whose descendants are all massless are decided here, from their
+    own body (a massless subtree, or a point mass on a revolute axis)."""
+    heavy_below = [False] * len(joints)  # some descendant has mass or inertia
+    for i in reversed(range(len(joints))):
+        p = joints[i].parent
+        if p >= 0:
+            heavy_below[p] = heavy_below[p] or heavy_below[i] or _has_inertia(joints[i])
+    for j, below in zip(joints, heavy_below):
+        if below:
+            continue
+        scale = _origin_inertia_trace(j)
+        if not _has_inertia(j):
+            raise ValueError(f"joint {j.name!r}: the links it moves have no mass and no inertia, so the "
+                             "joint-space inertia matrix is singular")
+        if j.type == "prismatic" and j.mass == 0:
+            raise ValueError(f"joint {j.name!r}: the links it moves have no mass (only rotational inertia, "
+                             "which a sliding joint does not move), so the joint-space inertia matrix is singular")
+        if j.type in ("revolute", "continuous") and _axis_inertia(j) <= SINGULAR_RTOL * scale:
+            mass = "no mass" if j.mass == 0 else f"mass {j.mass!r} centred at {j.com!r}, on the axis"
+            raise ValueError(f"joint {j.name!r}: the links it moves have no inertia about its axis {j.axis!r} "
+                             f"({mass}, and no rotational inertia about it), so the joint-space inertia "
+                             "matrix is singular")
+        if j.type == "free":
+            low = _symmetric_eigenvalues(j.inertia)[0]
+            if j.mass == 0 or low <= SINGULAR_RTOL * scale:
+                raise ValueError(f"joint {j.name!r}: a free body needs mass and a positive definite rotational "
+                                 f"inertia, got mass {j.mass!r} and smallest principal moment {low:.9g}, so the "
+                                 "joint-space inertia matrix is singular")
+
+
+def _has_inertia(j: Joint) -> bool:
+    return j.mass != 0 or any(x != 0 for x in j.inertia)
+
+
+def _origin_inertia_trace(j: Joint) -> float:
+    """Trace of the body's inertia about its joint origin (diagonal magnitudes, so never negative)."""
+    return sum(abs(j.inertia[4 * k]) for k in range(3)) + 2 * j.mass * sum(c * c for c in j.com)
+
+
+def _axis_inertia(j: Joint) -> float:
+    """Moment of inertia of the body about the joint axis through the joint origin."""
+    a, c, inertia = j.axis, j.com, j.inertia
+    about_com = sum(a[r] * inertia[3 * r + k] * a[k] for r in range(3) for k in range(3))
+    along = sum(x * y for x, y in zip(a, c))
+    return about_com + j.mass * (sum(x * x for x in c) - along * along)
+
+
+def _check_placement(who: str, rotation: tuple[float, ...], translation: tuple[float, float, float]) -> None:
+    _check_vector(f"{who}: rotation", rotation, 9)
+    _check_vector(f"{who}: translation", translation, 3)
+    r = rotation
+    orthonormal = all(abs(sum(r[3 * a + k] * r[3 * b + k] for k in range(3)) - (a == b)) <= UNIT_TOL
+                      for a in range(3) for b in range(a, 3))
+    det = (r[0] * (r[4] * r[8] - r[5] * r[7]) - r[1] * (r[3] * r[8] - r[5] * r[6])
+           + r[2] * (r[3] * r[7] - r[4] * r[6]))
+    if not orthonormal or det < 0:
+        raise ValueError(f"{who}: rotation must be a rotation matrix (orthonormal rows, determinant +1), "
+                         f"got {rotation!r} (determinant {det:.9g})")
+
+
+def _check_vector(what: str, values, size: int) -> None:
+    if (not isinstance(values, (tuple, list)) or len(values) != size
+            or not all(_is_number(x) and math.isfinite(x) for x in values)):
+        raise ValueError(f"{what} must be {size} finite numbers, got {values!r}")
+
+
+def _check_number(what: str, value) -> None:
+    if not _is_number(value) or not math.isfinite(value):
+        raise ValueError(f"{what} must be a finite number, got {value!r}")
+
+
+def _is_number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def _symmetric_eigenvalues(m: tuple[float, ...]) -> tuple[float, float, float]:
+    """Ascending eigenvalues of the symmetric part of a row-major 3x3 matrix (cyclic Jacobi rotations)."""
+    a = [[(m[3 * r + k] + m[3 * k + r]) / 2 for k in range(3)] for r in range(3)]
+    for _ in range(32):  # converges quadratically: about six sweeps leave exact zeros off the diagonal
+        if a[0][1] == a[0][2] == a[1][2] == 0:
+            break
+        for p, q in ((0, 1), (0, 2), (1, 2)):
+            if a[p][q] == 0:
+                continue
+            theta = (a[q][q] - a[p][p]) / (2 * a[p][q])
+            t = math.copysign(1.0, theta) / (abs(theta) + math.hypot(theta, 1.0))
+            c = 1 / math.hypot(t, 1.0)
+            s = t * c
+            for row in a:  # A <- A P, then A <- P^T A, with P the rotation in the (p, q) plane
+                row[p], row[q] = c * row[p] - s * row[q], s * row[p] + c * row[q]
+            a[p], a[q] = [c * x - s * y for x, y in zip(a[p], a[q])], [s * x + c * y for x, y in zip(a[p], a[q])]
+            a[p][q] = a[q][p] = 0.0  # their exact value; what rounding leaves would never settle
+    low, mid, high = sorted(a[k][k] for k in range(3))
+    return low, mid, high
 
 
 def _offsets(sizes: list[int]) -> list[int]:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import tempfile
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -54,8 +55,6 @@ def source_to_model(source, floating_base: bool | None) -> RobotModel:
 
 def from_pinocchio(model, name: str | None = None) -> RobotModel:
     """Convert a pinocchio.Model (revolute, continuous, prismatic, free-flyer root) to a RobotModel."""
-    import numpy as np
-
     joints = []
     for jid in range(1, model.njoints):
         jm = model.joints[jid]
@@ -73,7 +72,8 @@ def from_pinocchio(model, name: str | None = None) -> RobotModel:
                 name=jname, type=kind, parent=parent, axis=axis,
                 rotation=_flat(placement.rotation), translation=_vec(placement.translation),
                 mass=float(inertia.mass), com=_vec(inertia.lever), inertia=_flat(inertia.inertia),
-                lower=lo if np.isfinite(lo) else -math.inf, upper=hi if np.isfinite(hi) else math.inf,
+                # NaN passes through for RobotModel to refuse, naming the joint.
+                lower=-math.inf if math.isinf(lo) else lo, upper=math.inf if math.isinf(hi) else hi,
             )
         )
     frames = tuple(
@@ -100,7 +100,8 @@ def _joint_kind(jm, jname: str) -> tuple[str, tuple[float, float, float]]:
     if short in ("JointModelRevoluteUnaligned", "JointModelRevoluteUnboundedUnaligned", "JointModelPrismaticUnaligned"):
         axis = _vec(jm.extract().axis)
         n = math.sqrt(sum(a * a for a in axis))
-        axis = tuple(a / n for a in axis)
+        if 0 < n < math.inf:  # a zero or non-finite axis passes through for RobotModel to refuse, naming the joint
+            axis = tuple(a / n for a in axis)
         kind = {"JointModelRevoluteUnaligned": "revolute", "JointModelPrismaticUnaligned": "prismatic"}
         return kind.get(short, "continuous"), axis
     raise ValueError(
@@ -116,9 +117,11 @@ def _from_text(text: str, floating_base: bool | None, name: str | None, path: Pa
         raise ValueError(f"source is not well-formed XML ({e})") from None
     if root.tag == "robot":
         _reject_urdf_features(root)
+        _check_urdf_numbers(root)
         return _parse_urdf(text, bool(floating_base), name or root.get("name") or "robot")
     if root.tag == "mujoco":
         _reject_mjcf_features(root)
+        _check_mjcf_numbers(root)
         return _parse_mjcf(text, root, floating_base, name or root.get("model") or "robot", path)
     raise ValueError(f"source: expected a URDF <robot> or an MJCF <mujoco> document, got <{root.tag}>")
 
@@ -144,6 +147,102 @@ def _reject_mjcf_features(root: ET.Element) -> None:
     for j in root.iter("joint"):
         if j.get("type") == "ball":
             raise ValueError(f"joint {j.get('name')!r} has type ball, which is not supported")
+
+
+# A number as urdfdom, Pinocchio's URDF reader, reads one: leading whitespace allowed, nothing after it
+# (a trailing space already fails). Its vectors are such numbers separated by spaces.
+_URDF_NUMBER = re.compile(r"\s*[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?", re.ASCII)
+_URDF_ZEROED = "; urdfdom, Pinocchio's URDF reader, would silently set this <inertial> to 0 from that element on"
+
+
+def _check_urdf_numbers(root: ET.Element) -> None:
+    """Refuse a number urdfdom cannot read (NaN and inf included), naming the link or joint.
+
+    In a joint, urdfdom refuses the whole file without saying where. In a link's <inertial> (origin,
+    mass, inertia, read in that order) it only logs the error and keeps the link with the element that
+    failed and those after it at 0, and Pinocchio builds the model from that: a NaN mass became a
+    massless link."""
+    for link in root.findall("link"):  # direct children only, as urdfdom reads them
+        inertial = link.find("inertial")
+        if inertial is None:
+            continue
+        where = f"link {link.get('name')!r}: <inertial>"
+        _urdf_pose(where, inertial.find("origin"), _URDF_ZEROED)
+        mass = _urdf_number(f"{where}<mass value>", _attribute(inertial.find("mass"), "value"), _URDF_ZEROED)
+        if mass < 0:
+            raise ValueError(f"{where}<mass value> must be >= 0, got {mass!r}")
+        inertia = inertial.find("inertia")
+        for name in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"):
+            _urdf_number(f"{where}<inertia {name}>", _attribute(inertia, name), _URDF_ZEROED)
+    for joint in root.findall("joint"):
+        where = f"joint {joint.get('name')!r}: "
+        _urdf_pose(where, joint.find("origin"), "")
+        xyz = _attribute(joint.find("axis"), "xyz")
+        if xyz is not None:
+            _urdf_vector(f"{where}<axis xyz>", xyz, "")
+        for name in ("lower", "upper"):
+            value = _attribute(joint.find("limit"), name)
+            if value is not None:
+                _urdf_number(f"{where}<limit {name}>", value, "")
+
+
+def _urdf_pose(where: str, origin: ET.Element | None, note: str) -> None:
+    for name in ("xyz", "rpy"):
+        value = _attribute(origin, name)
+        if value is not None:
+            _urdf_vector(f"{where}<origin {name}>", value, note)
+
+
+def _urdf_vector(what: str, text: str, note: str) -> None:
+    pieces = [p for p in text.split(" ") if p]
+    if len(pieces) != 3 or not all(_URDF_NUMBER.fullmatch(p) and math.isfinite(float(p)) for p in pieces):
+        raise ValueError(f"{what} must be 3 finite decimal numbers separated by spaces, got {text!r}{note}")
+
+
+def _urdf_number(what: str, text: str | None, note: str) -> float:
+    if text is None or not _URDF_NUMBER.fullmatch(text) or not math.isfinite(float(text)):
+        got = "no such attribute" if text is None else repr(text)
+        raise ValueError(f"{what} must be a finite decimal number, got {got}{note}")
+    return float(text)
+
+
+def _attribute(element: ET.Element | None, name: str) -> str | None:
+    return None if element is None else element.get(name)
+
+
+def _check_mjcf_numbers(root: ET.Element) -> None:
+    """Refuse what Pinocchio's MJCF reader silently misreads: a non-finite number (the vector holding
+    it is filled with uninitialised memory) and a negative <inertial> mass or diagonal inertia (read as 0)."""
+    parents = {child: parent for parent in root.iter() for child in parent}
+    for element in root.iter():
+        for name, text in element.attrib.items():
+            values = _floats(text)
+            if name not in ("name", "class", "childclass") and values and not all(map(math.isfinite, values)):
+                raise ValueError(f"{_mjcf_where(element, parents)}: {name} must hold finite numbers only, got {text!r}")
+        if element.tag == "inertial":
+            for name in ("mass", "diaginertia"):
+                values = _floats(element.get(name, ""))
+                if values and min(values) < 0:
+                    raise ValueError(f"{_mjcf_where(element, parents)}: {name} must be >= 0, got "
+                                     f"{element.get(name)!r}; Pinocchio's MJCF reader would silently read it as 0")
+
+
+def _floats(text: str) -> list[float] | None:
+    """The numbers in an attribute, or None when it is not numeric (a name, a keyword, a file)."""
+    try:
+        return [float(p) for p in text.split()]
+    except ValueError:
+        return None
+
+
+def _mjcf_where(element: ET.Element, parents: dict[ET.Element, ET.Element]) -> str:
+    """`MJCF <tag name=...>`, or the nearest named enclosing element for an unnamed one."""
+    if element.get("name") is not None:
+        return f"MJCF <{element.tag} name={element.get('name')!r}>"
+    up = parents.get(element)
+    while up is not None and up.get("name") is None:
+        up = parents.get(up)
+    return f"MJCF <{element.tag}>" + ("" if up is None else f" in <{up.tag} name={up.get('name')!r}>")
 
 
 def _parse_urdf(text: str, floating: bool, name: str) -> RobotModel:
