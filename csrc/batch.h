@@ -1,15 +1,19 @@
 // A batch of samples handed from the torch glue to the kernels: raw pointers and strides only, so
-// kernel translation units (host C++ and CUDA) never include torch. TG_MAX_IARGS comes from the
-// generated robot header.
+// kernel translation units (host C++ and CUDA) never include torch, and the robot library that
+// holds them is plain C++ shared by every torch version's glue.
 #pragma once
 
 #include <cstdint>
+#include <type_traits>
 
 #include "kernels/spatial.h"
 
 namespace tg {
 
-constexpr int kMaxIn = 8, kMaxOut = 4;
+// Limits of one call, checked by the glue: tensor inputs, outputs, integer arguments (frame
+// indices, reference, mask). A CUDA launch passes the Batch by value (2.2 KB of the 4 KB of
+// kernel parameters).
+constexpr int kMaxIn = 8, kMaxOut = 4, kMaxIargs = 512;
 
 struct Batch {
   int64_t n = 0;                        // number of samples
@@ -17,7 +21,7 @@ struct Batch {
   int64_t in_stride[kMaxIn] = {};       // elements between samples
   void* out[kMaxOut] = {};
   int64_t out_stride[kMaxOut] = {};
-  int iargs[TG_MAX_IARGS] = {};         // integer arguments (frame indices, reference, mask)
+  int iargs[kMaxIargs] = {};
   int n_iargs = 0;
 };
 
@@ -30,12 +34,50 @@ TG_HD void run_sample(const Batch& b, int64_t s) {
   Op<M, S, C>::run(in, out, b.iargs, b.n_iargs);
 }
 
-// Samples [begin, end) on the calling CPU thread (cpu_range.h); instantiated per op in the kernel units.
-template <template <class, class, int> class Op, class M, class S, int C>
-void cpu_range(const Batch& b, int64_t begin, int64_t end);
+// Ops that split a sample into independent work items (a forward-mode backward: one per input
+// coordinate) say how many with kCoordinates and run one with run_coordinate.
+template <class T, class = void> struct Coordinates { static constexpr int value = 0; };
+template <class T> struct Coordinates<T, std::void_t<decltype(T::kCoordinates)>> {
+  static constexpr int value = T::kCoordinates;
+};
 
-// One CUDA thread per sample on `stream` (a cudaStream_t); returns a cudaError_t as int.
 template <template <class, class, int> class Op, class M, class S, int C>
-int cuda_launch(const Batch& b, void* stream);
+TG_HD void run_sample_coordinate(const Batch& b, int64_t s, int c) {
+  const S* in[kMaxIn];
+  S* out[kMaxOut];
+  for (int k = 0; k < kMaxIn; ++k) in[k] = b.in[k] ? static_cast<const S*>(b.in[k]) + s * b.in_stride[k] : nullptr;
+  for (int k = 0; k < kMaxOut; ++k) out[k] = b.out[k] ? static_cast<S*>(b.out[k]) + s * b.out_stride[k] : nullptr;
+  Op<M, S, C>::run_coordinate(in, out, b.iargs, b.n_iargs, c);
+}
+
+// Samples [begin, end) on the calling CPU thread (cpu_range.h).
+using CpuFn = void (*)(const Batch& b, int64_t begin, int64_t end);
+
+// What a CUDA launch needs to know before it runs: registers and local memory (stack) per thread.
+struct CudaAttributes {
+  int registers = 0;
+  int64_t local_bytes = 0;
+};
+// One CUDA thread per sample (or per work item) on `stream` (a cudaStream_t) of a device with `sms`
+// multiprocessors; returns a cudaError_t as int. With b.n == 0 it only fills `attributes` (no launch).
+using CudaFn = int (*)(const Batch& b, void* stream, int sms, CudaAttributes* attributes);
+
+// Every kernel of one op in one robot library: [scalar: 0 float, 1 double][convention: 0 pin, 1 mujoco].
+struct OpKernels {
+  CpuFn cpu[2][2];
+  CudaFn cuda[2][2];
+};
+
+// What a robot library exports (one C symbol, named after its op namespace): its sizes and one
+// OpKernels per op, in the order of the op table whose signature it carries.
+constexpr int kTableAbi = 1;
+struct RobotTable {
+  int abi;
+  const char* op_signature;  // hash of the op table the library was generated from
+  int nq, nv, nb, nf;
+  int floating, mujoco, cuda;  // flags: a free root; MuJoCo-convention kernels built; CUDA kernels built
+  int nops;
+  const OpKernels* ops;
+};
 
 }  // namespace tg

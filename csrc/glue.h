@@ -1,6 +1,7 @@
-// Torch glue shared by every generated op wrapper: checks the arguments, allocates the outputs,
-// and runs one op over the batch on the CPU (at::parallel_for) or on CUDA (current stream).
-// Include after the generated robot header, which defines `Robot` and TG_WITH_MJX.
+// Torch glue shared by every generated op wrapper and every robot: checks the arguments, allocates
+// the outputs, and runs one op of a robot library (batch.h's RobotTable) over the batch, on the
+// CPU (at::parallel_for) or on CUDA (current stream). Robot sizes are read from the table at run
+// time, so this compiles once per torch version and serves every robot.
 #pragma once
 
 #include <ATen/Parallel.h>
@@ -23,6 +24,9 @@
 #include <c10/cuda/CUDAGuard.h>
 #include <c10/cuda/CUDAStream.h>
 #include <cuda_runtime_api.h>
+
+#include <mutex>
+#include <unordered_map>
 #endif
 
 namespace tg {
@@ -30,8 +34,9 @@ namespace tg {
 class Call {
  public:
   // `q` fixes the batch shape, dtype and device every other argument must share.
-  Call(const char* op, const at::Tensor& q, int64_t convention) : op_(op), convention_(convention) {
-    TORCH_CHECK(q.dim() >= 1, op_, ": q must have shape (..., ", Robot::NQ, "), got a scalar");
+  Call(const RobotTable& robot, const char* op, const at::Tensor& q, int64_t convention)
+      : robot_(robot), op_(op), convention_(convention) {
+    TORCH_CHECK(q.dim() >= 1, op_, ": q must have shape (..., ", robot.nq, "), got a scalar");
     batch_shape_ = q.sizes().vec();
     batch_shape_.pop_back();
     dtype_ = q.scalar_type();
@@ -45,21 +50,35 @@ class Call {
   }
 
   // A tensor input of shape (*batch, *trailing).
-  void input(const at::Tensor& t, const char* name, std::vector<int64_t> trailing) {
-    std::vector<int64_t> want = batch_shape_;
-    want.insert(want.end(), trailing.begin(), trailing.end());
-    TORCH_CHECK(t.sizes().vec() == want, op_, ": ", name, " must have shape ", at::IntArrayRef(want), ", got ", t.sizes());
+  void input(const at::Tensor& t, const char* name, std::initializer_list<int64_t> trailing) {
+    const int64_t nb = static_cast<int64_t>(batch_shape_.size());
+    bool ok = t.dim() == nb + static_cast<int64_t>(trailing.size());
+    for (int64_t d = 0; ok && d < nb; ++d) ok = t.size(d) == batch_shape_[d];
+    int64_t d = nb, stride = 1;
+    for (int64_t s : trailing) {
+      ok = ok && t.size(d++) == s;
+      stride *= s;
+    }
+    if (!ok) {
+      std::vector<int64_t> want = batch_shape_;
+      want.insert(want.end(), trailing.begin(), trailing.end());
+      TORCH_CHECK(false, op_, ": ", name, " must have shape ", at::IntArrayRef(want), ", got ", t.sizes());
+    }
     TORCH_CHECK(t.scalar_type() == dtype_, op_, ": ", name, " must have dtype ", dtype_, " like q, got ", t.scalar_type());
     TORCH_CHECK(t.device() == device_, op_, ": ", name, " must be on ", device_, " like q, got ", t.device());
     TORCH_CHECK(n_in_ < kMaxIn, op_, ": more than ", kMaxIn, " tensor inputs");
-    keep_.push_back(t.contiguous());
     const int k = n_in_++;
-    batch_.in[k] = keep_.back().data_ptr();
-    batch_.in_stride[k] = numel(trailing);
+    if (t.is_contiguous()) {
+      batch_.in[k] = t.data_ptr();
+    } else {
+      keep_[k] = t.contiguous();  // the copy outlives the launch
+      batch_.in[k] = keep_[k].data_ptr();
+    }
+    batch_.in_stride[k] = stride;
   }
-  void input(const std::optional<at::Tensor>& t, const char* name, std::vector<int64_t> trailing) {
+  void input(const std::optional<at::Tensor>& t, const char* name, std::initializer_list<int64_t> trailing) {
     if (t.has_value()) {
-      input(*t, name, std::move(trailing));
+      input(*t, name, trailing);
     } else {
       TORCH_CHECK(n_in_ < kMaxIn, op_, ": more than ", kMaxIn, " tensor inputs");
       batch_.in[n_in_++] = nullptr;
@@ -68,7 +87,7 @@ class Call {
 
   // Integer arguments: frame indices checked against the robot's frames.
   void frame(int64_t f, const char* name) {
-    TORCH_CHECK(f >= 0 && f < Robot::NF, op_, ": ", name, " must be a frame index in [0, ", Robot::NF, "), got ", f);
+    TORCH_CHECK(f >= 0 && f < robot_.nf, op_, ": ", name, " must be a frame index in [0, ", robot_.nf, "), got ", f);
     push_int(f);
   }
   void frames(at::IntArrayRef fs, const char* name) {
@@ -86,7 +105,7 @@ class Call {
   }
 
   // A new output of shape (*batch, *trailing).
-  at::Tensor output(std::vector<int64_t> trailing) {
+  at::Tensor output(std::initializer_list<int64_t> trailing) {
     std::vector<int64_t> shape = batch_shape_;
     shape.insert(shape.end(), trailing.begin(), trailing.end());
     TORCH_CHECK(n_out_ < kMaxOut, op_, ": more than ", kMaxOut, " outputs");
@@ -97,43 +116,91 @@ class Call {
     return t;
   }
 
-  template <template <class, class, int> class Op> void run() {
+  void run(const OpKernels& kernels) {
     if (n_ == 0) return;
-    if (dtype_ == at::kDouble) {
-      run_scalar<Op, double>();
-    } else {
-      run_scalar<Op, float>();
-    }
-  }
-
- private:
-  template <template <class, class, int> class Op, class S> void run_scalar() {
+    const int s = dtype_ == at::kDouble ? 1 : 0;
     // A fixed base has nothing to convert: both conventions share the Pinocchio kernel.
-    if (convention_ == MJX && Robot::FLOATING) {
-#ifdef TG_WITH_MJX
-      run_device<Op, S, MJX>();
-#else
-      TORCH_CHECK(false, op_, ": this build has no MuJoCo-convention kernels (enable_mujoco_kernels=False)");
-#endif
-    } else {
-      run_device<Op, S, PIN>();
-    }
-  }
-
-  template <template <class, class, int> class Op, class S, int C> void run_device() {
+    const int c = convention_ == MJX && robot_.floating ? 1 : 0;
+    TORCH_CHECK(!c || robot_.mujoco, op_, ": this build has no MuJoCo-convention kernels (enable_mujoco_kernels=False)");
     if (device_.is_cuda()) {
 #ifdef TG_WITH_CUDA
-      const c10::cuda::CUDAGuard guard(device_);
-      const int err = cuda_launch<Op, Robot, S, C>(batch_, c10::cuda::getCurrentCUDAStream().stream());
-      TORCH_CHECK(err == 0, op_, ": CUDA kernel launch failed: ", cudaGetErrorString(static_cast<cudaError_t>(err)));
+      TORCH_CHECK(robot_.cuda && kernels.cuda[s][c], op_,
+                  ": this robot was built without CUDA kernels (no GPU or nvcc when it was built)");
+      launch(kernels.cuda[s][c]);
 #else
-      TORCH_CHECK(false, op_, ": this robot was built without CUDA kernels (no GPU or nvcc at build time)");
+      TORCH_CHECK(false, op_, ": torch_grid's glue was built without CUDA (no GPU or nvcc when it was built)");
 #endif
       return;
     }
+    const CpuFn fn = kernels.cpu[s][c];
     const Batch& b = batch_;
-    at::parallel_for(0, n_, 16, [&b](int64_t begin, int64_t end) { cpu_range<Op, Robot, S, C>(b, begin, end); });
+    if (n_ == 1) {  // a single sample: no thread pool
+      fn(b, 0, 1);
+      return;
+    }
+    at::parallel_for(0, n_, 16, [fn, &b](int64_t begin, int64_t end) { fn(b, begin, end); });
   }
+
+ private:
+#ifdef TG_WITH_CUDA
+  // Before a kernel's first launch, its local memory (stack) is checked against what the device
+  // would reserve for it: every resident thread gets that much, for the life of the process.
+  void launch(CudaFn fn) {
+    const c10::cuda::CUDAGuard guard(device_);
+    const Device d = device(device_.index());
+    const CudaAttributes a = attributes(fn);
+    constexpr int64_t kPerThreadLimit = int64_t(512) << 10;  // the hardware's local memory per thread
+    const int64_t resident = int64_t(d.threads_per_sm) * d.sms;
+    const int64_t budget = local_budget(d);
+    TORCH_CHECK(a.local_bytes <= kPerThreadLimit, op_, ": this robot's kernel needs ", a.local_bytes,
+                " bytes of local memory per CUDA thread, above the device's limit of ", kPerThreadLimit);
+    TORCH_CHECK(a.local_bytes * resident <= budget, op_, ": this robot's kernel needs ", a.local_bytes,
+                " bytes of local memory per CUDA thread; for ", resident, " resident threads the device would reserve ",
+                (a.local_bytes * resident) >> 20, " MiB, above the budget of ", budget >> 20,
+                " MiB (TORCH_GRID_CUDA_LOCAL_MEMORY_MB; default a quarter of the device memory)");
+    const int err = fn(batch_, c10::cuda::getCurrentCUDAStream().stream(), d.sms, nullptr);
+    TORCH_CHECK(err == 0, op_, ": CUDA kernel launch failed: ", cudaGetErrorString(static_cast<cudaError_t>(err)));
+  }
+  // What a launch needs of a device, read once per device.
+  struct Device {
+    int sms = 0, threads_per_sm = 0;
+    int64_t memory = 0;
+  };
+  Device device(int index) {
+    static std::mutex mutex;
+    static std::unordered_map<int, Device> known;
+    std::lock_guard<std::mutex> lock(mutex);
+    auto it = known.find(index);
+    if (it != known.end()) return it->second;
+    Device d;
+    size_t free = 0, total = 0;
+    cudaError_t err = cudaDeviceGetAttribute(&d.sms, cudaDevAttrMultiProcessorCount, index);
+    if (err == cudaSuccess) err = cudaDeviceGetAttribute(&d.threads_per_sm, cudaDevAttrMaxThreadsPerMultiProcessor, index);
+    if (err == cudaSuccess) err = cudaMemGetInfo(&free, &total);
+    TORCH_CHECK(err == cudaSuccess, op_, ": cannot read the CUDA device's properties: ", cudaGetErrorString(err));
+    d.memory = static_cast<int64_t>(total);
+    known.emplace(index, d);
+    return d;
+  }
+  CudaAttributes attributes(CudaFn fn) {
+    static std::mutex mutex;
+    static std::unordered_map<CudaFn, CudaAttributes> known;
+    std::lock_guard<std::mutex> lock(mutex);
+    auto it = known.find(fn);
+    if (it != known.end()) return it->second;
+    Batch none;
+    CudaAttributes a;
+    const int err = fn(none, nullptr, 1, &a);
+    TORCH_CHECK(err == 0, op_, ": cannot read the CUDA kernel's attributes: ", cudaGetErrorString(static_cast<cudaError_t>(err)));
+    known.emplace(fn, a);
+    return a;
+  }
+  static int64_t local_budget(const Device& d) {
+    const char* env = std::getenv("TORCH_GRID_CUDA_LOCAL_MEMORY_MB");
+    if (env && *env) return std::atoll(env) << 20;
+    return d.memory / 4;
+  }
+#endif
 
   // A CPU output above glibc's largest mmap threshold (32 MiB) is mapped afresh on every call and
   // costs one page fault per 4 KiB on first touch, more than computing it for big robots: back it
@@ -155,15 +222,16 @@ class Call {
   }
 
   void push_int(int64_t v) {
-    TORCH_CHECK(batch_.n_iargs < TG_MAX_IARGS, op_, ": too many integer arguments (at most ", TG_MAX_IARGS, ")");
+    TORCH_CHECK(batch_.n_iargs < kMaxIargs, op_, ": too many integer arguments (at most ", kMaxIargs, ")");
     batch_.iargs[batch_.n_iargs++] = static_cast<int>(v);
   }
-  static int64_t numel(const std::vector<int64_t>& shape) {
+  template <class Shape> static int64_t numel(const Shape& shape) {
     int64_t n = 1;
     for (auto s : shape) n *= s;
     return n;
   }
 
+  const RobotTable& robot_;
   const char* op_;
   int64_t convention_;
   std::vector<int64_t> batch_shape_;
@@ -171,7 +239,7 @@ class Call {
   at::Device device_ = at::kCPU;
   int64_t n_ = 0;
   int n_in_ = 0, n_out_ = 0;
-  std::vector<at::Tensor> keep_;  // contiguous copies outlive the launch
+  at::Tensor keep_[kMaxIn];  // contiguous copies
   Batch batch_;
 };
 

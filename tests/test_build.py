@@ -1,16 +1,22 @@
-"""The build cache: reuse across processes, runtime-only convention, concurrent builders, and
-damaged entries. Each test uses its own cache directory and a tiny robot so builds are quick."""
+"""The build cache: reuse across processes, runtime-only convention, concurrent builders, damaged
+entries, interrupted and failed builds, unusable locations. Each test uses its own cache directory
+(seeded with the session's torch glue, which every robot shares) and a tiny robot so builds are quick."""
 from __future__ import annotations
 
 import os
+import shutil
+import signal
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
+import pytest
 import torch
 
 import torch_grid
+from torch_grid import build
 
 PENDULUM = """<robot name="pendulum{tag}">
   <link name="base"/>
@@ -23,6 +29,20 @@ PENDULUM = """<robot name="pendulum{tag}">
   <joint name="elbow" type="continuous"><parent link="arm"/><child link="tip"/><origin xyz="0 0 -1"/>
     <axis xyz="0 1 0"/></joint>
 </robot>"""
+
+
+@pytest.fixture
+def cache(tmp_path):
+    """An empty cache directory holding only the torch glue, as after a first robot's build."""
+    root = build._cache_root(None)
+    build._load_glue(root, build._cuda_available())
+    shutil.copytree(root / ".glue", tmp_path / ".glue")
+    return tmp_path
+
+
+def _entries(cache: Path) -> list[Path]:
+    """The robot entries of a cache (the glue, locks and staging directories start with a dot)."""
+    return [p for p in cache.iterdir() if not p.name.startswith(".")]
 
 
 def _run(script: str, cache: Path, check: bool = True) -> subprocess.CompletedProcess:
@@ -39,17 +59,17 @@ def _load_and_eval(urdf: str) -> str:
     """
 
 
-def test_second_process_reuses_the_cache(tmp_path):
+def test_second_process_reuses_the_cache(cache):
     urdf = PENDULUM.format(tag="_reuse", mass=2.0)
-    first = _run(_load_and_eval(urdf), tmp_path)
+    first = _run(_load_and_eval(urdf), cache)
     assert "building kernels for 'pendulum_reuse'" in first.stderr
-    second = _run(_load_and_eval(urdf), tmp_path)
+    second = _run(_load_and_eval(urdf), cache)
     assert "building" not in second.stderr, second.stderr
     assert first.stdout == second.stdout
-    assert len([p for p in tmp_path.iterdir() if p.is_dir()]) == 1
+    assert len(_entries(cache)) == 1
 
 
-def test_convention_is_not_in_the_cache_key(tmp_path):
+def test_convention_is_not_in_the_cache_key(cache):
     # A fresh process: this one may already hold these libraries from another cache directory.
     out = _run("""
         import os
@@ -61,51 +81,100 @@ def test_convention_is_not_in_the_cache_key(tmp_path):
         print(entries(), robot._ops is mujoco._ops)
         torch_grid.load("go2", enable_mujoco_kernels=False)
         print(entries())
-    """, tmp_path)
+    """, cache)
     assert out.stdout.split() == ["1", "1", "True", "2"]  # a pin-only build is another binary
     assert out.stderr.count("building kernels") == 2
 
 
-def test_model_change_builds_a_new_entry(tmp_path):
-    a = torch_grid.load(PENDULUM.format(tag="_a", mass=2.0), cache_dir=tmp_path)
-    b = torch_grid.load(PENDULUM.format(tag="_a", mass=3.0), cache_dir=tmp_path)
+def test_model_change_builds_a_new_entry(cache):
+    a = torch_grid.load(PENDULUM.format(tag="_a", mass=2.0), cache_dir=cache)
+    b = torch_grid.load(PENDULUM.format(tag="_a", mass=3.0), cache_dir=cache)
     assert a.model.hash != b.model.hash and a._ops is not b._ops
     q = torch.tensor([0.3, -1.1], dtype=torch.float64)
     assert not torch.equal(a.generalized_gravity(q), b.generalized_gravity(q))
 
 
-def test_concurrent_builds_of_one_robot(tmp_path):
+def test_concurrent_builds_of_one_robot(cache):
     urdf = PENDULUM.format(tag="_race", mass=2.0)
     code = "import torch, torch_grid\n" + textwrap.dedent(_load_and_eval(urdf))
-    env = {**os.environ, "TORCH_GRID_CACHE": str(tmp_path)}
+    env = {**os.environ, "TORCH_GRID_CACHE": str(cache)}
     procs = [subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                               env=env) for _ in range(2)]
     outs = [p.communicate(timeout=900) for p in procs]
     assert all(p.returncode == 0 for p in procs), [o[1][-2000:] for o in outs]
     assert outs[0][0] == outs[1][0]
-    builds = sum("building kernels" in o[1] for o in outs)
+    builds = sum("torch_grid: building kernels" in o[1] for o in outs)
     assert builds == 1, "the file lock must let exactly one process compile"
+    waited = [o[1] for o in outs if "torch_grid: building kernels" not in o[1]][0]
+    assert "waiting for another process building kernels for 'pendulum_race'" in waited
 
 
-def test_damaged_entry_is_rebuilt(tmp_path):
+def test_damaged_entry_is_rebuilt(cache):
     urdf = PENDULUM.format(tag="_damaged", mass=2.0)
-    reference = _run(_load_and_eval(urdf), tmp_path).stdout
-    (entry,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    reference = _run(_load_and_eval(urdf), cache).stdout
+    (entry,) = _entries(cache)
     library = next(entry.glob("*.so"))
     library.write_bytes(library.read_bytes()[: 4096])  # truncated, as by a crash mid-copy
-    again = _run(_load_and_eval(urdf), tmp_path)
+    again = _run(_load_and_eval(urdf), cache)
     assert "building kernels" in again.stderr and again.stdout == reference
     (entry / "complete").unlink()  # a build that never finished
-    again = _run(_load_and_eval(urdf), tmp_path)
+    again = _run(_load_and_eval(urdf), cache)
     assert "building kernels" in again.stderr and again.stdout == reference
     library.write_bytes(b"\x7fELF not really a library")
     (entry / "complete").write_text("stale marker")
-    again = _run(_load_and_eval(urdf), tmp_path)
+    again = _run(_load_and_eval(urdf), cache)
     assert "building kernels" in again.stderr and again.stdout == reference
 
 
-def test_build_reports_what_it_builds(tmp_path, capfd):
-    torch_grid.load(PENDULUM.format(tag="_msg", mass=2.0), cache_dir=tmp_path)
+def test_build_reports_what_it_builds(cache, capfd):
+    torch_grid.load(PENDULUM.format(tag="_msg", mass=2.0), cache_dir=cache)
     err = capfd.readouterr().err
     assert "building kernels for 'pendulum_msg' (CPU, float32 + float64, pin)" in err
     assert "built 'pendulum_msg' in" in err
+
+
+def test_unusable_cache_location_names_the_setting(tmp_path, monkeypatch):
+    afile = tmp_path / "a_file"
+    afile.write_text("not a directory")
+    urdf = PENDULUM.format(tag="_nowhere", mass=2.0)
+    for where in (afile, afile / "below"):
+        with pytest.raises(RuntimeError, match=r"cache_dir=.*writable directory"):
+            torch_grid.load(urdf, cache_dir=where)
+        monkeypatch.setenv("TORCH_GRID_CACHE", str(where))
+        with pytest.raises(RuntimeError, match=r"TORCH_GRID_CACHE=.*writable directory"):
+            torch_grid.load(urdf)
+        monkeypatch.delenv("TORCH_GRID_CACHE")
+
+
+def test_failed_build_leaves_no_entry(cache, tmp_path_factory):
+    # A compiler that introduces itself as c++ (so the seeded glue stays valid) but fails to compile:
+    # nothing may remain that a later load would take for a build.
+    compiler = tmp_path_factory.mktemp("bin") / "broken-c++"
+    compiler.write_text('#!/bin/sh\n[ "$1" = --version ] && exec c++ --version\necho "broken compiler" >&2\nexit 1\n')
+    compiler.chmod(0o755)
+    code = "import torch, torch_grid\n" + textwrap.dedent(_load_and_eval(PENDULUM.format(tag="_fail", mass=2.0)))
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=900,
+                            env={**os.environ, "TORCH_GRID_CACHE": str(cache), "CXX": str(compiler)})
+    assert result.returncode != 0 and "failed:" in result.stderr and "broken compiler" in result.stderr, result.stderr[-2000:]
+    assert _entries(cache) == [] and list((cache / ".build").iterdir()) == []
+
+
+def test_interrupted_build_leaves_no_entry_and_no_compiler(cache):
+    code = "import torch, torch_grid\n" + textwrap.dedent(_load_and_eval(PENDULUM.format(tag="_interrupt", mass=2.0)))
+    proc = subprocess.Popen([sys.executable, "-c", code], stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "TORCH_GRID_CACHE": str(cache)})
+    lines = []
+    for line in proc.stderr:  # interrupt once the compilers run: after the first unit is done
+        lines.append(line)
+        if "[1/" in line:
+            break
+    assert any("[1/" in line for line in lines), "".join(lines)
+    proc.send_signal(signal.SIGINT)
+    proc.communicate(timeout=120)
+    assert proc.returncode != 0
+    time.sleep(0.5)
+    compilers = subprocess.run(["pgrep", "-f", str(cache)], capture_output=True, text=True).stdout.split()
+    assert compilers == [], "compilers still running after Ctrl-C"
+    assert _entries(cache) == [] and list((cache / ".build").iterdir()) == []
+    again = _run(_load_and_eval(PENDULUM.format(tag="_interrupt", mass=2.0)), cache)
+    assert "building kernels" in again.stderr

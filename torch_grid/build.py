@@ -1,9 +1,15 @@
-"""Compile a robot's generated kernels once, cache the library, and load it into the dispatcher.
+"""Compile a robot's generated kernels once, cache the library, and register its ops.
 
-The cache entry is keyed by everything that changes the binary: the model hash, the build options,
-the kernel sources, the compiler and the torch version. The convention is a runtime argument and
-is not part of the key. A file lock serialises concurrent builds of one entry; an entry whose
-library is missing or fails to load is rebuilt.
+Two kinds of binaries live in the cache:
+  - the glue (`.glue/<key>/`): the torch side of every op, compiled once per torch version,
+    compiler and flags, and shared by every robot;
+  - one robot library per robot (`<name>-<key>/`): plain C++ (and CUDA) kernels without torch,
+    compiled in parallel units, one per op family and scalar type.
+A robot's cache key covers everything that changes its binary (model, build options, kernel
+sources, compiler, CPU, torch version); its op namespace only what changes results (the model,
+the build options, the op table), so a program exported on one machine finds its ops on another.
+A file lock serialises concurrent builds of one entry; an entry appears, complete, by one rename,
+so an interrupted or failed build leaves none; a damaged entry is rebuilt.
 """
 from __future__ import annotations
 
@@ -12,6 +18,7 @@ import hashlib
 import os
 import platform
 import shutil
+import signal
 import subprocess
 import sys
 import threading
@@ -29,8 +36,10 @@ from .ops import register_fakes
 CSRC = Path(__file__).resolve().parent.parent / "csrc"
 if not CSRC.is_dir():  # installed (non-editable) layout ships the sources inside the package
     CSRC = Path(__file__).resolve().parent / "csrc"
-_LOADED: dict[str, str] = {}  # cache key -> op namespace, for this process
+_REGISTERED: dict[str, str] = {}  # op namespace -> robot library, for this process
+_GLUE: list[Path] = []  # the glue library this process loaded
 _LOCK = threading.Lock()
+_PROGRESS_EVERY = 15.0  # seconds between progress lines of a long build or wait
 
 
 def default_cache_dir() -> Path:
@@ -38,78 +47,271 @@ def default_cache_dir() -> Path:
     return Path(env) if env else Path.home() / ".cache" / "torch_grid"
 
 
+def op_namespace(model: RobotModel, mujoco: bool) -> str:
+    """The torch op namespace of a robot build: stable across machines, compilers, CPUs and torch
+    versions for one model, build options and op table."""
+    h = hashlib.sha256(f"{model.hash} mujoco={mujoco} ops={ops.op_signature()}".encode()).hexdigest()
+    name = "".join(c if c.isascii() and c.isalnum() else "_" for c in model.name.lower())[:40]
+    return f"torch_grid_{name}_{h[:16]}"  # the robot's name, so that an error naming the namespace names the robot
+
+
 def build(model: RobotModel, *, mujoco: bool, cache_dir: str | Path | None = None) -> str:
     """Build (or reuse) the kernels of `model` and return the op namespace they are registered in."""
-    cuda = _cuda_available()
-    key = _cache_key(model, mujoco, cuda)
-    namespace = f"torch_grid_{key[:16]}"
+    namespace = op_namespace(model, mujoco)
     with _LOCK:
-        if key in _LOADED:
-            return _LOADED[key]
-        entry = Path(cache_dir or default_cache_dir()).expanduser() / f"{_safe(model.name)}-{key[:16]}"
-        entry.mkdir(parents=True, exist_ok=True)
-        library = entry / f"{namespace}.so"
-        if not _try_load(entry, library):
-            with _file_lock(entry / ".lock"):
-                if not _try_load(entry, library):  # another process may have built it meanwhile
-                    _compile(model, mujoco, cuda, namespace, entry)  # also loads it
-                    (entry / "complete").write_text(_digest(library))
+        if namespace in _REGISTERED:
+            return namespace
+        root = _cache_root(cache_dir)
+        cuda = _cuda_available()
+        _load_glue(root, cuda)
+        library = _robot_library(root, model, mujoco, cuda, namespace)
+        torch.ops.torch_grid_glue.register_robot(namespace, str(library), codegen.table_symbol(namespace))
         register_fakes(namespace, model)
-        _LOADED[key] = namespace
+        _REGISTERED[namespace] = str(library)
         return namespace
 
 
-def _try_load(entry: Path, library: Path) -> bool:
-    marker = entry / "complete"
-    if not (marker.is_file() and library.is_file()):
-        return False
-    if marker.read_text() != _digest(library):
-        return False
+def _cache_root(cache_dir: str | Path | None) -> Path:
+    root = Path(cache_dir if cache_dir is not None else default_cache_dir()).expanduser()
     try:
-        torch.ops.load_library(str(library))
-    except OSError:
-        return False
-    return True
+        for sub in (".locks", ".build"):
+            (root / sub).mkdir(parents=True, exist_ok=True)
+        probe = root / ".build" / f"probe-{os.getpid()}"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as e:
+        where = (f"cache_dir={str(cache_dir)!r}" if cache_dir is not None else
+                 f"TORCH_GRID_CACHE={os.environ['TORCH_GRID_CACHE']!r}" if os.environ.get("TORCH_GRID_CACHE") else
+                 f"the default cache {str(root)!r} (set TORCH_GRID_CACHE or pass cache_dir=)")
+        raise RuntimeError(f"torch_grid: cannot use {where} to keep compiled kernels: it must be a writable "
+                           f"directory ({e.strerror or e})") from None
+    return root
 
 
-def _compile(model: RobotModel, mujoco: bool, cuda: bool, namespace: str, entry: Path) -> None:
+# -- the glue --------------------------------------------------------------------------------------
+
+def _load_glue(root: Path, cuda: bool) -> None:
+    if _GLUE:
+        return
+    key = _glue_key(cuda)
+    entry = root / ".glue" / key[:16]
+    library = entry / f"torch_grid_glue_{key[:16]}.so"
+    if not _complete(entry, library):
+        with _file_lock(root, f"glue-{key[:16]}", "the torch glue"):
+            if not _complete(entry, library):
+                _compile_glue(root, cuda, key, entry)  # also loads it
+                _GLUE.append(library)
+                return
+    torch.ops.load_library(str(library))
+    _GLUE.append(library)
+
+
+def _compile_glue(root: Path, cuda: bool, key: str, entry: Path) -> None:
     from torch.utils import cpp_extension
 
-    # Start from a clean entry: whatever is there is incomplete or damaged.
-    for child in entry.iterdir():
-        if child.name != ".lock":
-            shutil.rmtree(child) if child.is_dir() else child.unlink()
-    src = entry / "src"
-    src.mkdir()
-    sources = codegen.write_sources(model, mujoco, cuda, namespace, src)
+    name = f"torch_grid_glue_{key[:16]}"
+    start = time.monotonic()
+    print(f"torch_grid: building the torch glue ({'CPU + CUDA' if cuda else 'CPU'}, once for this torch and compiler)",
+          file=sys.stderr, flush=True)
+    with _staging(root, entry) as tmp, _ticker("the torch glue", start):
+        source = codegen.write_glue_source(tmp)
+        openmp = ["-fopenmp"] if torch.backends.openmp.is_available() else []
+        defines = ["-DTG_WITH_CUDA"] if cuda else []
+        # Loads the library too; renamed into the cache it keeps its inode, so a later load of the
+        # cached path in this process is the same library.
+        cpp_extension.load(name=name, sources=[str(source)], extra_cflags=["-O2"] + openmp + defines,
+                           extra_ldflags=openmp, extra_include_paths=[str(CSRC)], build_directory=str(tmp),
+                           with_cuda=cuda, is_python_module=False, verbose=os.environ.get("TORCH_GRID_VERBOSE") == "1")
+        (tmp / "complete").write_text(_digest(tmp / f"{name}.so"))
+    print(f"torch_grid: built the torch glue in {time.monotonic() - start:.0f} s", file=sys.stderr, flush=True)
+
+
+def _glue_key(cuda: bool) -> str:
+    h = hashlib.sha256()
+    h.update(codegen.glue_unit().encode())
+    for name in ("glue.h", "register.h", "batch.h", "kernels/spatial.h"):
+        h.update((CSRC / name).read_bytes())
+    h.update(f"cuda={cuda} openmp={torch.backends.openmp.is_available()}".encode())
+    h.update(_compiler_version(os.environ.get("CXX", "c++")).encode())
+    h.update(torch.__version__.encode())
+    return h.hexdigest()
+
+
+# -- robot libraries ---------------------------------------------------------------------------------
+
+def _robot_library(root: Path, model: RobotModel, mujoco: bool, cuda: bool, namespace: str) -> Path:
+    key = _cache_key(model, mujoco, cuda)
+    entry = root / f"{_safe(model.name)}-{key[:16]}"
+    library = entry / f"lib{namespace}.so"
+    if not _complete(entry, library):
+        with _file_lock(root, entry.name, f"kernels for {model.name!r}"):
+            if not _complete(entry, library):
+                _compile_robot(root, model, mujoco, cuda, namespace, entry, library.name)
+    return library
+
+
+def _compile_robot(root: Path, model: RobotModel, mujoco: bool, cuda: bool, namespace: str, entry: Path,
+                   library: str) -> None:
     what = f"{'CPU + CUDA' if cuda else 'CPU'}, float32 + float64, {'pin + mujoco' if mujoco and model.floating_base else 'pin'}"
     print(f"torch_grid: building kernels for {model.name!r} ({what}) in {entry}", file=sys.stderr, flush=True)
-    cflags, cuda_cflags, ldflags = _flags(cuda)
     start = time.monotonic()
-    with _progress(model.name, start):
-        cpp_extension.load(
-            name=namespace,
-            sources=[str(p) for p in sources],
-            extra_cflags=cflags,
-            extra_ldflags=ldflags,
-            extra_cuda_cflags=cuda_cflags,
-            extra_include_paths=[str(CSRC), str(src)],
-            build_directory=str(entry),
-            with_cuda=cuda,
-            is_python_module=False,
-            verbose=os.environ.get("TORCH_GRID_VERBOSE") == "1",
-        )
+    with _staging(root, entry) as tmp:
+        src = tmp / "src"
+        src.mkdir()
+        units = codegen.write_robot_sources(model, mujoco, cuda, namespace, src)
+        include = [f"-I{CSRC}", f"-I{src}"]
+        jobs = []
+        for unit in units:
+            obj = tmp / f"{unit.stem}{'_cuda' if unit.suffix == '.cu' else ''}.o"
+            if unit.suffix == ".cu":
+                cmd = [_nvcc(), *_nvcc_flags(), *include, "-c", str(unit), "-o", str(obj)]
+            else:
+                cmd = [os.environ.get("CXX", "c++"), *_cxx_flags(), *include, "-c", str(unit), "-o", str(obj)]
+            jobs.append((unit.name, cmd, obj))
+        _run_parallel(model.name, jobs, start)
+        objects = [str(obj) for _, _, obj in jobs]
+        if cuda:
+            link = [_nvcc(), "-shared", *objects, "-o", str(tmp / library)]
+        else:
+            link = [os.environ.get("CXX", "c++"), "-shared", *objects, "-o", str(tmp / library)]
+        _run_parallel(model.name, [("link", link, tmp / library)], start)
+        (tmp / "complete").write_text(_digest(tmp / library))
     print(f"torch_grid: built {model.name!r} in {time.monotonic() - start:.0f} s", file=sys.stderr, flush=True)
 
 
-def _flags(cuda: bool) -> tuple[list[str], list[str], list[str]]:
-    """Compiler flags: host C++, CUDA, linker."""
-    cuda_define = ["-DTG_WITH_CUDA"] if cuda else []
-    # at::parallel_for is inline: with an OpenMP build of torch its pragma is compiled here.
-    openmp = ["-fopenmp"] if torch.backends.openmp.is_available() else []
+def _cxx_flags() -> list[str]:
     # Tuned for this CPU (AVX2/FMA where present, ~1.4x faster); the CPU is part of the cache key.
     native = ["-march=native"] if platform.machine() in ("x86_64", "AMD64") and not os.environ.get("TORCH_GRID_PORTABLE") else []
-    return ["-O3", "-fno-fast-math"] + native + cuda_define + openmp, ["-O3"] + cuda_define, openmp
+    return ["-std=c++17", "-O3", "-fno-fast-math", "-fPIC", "-fvisibility=hidden"] + native
+
+
+def _nvcc_flags() -> list[str]:
+    arch = os.environ.get("TORCH_GRID_CUDA_ARCH", "native")
+    return ["-std=c++17", "-O3", f"-arch={arch}", "-Xcompiler", "-fPIC", "-Xcompiler", "-fvisibility=hidden"]
+
+
+def _run_parallel(name: str, jobs: list[tuple[str, list[str], Path]], start: float) -> None:
+    """Run the compiler commands, as many at once as there are cores, printing each one done. On any
+    failure or interruption (Ctrl-C), every compiler still running is killed before raising."""
+    pending, running, done = list(jobs), [], 0
+    width = os.cpu_count() or 1
+    last = time.monotonic()
+    try:
+        while pending or running:
+            while pending and len(running) < width:
+                label, cmd, _ = pending.pop(0)
+                if os.environ.get("TORCH_GRID_VERBOSE") == "1":
+                    print(" ".join(cmd), file=sys.stderr, flush=True)
+                running.append((label, subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                                        start_new_session=True)))
+            time.sleep(0.02)
+            for label, proc in list(running):
+                if proc.poll() is None:
+                    continue
+                running.remove((label, proc))
+                output = proc.stdout.read().decode(errors="replace")
+                proc.stdout.close()
+                if proc.returncode:
+                    raise RuntimeError(f"torch_grid: compiling {label} for {name!r} failed:\n{output[-8000:]}")
+                done += 1
+                if len(jobs) > 1:
+                    print(f"torch_grid: [{done}/{len(jobs)}] {label} ({time.monotonic() - start:.0f} s)", file=sys.stderr,
+                          flush=True)
+            if time.monotonic() - last > _PROGRESS_EVERY:
+                last = time.monotonic()
+                print(f"torch_grid: still building {name!r} ({last - start:.0f} s)", file=sys.stderr, flush=True)
+    finally:
+        for _, proc in running:
+            try:
+                os.killpg(proc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            proc.wait()
+            proc.stdout.close()
+
+
+@contextmanager
+def _staging(root: Path, entry: Path):
+    """A private directory to build in, renamed to `entry` only when the block completes; removed on
+    any failure or interruption, so the cache never holds a partial entry."""
+    tmp = root / ".build" / f"{entry.name}-{os.getpid()}-{threading.get_ident()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    try:
+        yield tmp
+        if entry.exists():  # incomplete or damaged: replaced whole
+            shutil.rmtree(entry)
+        entry.parent.mkdir(parents=True, exist_ok=True)
+        os.rename(tmp, entry)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _complete(entry: Path, library: Path) -> bool:
+    marker = entry / "complete"
+    try:
+        return marker.read_text() == _digest(library)
+    except OSError:
+        return False
+
+
+@contextmanager
+def _ticker(what: str, start: float):
+    """Print elapsed time every _PROGRESS_EVERY seconds while a single compiler call runs."""
+    done = threading.Event()
+
+    def tick():
+        while not done.wait(_PROGRESS_EVERY):
+            print(f"torch_grid: still building {what} ({time.monotonic() - start:.0f} s)", file=sys.stderr, flush=True)
+
+    thread = threading.Thread(target=tick, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join()
+
+
+@contextmanager
+def _file_lock(root: Path, name: str, what: str):
+    """An exclusive lock on one cache entry across processes; says so while it waits for another."""
+    with open(root / ".locks" / f"{name}.lock", "a") as fh:
+        start, last = time.monotonic(), None
+        while True:
+            try:
+                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                now = time.monotonic()
+                if last is None or now - last > _PROGRESS_EVERY:
+                    last = now
+                    print(f"torch_grid: waiting for another process building {what} ({now - start:.0f} s)",
+                          file=sys.stderr, flush=True)
+                time.sleep(0.1)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def _cache_key(model: RobotModel, mujoco: bool, cuda: bool) -> str:
+    h = hashlib.sha256()
+    h.update(model.hash.encode())
+    h.update(f"mujoco={mujoco} cuda={cuda} flags={_cxx_flags()} {_nvcc_flags() if cuda else ''}".encode())
+    h.update(_cpu_identity().encode())
+    for path in sorted(CSRC.rglob("*")):
+        if path.is_file():
+            h.update(path.relative_to(CSRC).as_posix().encode())
+            h.update(path.read_bytes())
+    # The generators: the op table and the emitter of the per-robot C++.
+    for module in (codegen, ops):
+        h.update(Path(module.__file__).read_bytes())
+    h.update(_compiler_version(os.environ.get("CXX", "c++")).encode())
+    if cuda:
+        h.update(_compiler_version(_nvcc()).encode())
+    h.update(torch.__version__.encode())
+    return h.hexdigest()
 
 
 @lru_cache(maxsize=None)
@@ -128,59 +330,18 @@ def _cpu_identity() -> str:
     return platform.machine() + "|" + "|".join(f"{k}={v}" for k, v in sorted(keep.items()))
 
 
-@contextmanager
-def _progress(name: str, start: float):
-    """Print elapsed time every 15 s while the compiler runs."""
-    done = threading.Event()
-
-    def tick():
-        while not done.wait(15.0):
-            print(f"torch_grid: still building {name!r} ({time.monotonic() - start:.0f} s)", file=sys.stderr, flush=True)
-
-    thread = threading.Thread(target=tick, daemon=True)
-    thread.start()
-    try:
-        yield
-    finally:
-        done.set()
-        thread.join()
-
-
-@contextmanager
-def _file_lock(path: Path):
-    with open(path, "a") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(fh, fcntl.LOCK_UN)
-
-
-def _cache_key(model: RobotModel, mujoco: bool, cuda: bool) -> str:
-    h = hashlib.sha256()
-    h.update(model.hash.encode())
-    h.update(f"mujoco={mujoco} cuda={cuda} flags={_flags(cuda)}".encode())
-    h.update(_cpu_identity().encode())
-    for path in sorted(CSRC.rglob("*")):
-        if path.is_file():
-            h.update(path.relative_to(CSRC).as_posix().encode())
-            h.update(path.read_bytes())
-    # The generators: the op table and the emitter of the per-robot C++.
-    for module in (codegen, ops):
-        h.update(Path(module.__file__).read_bytes())
-    h.update(_compiler_version("c++").encode())
-    if cuda:
-        h.update(_compiler_version("nvcc").encode())
-    h.update(torch.__version__.encode())
-    return h.hexdigest()
-
-
 @lru_cache(maxsize=None)
 def _compiler_version(compiler: str) -> str:
     try:
         return subprocess.run([compiler, "--version"], capture_output=True, text=True, timeout=30).stdout
     except (OSError, subprocess.TimeoutExpired):
         return "unknown"
+
+
+def _nvcc() -> str:
+    from torch.utils.cpp_extension import CUDA_HOME
+
+    return str(Path(CUDA_HOME) / "bin" / "nvcc")
 
 
 @lru_cache(maxsize=None)

@@ -1,30 +1,45 @@
-"""Emit the per-robot C++: the robot as compile-time data, plus instantiations of the hand-written
-kernel templates (csrc/kernels) and the generated torch op wrappers (from the op table)."""
+"""Emit the C++ sources: the robot library (the robot as compile-time data, plus instantiations of
+the hand-written kernel templates in csrc/kernels, one unit per op family and scalar type) and the
+torch glue (one typed wrapper per op of the op table, for any robot; compiled once)."""
 from __future__ import annotations
 
 from pathlib import Path
 
 from .model import RobotModel
-from .ops import OPS, OpSpec
+from .ops import OPS, OpSpec, op_signature
 
 _JTYPE = {"free": 0, "revolute": 1, "continuous": 1, "prismatic": 2}
 _KERNEL_SIZE = {"nv": "M::NV", "nq": "M::NQ", "nframes": "M::NF", "nbodies": "M::NB", "nparams": "10 * M::NB"}
-_SIZE = {"nv": "Robot::NV", "nq": "Robot::NQ", "nframes": "Robot::NF", "nbodies": "Robot::NB", "nparams": "10 * Robot::NB",
+_SIZE = {"nv": "r.nv", "nq": "r.nq", "nframes": "r.nf", "nbodies": "r.nb", "nparams": "10 * r.nb",
          "nsel": "static_cast<int64_t>(frames.size())"}
+_SCALARS = (("float", "f32"), ("double", "f64"))  # index 0 and 1 of OpKernels' scalar dimension
+_CONVENTIONS = (("tg::PIN", "pin"), ("tg::MJX", "mujoco"))
 
 
-def write_sources(model: RobotModel, mujoco: bool, cuda: bool, namespace: str, directory: Path) -> list[Path]:
-    """Write robot.h and the translation units into `directory`; return the units to compile."""
-    files = {"robot.h": robot_header(model, mujoco), "glue.cpp": glue_unit(namespace)}
-    # Value ops and forward-mode backward ops per scalar type: four units, so builds run in parallel.
-    for scalar, suffix in (("double", "f64"), ("float", "f32")):
-        for backward, stem in ((False, "kernels"), (True, "backward")):
-            files[f"{stem}_{suffix}.cpp"] = kernel_unit(model, mujoco, scalar, backward, cuda=False)
+def write_robot_sources(model: RobotModel, mujoco: bool, cuda: bool, namespace: str, directory: Path) -> list[Path]:
+    """Write robot.h, the kernel units and table.cpp into `directory`; return the units to compile
+    (.cpp for the host compiler, .cu for nvcc)."""
+    files = {"robot.h": robot_header(model, namespace), "table.cpp": table_unit(model, mujoco, cuda, namespace)}
+    for family in dict.fromkeys(op.family for op in OPS.values()):
+        for scalar, suffix in _SCALARS:
+            files[f"{family}_{suffix}.cpp"] = kernel_unit(model, mujoco, namespace, family, scalar, cuda=False)
             if cuda:
-                files[f"{stem}_cuda_{suffix}.cu"] = kernel_unit(model, mujoco, scalar, backward, cuda=True)
+                files[f"{family}_{suffix}.cu"] = kernel_unit(model, mujoco, namespace, family, scalar, cuda=True)
     for name, text in files.items():
         (directory / name).write_text(text)
     return [directory / name for name in files if not name.endswith(".h")]
+
+
+def write_glue_source(directory: Path) -> Path:
+    """Write glue.cpp, the torch side of every robot, into `directory`."""
+    path = directory / "glue.cpp"
+    path.write_text(glue_unit())
+    return path
+
+
+def table_symbol(namespace: str) -> str:
+    """The one C symbol a robot library exports: a function returning its tg::RobotTable."""
+    return f"{namespace}_table"
 
 
 def inertia_about_origin(mass: float, com, inertia) -> list[float]:
@@ -33,8 +48,9 @@ def inertia_about_origin(mass: float, com, inertia) -> list[float]:
     return [inertia[3 * r + k] + mass * ((c2 if r == k else 0.0) - com[r] * com[k]) for r in range(3) for k in range(3)]
 
 
-def robot_header(model: RobotModel, mujoco: bool) -> str:
-    """robot.h: sizes, the tree and every constant the kernels read."""
+def robot_header(model: RobotModel, namespace: str) -> str:
+    """robot.h: sizes, the tree and every constant the kernels read, in the robot's own C++ namespace
+    (so that no two robot libraries define the same symbol)."""
     nb = model.nbodies
     if nb == 0:
         raise ValueError(f"robot {model.name!r} has no moving joint")
@@ -46,85 +62,150 @@ def robot_header(model: RobotModel, mujoco: bool) -> str:
         if p >= 0:
             vend[p] = max(vend[p], vend[i])
     j = model.joints
+    depth, last_child, has_children = [], [True] * nb, [False] * nb
+    for i, x in enumerate(j):
+        depth.append(0 if x.parent < 0 else depth[x.parent] + 1)
+        if x.parent >= 0:
+            has_children[x.parent] = True
+            for k in range(x.parent + 1, i):  # an earlier sibling is not its parent's last child
+                if j[k].parent == x.parent:
+                    last_child[k] = False
     fields = [
         ("int", "parent", [x.parent for x in j]),
+        ("int", "depth", depth),
+        ("int", "last_child", [int(x) for x in last_child]),
+        ("int", "has_children", [int(x) for x in has_children]),
         ("int", "jtype", [_JTYPE[x.type] for x in j]),
         ("int", "axis_index", [_cardinal(x.axis) for x in j]),
         ("int", "qi", qi),
         ("int", "vi", vi),
         ("int", "nvj", [x.nv for x in j]),
         ("int", "vend", vend),
-        ("double", "axis", [list(x.axis) for x in j]),
-        ("double", "R", [list(x.rotation) for x in j]),
-        ("double", "p", [list(x.translation) for x in j]),
-        ("double", "mass", [x.mass for x in j]),
-        ("double", "h", [[x.mass * c for c in x.com] for x in j]),
-        ("double", "Io", [inertia_about_origin(x.mass, x.com, x.inertia) for x in j]),
-        ("double", "com", [list(x.com) for x in j]),
+        ("T", "axis", [list(x.axis) for x in j]),
+        ("T", "R", [list(x.rotation) for x in j]),
+        ("T", "p", [list(x.translation) for x in j]),
+        ("T", "mass", [x.mass for x in j]),
+        ("T", "h", [[x.mass * c for c in x.com] for x in j]),
+        ("T", "Io", [inertia_about_origin(x.mass, x.com, x.inertia) for x in j]),
+        ("T", "com", [list(x.com) for x in j]),
         ("int", "fparent", [f.parent for f in model.frames]),
-        ("double", "fR", [list(f.rotation) for f in model.frames]),
-        ("double", "fp", [list(f.translation) for f in model.frames]),
-        ("double", "gravity", list(model.gravity)),
+        ("T", "fR", [list(f.rotation) for f in model.frames]),
+        ("T", "fp", [list(f.translation) for f in model.frames]),
+        ("T", "gravity", list(model.gravity)),
     ]
     decls, inits = [], []
     for ctype, name, values in fields:
         dims = _dims(values)
         decls.append(f"  {ctype} {name}{''.join(f'[{d}]' for d in dims)};")
         inits.append(f"    /* {name} */ {_literal(values)}")
-    with_mjx = "#define TG_WITH_MJX 1\n" if mujoco and model.floating_base else ""
     return f"""// Generated by torch_grid for robot {model.name!r} (model {model.hash[:16]}). Do not edit.
 #pragma once
 
-#define TG_MAX_IARGS {len(model.frames) + 4}
-{with_mjx}
 #include "kernels/spatial.h"
 
-namespace tg_robot {{
-struct RobotData {{
+namespace {namespace} {{
+template <class T> struct RobotData {{
 {chr(10).join(decls)}
 }};
 #define TG_ROBOT_DATA {{ \\
 {(', ' + chr(92) + chr(10)).join(inits)} }}
 #if defined(__CUDACC__)
-__constant__ RobotData kDeviceData = TG_ROBOT_DATA;
+__constant__ RobotData<double> kDeviceData64 = TG_ROBOT_DATA;
+__constant__ RobotData<float> kDeviceData32 = TG_ROBOT_DATA;
 #endif
-constexpr RobotData kHostData = TG_ROBOT_DATA;
-}}  // namespace tg_robot
+constexpr RobotData<double> kHostData64 = TG_ROBOT_DATA;
+constexpr RobotData<float> kHostData32 = TG_ROBOT_DATA;
+#undef TG_ROBOT_DATA
 
 struct Robot {{
-  static constexpr int NB = {nb}, NQ = {model.nq}, NV = {model.nv}, NF = {len(model.frames)};
+  static constexpr int NB = {nb}, NQ = {model.nq}, NV = {model.nv}, NF = {len(model.frames)}, ND = {max(depth) + 1};
   static constexpr bool FLOATING = {'true' if model.floating_base else 'false'};
-  TG_HD static const tg_robot::RobotData& data() {{
+  // The constants as float or double (tg::data<M, S>() picks the kernel's own precision).
+  template <class T> TG_HD static const RobotData<T>& data() {{
+    if constexpr (sizeof(T) == sizeof(double)) {{
 #if defined(__CUDA_ARCH__)
-    return tg_robot::kDeviceData;
+      return kDeviceData64;
 #else
-    return tg_robot::kHostData;
+      return kHostData64;
 #endif
+    }} else {{
+#if defined(__CUDA_ARCH__)
+      return kDeviceData32;
+#else
+      return kHostData32;
+#endif
+    }}
   }}
 }};
+}}  // namespace {namespace}
 """
 
 
-def conventions(model: RobotModel, mujoco: bool) -> list[str]:
-    return ["tg::PIN", "tg::MJX"] if mujoco and model.floating_base else ["tg::PIN"]
+def conventions(model: RobotModel, mujoco: bool) -> tuple[tuple[str, str], ...]:
+    """The (C++ constant, name) of every convention a robot library has kernels for: a fixed base has
+    nothing to convert, so both conventions run the Pinocchio kernel."""
+    return _CONVENTIONS if mujoco and model.floating_base else _CONVENTIONS[:1]
 
 
-def kernel_unit(model: RobotModel, mujoco: bool, scalar: str, backward: bool, cuda: bool) -> str:
-    """Instantiate the CPU batch loop or the CUDA launch, for one scalar type, of the value ops or of
-    the forward-mode backward ops."""
-    if cuda:
-        template, launch = "template int tg::cuda_launch<tg::{}, Robot, {}, {}>(const tg::Batch&, void*);", "cuda_launch.cuh"
-    else:
-        template, launch = ("template void tg::cpu_range<tg::{}, Robot, {}, {}>(const tg::Batch&, int64_t, int64_t);",
-                            "cpu_range.h")
-    lines = [template.format(op.kernel, scalar, c)
-             for op in OPS.values() if bool(op.forward_mode_of) == backward for c in conventions(model, mujoco)]
-    if not backward:
-        return _unit(["kernels/ops.h", launch], lines)
-    return _unit(["kernels/ops.h", "kernels/forward_mode.h", launch], [forward_mode_kernels()] + lines)
+def _entry(device: str, op: OpSpec, suffix: str, convention: str) -> str:
+    return f"{device}_{op.name}_{suffix}_{convention}"
 
 
-def forward_mode_kernels() -> str:
+def kernel_unit(model: RobotModel, mujoco: bool, namespace: str, family: str, scalar: str, cuda: bool) -> str:
+    """One family's ops for one scalar type: a CPU batch loop (or a CUDA launch) per op and convention,
+    each a plain function that table.cpp puts in the robot's table."""
+    suffix = dict(_SCALARS)[scalar]
+    ops = [op for op in OPS.values() if op.family == family]
+    lines = []
+    for op in ops:
+        for conv, cname in conventions(model, mujoco):
+            if cuda:
+                lines.append(f"int {_entry('cuda', op, suffix, cname)}(const tg::Batch& b, void* stream, int sms, "
+                             f"tg::CudaAttributes* a) {{\n  return tg::cuda_launch<tg::{op.kernel}, Robot, {scalar}, {conv}>"
+                             f"(b, stream, sms, a);\n}}")
+            else:
+                lines.append(f"void {_entry('cpu', op, suffix, cname)}(const tg::Batch& b, int64_t begin, int64_t end) {{\n"
+                             f"  tg::cpu_range<tg::{op.kernel}, Robot, {scalar}, {conv}>(b, begin, end);\n}}")
+    includes = ["kernels/ops.h", "cuda_launch.cuh" if cuda else "cpu_range.h"]
+    structs = []
+    if any(op.forward_mode_of for op in ops):
+        includes.insert(1, "kernels/forward_mode.h")
+        structs = [forward_mode_kernels([op for op in ops if op.forward_mode_of])]
+    return _unit(includes, structs + [f"namespace {namespace} {{", *lines, f"}}  // namespace {namespace}"])
+
+
+def table_unit(model: RobotModel, mujoco: bool, cuda: bool, namespace: str) -> str:
+    """The robot's tg::RobotTable: sizes and every op's kernels, exported under one C symbol."""
+    convs = conventions(model, mujoco)
+    decls, entries = [], []
+    for op in OPS.values():
+        slots = {}
+        for device in ("cpu", "cuda") if cuda else ("cpu",):
+            for _, suffix in _SCALARS:
+                for _, cname in convs:
+                    name = _entry(device, op, suffix, cname)
+                    slots[device, suffix, cname] = name
+                    decls.append(f"void {name}(const tg::Batch&, int64_t, int64_t);" if device == "cpu" else
+                                 f"int {name}(const tg::Batch&, void*, int, tg::CudaAttributes*);")
+
+        def grid(device: str) -> str:
+            return "{" + ", ".join("{" + ", ".join(slots.get((device, suffix, cname), "nullptr") for _, cname in _CONVENTIONS)
+                                   + "}" for _, suffix in _SCALARS) + "}"
+
+        entries.append(f"    {{{grid('cpu')}, {grid('cuda')}}},  // {op.name}")
+    flags = f"{int(model.floating_base)}, {int(mujoco)}, {int(cuda)}"
+    return _unit(["batch.h"], [
+        f"namespace {namespace} {{", *decls,
+        f"const tg::OpKernels kOps[] = {{\n" + "\n".join(entries) + "\n};",
+        f'const tg::RobotTable kTable = {{tg::kTableAbi, "{op_signature()}", Robot::NQ, Robot::NV, Robot::NB, '
+        f"Robot::NF, {flags}, {len(OPS)}, kOps}};",
+        f"}}  // namespace {namespace}",
+        f'extern "C" __attribute__((visibility("default"))) const tg::RobotTable* {table_symbol(namespace)}() {{\n'
+        f"  return &{namespace}::kTable;\n}}",
+    ])
+
+
+def forward_mode_kernels(ops: list[OpSpec]) -> str:
     """The backward op structs: each op's kernel under ForwardModeVjp, with its tensor sizes."""
     def size(d) -> str:
         if isinstance(d, int):
@@ -137,51 +218,61 @@ def forward_mode_kernels() -> str:
         return "tg::Sizes<" + ", ".join(" * ".join(size(d) for d in shape) for shape in shapes) + ">"
 
     structs = []
-    for op in OPS.values():
-        if op.forward_mode_of:
-            value = OPS[op.forward_mode_of]
-            structs.append(f"template <class M, class S, int C> struct {op.kernel}\n"
-                           f"    : ForwardModeVjp<{value.kernel}, M, S, C, {sizes(a.trailing for a in value.tensor_args)}, "
-                           f"{sizes(value.outputs)}> {{}};")
+    for op in ops:
+        value = OPS[op.forward_mode_of]
+        structs.append(f"template <class M, class S, int C> struct {op.kernel}\n"
+                       f"    : ForwardModeVjp<{value.kernel}, M, S, C, {sizes(a.trailing for a in value.tensor_args)}, "
+                       f"{sizes(value.outputs)}> {{}};")
     return "namespace tg {\n" + "\n".join(structs) + "\n}  // namespace tg\n"
 
 
-def glue_unit(namespace: str) -> str:
-    """torch op wrappers and their registration, one per entry of the op table."""
-    wrappers = "\n".join(_wrapper(op) for op in OPS.values())
+def glue_unit() -> str:
+    """torch op wrappers, one per entry of the op table, and `register_robot`, which loads a robot
+    library and registers its ops under the robot's namespace (CPU, and CUDA when built with it)."""
+    wrappers = "\n".join(_wrapper(k, op) for k, op in enumerate(OPS.values()))
     defs = "\n".join(f'  m.def("{op.schema()}");' for op in OPS.values())
-    impls = "\n".join(f'  m.impl("{op.name}", &{op.name});' for op in OPS.values())
-    cuda = f"\n#ifdef TG_WITH_CUDA\nTORCH_LIBRARY_IMPL({namespace}, CUDA, m) {{\n{impls}\n}}\n#endif\n"
-    declarations = "\n".join(f"template <class M, class S, int C> struct {op.kernel};" for op in OPS.values())
-    return (_unit(["glue.h"], [])
-            + f"\nnamespace tg {{\n{declarations}\n}}  // namespace tg\n"
-            + f"\nnamespace {{\n{wrappers}\n}}  // namespace\n\nTORCH_LIBRARY({namespace}, m) {{\n{defs}\n}}\n\n"
-            + f"TORCH_LIBRARY_IMPL({namespace}, CPU, m) {{\n{impls}\n}}\n{cuda}")
+    impls = "\n".join(f"  m.impl(\"{op.name}\", torch::CppFunction([r]({_params(op)}) {{ return {op.name}(*r, "
+                      f"{', '.join(_arg_names(op))}); }}));" for op in OPS.values())
+    return _unit(["glue.h", "register.h"], [
+        f'namespace {{\nconstexpr const char* kOpSignature = "{op_signature()}";\nconstexpr int kNumOps = {len(OPS)};\n',
+        wrappers,
+        f"void define(torch::Library& m) {{\n{defs}\n}}\n",
+        f"void implement(torch::Library& m, const tg::RobotTable* r) {{\n{impls}\n}}",
+        "}  // namespace",
+        "TG_REGISTER_ROBOT_OP(kOpSignature, kNumOps, define, implement)",
+    ], robot=False)
 
 
-def _wrapper(op: OpSpec) -> str:
+def _params(op: OpSpec) -> str:
     ctype = {"frame": "int64_t", "frames": "at::IntArrayRef", "reference": "int64_t", "mask": "int64_t"}
-    params, body = [], [f'  tg::Call call("{op.name}", q, convention);']
+    params = [(f"const {'std::optional<at::Tensor>' if a.optional else 'at::Tensor'}& {a.name}" if a.is_tensor
+               else f"{ctype[a.kind]} {a.name}") for a in op.args]
+    return ", ".join(params + ["int64_t convention"])
+
+
+def _arg_names(op: OpSpec) -> list[str]:
+    return [a.name for a in op.args] + ["convention"]
+
+
+def _wrapper(index: int, op: OpSpec) -> str:
+    body = [f'  tg::Call call(r, "{op.name}", q, convention);']
     for a in op.args:
         if a.is_tensor:
-            params.append(f"const {'std::optional<at::Tensor>' if a.optional else 'at::Tensor'}& {a.name}")
             dims = ", ".join(_SIZE.get(d, str(d)) for d in a.trailing)
             body.append(f'  call.input({a.name}, "{a.name}", {{{dims}}});')
         else:
-            params.append(f"{ctype[a.kind]} {a.name}")
             extra = f", {len(OPS[op.forward_mode_of].tensor_args)}" if a.kind == "mask" else ""
             body.append(f'  call.{a.kind}({a.name}, "{a.name}"{extra});')
-    params.append("int64_t convention")
     outs = [f"out{k}" for k in range(len(op.outputs))]
     for name, shape in zip(outs, op.outputs):
         body.append(f"  at::Tensor {name} = call.output({{{', '.join(_SIZE.get(d, str(d)) for d in shape)}}});")
-    body.append(f"  call.run<tg::{op.kernel}>();")
+    body.append(f"  call.run(r.ops[{index}]);")
     if len(outs) == 1:
         ret, value = "at::Tensor", outs[0]
     else:
         ret, value = f"std::tuple<{', '.join('at::Tensor' for _ in outs)}>", f"std::make_tuple({', '.join(outs)})"
     body.append(f"  return {value};")
-    return f"{ret} {op.name}({', '.join(params)}) {{\n" + "\n".join(body) + "\n}\n"
+    return f"{ret} {op.name}(const tg::RobotTable& r, {_params(op)}) {{\n" + "\n".join(body) + "\n}\n"
 
 
 def _cardinal(axis) -> int:
@@ -192,9 +283,9 @@ def _cardinal(axis) -> int:
     return -1
 
 
-def _unit(includes: list[str], lines: list[str]) -> str:
-    inc = "\n".join(f'#include "{h}"' for h in includes)
-    return f'// Generated by torch_grid. Do not edit.\n#include "robot.h"\n{inc}\n\n' + "\n".join(lines) + "\n"
+def _unit(includes: list[str], lines: list[str], robot: bool = True) -> str:
+    inc = "\n".join(f'#include "{h}"' for h in (["robot.h"] if robot else []) + includes)
+    return f"// Generated by torch_grid. Do not edit.\n{inc}\n\n" + "\n".join(lines) + "\n"
 
 
 def _dims(values) -> list[int]:

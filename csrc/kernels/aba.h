@@ -7,33 +7,44 @@
 namespace tg {
 
 // Gravity = false with qd = 0 and no fext solves M qdd = tau: M^-1 tau in O(n).
+//
+// Memory (a GPU thread's stack): velocities and accelerations are kept by tree level (in
+// depth-first order a body's ancestors hold the levels above its own); what children pass up to
+// their parent in the backward pass (articulated inertia, bias force) also goes to the parent's
+// level, assigned by the first child to arrive (the parent's last in depth-first order) and added
+// by the others; U = IA S is kept per dof (joint i's k-th at vi + k).
 template <class M, class S, bool Gravity = true>
 TG_HD void aba(const S* q, const S* qd, const S* tau, const S* fext, S* qdd) {
-  const auto& d = M::data();
-  SE3<S> liMi[M::NB];
-  Sv<S> v[M::NB], c[M::NB], pA[M::NB], a[M::NB];
-  M6<S> IA[M::NB];
-  Sv<S> U[M::NB][6];
+  const auto& d = data<M, S>();
+  JointPlacements<M, S> liMi(q);
+  Sv<S> va[M::ND], c[M::NB], pA[M::NB], pA_up[M::ND];
+  M6<S> IA_up[M::ND];
+  Sv<S> U[M::NV];
   S u[M::NV];
   // Forward pass: velocities, velocity-product accelerations c, bias forces pA.
   for (int i = 0; i < M::NB; ++i) {
-    const int p = d.parent[i];
-    liMi[i] = joint_placement<M, S>(i, q);
+    const int p = d.parent[i], l = d.depth[i];
+    const SE3<S> X = joint_placement<M, S>(i, q);
+    liMi.keep(i, X);
     const Sv<S> vJ = joint_motion<M, S>(i, qd);
-    v[i] = p < 0 ? vJ : actinv_motion(liMi[i], v[p]) + vJ;
-    c[i] = cross_motion(v[i], vJ);
+    va[l] = p < 0 ? vJ : actinv_motion(X, va[l - 1]) + vJ;
+    c[i] = cross_motion(va[l], vJ);
     const Inertia<S> I = body_inertia<M, S>(i);
-    IA[i] = to_matrix(I);
-    pA[i] = cross_force(v[i], mul(I, v[i]));
+    pA[i] = cross_force(va[l], mul(I, va[l]));
     if (fext) pA[i] = pA[i] - Sv<S>{{fext[6 * i], fext[6 * i + 1], fext[6 * i + 2], fext[6 * i + 3], fext[6 * i + 4], fext[6 * i + 5]}};
   }
   // Backward pass: articulated inertias IA and bias forces pA, U = IA S, D = S^T U, u = tau - S^T pA.
   for (int i = M::NB - 1; i >= 0; --i) {
-    const int n = d.nvj[i], vi = d.vi[i];
+    const int n = d.nvj[i], vi = d.vi[i], l = d.depth[i];
+    M6<S> IA = to_matrix(body_inertia<M, S>(i));
+    if (d.has_children[i]) {
+      for (int k = 0; k < 36; ++k) IA.m[k] += IA_up[l].m[k];
+      pA[i] = pA[i] + pA_up[l];
+    }
     Sv<S> Si[6];
     for (int k = 0; k < n; ++k) {
       Si[k] = joint_axis<M, S>(i, k);
-      U[i][k] = mul(IA[i], Si[k]);
+      U[vi + k] = mul(IA, Si[k]);
       u[vi + k] = tau[vi + k] - dot(Si[k], pA[i]);
     }
     const int p = d.parent[i];
@@ -41,41 +52,48 @@ TG_HD void aba(const S* q, const S* qd, const S* tau, const S* fext, S* qdd) {
     // Dinv_u = D^-1 u and Dinv_U = D^-1 U^T (n x 6), through one SPD factorisation each column.
     S D[36], Dinv_u[6], Dinv_Ut[6][6];
     for (int r = 0; r < n; ++r)
-      for (int k = 0; k < n; ++k) D[n * r + k] = dot(Si[r], U[i][k]);
+      for (int k = 0; k < n; ++k) D[n * r + k] = dot(Si[r], U[vi + k]);
     for (int r = 0; r < n; ++r) Dinv_u[r] = u[vi + r];
     spd_solve(n, D, Dinv_u);
     for (int col = 0; col < 6; ++col) {
       S x[6];
-      for (int r = 0; r < n; ++r) x[r] = U[i][r].v[col];
+      for (int r = 0; r < n; ++r) x[r] = U[vi + r].v[col];
       spd_solve(n, D, x);
       for (int r = 0; r < n; ++r) Dinv_Ut[r][col] = x[r];
     }
     // Ia = IA - U D^-1 U^T, pa = pA + Ia c + U D^-1 u, both passed to the parent frame.
-    M6<S> Ia = IA[i];
+    M6<S> Ia = IA;
     for (int r = 0; r < 6; ++r)
       for (int col = 0; col < 6; ++col)
-        for (int k = 0; k < n; ++k) Ia.m[6 * r + col] -= U[i][k].v[r] * Dinv_Ut[k][col];
+        for (int k = 0; k < n; ++k) Ia.m[6 * r + col] -= U[vi + k].v[r] * Dinv_Ut[k][col];
     Sv<S> pa = pA[i] + mul(Ia, c[i]);
-    for (int k = 0; k < n; ++k) pa = pa + Dinv_u[k] * U[i][k];
-    const M6<S> Ip = inertia_to_parent(liMi[i], Ia);
-    for (int k = 0; k < 36; ++k) IA[p].m[k] += Ip.m[k];
-    pA[p] = pA[p] + act_force(liMi[i], pa);
+    for (int k = 0; k < n; ++k) pa = pa + Dinv_u[k] * U[vi + k];
+    const SE3<S> X = liMi[i];
+    const M6<S> Ip = inertia_to_parent(X, Ia);
+    const Sv<S> pp = act_force(X, pa);
+    if (d.last_child[i]) {
+      IA_up[l - 1] = Ip;
+      pA_up[l - 1] = pp;
+    } else {
+      for (int k = 0; k < 36; ++k) IA_up[l - 1].m[k] += Ip.m[k];
+      pA_up[l - 1] = pA_up[l - 1] + pp;
+    }
   }
   // Forward pass: qdd_i = D^-1 (u - U^T a'), a' the parent acceleration seen in frame i.
   for (int i = 0; i < M::NB; ++i) {
-    const int n = d.nvj[i], vi = d.vi[i], p = d.parent[i];
+    const int n = d.nvj[i], vi = d.vi[i], p = d.parent[i], l = d.depth[i];
     const Sv<S> a0 = Gravity ? base_acceleration<M, S>() : sv_zero<S>();
-    const Sv<S> a_in = actinv_motion(liMi[i], p < 0 ? a0 : a[p]) + c[i];
+    const Sv<S> a_in = actinv_motion(liMi[i], p < 0 ? a0 : va[l - 1]) + c[i];
     S D[36], x[6];
     for (int r = 0; r < n; ++r) {
-      for (int k = 0; k < n; ++k) D[n * r + k] = dot(joint_axis<M, S>(i, r), U[i][k]);
-      x[r] = u[vi + r] - dot(U[i][r], a_in);
+      for (int k = 0; k < n; ++k) D[n * r + k] = dot(joint_axis<M, S>(i, r), U[vi + k]);
+      x[r] = u[vi + r] - dot(U[vi + r], a_in);
     }
     spd_solve(n, D, x);
-    a[i] = a_in;
+    va[l] = a_in;
     for (int k = 0; k < n; ++k) {
       qdd[vi + k] = x[k];
-      a[i] = a[i] + x[k] * joint_axis<M, S>(i, k);
+      va[l] = va[l] + x[k] * joint_axis<M, S>(i, k);
     }
   }
 }

@@ -8,13 +8,13 @@ namespace tg {
 
 template <class M, class S> TG_HD S total_mass() {
   S m = 0;
-  for (int i = 0; i < M::NB; ++i) m += S(M::data().mass[i]);
+  for (int i = 0; i < M::NB; ++i) m += S(data<M, S>().mass[i]);
   return m;
 }
 
 // World position of body i's centre of mass.
 template <class M, class S> TG_HD Vec3<S> body_com(int i, const SE3<S>* oMi) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   return act_point(oMi[i], v3(S(d.com[i][0]), S(d.com[i][1]), S(d.com[i][2])));
 }
 
@@ -22,13 +22,13 @@ template <class M, class S> TG_HD void com(const S* q, S* out) {
   SE3<S> liMi[M::NB], oMi[M::NB];
   forward_kinematics<M, S>(q, liMi, oMi);
   Vec3<S> c = v3(S(0), S(0), S(0));
-  for (int i = 0; i < M::NB; ++i) c = c + S(M::data().mass[i]) * body_com<M, S>(i, oMi);
+  for (int i = 0; i < M::NB; ++i) c = c + S(data<M, S>().mass[i]) * body_com<M, S>(i, oMi);
   store3((S(1) / total_mass<M, S>()) * c, out);
 }
 
 // d com / d qd, (3 x NV): each joint moves its subtree's mass-weighted centre of mass.
 template <class M, class S> TG_HD void jacobian_com(const S* q, S* J) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   SE3<S> liMi[M::NB], oMi[M::NB];
   forward_kinematics<M, S>(q, liMi, oMi);
   S ms[M::NB];
@@ -53,7 +53,7 @@ template <class M, class S> TG_HD void jacobian_com(const S* q, S* J) {
 
 // [kinetic, potential, mechanical] energy, potential relative to the world origin.
 template <class M, class S> TG_HD void energy(const S* q, const S* qd, S* out) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   SE3<S> liMi[M::NB], oMi[M::NB];
   Sv<S> v[M::NB];
   forward_kinematics<M, S>(q, liMi, oMi);
@@ -72,7 +72,7 @@ template <class M, class S> TG_HD void energy(const S* q, const S* qd, S* out) {
 
 // Centroidal momentum matrix A (6 x NV) and momentum h = A qd, [linear; angular about the com].
 template <class M, class S> TG_HD void ccrba(const S* q, const S* qd, S* A, S* h) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   constexpr int NV = M::NV;
   SE3<S> liMi[M::NB], oMi[M::NB];
   forward_kinematics<M, S>(q, liMi, oMi);
@@ -113,7 +113,7 @@ template <class M, class S> struct CentroidalWork {
 };
 
 template <class M, class S> TG_HD void centroidal_setup(const S* q, const S* qd, CentroidalWork<M, S>& W) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   W.m = total_mass<M, S>();
   W.c = v3(S(0), S(0), S(0));
   for (int i = 0; i < M::NB; ++i) {
@@ -153,7 +153,7 @@ template <class S> TG_HD Sv<S> at_point(const Sv<S>& f, Vec3<S> c) { return sv(l
 // Yc_j dS_j/dt seen at the com. (The elementwise dA/dt adds -cdot x (A_j)_lin to the angular
 // rows, which sums to -cdot x m cdot = 0 against qd; Pinocchio leaves it out, and so do we.)
 template <class M, class S> TG_HD void cmm_time_variation(const S* q, const S* qd, S* Adot, S* A) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   CentroidalWork<M, S> W;
   centroidal_setup<M, S>(q, qd, W);
   for (int i = 0; i < M::NB; ++i)
@@ -172,7 +172,7 @@ template <class M, class S> TG_HD void cmm_time_variation(const S* q, const S* q
 // momentum H_j by the twist s (s x* H_j) while the parent's velocity stays (Yc_j (v_parent x s));
 // the com moves by J_com's column, shifting the angular part by -(dc x h_lin).
 template <class M, class S> TG_HD void dccrba(const S* q, const S* qd, S* dh_dq) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   CentroidalWork<M, S> W;
   centroidal_setup<M, S>(q, qd, W);
   Sv<S> total = sv_zero<S>();

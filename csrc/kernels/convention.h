@@ -93,13 +93,13 @@ template <class M, class S, int C> struct Conv {
     }
   }
   // Coriolis matrix out: C_mjx = G (C G^T + M K) with K qd = [v_lin x w; 0], Pinocchio's base
-  // acceleration at MuJoCo's qacc = 0, so that C_mjx qd + g_mjx = MuJoCo's bias force.
-  TG_HD void coriolis_out(const S* v, const S* Mass, S* Cq) const {
+  // acceleration at MuJoCo's qacc = 0, so that C_mjx qd + g_mjx = MuJoCo's bias force; Mb as below.
+  TG_HD void coriolis_out(const S* v, const S* Mb, S* Cq) const {
     if constexpr (active) {
       const Vec3<S> vl = load3(v);
       columns_out(Cq, M::NV);
       for (int r = 0; r < M::NV; ++r) {
-        const Vec3<S> m = load3(Mass + M::NV * r);
+        const Vec3<S> m = load3(Mb + 3 * r);
         for (int c = 0; c < 3; ++c) {
           Vec3<S> e = v3(S(0), S(0), S(0));
           e.x[c] = S(1);
@@ -153,14 +153,15 @@ template <class M, class S, int C> struct Conv {
     return g;
   }
 
-  TG_HD void inverse_dynamics_gradient_out(const S* v, const S* a, const S* tau, const S* Mass, S* dq, S* dv) const {
+  // Mb: the base-linear columns of Pinocchio's M (NV x 3), all of M these terms read.
+  TG_HD void inverse_dynamics_gradient_out(const S* v, const S* a, const S* tau, const S* Mb, S* dq, S* dv) const {
     if constexpr (active) {
       constexpr int NV = M::NV;
       const GradientColumns g = gradient_columns(v, a);
       // The Jv_q and Ja terms read Pinocchio's dtau/dqd and M before any reframe.
       S add_q[NV][3], add_vl[NV][3], add_va[NV][3];
       for (int r = 0; r < NV; ++r) {
-        const Vec3<S> Mr = load3(Mass + NV * r), dvr = load3(dv + NV * r);
+        const Vec3<S> Mr = load3(Mb + 3 * r), dvr = load3(dv + NV * r);
         for (int c = 0; c < 3; ++c) {
           add_q[r][c] = dot(dvr, g.Jv[c]) + dot(Mr, g.Jaq[c]);
           add_vl[r][c] = dot(Mr, g.Jav_lin[c]);

@@ -38,6 +38,8 @@ template <class S> struct Dual {
   TG_HD friend bool operator!=(const Dual& a, const Dual& b) { return a.v != b.v; }
 };
 
+template <class S> struct BaseScalar<Dual<S>> { using type = S; };
+
 // Mixed arithmetic with plain numbers (literals and the robot's constants).
 #define TG_DUAL_MIXED(op)                                                                                   \
   template <class S, class T, class = std::enable_if_t<std::is_arithmetic_v<T>>>                            \
@@ -80,38 +82,43 @@ template <int... N> struct Sizes {
 // differentiate; out = one gradient per input (zero where not asked).
 template <template <class, class, int> class Op, class M, class S, int C, class In, class Out>
 struct ForwardModeVjp {
+  // One input coordinate per pass: the batch layer runs them as separate work items (a CUDA thread
+  // each), or all of them in turn through run().
+  static constexpr int kCoordinates = In::total;
+
   TG_HD static void run(const S* const* in, S* const* out, const int* iargs, int n_iargs) {
+    for (int c = 0; c < kCoordinates; ++c) run_coordinate(in, out, iargs, n_iargs, c);
+  }
+
+  // Entry c of the gradient (input i's k-th coordinate, counting through the inputs in order).
+  TG_HD static void run_coordinate(const S* const* in, S* const* out, const int* iargs, int n_iargs, int c) {
     using D = Dual<S>;
     constexpr int NI = In::count, NO = Out::count;
-    const int mask = iargs[n_iargs - 1];
+    int i = 0, off = 0;
+    while (c >= off + In::at(i)) off += In::at(i++);
+    const int k = c - off;
+    if (!in[i] || !(iargs[n_iargs - 1] >> i & 1)) {  // absent, or not asked for by the mask
+      if (out[i]) out[i][k] = S(0);
+      return;
+    }
+    // dual copies of the inputs, the tangent seeded on this coordinate
     D x[In::total], y[Out::total];
     const D* xs[NI];
     D* ys[NO];
-    // dual copies of the inputs with zero tangents
-    for (int i = 0, off = 0; i < NI; off += In::at(i), ++i) {
-      xs[i] = in[i] ? x + off : nullptr;
-      if (in[i])
-        for (int k = 0; k < In::at(i); ++k) x[off + k] = D(in[i][k], S(0));
+    for (int j = 0, o = 0; j < NI; o += In::at(j), ++j) {
+      xs[j] = in[j] ? x + o : nullptr;
+      if (in[j])
+        for (int m = 0; m < In::at(j); ++m) x[o + m] = D(in[j][m], S(0));
     }
-    for (int o = 0, off = 0; o < NO; off += Out::at(o), ++o) ys[o] = y + off;
-    // one pass per coordinate: seed its tangent, dot the output tangents with the cotangents
-    for (int i = 0, off = 0; i < NI; off += In::at(i), ++i) {
-      const bool wanted = in[i] && (mask >> i & 1);
-      for (int k = 0; k < In::at(i); ++k) {
-        if (!wanted) {
-          out[i][k] = S(0);
-          continue;
-        }
-        x[off + k].d = S(1);
-        Op<M, D, C>::run(xs, ys, iargs, n_iargs - 1);
-        x[off + k].d = S(0);
-        S acc = S(0);
-        for (int o = 0, yoff = 0; o < NO; yoff += Out::at(o), ++o)
-          if (in[NI + o])
-            for (int m = 0; m < Out::at(o); ++m) acc += in[NI + o][m] * y[yoff + m].d;
-        out[i][k] = acc;
-      }
-    }
+    x[off + k].d = S(1);
+    for (int o = 0, yoff = 0; o < NO; yoff += Out::at(o), ++o) ys[o] = y + yoff;
+    Op<M, D, C>::run(xs, ys, iargs, n_iargs - 1);
+    // the output tangents dotted with the cotangents
+    S acc = S(0);
+    for (int o = 0, yoff = 0; o < NO; yoff += Out::at(o), ++o)
+      if (in[NI + o])
+        for (int m = 0; m < Out::at(o); ++m) acc += in[NI + o][m] * y[yoff + m].d;
+    out[i][k] = acc;
   }
 };
 

@@ -40,7 +40,7 @@ template <class M, class S> TG_HD void end_effector_pose(const S* q, const int* 
 // Jacobian (6 x NV, rows [linear; angular]) of frame f in the given reference. Only the bodies
 // supporting the frame are placed.
 template <class M, class S> TG_HD void frame_jacobian(const S* q, int f, int reference, S* J) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   int chain[M::NB], n = 0;  // support chain, frame's body first
   for (int j = d.fparent[f]; j >= 0; j = d.parent[j]) chain[n++] = j;
   SE3<S> oMi[M::NB];
@@ -74,7 +74,7 @@ template <class M, class S> TG_HD void frame_jacobian(const S* q, int f, int ref
 // Each weight acts as the spatial force [w_lin; p_f x w_lin + w_ang] at the world origin; a
 // joint collects the forces of its subtree, projected on its world axes.
 template <class M, class S> TG_HD void frames_vjp(const S* q, const S* w, S* out) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   SE3<S> liMi[M::NB], oMi[M::NB];
   forward_kinematics<M, S>(q, liMi, oMi);
   Sv<S> F[M::NB];
@@ -95,7 +95,7 @@ template <class M, class S> TG_HD void frames_vjp(const S* q, const S* w, S* out
 // origin p moves at pdot, and a LOCAL Jacobian also turns with the frame's angular velocity w.
 template <class M, class S>
 TG_HD void frame_jacobian_dot(const S* q, const S* qd, int f, int reference, S* Jdot, S* J) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   int chain[M::NB], n = 0;  // support chain, frame's body first
   for (int j = d.fparent[f]; j >= 0; j = d.parent[j]) chain[n++] = j;
   SE3<S> oMi[M::NB];
@@ -143,7 +143,7 @@ TG_HD void frame_jacobian_dot(const S* q, const S* qd, int f, int reference, S* 
 // d tau / d f_ext (NV x NB x 6): tau = ... - sum_k J_k^T f_k with J_k body k's Jacobian in its joint
 // frame, so column (k, c) is minus row c of J_k: joint j's axis seen from body k's frame.
 template <class M, class S> TG_HD void external_force_jacobian(const S* q, S* out) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   constexpr int NF6 = 6 * M::NB;
   SE3<S> liMi[M::NB], oMi[M::NB];
   forward_kinematics<M, S>(q, liMi, oMi);

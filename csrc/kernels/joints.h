@@ -1,7 +1,7 @@
 // Joint models and the kinematic forward pass shared by every algorithm.
 //
 // A generated robot header provides a type `M` with compile-time sizes (NB bodies, NQ, NV, NF
-// frames, FLOATING) and `M::data()`, the tree, axes, placements and inertias as constants.
+// frames, ND tree levels, FLOATING) and `data<M, S>()` (spatial.h), the tree, axes, placements and inertias as constants.
 // Body i is moved by joint i; parent[i] < i (depth-first order), -1 is the world.
 #pragma once
 
@@ -14,7 +14,7 @@ enum JointType : int { FREE = 0, REVOLUTE = 1, PRISMATIC = 2 };
 // Placement of joint i's frame in its parent's frame, liMi = placement * Mj(q). q is Pinocchio's
 // layout: a free joint reads [pos(3), quat xyzw(4)].
 template <class M, class S> TG_HD SE3<S> joint_placement(int i, const S* q) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   SE3<S> X;
   for (int k = 0; k < 9; ++k) X.R.m[k] = S(d.R[i][k]);
   X.p = v3(S(d.p[i][0]), S(d.p[i][1]), S(d.p[i][2]));
@@ -48,7 +48,7 @@ template <class M, class S> TG_HD SE3<S> joint_placement(int i, const S* q) {
 
 // Column k of joint i's motion subspace S_i, in the joint frame.
 template <class M, class S> TG_HD Sv<S> joint_axis(int i, int k) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   Sv<S> s = sv_zero<S>();
   switch (d.jtype[i]) {
     case FREE: s.v[k] = S(1); break;
@@ -60,7 +60,7 @@ template <class M, class S> TG_HD Sv<S> joint_axis(int i, int k) {
 
 // Joint velocity vJ = S_i qd_i in the joint frame.
 template <class M, class S> TG_HD Sv<S> joint_motion(int i, const S* qd) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   const S* x = qd + d.vi[i];
   if (d.jtype[i] == FREE) return {{x[0], x[1], x[2], x[3], x[4], x[5]}};
   return x[0] * joint_axis<M, S>(i, 0);
@@ -68,13 +68,13 @@ template <class M, class S> TG_HD Sv<S> joint_motion(int i, const S* qd) {
 
 // S_i^T f: the generalized force of joint i from a spatial force f in its frame.
 template <class M, class S> TG_HD void joint_project(int i, const Sv<S>& f, S* out) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   for (int k = 0; k < d.nvj[i]; ++k) out[d.vi[i] + k] = dot(joint_axis<M, S>(i, k), f);
 }
 
 // Inertia of body i about its joint frame origin.
 template <class M, class S> TG_HD Inertia<S> body_inertia(int i) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   Inertia<S> I{S(d.mass[i]), v3(S(d.h[i][0]), S(d.h[i][1]), S(d.h[i][2])), {}};
   for (int k = 0; k < 9; ++k) I.Io.m[k] = S(d.Io[i][k]);
   return I;
@@ -82,13 +82,13 @@ template <class M, class S> TG_HD Inertia<S> body_inertia(int i) {
 
 // Spatial gravity acceleration seen as a base acceleration: a_0 = -g.
 template <class M, class S> TG_HD Sv<S> base_acceleration() {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   return {{-S(d.gravity[0]), -S(d.gravity[1]), -S(d.gravity[2]), S(0), S(0), S(0)}};
 }
 
 // Forward kinematics: local placements liMi and world placements oMi of every body.
 template <class M, class S> TG_HD void forward_kinematics(const S* q, SE3<S>* liMi, SE3<S>* oMi) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   for (int i = 0; i < M::NB; ++i) {
     liMi[i] = joint_placement<M, S>(i, q);
     oMi[i] = d.parent[i] < 0 ? liMi[i] : oMi[d.parent[i]] * liMi[i];
@@ -97,7 +97,7 @@ template <class M, class S> TG_HD void forward_kinematics(const S* q, SE3<S>* li
 
 // World placement of frame f.
 template <class M, class S> TG_HD SE3<S> frame_placement(int f, const SE3<S>* oMi) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   SE3<S> X;
   for (int k = 0; k < 9; ++k) X.R.m[k] = S(d.fR[f][k]);
   X.p = v3(S(d.fp[f][0]), S(d.fp[f][1]), S(d.fp[f][2]));
@@ -106,7 +106,7 @@ template <class M, class S> TG_HD SE3<S> frame_placement(int f, const SE3<S>* oM
 
 // Spatial velocity of every body in its joint frame (NB x 6): v_i = X_i v_parent + S_i qd_i.
 template <class M, class S> TG_HD void body_velocities(const S* q, const S* qd, S* out) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   Sv<S> v[M::NB];
   for (int i = 0; i < M::NB; ++i) {
     const Sv<S> vJ = joint_motion<M, S>(i, qd);
@@ -114,5 +114,21 @@ template <class M, class S> TG_HD void body_velocities(const S* q, const S* qd, 
     for (int k = 0; k < 6; ++k) out[6 * i + k] = v[i].v[k];
   }
 }
+
+// Joint placements liMi for a backward pass: kept on the host; rebuilt from q on a GPU thread,
+// where the stack they would take costs more than recomputing them.
+template <class M, class S> struct JointPlacements {
+#if defined(__CUDA_ARCH__)
+  const S* q;
+  TG_HD explicit JointPlacements(const S* q_) : q(q_) {}
+  TG_HD void keep(int, const SE3<S>&) {}
+  TG_HD SE3<S> operator[](int i) const { return joint_placement<M, S>(i, q); }
+#else
+  SE3<S> X[M::NB];
+  TG_HD explicit JointPlacements(const S*) {}
+  TG_HD void keep(int i, const SE3<S>& liMi) { X[i] = liMi; }
+  TG_HD const SE3<S>& operator[](int i) const { return X[i]; }
+#endif
+};
 
 }  // namespace tg

@@ -14,40 +14,43 @@ namespace tg {
 template <class M, class S> struct MinvWork {
   static constexpr int NV = M::NV;
   SE3<S> liMi[M::NB], oMi[M::NB];
-  M6<S> IA[M::NB];            // articulated inertias, joint frames
-  Sv<S> Sw[M::NB][6];         // joint axes, world frame
-  Sv<S> Uw[M::NB][6];         // U = IA S, world frame
-  S Dinv[M::NB][36];          // (S^T U)^-1, N x N
-  Sv<S> F[NV];                // F[col]: world force on the subtree owning col, per unit torque at col
-  Sv<S> A[M::NB][NV];         // A[i][col]: world acceleration of body i per unit torque at col
+  M6<S> IA[M::NB];  // articulated inertias, joint frames
+  // Per dof (joint i's k-th at vi + k): its axis and U = IA S in the world frame, and row k of
+  // (S^T U)^-1 (N x N): per dof rather than per body, so a free root's six do not size every body.
+  Sv<S> Sw[NV], Uw[NV];
+  S Dinv[NV][6];
+  Sv<S> F[NV];      // F[col]: world force on the subtree owning col, per unit torque at col
+  Sv<S> A[M::NB];   // world acceleration of each body per unit torque at the current column
 };
 
 // Backward step of body i: U, Dinv, the subtree block of rows i of Minv, and IA passed to the
 // parent. N == 6 is the free root: S = I, so D = IA.
 template <int N, class M, class S> TG_HD void minv_backward(int i, MinvWork<M, S>& w, S* Minv) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   constexpr int NV = M::NV;
   const int vi = d.vi[i], p = d.parent[i];
   Sv<S> U[N];
-  S D[N * N];
+  S D[N * N], Dinv[N * N];
   for (int k = 0; k < N; ++k) {
     const Sv<S> s = joint_axis<M, S>(i, k);
     U[k] = mul(w.IA[i], s);
-    w.Sw[i][k] = act_motion(w.oMi[i], s);
-    w.Uw[i][k] = act_force(w.oMi[i], U[k]);
+    w.Sw[vi + k] = act_motion(w.oMi[i], s);
+    w.Uw[vi + k] = act_force(w.oMi[i], U[k]);
   }
   for (int r = 0; r < N; ++r)
     for (int k = 0; k < N; ++k) D[N * r + k] = N == 6 ? w.IA[i].m[6 * r + k] : dot(joint_axis<M, S>(i, r), U[k]);
-  spd_inverse(N, D, w.Dinv[i]);
+  spd_inverse(N, D, Dinv);
+  for (int r = 0; r < N; ++r)
+    for (int k = 0; k < N; ++k) w.Dinv[vi + r][k] = Dinv[N * r + k];
   // T = Dinv (e_col - S^T F[:, col]) becomes rows i of Minv; F[:, col] += U T.
   for (int col = vi; col < d.vend[i]; ++col) {
     S rhs[N];
-    for (int r = 0; r < N; ++r) rhs[r] = (col == vi + r ? S(1) : S(0)) - dot(w.Sw[i][r], w.F[col]);
+    for (int r = 0; r < N; ++r) rhs[r] = (col == vi + r ? S(1) : S(0)) - dot(w.Sw[vi + r], w.F[col]);
     for (int r = 0; r < N; ++r) {
       S T = 0;
-      for (int k = 0; k < N; ++k) T += w.Dinv[i][N * r + k] * rhs[k];
+      for (int k = 0; k < N; ++k) T += Dinv[N * r + k] * rhs[k];
       Minv[NV * (vi + r) + col] = T;
-      if (p >= 0) w.F[col] = w.F[col] + T * w.Uw[i][r];  // a root passes nothing on
+      if (p >= 0) w.F[col] = w.F[col] + T * w.Uw[vi + r];  // a root passes nothing on
     }
   }
   if (p < 0) return;
@@ -55,7 +58,7 @@ template <int N, class M, class S> TG_HD void minv_backward(int i, MinvWork<M, S
   M6<S> Ia = w.IA[i];
   for (int k = 0; k < N; ++k) {
     Sv<S> UD = sv_zero<S>();
-    for (int l = 0; l < N; ++l) UD = UD + w.Dinv[i][N * l + k] * U[l];
+    for (int l = 0; l < N; ++l) UD = UD + Dinv[N * l + k] * U[l];
     for (int r = 0; r < 6; ++r)
       for (int c = 0; c < 6; ++c) Ia.m[6 * r + c] -= U[k].v[r] * UD.v[c];
   }
@@ -63,32 +66,30 @@ template <int N, class M, class S> TG_HD void minv_backward(int i, MinvWork<M, S
   for (int k = 0; k < 36; ++k) w.IA[p].m[k] += Ip.m[k];
 }
 
-// Forward step of body i on the upper triangle: Minv_i -= Dinv U^T A_parent, A_i = A_parent + S Minv_i.
-template <int N, class M, class S> TG_HD void minv_forward(int i, MinvWork<M, S>& w, S* Minv) {
-  const auto& d = M::data();
+// Forward step of body i for one column (col >= vi): Minv_i -= Dinv U^T A_parent, A_i = A_parent + S Minv_i.
+template <int N, class M, class S> TG_HD void minv_forward(int i, int col, MinvWork<M, S>& w, S* Minv) {
+  const auto& d = data<M, S>();
   constexpr int NV = M::NV;
   const int vi = d.vi[i], p = d.parent[i];
-  for (int col = vi; col < NV; ++col) {
-    S x[N];
-    for (int r = 0; r < N; ++r) x[r] = Minv[NV * (vi + r) + col];
-    Sv<S> a = sv_zero<S>();
-    if (p >= 0) {
-      a = w.A[p][col];
-      S UtA[N];
-      for (int k = 0; k < N; ++k) UtA[k] = dot(w.Uw[i][k], a);
-      for (int r = 0; r < N; ++r)
-        for (int k = 0; k < N; ++k) x[r] -= w.Dinv[i][N * r + k] * UtA[k];
-    }
-    for (int r = 0; r < N; ++r) {
-      Minv[NV * (vi + r) + col] = x[r];
-      a = a + x[r] * w.Sw[i][r];
-    }
-    w.A[i][col] = a;
+  S x[N];
+  for (int r = 0; r < N; ++r) x[r] = Minv[NV * (vi + r) + col];
+  Sv<S> a = sv_zero<S>();
+  if (p >= 0) {
+    a = w.A[p];
+    S UtA[N];
+    for (int k = 0; k < N; ++k) UtA[k] = dot(w.Uw[vi + k], a);
+    for (int r = 0; r < N; ++r)
+      for (int k = 0; k < N; ++k) x[r] -= w.Dinv[vi + r][k] * UtA[k];
   }
+  for (int r = 0; r < N; ++r) {
+    Minv[NV * (vi + r) + col] = x[r];
+    a = a + x[r] * w.Sw[vi + r];
+  }
+  w.A[i] = a;
 }
 
 template <class M, class S> TG_HD void minv(const S* q, S* Minv) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   MinvWork<M, S> w;
   for (int i = 0; i < M::NB; ++i) {
     w.liMi[i] = joint_placement<M, S>(i, q);
@@ -101,10 +102,12 @@ template <class M, class S> TG_HD void minv(const S* q, S* Minv) {
     if (d.nvj[i] == 6) minv_backward<6>(i, w, Minv);
     else minv_backward<1>(i, w, Minv);
   }
-  for (int i = 0; i < M::NB; ++i) {
-    if (d.nvj[i] == 6) minv_forward<6>(i, w, Minv);
-    else minv_forward<1>(i, w, Minv);
-  }
+  // Forward pass column by column on the upper triangle: body i takes part in the columns col >= vi.
+  for (int col = 0; col < M::NV; ++col)
+    for (int i = 0; i < M::NB && d.vi[i] <= col; ++i) {
+      if (d.nvj[i] == 6) minv_forward<6>(i, col, w, Minv);
+      else minv_forward<1>(i, col, w, Minv);
+    }
   // Mirror the upper triangle.
   for (int r = 0; r < M::NV; ++r)
     for (int c = 0; c < r; ++c) Minv[M::NV * r + c] = Minv[M::NV * c + r];

@@ -24,21 +24,38 @@ namespace tg {
     }             \
   };
 
-// X <- -A X for an NV x NV matrix A and an NV x COLS row-major X: rows of the product are sums of
-// rows of X, which keeps the inner loop contiguous (it vectorises).
+// X <- -A X for an NV x NV matrix A and an NV x COLS row-major X, in blocks of at most 16 columns
+// (the temporary stays small on a GPU thread): rows of each block of the product are sums of rows
+// of X, which keeps the inner loop contiguous (it vectorises).
 template <class M, class S, int COLS> TG_HD void negate_left_multiply(const S* A, S* X) {
-  constexpr int NV = M::NV;
-  S T[NV * COLS];
-  for (int r = 0; r < NV; ++r) {
-    S* t = T + COLS * r;
-    for (int c = 0; c < COLS; ++c) t[c] = S(0);
-    for (int k = 0; k < NV; ++k) {
-      const S a = A[NV * r + k];
-      const S* x = X + COLS * k;
-      for (int c = 0; c < COLS; ++c) t[c] -= a * x[c];
+  constexpr int NV = M::NV, W = COLS < 16 ? COLS : 16;
+  S T[NV * W];
+  for (int c0 = 0; c0 < COLS; c0 += W) {
+    const int w = COLS - c0 < W ? COLS - c0 : W;
+    for (int r = 0; r < NV; ++r) {
+      S* t = T + W * r;
+      for (int c = 0; c < w; ++c) t[c] = S(0);
+      for (int k = 0; k < NV; ++k) {
+        const S a = A[NV * r + k];
+        const S* x = X + COLS * k + c0;
+        for (int c = 0; c < w; ++c) t[c] -= a * x[c];
+      }
     }
+    for (int r = 0; r < NV; ++r)
+      for (int c = 0; c < w; ++c) X[COLS * r + c0 + c] = T[W * r + c];
   }
-  for (int k = 0; k < NV * COLS; ++k) X[k] = T[k];
+}
+
+// The base-linear columns of Pinocchio's M (NV x 3, row-major), all a MuJoCo twin's reframe reads
+// of M: M e_c = RNEA(q, 0, e_c) without gravity, three O(n) passes in little memory.
+template <class M, class S> TG_HD void mass_base_columns(const S* q, S* Mb) {
+  S zero[M::NV], e[M::NV], col[M::NV];
+  for (int k = 0; k < M::NV; ++k) zero[k] = S(0);
+  for (int c = 0; c < 3; ++c) {
+    for (int k = 0; k < M::NV; ++k) e[k] = S(k == c ? 1 : 0);
+    rnea<M, S, false>(q, zero, e, nullptr, col);
+    for (int r = 0; r < M::NV; ++r) Mb[3 * r + c] = col[r];
+  }
 }
 
 // qdd = M^-1 (tau - nle(q, qd, f_ext)) from a computed M^-1 (Pinocchio's convention).
@@ -151,9 +168,9 @@ TG_OP_BEGIN(InverseDynamicsGradient)
   cv.acceleration(qd, in[2], qdd);
   rnea_derivatives<M, S>(cv.q, qd, qdd, in[3], tau, out[0], out[1]);
   if constexpr (Conv<M, S, C>::active) {
-    S Mass[M::NV * M::NV];
-    crba<M, S>(cv.q, Mass);
-    cv.inverse_dynamics_gradient_out(qd, qdd, tau, Mass, out[0], out[1]);
+    S Mb[M::NV * 3];
+    mass_base_columns<M, S>(cv.q, Mb);
+    cv.inverse_dynamics_gradient_out(qd, qdd, tau, Mb, out[0], out[1]);
   }
 TG_OP_END
 
@@ -223,9 +240,9 @@ TG_OP_BEGIN(CoriolisMatrix)
   cv.velocity(in[1], qd);
   coriolis_matrix<M, S>(cv.q, qd, out[0]);
   if constexpr (Conv<M, S, C>::active) {
-    S Mass[M::NV * M::NV];
-    crba<M, S>(cv.q, Mass);
-    cv.coriolis_out(qd, Mass, out[0]);
+    S Mb[M::NV * 3];
+    mass_base_columns<M, S>(cv.q, Mb);
+    cv.coriolis_out(qd, Mb, out[0]);
   }
 TG_OP_END
 
@@ -289,9 +306,9 @@ TG_OP_BEGIN(ForwardDynamicsGradient)
   forward_dynamics_from_minv<M, S>(cv.q, qd, u, in[3], out[2], qdd);
   rnea_derivatives<M, S>(cv.q, qd, qdd, in[3], tau, out[0], out[1]);
   if constexpr (Conv<M, S, C>::active) {
-    S Mass[M::NV * M::NV];
-    crba<M, S>(cv.q, Mass);
-    cv.inverse_dynamics_gradient_out(qd, qdd, tau, Mass, out[0], out[1]);
+    S Mb[M::NV * 3];
+    mass_base_columns<M, S>(cv.q, Mb);
+    cv.inverse_dynamics_gradient_out(qd, qdd, tau, Mb, out[0], out[1]);
     cv.congruence_out(out[2]);
   }
   negate_left_multiply<M, S, M::NV>(out[2], out[0]);

@@ -31,7 +31,7 @@ template <class S> TG_HD void body_force_regressor(const Sv<S>& v, const Sv<S>& 
 
 // Y (NV x 10 NB): column block i holds body i's regressor, carried to each joint above it.
 template <class M, class S> TG_HD void inverse_dynamics_regressor(const S* q, const S* qd, const S* qdd, S* Y) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   constexpr int NP = 10 * M::NB;
   SE3<S> liMi[M::NB];
   Sv<S> v[M::NB], a[M::NB];
@@ -77,7 +77,7 @@ template <class M, class S> TG_HD void kinetic_energy_regressor(const S* q, cons
 
 // Potential energy PE = Yp . pi (10 NB): PE_i = -g . (m p_i + R_i h), p_i, R_i the joint frame's placement.
 template <class M, class S> TG_HD void potential_energy_regressor(const S* q, S* Yp) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   SE3<S> liMi[M::NB], oMi[M::NB];
   forward_kinematics<M, S>(q, liMi, oMi);
   const Vec3<S> g = v3(S(d.gravity[0]), S(d.gravity[1]), S(d.gravity[2]));

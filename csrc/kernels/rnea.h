@@ -10,20 +10,23 @@ namespace tg {
 // Gravity = false with qd = 0 gives M qdd.
 template <class M, class S, bool Gravity = true>
 TG_HD void rnea(const S* q, const S* qd, const S* qdd, const S* fext, S* tau) {
-  const auto& d = M::data();
-  SE3<S> liMi[M::NB];
-  Sv<S> v[M::NB], a[M::NB], f[M::NB];
+  const auto& d = data<M, S>();
+  JointPlacements<M, S> liMi(q);
+  // Velocities and accelerations by tree level: in depth-first order a body's ancestors hold the
+  // levels above its own, so ND slots serve every body (a small GPU stack).
+  Sv<S> v[M::ND], a[M::ND], f[M::NB];
   // Forward pass: body velocities, accelerations and the forces that produce them.
   for (int i = 0; i < M::NB; ++i) {
-    const int p = d.parent[i];
-    liMi[i] = joint_placement<M, S>(i, q);
+    const int p = d.parent[i], k = d.depth[i];
+    const SE3<S> X = joint_placement<M, S>(i, q);
+    liMi.keep(i, X);
     const Sv<S> vJ = joint_motion<M, S>(i, qd);
     const Sv<S> aJ = joint_motion<M, S>(i, qdd);
-    const Sv<S> a_parent = p < 0 ? (Gravity ? base_acceleration<M, S>() : sv_zero<S>()) : a[p];
-    v[i] = p < 0 ? vJ : actinv_motion(liMi[i], v[p]) + vJ;
-    a[i] = actinv_motion(liMi[i], a_parent) + aJ + cross_motion(v[i], vJ);
+    const Sv<S> a_parent = p < 0 ? (Gravity ? base_acceleration<M, S>() : sv_zero<S>()) : a[k - 1];
+    v[k] = p < 0 ? vJ : actinv_motion(X, v[k - 1]) + vJ;
+    a[k] = actinv_motion(X, a_parent) + aJ + cross_motion(v[k], vJ);
     const Inertia<S> I = body_inertia<M, S>(i);
-    f[i] = mul(I, a[i]) + cross_force(v[i], mul(I, v[i]));
+    f[i] = mul(I, a[k]) + cross_force(v[k], mul(I, v[k]));
     if (fext) f[i] = f[i] - Sv<S>{{fext[6 * i], fext[6 * i + 1], fext[6 * i + 2], fext[6 * i + 3], fext[6 * i + 4], fext[6 * i + 5]}};
   }
   // Backward pass: project each body's force on its joint, pass it to the parent.

@@ -20,11 +20,10 @@ namespace tg {
 
 template <class M, class S> struct RneaDerivativesWork {
   SE3<S> oMi[M::NB];
-  Sv<S> Sw[M::NB][6];                    // joint axes, world frame
   Sv<S> v[M::NB], a[M::NB], F[M::NB];    // world velocity, acceleration (gravity included), subtree force
   Inertia<S> Yc[M::NB];                  // subtree inertia, world frame
   M6<S> B[M::NB];                        // subtree sum of dI + [. x* h]
-  Sv<S> s[M::NV], w[M::NV], u[M::NV], alpha[M::NV], sdot[M::NV];  // per column, see above
+  Sv<S> s[M::NV], w[M::NV], u[M::NV], alpha[M::NV], sdot[M::NV];  // per column (s: its world axis), see above
 };
 
 // The 6x6 matrix of x -> dI x + x x* h with dI = v x* I - I v x and h = I v: the rate of change of
@@ -47,7 +46,7 @@ template <class S> TG_HD M6<S> momentum_rate_matrix(const Inertia<S>& I, const S
 // terms), then the subtree sums Yc, B, F.
 template <class M, class S>
 TG_HD void rnea_derivatives_setup(const S* q, const S* qd, const S* qdd, const S* fext, RneaDerivativesWork<M, S>& W) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   for (int i = 0; i < M::NB; ++i) {
     const int p = d.parent[i], n = d.nvj[i], vi = d.vi[i];
     const SE3<S> liMi = joint_placement<M, S>(i, q);
@@ -56,14 +55,14 @@ TG_HD void rnea_derivatives_setup(const S* q, const S* qd, const S* qdd, const S
     const Sv<S> ap = p < 0 ? base_acceleration<M, S>() : W.a[p];
     W.v[i] = vp;
     for (int k = 0; k < n; ++k) {
-      W.Sw[i][k] = W.s[vi + k] = act_motion(W.oMi[i], joint_axis<M, S>(i, k));
-      W.v[i] = W.v[i] + qd[vi + k] * W.Sw[i][k];
+      W.s[vi + k] = act_motion(W.oMi[i], joint_axis<M, S>(i, k));
+      W.v[i] = W.v[i] + qd[vi + k] * W.s[vi + k];
     }
     W.a[i] = ap;
     for (int k = 0; k < n; ++k)
-      W.a[i] = W.a[i] + qdd[vi + k] * W.Sw[i][k] + qd[vi + k] * cross_motion(W.v[i], W.Sw[i][k]);
+      W.a[i] = W.a[i] + qdd[vi + k] * W.s[vi + k] + qd[vi + k] * cross_motion(W.v[i], W.s[vi + k]);
     for (int k = 0; k < n; ++k) {
-      const Sv<S>& s = W.Sw[i][k];
+      const Sv<S>& s = W.s[vi + k];
       W.w[vi + k] = cross_motion(vp, s);
       W.u[vi + k] = cross_motion(ap, s) + cross_motion(vp, W.w[vi + k]);
       W.alpha[vi + k] = cross_motion(vp + W.v[i], s);
@@ -93,14 +92,14 @@ TG_HD void rnea_derivatives_setup(const S* q, const S* qd, const S* qdd, const S
 // Entries of unrelated branches are zero.
 template <class M, class S>
 TG_HD void ancestor_pairs(const RneaDerivativesWork<M, S>& W, const Sv<S>* X, const Sv<S>* Y, bool force_term, S* out) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   constexpr int NV = M::NV;
   for (int k = 0; k < NV * NV; ++k) out[k] = S(0);
   for (int i = 0; i < M::NB; ++i) {
     // Rows of joint i, columns of its ancestors and itself.
     for (int l = 0; l < d.nvj[i]; ++l) {
       const int row = d.vi[i] + l;
-      const Sv<S> P = mul(W.Yc[i], W.Sw[i][l]), Q = mul_transpose(W.B[i], W.Sw[i][l]);
+      const Sv<S> P = mul(W.Yc[i], W.s[d.vi[i] + l]), Q = mul_transpose(W.B[i], W.s[d.vi[i] + l]);
       for (int j = i; j >= 0; j = d.parent[j])
         for (int c = 0; c < d.nvj[j]; ++c) {
           const int col = d.vi[j] + c;
@@ -113,7 +112,7 @@ TG_HD void ancestor_pairs(const RneaDerivativesWork<M, S>& W, const Sv<S>* X, co
       Sv<S> dF = mul(W.Yc[i], X[col]) + mul(W.B[i], Y[col]);
       if (force_term) dF = dF + cross_force(W.s[col], W.F[i]);
       for (int m = d.parent[i]; m >= 0; m = d.parent[m])
-        for (int l = 0; l < d.nvj[m]; ++l) out[NV * (d.vi[m] + l) + col] = dot(W.Sw[m][l], dF);
+        for (int l = 0; l < d.nvj[m]; ++l) out[NV * (d.vi[m] + l) + col] = dot(W.s[d.vi[m] + l], dF);
     }
   }
 }
@@ -122,11 +121,11 @@ TG_HD void ancestor_pairs(const RneaDerivativesWork<M, S>& W, const Sv<S>* X, co
 // may be null. q, qd, qdd in Pinocchio's convention.
 template <class M, class S>
 TG_HD void rnea_derivatives(const S* q, const S* qd, const S* qdd, const S* fext, S* tau, S* dtau_dq, S* dtau_dqd) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   RneaDerivativesWork<M, S> W;
   rnea_derivatives_setup<M, S>(q, qd, qdd, fext, W);
   for (int i = 0; i < M::NB; ++i)
-    for (int l = 0; l < d.nvj[i]; ++l) tau[d.vi[i] + l] = dot(W.Sw[i][l], W.F[i]);
+    for (int l = 0; l < d.nvj[i]; ++l) tau[d.vi[i] + l] = dot(W.s[d.vi[i] + l], W.F[i]);
   ancestor_pairs<M, S>(W, W.u, W.w, true, dtau_dq);
   ancestor_pairs<M, S>(W, W.alpha, W.s, false, dtau_dqd);
 }
@@ -138,7 +137,7 @@ TG_HD void rnea_derivatives(const S* q, const S* qd, const S* qdd, const S* fext
 // and alike for qd with alpha and s. tau is written too.
 template <class M, class S>
 TG_HD void rnea_vjp(const S* q, const S* qd, const S* qdd, const S* fext, const S* lambda, S* tau, S* g_q, S* g_qd) {
-  const auto& d = M::data();
+  const auto& d = data<M, S>();
   RneaDerivativesWork<M, S> W;
   rnea_derivatives_setup<M, S>(q, qd, qdd, fext, W);
   Sv<S> P[M::NB], Q[M::NB], L[M::NB];
@@ -146,9 +145,9 @@ TG_HD void rnea_vjp(const S* q, const S* qd, const S* qdd, const S* fext, const 
     P[i] = Q[i] = sv_zero<S>();
     for (int l = 0; l < d.nvj[i]; ++l) {
       const S lam = lambda[d.vi[i] + l];
-      tau[d.vi[i] + l] = dot(W.Sw[i][l], W.F[i]);
-      P[i] = P[i] + lam * mul(W.Yc[i], W.Sw[i][l]);
-      Q[i] = Q[i] + lam * mul_transpose(W.B[i], W.Sw[i][l]);
+      tau[d.vi[i] + l] = dot(W.s[d.vi[i] + l], W.F[i]);
+      P[i] = P[i] + lam * mul(W.Yc[i], W.s[d.vi[i] + l]);
+      Q[i] = Q[i] + lam * mul_transpose(W.B[i], W.s[d.vi[i] + l]);
     }
   }
   for (int i = M::NB - 1; i >= 0; --i)
@@ -161,7 +160,7 @@ TG_HD void rnea_vjp(const S* q, const S* qd, const S* qdd, const S* fext, const 
     L[i] = sv_zero<S>();
     if (p >= 0) {
       L[i] = L[p];
-      for (int l = 0; l < d.nvj[p]; ++l) L[i] = L[i] + lambda[d.vi[p] + l] * W.Sw[p][l];
+      for (int l = 0; l < d.nvj[p]; ++l) L[i] = L[i] + lambda[d.vi[p] + l] * W.s[d.vi[p] + l];
     }
     for (int c = 0; c < d.nvj[i]; ++c) {
       const int col = d.vi[i] + c;

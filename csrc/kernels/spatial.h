@@ -22,6 +22,13 @@ using std::sqrt;
 
 enum Convention : int { PIN = 0, MJX = 1 };
 
+// The plain floating-point type under a scalar (forward_mode.h specialises it for dual numbers).
+template <class S> struct BaseScalar { using type = S; };
+
+// The robot's constants (generated robot.h) in the kernel's own precision: float kernels read float
+// constants rather than converting a double at each use.
+template <class M, class S> TG_HD const auto& data() { return M::template data<typename BaseScalar<S>::type>(); }
+
 template <class S> struct Vec3 { S x[3]; };
 template <class S> struct Mat3 { S m[9]; };  // row-major
 template <class S> struct SE3 { Mat3<S> R; Vec3<S> p; };
@@ -66,9 +73,12 @@ template <class S> TG_HD Mat3<S> axis_rotation(Vec3<S> a, S t) {
            k * x * z - s * y, k * y * z + s * x, c + k * z * z}};
 }
 
-// Rotation of the quaternion (x, y, z, w), normalised first so any non-zero quaternion is valid.
+// Rotation of the quaternion (x, y, z, w), normalised first so any non-zero quaternion is valid. A
+// quaternion of zero or non-finite norm is the identity, as in MuJoCo's mj_normalizeQuat.
 template <class S> TG_HD Mat3<S> quat_rotation(S x, S y, S z, S w) {
-  const S n = S(1) / sqrt(x * x + y * y + z * z + w * w);
+  const S n2 = x * x + y * y + z * z + w * w;
+  if (!(n2 > S(0) && n2 < S(INFINITY))) return identity3<S>();
+  const S n = S(1) / sqrt(n2);
   x *= n; y *= n; z *= n; w *= n;
   return {{S(1) - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
            2 * (x * y + z * w), S(1) - 2 * (x * x + z * z), 2 * (y * z - x * w),
@@ -78,6 +88,14 @@ template <class S> TG_HD Mat3<S> quat_rotation(S x, S y, S z, S w) {
 // -- placements --------------------------------------------------------------------------
 template <class S> TG_HD SE3<S> operator*(const SE3<S>& A, const SE3<S>& B) { return {mul(A.R, B.R), mul(A.R, B.p) + A.p}; }
 template <class S> TG_HD Vec3<S> act_point(const SE3<S>& X, Vec3<S> x) { return mul(X.R, x) + X.p; }
+// A^-1 B: the placement of B's frame in A's, e.g. liMi from oMi[parent] and oMi[i].
+template <class S> TG_HD SE3<S> inverse_times(const SE3<S>& A, const SE3<S>& B) {
+  SE3<S> X;
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) X.R.m[3 * i + j] = A.R.m[i] * B.R.m[j] + A.R.m[3 + i] * B.R.m[3 + j] + A.R.m[6 + i] * B.R.m[6 + j];
+  X.p = mulT(A.R, B.p - A.p);
+  return X;
+}
 
 // -- spatial vectors ---------------------------------------------------------------------
 template <class S> TG_HD Vec3<S> lin(const Sv<S>& a) { return v3(a.v[0], a.v[1], a.v[2]); }

@@ -1,0 +1,131 @@
+"""Per-thread resources of a robot's CUDA kernels, measured by the compiler (no GPU needed).
+
+    python -m torch_grid.cuda_report SOURCE [--floating-base] [--dtype float64] [--arch sm_90] [--budget BYTES]
+
+compiles every CUDA kernel of the robot (both conventions) with nvcc for `--arch` and prints one
+line per kernel: op, dtype, convention, registers, local memory (stack frame) bytes, spill bytes;
+then `max stack: N bytes (kernel)`. It exits with status 1 when a kernel's stack exceeds the budget.
+A GPU reserves that stack for every resident thread (2048 per SM), so it bounds what a launch costs.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import subprocess
+import sys
+import tempfile
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+from . import codegen
+from .build import CSRC, _nvcc_flags, op_namespace
+from .model import RobotModel
+from .ops import OPS
+
+DEFAULT_BUDGET = 64 * 1024  # bytes of stack per thread
+_DTYPES = {"float32": "f32", "float64": "f64"}
+
+
+@dataclass(frozen=True)
+class KernelUsage:
+    op: str
+    dtype: str  # "float32" or "float64"
+    convention: str  # "pin" or "mujoco"
+    registers: int
+    stack: int  # bytes of local memory per thread
+    spill_stores: int
+    spill_loads: int
+
+    def line(self) -> str:
+        return (f"{self.op:48s} {self.dtype:8s} {self.convention:7s} registers {self.registers:4d}  stack {self.stack:7d} B  "
+                f"spill {self.spill_stores}/{self.spill_loads} B")
+
+
+def report(model: RobotModel, dtypes: tuple[str, ...] = ("float64",), arch: str = "sm_90",
+           nvcc: str | None = None) -> list[KernelUsage]:
+    """Compile the robot's CUDA kernels of the given dtypes with ptxas verbose output and return the
+    resources of each (op, dtype, convention)."""
+    nvcc = nvcc or _find_nvcc()
+    namespace = op_namespace(model, True)
+    with tempfile.TemporaryDirectory(prefix="torch_grid_cuda_report_") as tmp:
+        src = Path(tmp)
+        units = [u for u in codegen.write_robot_sources(model, True, True, namespace, src)
+                 if u.suffix == ".cu" and any(u.stem.endswith("_" + _DTYPES[d]) for d in dtypes)]
+        flags = [f for f in _nvcc_flags() if not f.startswith("-arch")] + [f"-arch={arch}", "-Xptxas", "-v"]
+
+        def compile_unit(unit: Path) -> str:
+            cmd = [nvcc, *flags, f"-I{CSRC}", f"-I{src}", "-c", str(unit), "-o", str(unit.with_suffix(".o"))]
+            result = subprocess.run(cmd, capture_output=True, text=True)
+            if result.returncode:
+                raise RuntimeError(f"nvcc failed on {unit.name}:\n{result.stderr[-4000:]}")
+            return result.stderr
+
+        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+            logs = list(pool.map(compile_unit, units))
+    return sorted(_parse("\n".join(logs)), key=lambda k: (k.op, k.dtype, k.convention))
+
+
+_KERNELS = {op.kernel: op.name for op in OPS.values()}
+
+
+def _parse(log: str) -> list[KernelUsage]:
+    """Read ptxas's 'Function properties' and 'Used N registers' lines of each batch_kernel."""
+    mangled = re.findall(r"Function properties for (_Z\w*batch_kernel\w*)\n\s*(\d+) bytes stack frame, (\d+) bytes spill "
+                         r"stores, (\d+) bytes spill loads\n.*?Used (\d+) registers", log)
+    names = _demangle([m[0] for m in mangled])
+    usages = []
+    for (_, stack, stores, loads, regs), name in zip(mangled, names):
+        found = re.search(r"batch_kernel<tg::(\w+), [\w:]+, (float|double), (\d)>", name)
+        if not found:
+            raise RuntimeError(f"cannot read the kernel name {name!r}")
+        kernel, scalar, conv = found.groups()
+        usages.append(KernelUsage(_KERNELS[kernel], "float64" if scalar == "double" else "float32",
+                                  "mujoco" if conv == "1" else "pin", int(regs), int(stack), int(stores), int(loads)))
+    return usages
+
+
+def _demangle(names: list[str]) -> list[str]:
+    if not names:
+        return []
+    out = subprocess.run(["c++filt"], input="\n".join(names), capture_output=True, text=True, check=True).stdout
+    return out.splitlines()
+
+
+def _find_nvcc() -> str:
+    from shutil import which
+
+    for candidate in (os.environ.get("CUDA_HOME") and str(Path(os.environ["CUDA_HOME"]) / "bin" / "nvcc"), which("nvcc"),
+                      "/usr/local/cuda/bin/nvcc"):
+        if candidate and Path(candidate).exists():
+            return candidate
+    raise RuntimeError("nvcc not found: install the CUDA toolkit or set CUDA_HOME")
+
+
+def main(argv: list[str] | None = None) -> int:
+    from .parse import source_to_model
+
+    parser = argparse.ArgumentParser(prog="python -m torch_grid.cuda_report", description=__doc__.splitlines()[0])
+    parser.add_argument("source", help="a bundled robot name, URDF or MJCF path, or saved model (.json)")
+    parser.add_argument("--floating-base", action="store_true", help="add a free-flyer root")
+    parser.add_argument("--dtype", choices=[*_DTYPES, "both"], default="float64")
+    parser.add_argument("--arch", default="sm_90")
+    parser.add_argument("--budget", type=int, default=DEFAULT_BUDGET, help="bytes of stack per thread (default 64 KiB)")
+    args = parser.parse_args(argv)
+    model = source_to_model(args.source, True if args.floating_base else None)
+    dtypes = tuple(_DTYPES) if args.dtype == "both" else (args.dtype,)
+    usages = report(model, dtypes, args.arch)
+    for usage in usages:
+        print(usage.line())
+    worst = max(usages, key=lambda u: u.stack)
+    print(f"max stack: {worst.stack} bytes ({worst.op}, {worst.dtype}, {worst.convention})")
+    over = [u for u in usages if u.stack > args.budget]
+    if over:
+        print(f"{len(over)} kernels exceed the budget of {args.budget} bytes", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
