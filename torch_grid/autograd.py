@@ -15,7 +15,7 @@ from typing import Callable
 
 import torch
 
-from .conventions import base_rotation
+from .conventions import base_rotation, unit_quaternion
 from .model import RobotModel
 from .ops import FORWARD_MODE_BACKWARD, OPS, OpSpec
 
@@ -239,8 +239,10 @@ def _tangent_to_ambient(model: RobotModel, q: torch.Tensor, g: torch.Tensor, con
         w, xyz = q[..., 3:4], q[..., 4:7]
     else:
         xyz, w = q[..., 3:6], q[..., 6:7]
-    norm = torch.cat([xyz, w], dim=-1).norm(dim=-1, keepdim=True)
-    xyz_n, w_n = xyz / norm, w / norm
+    # A zero or non-finite quaternion reads as the identity (the kernels do the same): its gradient is
+    # the one at the identity, so that an optimiser started there moves off it.
+    unit, norm = unit_quaternion(torch.cat([xyz, w], dim=-1))
+    xyz_n, w_n = unit[..., :3], unit[..., 3:]
     g_lin, g_ang = g[..., :3], g[..., 3:6]
     g_pos = g_lin if convention else (base_rotation(q) @ g_lin.unsqueeze(-1)).squeeze(-1)
     g_xyz = 2 / norm * (w_n * g_ang + torch.cross(xyz_n, g_ang, dim=-1))

@@ -16,7 +16,7 @@ from __future__ import annotations
 import torch
 
 __all__ = [
-    "base_rotation", "q_mjx_to_pin", "q_pin_to_mjx", "v_mjx_to_pin", "v_pin_to_mjx", "a_mjx_to_pin",
+    "unit_quaternion", "base_rotation", "q_mjx_to_pin", "q_pin_to_mjx", "v_mjx_to_pin", "v_pin_to_mjx", "a_mjx_to_pin",
     "a_pin_to_mjx", "covector_mjx_to_pin", "covector_pin_to_mjx", "congruence_pin_to_mjx", "columns_pin_to_mjx",
 ]
 
@@ -24,10 +24,20 @@ _WXYZ_TO_XYZW = [0, 1, 2, 4, 5, 6, 3]
 _XYZW_TO_WXYZ = [0, 1, 2, 6, 3, 4, 5]
 
 
+def unit_quaternion(quat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(quat / |quat|, |quat|) for (..., 4) xyzw quaternions, each (..., 4) and (..., 1). A quaternion
+    of zero or non-finite norm reads as the identity of norm 1, as MuJoCo's mj_normalizeQuat does."""
+    norm = quat.norm(dim=-1, keepdim=True)
+    valid = (norm > 0) & torch.isfinite(norm)
+    identity = torch.zeros_like(quat)
+    identity[..., 3] = 1
+    return torch.where(valid, quat / torch.where(valid, norm, 1), identity), torch.where(valid, norm, 1)
+
+
 def base_rotation(q_pin: torch.Tensor) -> torch.Tensor:
-    """(..., 3, 3) rotation of the normalised base quaternion q_pin[..., 3:7] (xyzw)."""
-    quat = q_pin[..., 3:7]
-    x, y, z, w = (quat / quat.norm(dim=-1, keepdim=True)).unbind(-1)
+    """(..., 3, 3) rotation of the normalised base quaternion q_pin[..., 3:7] (xyzw); the identity for
+    a quaternion of zero or non-finite norm."""
+    x, y, z, w = unit_quaternion(q_pin[..., 3:7])[0].unbind(-1)
     rows = [
         1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
         2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),

@@ -2,18 +2,21 @@
 from __future__ import annotations
 
 import difflib
+import json
 import math
 import numbers
 from pathlib import Path
 from typing import Sequence
 
 import torch
+from torch.autograd import forward_ad
 
 from .autograd import rpy_rate_matrix
 from .codegen import inertia_about_origin
 from .model import RobotModel
 from .ops import OPS
 
+_FLOATS = (torch.float32, torch.float64)
 CONVENTIONS = {"pin": 0, "pinocchio": 0, "mujoco": 1, "mjx": 1}
 REFERENCES = {"world": 0, "local": 1, "local_world_aligned": 2}
 
@@ -141,8 +144,16 @@ class _Functions:
 
     def osc_inertia(self, q, frame: str | int, reference: str = "local_world_aligned") -> torch.Tensor:
         """Operational-space inertia Lambda = (J M^-1 J^T)^-1 (..., 6, 6) of a frame, J its Jacobian in
-        `reference` (as frame_jacobian). The frame needs full 6-dof mobility, else Lambda does not exist."""
-        return self._call("osc_inertia", q, self._robot.frame_index(frame, "frame"), _reference(reference))
+        `reference` (as frame_jacobian). Lambda exists only where J has full rank 6: a frame moved by
+        fewer than 6 dofs raises ValueError; at a singular configuration of a frame that has 6 or more,
+        the entries are inf or NaN, as the inverse of a singular matrix."""
+        robot = self._robot
+        index = robot.frame_index(frame, "frame")
+        dofs = robot._frame_dofs(index)
+        if dofs < 6:
+            raise ValueError(f"osc_inertia: frame {robot.frame_names[index]!r} is moved by {dofs} dofs; its operational-"
+                             "space inertia exists only for a frame with full 6-dof mobility")
+        return self._call("osc_inertia", q, index, _reference(reference))
 
     def cmm_time_variation(self, q, qd) -> torch.Tensor:
         """Time derivative dA/dt (..., 6, nv) of the centroidal momentum matrix (Pinocchio's
@@ -223,21 +234,34 @@ class _Functions:
         return torch.cat(cols, dim=-1).to(dtype=dtype, device=device)
 
     def _call(self, name: str, *args):
-        spec = OPS[name]
         robot = self._robot
-        sizes = {"nq": robot.nq, "nv": robot.nv, "nbodies": robot.nbodies, "nframes": robot.nframes}
-        tensors = [(a, x) for a, x in zip(spec.args, args) if a.is_tensor and x is not None]
+        tensor_args = robot._tensor_args[name]
         q = args[0]
-        for a, x in tensors:
-            trailing = tuple(sizes.get(d, d) for d in a.trailing)
-            _check_tensor(name, a.name, x, trailing, q)
-        batch = _broadcast_batch(name, tensors) if len(tensors) > 1 else None
-        call_args = []
-        for a, x in zip(spec.args, args):
-            if batch is not None and a.is_tensor and x is not None:
-                x = x.expand(*batch, *x.shape[x.dim() - len(a.trailing):])
-            call_args.append(x)
-        return getattr(robot._ops, name)(*call_args, self._convention)
+        # The common case in as few tests as possible: every tensor of q's dtype, device kind and batch
+        # shape. Anything else takes the detailed checks (they word the errors) and broadcasting.
+        fast = type(q) is torch.Tensor and q.dim() >= 1 and q.dtype in _FLOATS
+        if fast:
+            batch, dtype, cuda = q.shape[:-1], q.dtype, q.is_cuda
+            for k, trailing in tensor_args:
+                x = args[k]
+                if x is not None and not (type(x) is torch.Tensor and x.dtype is dtype and x.is_cuda is cuda
+                                          and x.shape == batch + trailing):
+                    fast = False
+                    break
+        if not fast:
+            args = _checked(name, tensor_args, args)
+        tensors = [args[k] for k, _ in tensor_args if args[k] is not None]
+        op = getattr(robot._ops, name)
+        if torch.compiler.is_compiling():
+            return op(*args, self._convention)
+        stack = torch._C._functorch.get_interpreter_stack()
+        if stack or forward_ad._current_level >= 0:
+            _refuse_forward_ad(name, tensors, stack)
+        # Without a gradient to record, skip the (Python) autograd kernel: most of a small call's cost.
+        if stack or (torch.is_grad_enabled() and any(x.requires_grad for x in tensors)):
+            return op(*args, self._convention)
+        with torch._C._AutoDispatchBelowAutograd():
+            return op(*args, self._convention)
 
 
 class _View(_Functions):
@@ -261,8 +285,14 @@ class Robot(_Functions):
     def __init__(self, model: RobotModel, namespace: str, convention: str = "pin", mujoco_kernels: bool = True):
         self.model = model
         self._ops = getattr(torch.ops, namespace)
+        self._enable_mujoco_kernels = mujoco_kernels
         self._mujoco_kernels = mujoco_kernels or not model.floating_base
         self._frame_index = {f.name: i for i, f in enumerate(model.frames)}
+        sizes = {"nq": model.nq, "nv": model.nv, "nbodies": model.nbodies, "nframes": len(model.frames),
+                 "nparams": 10 * model.nbodies}
+        # op -> (position, trailing shape) of each tensor argument, for the checks of every call
+        self._tensor_args = {name: [(k, torch.Size(sizes.get(d, d) for d in a.trailing))
+                                    for k, a in enumerate(spec.args) if a.is_tensor] for name, spec in OPS.items()}
         self._robot = self
         self.convention = convention
 
@@ -308,9 +338,22 @@ class Robot(_Functions):
             raise ValueError(f"{argument}: {self.name!r} has no frame named {frame!r}{hint}")
         return self._frame_index[frame]
 
+    def _frame_dofs(self, index: int) -> int:
+        """Number of dofs on the chain from frame `index` to the root: those that move it."""
+        joints, body, dofs = self.model.joints, self.model.frames[index].parent, 0
+        while body >= 0:
+            dofs += joints[body].nv
+            body = joints[body].parent
+        return dofs
+
     def save(self, path: str | Path) -> None:
         """Write the model description (JSON); `torch_grid.load(path)` rebuilds it, without Pinocchio."""
         self.model.save(path)
+
+    def __reduce__(self):
+        """Pickles as its model and options (pickle, copy.deepcopy, torch.save, spawned workers): the
+        receiving process loads it again, from its kernel cache or by building it."""
+        return _restore, (self.model.to_json(), self.convention, self._enable_mujoco_kernels)
 
     def _convention_code(self, value: str) -> int:
         if not isinstance(value, str) or value.lower() not in CONVENTIONS:
@@ -323,6 +366,13 @@ class Robot(_Functions):
     def __repr__(self) -> str:
         base = "floating" if self.floating_base else "fixed"
         return f"<Robot {self.name!r}: {base} base, nq={self.nq}, nv={self.nv}, {self.convention} convention>"
+
+
+def _restore(model_json: str, convention: str, enable_mujoco_kernels: bool) -> "Robot":
+    from . import load
+
+    return load(RobotModel.from_dict(json.loads(model_json)), convention=convention,
+                enable_mujoco_kernels=enable_mujoco_kernels)
 
 
 def _check_tensor(op: str, name: str, x, trailing: tuple[int, ...], q) -> None:
@@ -339,6 +389,17 @@ def _check_tensor(op: str, name: str, x, trailing: tuple[int, ...], q) -> None:
         raise ValueError(f"{op}: {name} must have shape ({want}), got {tuple(x.shape)}")
 
 
+def _refuse_forward_ad(op: str, tensors: list[torch.Tensor], stack) -> None:
+    """Forward-mode AD (torch.func.jvp / jacfwd, torch.autograd.forward_ad) has no formula yet: without
+    this check it would silently return zero tangents."""
+    jvp = bool(stack) and any(i.key() == torch._C._functorch.TransformType.Jvp for i in stack)
+    if not jvp and forward_ad._current_level >= 0:
+        jvp = any(forward_ad.unpack_dual(x).tangent is not None for x in tensors)
+    if jvp:
+        raise NotImplementedError(f"torch_grid: {op} has no forward-mode derivative yet (torch.func.jvp, jacfwd, "
+                                  "torch.autograd.forward_ad); use reverse mode (backward, torch.autograd.grad)")
+
+
 def _reference(reference) -> int:
     ref = REFERENCES.get(reference.lower()) if isinstance(reference, str) else None
     if ref is None:
@@ -346,10 +407,26 @@ def _reference(reference) -> int:
     return ref
 
 
-def _broadcast_batch(op: str, tensors) -> torch.Size:
-    shapes = {a.name: tuple(x.shape[: x.dim() - len(a.trailing)]) for a, x in tensors}
-    try:
-        return torch.broadcast_shapes(*shapes.values())
-    except RuntimeError:
-        listed = ", ".join(f"{name} {shape}" for name, shape in shapes.items())
-        raise ValueError(f"{op}: the leading batch shapes do not broadcast: {listed}") from None
+def _checked(op: str, tensor_args, args) -> list:
+    """The arguments checked (each error names the argument, what was expected and what was received),
+    with every tensor expanded to the broadcast of their leading batch shapes."""
+    names = [a.name for a in OPS[op].args]
+    q = args[0]
+    for k, trailing in tensor_args:
+        if args[k] is not None:
+            _check_tensor(op, names[k], args[k], tuple(trailing), q)
+    shapes = {k: tuple(args[k].shape[: args[k].dim() - len(trailing)]) for k, trailing in tensor_args
+              if args[k] is not None}
+    # torch's broadcasting rule on the batch shapes (torch.broadcast_shapes costs tens of µs)
+    batch = [1] * max(len(s) for s in shapes.values())
+    for shape in shapes.values():
+        for axis, size in enumerate(shape, len(batch) - len(shape)):
+            if size != batch[axis] and size != 1 and batch[axis] != 1:
+                listed = ", ".join(f"{names[k]} {s}" for k, s in shapes.items())
+                raise ValueError(f"{op}: the leading batch shapes do not broadcast: {listed}")
+            batch[axis] = size if size != 1 else batch[axis]
+    args = list(args)
+    for k, trailing in tensor_args:
+        if args[k] is not None:
+            args[k] = args[k].expand(*batch, *trailing)
+    return args

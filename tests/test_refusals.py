@@ -1,0 +1,80 @@
+"""No silently wrong result: forward-mode AD refuses with the op's name, and a free-flyer quaternion
+of zero or non-finite norm reads as the identity (MuJoCo's mj_normalizeQuat) in every function and
+gradient, in both conventions."""
+from __future__ import annotations
+
+import pytest
+import torch
+from torch.autograd import forward_ad
+
+from test_autograd import FUNCTIONS, _states
+
+
+def _flat(out) -> torch.Tensor:
+    return torch.cat([x.flatten(1) for x in (out if isinstance(out, tuple) else (out,))], 1)
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+@pytest.mark.parametrize("bad", [0.0, float("nan"), float("inf")])
+def test_degenerate_quaternion_reads_as_identity(robots, convention, bad):
+    robot = robots["go2"]
+    view = getattr(robot, convention)
+    q, qd, x, f = _states(robot, 3, 4, convention)
+    w = 3 if convention == "mujoco" else 6
+    identity = q.clone()
+    identity[..., 3:7] = 0.0
+    identity[..., w] = 1.0
+    degenerate = q.clone()
+    degenerate[..., 3:7] = 0.0
+    degenerate[..., 4] = bad  # 0: the zero quaternion; nan / inf: a non-finite norm
+    for name, (call, arity) in FUNCTIONS.items():
+        got = _flat(call(view, robot, *(degenerate, qd, x, f)[:arity]))
+        ref = _flat(call(view, robot, *(identity, qd, x, f)[:arity]))
+        assert torch.isfinite(got).all(), f"{name}: non-finite output for a quaternion with {bad}"
+        assert torch.allclose(got, ref, rtol=1e-12, atol=1e-12), f"{name}: differs from the identity quaternion"
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+def test_zero_configuration_has_finite_gradients(robots, convention):
+    robot = robots["go2"]
+    view = getattr(robot, convention)
+    q = torch.zeros(2, robot.nq, dtype=torch.float64, requires_grad=True)
+    qd = torch.randn(2, robot.nv, dtype=torch.float64)
+    tau = torch.randn(2, robot.nv, dtype=torch.float64)
+    foot = next(i for i, f in enumerate(robot.model.frames) if f.parent == robot.nbodies - 1)  # moved by a leg
+    for out in (view.forward_dynamics(q, qd, tau), view.crba(q), view.com(q), view.frame_jacobian(q, foot)):
+        (grad,) = torch.autograd.grad(out.square().sum(), q)
+        assert torch.isfinite(grad).all()
+        assert grad[..., 7:].abs().sum() > 0  # the joints still get their gradient
+
+
+@pytest.mark.parametrize("name", ["inverse_dynamics", "crba", "frame_jacobian", "end_effector_pose_gradient"])
+def test_forward_mode_ad_is_refused_with_the_op_name(robots, name):
+    robot = robots["go2"]
+    call, arity = FUNCTIONS[name]
+    states = _states(robot, 2, 5, "pin")[:arity]
+    op = "end_effector_pose" if name == "end_effector_pose_gradient" else name
+
+    def f(q):
+        return _flat(call(robot.pin, robot, q, *states[1:]))
+
+    with pytest.raises(NotImplementedError, match=rf"{op} has no forward-mode derivative"):
+        torch.func.jvp(f, (states[0],), (torch.ones_like(states[0]),))
+    with pytest.raises(NotImplementedError, match=rf"{op} has no forward-mode derivative"):
+        torch.func.jacfwd(f)(states[0])
+    with forward_ad.dual_level():
+        dual = forward_ad.make_dual(states[0], torch.ones_like(states[0]))
+        with pytest.raises(NotImplementedError, match=rf"{op} has no forward-mode derivative"):
+            f(dual)
+    # Outside forward mode the same calls work, inside reverse mode too.
+    q = states[0].clone().requires_grad_(True)
+    f(q).sum().backward()
+    assert torch.isfinite(q.grad).all()
+
+
+def test_osc_inertia_of_a_frame_with_fewer_than_six_dofs_is_refused(robots):
+    robot = robots["iiwa14"]
+    low = next(i for i, f in enumerate(robot.model.frames) if 0 <= f.parent <= 2)  # moved by at most 3 joints
+    with pytest.raises(ValueError, match=rf"frame '{robot.frame_names[low]}' is moved by \d dofs"):
+        robot.osc_inertia(robot.random_configuration(2), low)
+    assert torch.isfinite(robot.osc_inertia(robot.random_configuration(2), robot.nframes - 1)).all()
