@@ -35,6 +35,8 @@ setup(
     extras_require={
         "pin": ["pin>=3.4"],
         "test": ["pytest>=8", "pin==4.1.0", "mujoco==4.0.0", "example-robot-data==6.0.0"],
+        # bench/pinocchio_cpp.py compiles against Pinocchio's headers, which need these two too
+        "bench": ["pin==4.1.0", "example-robot-data==6.0.0", "cmeel-eigen==3.4.1", "cmeel-urdfdom-headers==3.0.0"],
     },
     cmdclass={"build_py": BuildPyWithSources},
 )

@@ -1,8 +1,10 @@
 """CPU benchmark: per-sample time of batched torch_grid ops (B = 4096, float64) on one thread and
-on all threads, against Pinocchio's per-call time through Python; first build and warm reload
-times of each robot. Writes a markdown table to bench/RESULTS.md with --write.
+on all threads, against Pinocchio's per-call time through Python and in C++ (pinocchio_cpp.py);
+first build and warm reload times of each robot and of the shared torch glue; a small call's
+overhead; with --cuda, the per-thread stack of the G1 humanoid's CUDA kernels. Writes markdown
+tables to bench/RESULTS.md with --write.
 
-    python bench/bench_cpu.py [--write] [--robots iiwa14 go2 g1]
+    python bench/bench_cpu.py [--write] [--cuda] [--robots iiwa14 go2 g1]
 """
 from __future__ import annotations
 
@@ -10,10 +12,12 @@ import argparse
 import datetime
 import os
 import platform
+import shutil
 import subprocess
 import sys
 import tempfile
 import time
+import timeit
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +25,7 @@ import pinocchio as pin
 import torch
 
 import torch_grid
+from pinocchio_cpp import pinocchio_cpp_times
 
 HERE = Path(__file__).resolve().parent
 ERD = Path(sys.prefix) / "lib" / f"python{sys.version_info[0]}.{sys.version_info[1]}" / "site-packages" / \
@@ -57,21 +62,66 @@ def per_call_us(fn, calls: int = 20000) -> float:
     return best
 
 
-def build_times(name: str) -> tuple[float, float]:
-    """(first build, warm load in a new process after `import torch`), seconds, in a fresh cache."""
-    src, floating, bundled = ROBOTS[name]
-    source = bundled or src
+def _load_seconds(source: str, floating: bool | None, cache: str) -> float:
     script = ("import time, torch; t = time.perf_counter(); import torch_grid; "
               f"torch_grid.load({source!r}, floating_base={floating!r}); print(time.perf_counter() - t)")
+    return float(subprocess.run([sys.executable, "-c", script], env=dict(os.environ, TORCH_GRID_CACHE=cache),
+                                capture_output=True, text=True, check=True).stdout.split()[-1])
+
+
+def glue_build_time() -> tuple[float, str]:
+    """Seconds to build the torch glue into an empty cache, and that cache (kept for build_times)."""
+    cache = tempfile.mkdtemp(prefix="torch_grid_bench_")
+    script = "from torch_grid import build; build._load_glue(build._cache_root(None), build._cuda_available())"
+    start = time.perf_counter()
+    subprocess.run([sys.executable, "-c", script], env=dict(os.environ, TORCH_GRID_CACHE=cache), check=True,
+                   capture_output=True)
+    return time.perf_counter() - start, cache
+
+
+def build_times(name: str, glue_cache: str) -> tuple[float, float]:
+    """(first build of the robot, warm load in a new process after `import torch`), seconds, in a
+    cache that holds only the torch glue (as after any first robot)."""
+    src, floating, bundled = ROBOTS[name]
     with tempfile.TemporaryDirectory() as cache:
-        env = dict(os.environ, TORCH_GRID_CACHE=cache)
-        first, warm = (float(subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True,
-                                            check=True).stdout.split()[-1]) for _ in range(2))
+        shutil.copytree(Path(glue_cache) / ".glue", Path(cache) / ".glue")
+        first, warm = (_load_seconds(bundled or src, floating, cache) for _ in range(2))
     return first, warm
 
 
+def call_overhead(number: int = 20000) -> list[tuple[str, float]]:
+    """µs per batch-of-one iiwa14 inverse_dynamics call through Robot and through the raw op (its
+    autograd kernel included), best of 7; Pinocchio's rnea from Python for scale."""
+    robot = torch_grid.load("iiwa14")
+    q, qd, qdd = (torch.rand(1, robot.nv, dtype=torch.float64) for _ in range(3))
+    op = robot._ops.inverse_dynamics
+    model = pin.buildModelFromUrdf(ROBOTS["iiwa14"][0])
+    data, x = model.createData(), np.zeros(model.nq)
+
+    def best(fn) -> float:
+        return min(timeit.timeit(fn, number=number) for _ in range(7)) / number * 1e6
+
+    return [("Robot.inverse_dynamics, batch (1, 7)", best(lambda: robot.inverse_dynamics(q, qd, qdd))),
+            ("Robot.inverse_dynamics, unbatched (7,)", best(lambda: robot.inverse_dynamics(q[0], qd[0], qdd[0]))),
+            ("torch.ops op (through its autograd kernel)", best(lambda: op(q, qd, qdd, None, 0))),
+            ("pinocchio.rnea from Python", best(lambda: pin.rnea(model, data, x, x, x)))]
+
+
+def cuda_stack(name: str = "g1") -> list[str]:
+    """Per-thread stack and registers of every float64 CUDA kernel (sm_90), both conventions."""
+    from torch_grid import cuda_report
+
+    src, floating, bundled = ROBOTS[name]
+    model = torch_grid.parse.source_to_model(bundled or src, floating)
+    rows = ["| op | convention | registers | stack (bytes) | spill stores / loads (bytes) |", "|---|---|---|---|---|"]
+    for u in cuda_report.report(model, ("float64",)):
+        rows.append(f"| {u.op} | {u.convention} | {u.registers} | {u.stack} | {u.spill_stores} / {u.spill_loads} |")
+    return rows
+
+
 def cases(name: str):
-    """name -> (torch_grid batched call, Pinocchio single call) for one robot."""
+    """name -> (torch_grid batched call, Pinocchio single call from Python) for one robot; the names
+    are also the keys of pinocchio_cpp_times."""
     src, floating, bundled = ROBOTS[name]
     robot = torch_grid.load(bundled or src, floating_base=floating)
     model = pin.buildModelFromUrdf(src, pin.JointModelFreeFlyer()) if floating else pin.buildModelFromUrdf(src)
@@ -92,6 +142,16 @@ def cases(name: str):
                                       lambda: pin.computeRNEADerivatives(model, data, qn, vn, an)),
         "forward_dynamics_gradient": (lambda: robot.forward_dynamics_gradient(q, qd, qdd),
                                       lambda: pin.computeABADerivatives(model, data, qn, vn, an)),
+        "nonlinear_effects": (lambda: robot.nonlinear_effects(q, qd),
+                              lambda: pin.nonLinearEffects(model, data, qn, vn)),
+        "generalized_gravity": (lambda: robot.generalized_gravity(q),
+                                lambda: pin.computeGeneralizedGravity(model, data, qn)),
+        # torch_grid returns the whole-body centre of mass only: Pinocchio skips the subtree ones.
+        "com": (lambda: robot.com(q), lambda: pin.centerOfMass(model, data, qn, False)),
+        "jacobian_com": (lambda: robot.jacobian_com(q), lambda: pin.jacobianCenterOfMass(model, data, qn, False)),
+        "ccrba": (lambda: robot.ccrba(q, qd), lambda: pin.ccrba(model, data, qn, vn)),
+        "coriolis_matrix": (lambda: robot.coriolis_matrix(q, qd),
+                            lambda: pin.computeCoriolisMatrix(model, data, qn, vn)),
     }
 
 
@@ -139,7 +199,12 @@ def second_order(name: str, batch: int = 256) -> list[tuple[str, float, float]]:
     return [(fn_name, *forward_and_backward_us(fn, inputs, batch, seconds=0.5)) for fn_name, fn in functions.items()]
 
 
-def bench_robot(name: str) -> list[tuple]:
+def bench_robot(name: str) -> tuple[list[tuple[str, str, float, float, float, float]], float]:
+    """Rows (robot, function, torch_grid µs/sample on 1 thread, on all threads, Pinocchio µs/call
+    from Python, in C++), and Pinocchio's C++ crba without the lower-triangle fill, µs/call."""
+    src, floating, bundled = ROBOTS[name]
+    frame = torch_grid.load(bundled or src, floating_base=floating).nframes - 1  # as in cases()
+    cpp = pinocchio_cpp_times(src, floating, B, frame=frame)
     rows = []
     threads = torch.get_num_threads()
     for fn_name, (ours, theirs) in cases(name).items():
@@ -148,32 +213,39 @@ def bench_robot(name: str) -> list[tuple]:
         torch.set_num_threads(threads)
         many = per_sample_us(ours, B)
         ref = per_call_us(theirs)
-        rows.append((name, fn_name, one, many, ref))
-    return rows
+        rows.append((name, fn_name, one, many, ref, cpp[fn_name]))
+    return rows, cpp["crba_upper"]
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robots", nargs="*", default=list(ROBOTS))
     parser.add_argument("--write", action="store_true", help="write bench/RESULTS.md")
+    parser.add_argument("--cuda", action="store_true", help="also compile the G1 CUDA kernels and list their stack")
     args = parser.parse_args()
+    glue_seconds, glue_cache = glue_build_time()
+    print(f"torch glue built in {glue_seconds:.1f} s", flush=True)
     threads = torch.get_num_threads()
-    lines = [f"| robot | function | 1 thread | {threads} threads | Pinocchio per call | 1 thread ≤ Pinocchio |",
-             "|---|---|---|---|---|---|"]
+    lines = [f"| robot | function | 1 thread | {threads} threads | Pinocchio Python per call | "
+             "Pinocchio C++ per call | 1 thread / C++ | 1 thread ≤ Pinocchio Python |", "|---|---|---|---|---|---|---|---|"]
+    crba_upper = []
     builds = ["| robot | nq | nv | first build (s) | warm load, new process (s) |", "|---|---|---|---|---|"]
     grads = ["| robot | forward_dynamics (µs/sample) | forward + backward (µs/sample) | ratio |", "|---|---|---|---|"]
     second = ["| robot | function | forward (µs/sample) | forward + backward (µs/sample) |", "|---|---|---|---|"]
     for name in args.robots:
-        for robot, fn, one, many, ref in bench_robot(name):
-            lines.append(f"| {robot} | {fn} | {one:.3f} | {many:.3f} | {ref:.3f} | {'yes' if one <= ref else 'NO'} |")
+        rows, upper = bench_robot(name)
+        for robot, fn, one, many, ref, cpp in rows:
+            lines.append(f"| {robot} | {fn} | {one:.3f} | {many:.3f} | {ref:.3f} | {cpp:.3f} | {one / cpp:.2f} | "
+                         f"{'yes' if one <= ref else 'NO'} |")
             print(lines[-1], flush=True)
+        crba_upper.append(f"{name} {upper:.3f} µs")
         forward, both = backward_ratio(name)
         grads.append(f"| {name} | {forward:.3f} | {both:.3f} | {both / forward:.2f} |")
         print(grads[-1], flush=True)
         for fn, forward, both in second_order(name):
             second.append(f"| {name} | {fn} | {forward:.2f} | {both:.1f} |")
             print(second[-1], flush=True)
-        first, warm = build_times(name)
+        first, warm = build_times(name, glue_cache)
         src, floating, bundled = ROBOTS[name]
         r = torch_grid.load(bundled or src, floating_base=floating)
         builds.append(f"| {name} | {r.nq} | {r.nv} | {first:.1f} | {warm:.2f} |")
@@ -185,14 +257,29 @@ def main() -> None:
         pass
     header = (f"## CPU, {datetime.date.today()}\n\nMachine: {cpu}, {os.cpu_count()} cores; torch {torch.__version__}, "
               f"Pinocchio {pin.__version__}; batch B = {B}, float64. Pinocchio is called once per sample from "
-              "Python (its usual use); torch_grid's time is one batched call divided by B, in µs per sample, "
-              "including the allocation of the batched output.\n")
-    text = header + "\n" + "\n".join(lines) + "\n\nFirst build: all functions, both conventions, float32 + float64, CPU, " \
-        "into an empty cache; warm load: `torch_grid.load` in a new process after `import torch`.\n\n" + "\n".join(builds) + \
+              "Python (its usual use), and from C++ in a loop over B random states with one Data reused "
+              "(bench/pinocchio_cpp.cpp: its algorithms compiled with -O3 -march=native, one thread, best of 5 "
+              "passes); torch_grid's time is one batched call divided by B, in µs per sample, including the "
+              "allocation of the batched output. \"1 thread / C++\" is torch_grid on one thread over Pinocchio "
+              "in C++ (below 1: torch_grid is faster).\n")
+    text = header + "\n" + "\n".join(lines) + "\n\nPinocchio's crba and computeMinverse fill the upper " \
+        "triangle only; as torch_grid returns the full matrix, their C++ times include the copy to the lower " \
+        f"triangle. crba in C++ without it: {', '.join(crba_upper)}.\n\n" \
+        f"First build of a robot: all functions, both conventions, float32 + float64, CPU, into a cache holding " \
+        f"only the torch glue (which every robot shares; built once in {glue_seconds:.1f} s); warm load: " \
+        "`torch_grid.load` in a new process after `import torch`.\n\n" + "\n".join(builds) + \
         "\n\nAutograd: forward_dynamics alone against forward + backward with respect to q, qd and tau " \
         "(one thread, float64, B = 4096).\n\n" + "\n".join(grads) + \
         "\n\nSecond-order backwards (M, M^-1 from inverse-dynamics products; the others by the forward-mode " \
         "dual-number kernels), with respect to every input, one thread, float64, B = 256.\n\n" + "\n".join(second) + "\n"
+    overhead = call_overhead()
+    text += ("\n\nCall overhead: one small call, µs (best of 7 x 20000; iiwa14, float64, CPU).\n\n| call | µs |\n|---|---|\n"
+             + "\n".join(f"| {call} | {us:.2f} |" for call, us in overhead) + "\n")
+    if args.cuda:
+        text += ("\n## CUDA per-thread resources, G1 humanoid (float64, sm_90)\n\nFrom `python -m torch_grid.cuda_report` "
+                 "(ptxas, no GPU needed): local memory a GPU reserves for every resident thread; budget 64 KiB.\n\n"
+                 + "\n".join(cuda_stack()) + "\n")
+    shutil.rmtree(glue_cache, ignore_errors=True)
     print(text)
     if args.write:
         (HERE / "RESULTS.md").write_text("# Benchmark results\n\nProduced by `python bench/bench_cpu.py --write`.\n\n" + text)
