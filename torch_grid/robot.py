@@ -237,15 +237,16 @@ class _Functions:
         robot = self._robot
         tensor_args = robot._tensor_args[name]
         q = args[0]
-        # The common case in as few tests as possible: every tensor of q's dtype, device kind and batch
-        # shape. Anything else takes the detailed checks (they word the errors) and broadcasting.
+        # The common case in as few tests as possible: every tensor of q's dtype, device type and batch
+        # shape (the glue checks the device index). Anything else takes the detailed checks (they word
+        # the errors) and broadcasting.
         fast = type(q) is torch.Tensor and q.dim() >= 1 and q.dtype in _FLOATS
         if fast:
-            batch, dtype, cuda = q.shape[:-1], q.dtype, q.is_cuda
+            batch, dtype, cpu, cuda = q.shape[:-1], q.dtype, q.is_cpu, q.is_cuda
             for k, trailing in tensor_args:
                 x = args[k]
-                if x is not None and not (type(x) is torch.Tensor and x.dtype is dtype and x.is_cuda is cuda
-                                          and x.shape == batch + trailing):
+                if x is not None and not (type(x) is torch.Tensor and x.dtype is dtype and x.is_cpu is cpu
+                                          and x.is_cuda is cuda and x.shape == batch + trailing):
                     fast = False
                     break
         if not fast:
