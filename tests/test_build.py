@@ -178,3 +178,25 @@ def test_interrupted_build_leaves_no_entry_and_no_compiler(cache):
     assert _entries(cache) == [] and list((cache / ".build").iterdir()) == []
     again = _run(_load_and_eval(PENDULUM.format(tag="_interrupt", mass=2.0)), cache)
     assert "building kernels" in again.stderr
+
+
+def test_op_table_limits_are_checked_when_it_is_built():
+    import dataclasses
+    import re
+
+    from torch_grid import ops
+    from torch_grid.build import CSRC
+
+    header = (CSRC / "batch.h").read_text()
+    assert f"kMaxIn = {ops.MAX_TENSOR_INPUTS}, kMaxOut = {ops.MAX_OUTPUTS}," in header
+    crba = ops.OPS["crba"]
+    bad = {
+        "outputs": dataclasses.replace(crba, name="many", outputs=(("nv",),) * 5),
+        "unknown kind": dataclasses.replace(crba, name="kind", args=crba.args + (ops.Arg("k", "weird"),)),
+        "unknown size": dataclasses.replace(crba, name="size", args=(ops.Arg("q", "cotangent", shape=("nx",)),)),
+        "configuration q": dataclasses.replace(crba, name="noq", args=(ops.Arg("qd", "v"),)),
+    }
+    for words, op in bad.items():
+        with pytest.raises(ValueError, match=re.escape(op.name)) as info:
+            ops.check_table({op.name: op})
+        assert words.split()[-1] in str(info.value)

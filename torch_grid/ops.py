@@ -14,6 +14,10 @@ from .model import RobotModel
 
 # Argument kinds: tensors with their trailing shape, or integers.
 TENSOR_KINDS = {"q": ("nq",), "v": ("nv",), "fext": ("nbodies", 6), "frame_weights": ("nframes", 6)}
+INTEGER_KINDS = ("frame", "frames", "reference", "mask")
+SIZES = ("nv", "nq", "nbodies", "nparams", "nframes", "nsel")
+# What one call can carry (csrc/batch.h: kMaxIn, kMaxOut), checked when the table is built.
+MAX_TENSOR_INPUTS, MAX_OUTPUTS = 8, 4
 
 
 @dataclass(frozen=True)
@@ -120,6 +124,28 @@ def forward_mode_backward(op: OpSpec) -> OpSpec:
 
 OPS: dict[str, OpSpec] = {op.name: op for op in _VALUE_OPS}
 OPS.update({f"{name}_backward": forward_mode_backward(OPS[name]) for name in FORWARD_MODE_BACKWARD})
+
+
+def check_table(table: dict[str, OpSpec]) -> None:
+    """Raise ValueError for an op the glue or the kernels could not carry, when the table is built
+    rather than at the op's first call."""
+    for op in table.values():
+        for a in op.args:
+            if not a.is_tensor and a.kind not in INTEGER_KINDS:
+                raise ValueError(f"op {op.name}: argument {a.name!r} has an unknown kind {a.kind!r}")
+            for d in a.trailing if a.is_tensor else ():
+                if not isinstance(d, int) and d not in SIZES:
+                    raise ValueError(f"op {op.name}: argument {a.name!r} has an unknown size {d!r}")
+        if len(op.tensor_args) > MAX_TENSOR_INPUTS or len(op.outputs) > MAX_OUTPUTS:
+            raise ValueError(f"op {op.name}: {len(op.tensor_args)} tensor inputs and {len(op.outputs)} outputs, at most "
+                             f"{MAX_TENSOR_INPUTS} and {MAX_OUTPUTS} (csrc/batch.h)")
+        if not op.args or op.args[0].kind != "q":
+            raise ValueError(f"op {op.name}: the first argument must be the configuration q (it fixes batch, dtype, device)")
+        if op.forward_mode_of and any(d == "nsel" for a in op.tensor_args for d in a.trailing):
+            raise ValueError(f"op {op.name}: a forward-mode backward needs compile-time sizes, not 'nsel'")
+
+
+check_table(OPS)
 
 
 def register_fakes(namespace: str, model: RobotModel) -> None:
