@@ -33,48 +33,72 @@ namespace tg {
 
 class Call {
  public:
-  // `q` fixes the batch shape, dtype and device every other argument must share.
+  // `q` fixes the dtype and device every other argument must share.
   Call(const RobotTable& robot, const char* op, const at::Tensor& q, int64_t convention)
       : robot_(robot), op_(op), convention_(convention) {
-    TORCH_CHECK(q.dim() >= 1, op_, ": q must have shape (..., ", robot.nq, "), got a scalar");
-    batch_shape_ = q.sizes().vec();
-    batch_shape_.pop_back();
     dtype_ = q.scalar_type();
     device_ = q.device();
     TORCH_CHECK(dtype_ == at::kFloat || dtype_ == at::kDouble, op_, ": q must be float32 or float64, got ", dtype_);
     TORCH_CHECK(device_.is_cpu() || device_.is_cuda(), op_, ": q must be on the CPU or a CUDA device, got ", device_);
     TORCH_CHECK(convention == PIN || convention == MJX, op_, ": convention must be 0 (pin) or 1 (mujoco), got ", convention);
-    n_ = 1;
-    for (auto s : batch_shape_) n_ *= s;
-    batch_.n = n_;
   }
 
-  // A tensor input of shape (*batch, *trailing).
-  void input(const at::Tensor& t, const char* name, std::initializer_list<int64_t> trailing) {
-    const int64_t nb = static_cast<int64_t>(batch_shape_.size());
-    bool ok = t.dim() == nb + static_cast<int64_t>(trailing.size());
-    for (int64_t d = 0; ok && d < nb; ++d) ok = t.size(d) == batch_shape_[d];
-    int64_t d = nb, stride = 1;
-    for (int64_t s : trailing) {
-      ok = ok && t.size(d++) == s;
-      stride *= s;
-    }
+  // First, every tensor input's shape (*batch, *trailing): the batch shapes broadcast, as in torch.
+  void batch_of(const at::Tensor& t, const char* name, std::initializer_list<int64_t> trailing) {
+    const int64_t nt = static_cast<int64_t>(trailing.size()), nb = t.dim() - nt;
+    bool ok = nb >= 0;
+    int64_t d = nb;
+    for (int64_t s : trailing) ok = ok && t.size(d++) == s;
     if (!ok) {
-      std::vector<int64_t> want = batch_shape_;
-      want.insert(want.end(), trailing.begin(), trailing.end());
-      TORCH_CHECK(false, op_, ": ", name, " must have shape ", at::IntArrayRef(want), ", got ", t.sizes());
+      std::string want = "(...";
+      for (int64_t s : trailing) want += ", " + std::to_string(s);
+      TORCH_CHECK(false, op_, ": ", name, " must have shape ", want, "), got ", t.sizes());
     }
+    const at::IntArrayRef batch = t.sizes().slice(0, nb);
+    if (!have_batch_) {
+      batch_shape_.assign(batch.begin(), batch.end());
+      have_batch_ = true;
+    } else if (batch != at::IntArrayRef(batch_shape_)) {
+      const int64_t n = std::max<int64_t>(nb, batch_shape_.size());
+      std::vector<int64_t> out(n, 1);
+      for (int64_t k = 0; k < n; ++k) {
+        const int64_t a = k - (n - nb), b = k - (n - static_cast<int64_t>(batch_shape_.size()));
+        const int64_t sa = a >= 0 ? batch[a] : 1, sb = b >= 0 ? batch_shape_[b] : 1;
+        TORCH_CHECK(sa == sb || sa == 1 || sb == 1, op_, ": the batch shape of ", name, ", ", batch,
+                    ", does not broadcast with ", at::IntArrayRef(batch_shape_));
+        out[k] = sa == 1 ? sb : sa;
+      }
+      batch_shape_ = std::move(out);
+    }
+  }
+  void batch_of(const std::optional<at::Tensor>& t, const char* name, std::initializer_list<int64_t> trailing) {
+    if (t.has_value()) batch_of(*t, name, trailing);
+  }
+
+  // Then each tensor input, in order: one of the broadcast batch shape is read in place (or from a
+  // contiguous copy); one whole sample shared by the batch is read with stride 0; any other is
+  // expanded into a copy.
+  void input(const at::Tensor& t, const char* name, std::initializer_list<int64_t> trailing) {
     TORCH_CHECK(t.scalar_type() == dtype_, op_, ": ", name, " must have dtype ", dtype_, " like q, got ", t.scalar_type());
     TORCH_CHECK(t.device() == device_, op_, ": ", name, " must be on ", device_, " like q, got ", t.device());
     TORCH_CHECK(n_in_ < kMaxIn, op_, ": more than ", kMaxIn, " tensor inputs");
-    const int k = n_in_++;
-    if (t.is_contiguous()) {
-      batch_.in[k] = t.data_ptr();
-    } else {
-      keep_[k] = t.contiguous();  // the copy outlives the launch
-      batch_.in[k] = keep_[k].data_ptr();
+    if (n_in_ == 0) {
+      n_ = numel(batch_shape_);
+      batch_.n = n_;
     }
-    batch_.in_stride[k] = stride;
+    const int k = n_in_++;
+    const int64_t stride = numel(trailing), nb = t.dim() - static_cast<int64_t>(trailing.size());
+    const at::IntArrayRef batch = t.sizes().slice(0, nb);
+    at::Tensor x = t;
+    if (batch != at::IntArrayRef(batch_shape_) && numel(batch) != 1) {
+      std::vector<int64_t> full = batch_shape_;
+      full.insert(full.end(), trailing.begin(), trailing.end());
+      x = t.expand(full);
+    }
+    if (!x.is_contiguous()) x = x.contiguous();
+    if (!x.is_same(t)) keep_[k] = x;  // a copy outlives the launch
+    batch_.in[k] = x.data_ptr();
+    batch_.in_stride[k] = numel(batch) == 1 && n_ != 1 ? 0 : stride;
   }
   void input(const std::optional<at::Tensor>& t, const char* name, std::initializer_list<int64_t> trailing) {
     if (t.has_value()) {
@@ -167,33 +191,34 @@ class Call {
     int64_t memory = 0;
   };
   Device device(int index) {
-    static std::mutex mutex;
-    static std::unordered_map<int, Device> known;
-    std::lock_guard<std::mutex> lock(mutex);
-    auto it = known.find(index);
-    if (it != known.end()) return it->second;
-    Device d;
-    size_t free = 0, total = 0;
-    cudaError_t err = cudaDeviceGetAttribute(&d.sms, cudaDevAttrMultiProcessorCount, index);
-    if (err == cudaSuccess) err = cudaDeviceGetAttribute(&d.threads_per_sm, cudaDevAttrMaxThreadsPerMultiProcessor, index);
-    if (err == cudaSuccess) err = cudaMemGetInfo(&free, &total);
-    TORCH_CHECK(err == cudaSuccess, op_, ": cannot read the CUDA device's properties: ", cudaGetErrorString(err));
-    d.memory = static_cast<int64_t>(total);
-    known.emplace(index, d);
-    return d;
+    return once<int, Device>(index, [this](int i) {
+      Device d;
+      size_t free = 0, total = 0;
+      cudaError_t err = cudaDeviceGetAttribute(&d.sms, cudaDevAttrMultiProcessorCount, i);
+      if (err == cudaSuccess) err = cudaDeviceGetAttribute(&d.threads_per_sm, cudaDevAttrMaxThreadsPerMultiProcessor, i);
+      if (err == cudaSuccess) err = cudaMemGetInfo(&free, &total);
+      TORCH_CHECK(err == cudaSuccess, op_, ": cannot read the CUDA device's properties: ", cudaGetErrorString(err));
+      d.memory = static_cast<int64_t>(total);
+      return d;
+    });
   }
   CudaAttributes attributes(CudaFn fn) {
+    return once<CudaFn, CudaAttributes>(fn, [this](CudaFn f) {
+      CudaAttributes a;
+      const int err = f(Batch{}, nullptr, 1, &a);
+      TORCH_CHECK(err == 0, op_, ": cannot read the CUDA kernel's attributes: ",
+                  cudaGetErrorString(static_cast<cudaError_t>(err)));
+      return a;
+    });
+  }
+  // compute(key), computed once per key (and call site) for the process.
+  template <class K, class V, class F> static V once(K key, F compute) {
     static std::mutex mutex;
-    static std::unordered_map<CudaFn, CudaAttributes> known;
+    static std::unordered_map<K, V> known;
     std::lock_guard<std::mutex> lock(mutex);
-    auto it = known.find(fn);
-    if (it != known.end()) return it->second;
-    Batch none;
-    CudaAttributes a;
-    const int err = fn(none, nullptr, 1, &a);
-    TORCH_CHECK(err == 0, op_, ": cannot read the CUDA kernel's attributes: ", cudaGetErrorString(static_cast<cudaError_t>(err)));
-    known.emplace(fn, a);
-    return a;
+    auto it = known.find(key);
+    if (it == known.end()) it = known.emplace(key, compute(key)).first;
+    return it->second;
   }
   static int64_t local_budget(const Device& d) {
     const char* env = std::getenv("TORCH_GRID_CUDA_LOCAL_MEMORY_MB");
@@ -237,6 +262,7 @@ class Call {
   std::vector<int64_t> batch_shape_;
   at::ScalarType dtype_;
   at::Device device_ = at::kCPU;
+  bool have_batch_ = false;
   int64_t n_ = 0;
   int n_in_ = 0, n_out_ = 0;
   at::Tensor keep_[kMaxIn];  // contiguous copies

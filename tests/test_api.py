@@ -135,11 +135,19 @@ def test_bad_arguments_raise_clear_errors(robots, call, exc, words):
 
 
 def test_raw_op_checks_arguments(robots):
-    """The dispatcher ops check shapes themselves: a direct call never reads out of bounds."""
+    """The dispatcher ops check shapes themselves (a direct call never reads out of bounds) and
+    broadcast batch shapes, sharing one sample with stride 0 or expanding into a copy."""
     robot = robots["go2"]
     q, qd = _state(robot, 2)
-    with pytest.raises(RuntimeError, match="qd must have shape"):
-        robot._ops.inverse_dynamics(q, qd[:1], qd, None, 0)
+    with pytest.raises(RuntimeError, match=r"qd must have shape \(\.\.\., 18\)"):
+        robot._ops.inverse_dynamics(q, qd[:, :-1], qd, None, 0)
+    with pytest.raises(RuntimeError, match="does not broadcast"):
+        robot._ops.inverse_dynamics(q, torch.cat([qd, qd, qd]), qd, None, 0)
+    expanded = robot._ops.inverse_dynamics(q, qd[:1].expand(2, -1), qd[1], None, 0)
+    assert torch.equal(robot._ops.inverse_dynamics(q, qd[:1], qd[1], None, 0), expanded)
+    grid = robot._ops.inverse_dynamics(q[:, None], qd[None], qd[1], None, 0)  # (2, 1) with (1, 2): (2, 2)
+    assert grid.shape == (2, 2, robot.nv)
+    assert torch.equal(grid[1, 0], robot._ops.inverse_dynamics(q[1], qd[0], qd[1], None, 0))
     with pytest.raises(RuntimeError, match="frame"):
         robot._ops.frame_jacobian(q, 10_000, 2, 0)
     with pytest.raises(RuntimeError, match="convention"):

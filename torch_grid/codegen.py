@@ -256,6 +256,9 @@ def _arg_names(op: OpSpec) -> list[str]:
 
 def _wrapper(index: int, op: OpSpec) -> str:
     body = [f'  tg::Call call(r, "{op.name}", q, convention);']
+    for a in op.tensor_args:
+        dims = ", ".join(_SIZE.get(d, str(d)) for d in a.trailing)
+        body.append(f'  call.batch_of({a.name}, "{a.name}", {{{dims}}});')
     for a in op.args:
         if a.is_tensor:
             dims = ", ".join(_SIZE.get(d, str(d)) for d in a.trailing)

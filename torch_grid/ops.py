@@ -155,7 +155,15 @@ def register_fakes(namespace: str, model: RobotModel) -> None:
 
 
 def _fake(spec: OpSpec, model: RobotModel):
+    tensors = [k for k, a in enumerate(spec.args) if a.is_tensor]
+
     def fake(q, *args):
+        # As the glue: one device and dtype (a meta tensor among CPU ones dispatches here).
+        for k in tensors[1:]:
+            x = args[k - 1]
+            if x is not None and (x.device != q.device or x.dtype != q.dtype):
+                raise RuntimeError(f"{spec.name}: {spec.args[k].name} must have the device and dtype of q "
+                                   f"({q.device}, {q.dtype}), got {x.device}, {x.dtype}")
         nsel = len(args[0]) if spec.name == "end_effector_pose" else 0
         outs = [q.new_empty(s) for s in spec.output_shapes(model, tuple(q.shape[:-1]), nsel)]
         return outs[0] if len(outs) == 1 else tuple(outs)

@@ -16,7 +16,7 @@ from .codegen import inertia_about_origin
 from .model import RobotModel
 from .ops import OPS
 
-_FLOATS = (torch.float32, torch.float64)
+_CPU, _CUDA = torch._C.DispatchKeySet(torch._C.DispatchKey.CPU), torch._C.DispatchKeySet(torch._C.DispatchKey.CUDA)
 CONVENTIONS = {"pin": 0, "pinocchio": 0, "mujoco": 1, "mjx": 1}
 REFERENCES = {"world": 0, "local": 1, "local_world_aligned": 2}
 
@@ -235,34 +235,27 @@ class _Functions:
 
     def _call(self, name: str, *args):
         robot = self._robot
-        tensor_args = robot._tensor_args[name]
-        q = args[0]
-        # The common case in as few tests as possible: every tensor of q's dtype, device type and batch
-        # shape (the glue checks the device index). Anything else takes the detailed checks (they word
-        # the errors) and broadcasting.
-        fast = type(q) is torch.Tensor and q.dim() >= 1 and q.dtype in _FLOATS
-        if fast:
-            batch, dtype, cpu, cuda = q.shape[:-1], q.dtype, q.is_cpu, q.is_cuda
-            for k, trailing in tensor_args:
-                x = args[k]
-                if x is not None and not (type(x) is torch.Tensor and x.dtype is dtype and x.is_cpu is cpu
-                                          and x.is_cuda is cuda and x.shape == batch + trailing):
-                    fast = False
-                    break
-        if not fast:
-            args = _checked(name, tensor_args, args)
-        tensors = [args[k] for k, _ in tensor_args if args[k] is not None]
         op = getattr(robot._ops, name)
         if torch.compiler.is_compiling():
-            return op(*args, self._convention)
+            return op(*_checked(name, robot._tensor_args[name], args), self._convention)
         stack = torch._C._functorch.get_interpreter_stack()
         if stack or forward_ad._current_level >= 0:
-            _refuse_forward_ad(name, tensors, stack)
-        # Without a gradient to record, skip the (Python) autograd kernel: most of a small call's cost.
-        if stack or (torch.is_grad_enabled() and any(x.requires_grad for x in tensors)):
-            return op(*args, self._convention)
-        with torch._C._AutoDispatchBelowAutograd():
-            return op(*args, self._convention)
+            _refuse_forward_ad(name, [x for x in args if isinstance(x, torch.Tensor)], stack)
+        if stack or (torch.is_grad_enabled() and torch._C._any_requires_grad(*args)):
+            return op(*_checked(name, robot._tensor_args[name], args), self._convention)
+        # Nothing to differentiate: go straight to the CPU or CUDA kernel, past the (Python) autograd
+        # kernel that is most of a small call's cost, and let the glue check the arguments and broadcast
+        # their batch shapes. Only when it refuses them are they checked here, to word the error (the
+        # argument, what was expected and what was received).
+        q = args[0]
+        keyset = (_CPU if q.is_cpu else _CUDA if q.is_cuda else None) if isinstance(q, torch.Tensor) else None
+        if keyset is None:
+            return op(*_checked(name, robot._tensor_args[name], args), self._convention)
+        try:
+            return op.default.redispatch(keyset, *args, self._convention)
+        except RuntimeError:
+            args = _checked(name, robot._tensor_args[name], args)
+        return op.default.redispatch(keyset, *args, self._convention)
 
 
 class _View(_Functions):
@@ -428,6 +421,6 @@ def _checked(op: str, tensor_args, args) -> list:
             batch[axis] = size if size != 1 else batch[axis]
     args = list(args)
     for k, trailing in tensor_args:
-        if args[k] is not None:
+        if args[k] is not None and shapes[k] != tuple(batch):
             args[k] = args[k].expand(*batch, *trailing)
     return args

@@ -8,26 +8,25 @@ namespace tg {
 
 // Gravity = false with qd = 0 and no fext solves M qdd = tau: M^-1 tau in O(n).
 //
-// Memory (a GPU thread's stack): velocities and accelerations are kept by tree level (in
-// depth-first order a body's ancestors hold the levels above its own); what children pass up to
-// their parent in the backward pass (articulated inertia, bias force) also goes to the parent's
-// level, assigned by the first child to arrive (the parent's last in depth-first order) and added
-// by the others; U = IA S is kept per dof (joint i's k-th at vi + k).
+// Memory (a GPU thread's stack): velocities and accelerations are kept by tree level on a GPU
+// (Levels); what children pass up to their parent in the backward pass (articulated inertia, bias
+// force) goes to the parent's level, assigned by the first child to arrive (the parent's last in
+// depth-first order) and added by the others; U = IA S is kept per dof (joint i's k-th at vi + k).
 template <class M, class S, bool Gravity = true>
 TG_HD void aba(const S* q, const S* qd, const S* tau, const S* fext, S* qdd) {
   const auto& d = data<M, S>();
   JointPlacements<M, S> liMi(q);
-  Sv<S> va[M::ND], c[M::NB], pA[M::NB], pA_up[M::ND];
+  using L = Levels<M>;
+  Sv<S> va[L::N], c[M::NB], pA[M::NB], pA_up[M::ND];
   M6<S> IA_up[M::ND];
   Sv<S> U[M::NV];
   S u[M::NV];
   // Forward pass: velocities, velocity-product accelerations c, bias forces pA.
   for (int i = 0; i < M::NB; ++i) {
-    const int p = d.parent[i], l = d.depth[i];
-    const SE3<S> X = joint_placement<M, S>(i, q);
-    liMi.keep(i, X);
+    const int p = d.parent[i], l = L::of(d, i);
+    const auto& X = liMi.place(i);
     const Sv<S> vJ = joint_motion<M, S>(i, qd);
-    va[l] = p < 0 ? vJ : actinv_motion(X, va[l - 1]) + vJ;
+    va[l] = p < 0 ? vJ : actinv_motion(X, va[L::parent(d, i)]) + vJ;
     c[i] = cross_motion(va[l], vJ);
     const Inertia<S> I = body_inertia<M, S>(i);
     pA[i] = cross_force(va[l], mul(I, va[l]));
@@ -81,9 +80,9 @@ TG_HD void aba(const S* q, const S* qd, const S* tau, const S* fext, S* qdd) {
   }
   // Forward pass: qdd_i = D^-1 (u - U^T a'), a' the parent acceleration seen in frame i.
   for (int i = 0; i < M::NB; ++i) {
-    const int n = d.nvj[i], vi = d.vi[i], p = d.parent[i], l = d.depth[i];
+    const int n = d.nvj[i], vi = d.vi[i], p = d.parent[i], l = L::of(d, i);
     const Sv<S> a0 = Gravity ? base_acceleration<M, S>() : sv_zero<S>();
-    const Sv<S> a_in = actinv_motion(liMi[i], p < 0 ? a0 : va[l - 1]) + c[i];
+    const Sv<S> a_in = actinv_motion(liMi[i], p < 0 ? a0 : va[L::parent(d, i)]) + c[i];
     S D[36], x[6];
     for (int r = 0; r < n; ++r) {
       for (int k = 0; k < n; ++k) D[n * r + k] = dot(joint_axis<M, S>(i, r), U[vi + k]);

@@ -115,18 +115,35 @@ template <class M, class S> TG_HD void body_velocities(const S* q, const S* qd, 
   }
 }
 
-// Joint placements liMi for a backward pass: kept on the host; rebuilt from q on a GPU thread,
-// where the stack they would take costs more than recomputing them.
+// Storage for what a forward pass leaves a body's children (velocity, acceleration): on a GPU thread
+// one slot per tree level, since in depth-first order a body's ancestors hold the levels above its
+// own (a small stack); on the host one per body, which the compiler keeps faster.
+template <class M> struct Levels {
+#if defined(__CUDA_ARCH__)
+  static constexpr int N = M::ND;
+  template <class S> TG_HD static int of(const S& d, int i) { return d.depth[i]; }
+  template <class S> TG_HD static int parent(const S& d, int i) { return d.depth[i] - 1; }
+#else
+  static constexpr int N = M::NB;
+  template <class S> TG_HD static int of(const S&, int i) { return i; }
+  template <class S> TG_HD static int parent(const S& d, int i) { return d.parent[i]; }
+#endif
+};
+
+// Joint placements liMi: place(i) computes one in a forward pass and [i] reads it again in a later
+// pass; kept on the host, rebuilt from q on a GPU thread, where the stack they would take costs
+// more than recomputing them.
 template <class M, class S> struct JointPlacements {
 #if defined(__CUDA_ARCH__)
   const S* q;
   TG_HD explicit JointPlacements(const S* q_) : q(q_) {}
-  TG_HD void keep(int, const SE3<S>&) {}
+  TG_HD SE3<S> place(int i) { return joint_placement<M, S>(i, q); }
   TG_HD SE3<S> operator[](int i) const { return joint_placement<M, S>(i, q); }
 #else
+  const S* q;
   SE3<S> X[M::NB];
-  TG_HD explicit JointPlacements(const S*) {}
-  TG_HD void keep(int i, const SE3<S>& liMi) { X[i] = liMi; }
+  TG_HD explicit JointPlacements(const S* q_) : q(q_) {}
+  TG_HD const SE3<S>& place(int i) { return X[i] = joint_placement<M, S>(i, q); }
   TG_HD const SE3<S>& operator[](int i) const { return X[i]; }
 #endif
 };

@@ -12,18 +12,16 @@ template <class M, class S, bool Gravity = true>
 TG_HD void rnea(const S* q, const S* qd, const S* qdd, const S* fext, S* tau) {
   const auto& d = data<M, S>();
   JointPlacements<M, S> liMi(q);
-  // Velocities and accelerations by tree level: in depth-first order a body's ancestors hold the
-  // levels above its own, so ND slots serve every body (a small GPU stack).
-  Sv<S> v[M::ND], a[M::ND], f[M::NB];
+  using L = Levels<M>;
+  Sv<S> v[L::N], a[L::N], f[M::NB];
   // Forward pass: body velocities, accelerations and the forces that produce them.
   for (int i = 0; i < M::NB; ++i) {
-    const int p = d.parent[i], k = d.depth[i];
-    const SE3<S> X = joint_placement<M, S>(i, q);
-    liMi.keep(i, X);
+    const int p = d.parent[i], k = L::of(d, i), kp = L::parent(d, i);
+    const auto& X = liMi.place(i);
     const Sv<S> vJ = joint_motion<M, S>(i, qd);
     const Sv<S> aJ = joint_motion<M, S>(i, qdd);
-    const Sv<S> a_parent = p < 0 ? (Gravity ? base_acceleration<M, S>() : sv_zero<S>()) : a[k - 1];
-    v[k] = p < 0 ? vJ : actinv_motion(X, v[k - 1]) + vJ;
+    const Sv<S> a_parent = p < 0 ? (Gravity ? base_acceleration<M, S>() : sv_zero<S>()) : a[kp];
+    v[k] = p < 0 ? vJ : actinv_motion(X, v[kp]) + vJ;
     a[k] = actinv_motion(X, a_parent) + aJ + cross_motion(v[k], vJ);
     const Inertia<S> I = body_inertia<M, S>(i);
     f[i] = mul(I, a[k]) + cross_force(v[k], mul(I, v[k]));
