@@ -19,8 +19,8 @@ template <class M, class S> struct MinvWork {
   // (S^T U)^-1 (N x N): per dof rather than per body, so a free root's six do not size every body.
   Sv<S> Sw[NV], Uw[NV];
   S Dinv[NV][6];
-  Sv<S> F[NV];      // F[col]: world force on the subtree owning col, per unit torque at col
-  Sv<S> A[M::NB];   // world acceleration of each body per unit torque at the current column
+  Sv<S> F[NV];  // F[col]: world force on the subtree owning col, per unit torque at col
+  Sv<S> A[Levels<M>::N][NV];  // A[body][col]: its world acceleration per unit torque at col (Levels)
 };
 
 // Backward step of body i: U, Dinv, the subtree block of rows i of Minv, and IA passed to the
@@ -66,26 +66,29 @@ template <int N, class M, class S> TG_HD void minv_backward(int i, MinvWork<M, S
   for (int k = 0; k < 36; ++k) w.IA[p].m[k] += Ip.m[k];
 }
 
-// Forward step of body i for one column (col >= vi): Minv_i -= Dinv U^T A_parent, A_i = A_parent + S Minv_i.
-template <int N, class M, class S> TG_HD void minv_forward(int i, int col, MinvWork<M, S>& w, S* Minv) {
+// Forward step of body i on the upper triangle: Minv_i -= Dinv U^T A_parent, A_i = A_parent + S Minv_i.
+template <int N, class M, class S> TG_HD void minv_forward(int i, MinvWork<M, S>& w, S* Minv) {
   const auto& d = data<M, S>();
   constexpr int NV = M::NV;
-  const int vi = d.vi[i], p = d.parent[i];
-  S x[N];
-  for (int r = 0; r < N; ++r) x[r] = Minv[NV * (vi + r) + col];
-  Sv<S> a = sv_zero<S>();
-  if (p >= 0) {
-    a = w.A[p];
-    S UtA[N];
-    for (int k = 0; k < N; ++k) UtA[k] = dot(w.Uw[vi + k], a);
-    for (int r = 0; r < N; ++r)
-      for (int k = 0; k < N; ++k) x[r] -= w.Dinv[vi + r][k] * UtA[k];
+  using L = Levels<M>;
+  const int vi = d.vi[i], p = d.parent[i], l = L::of(d, i), lp = L::parent(d, i);
+  for (int col = vi; col < NV; ++col) {
+    S x[N];
+    for (int r = 0; r < N; ++r) x[r] = Minv[NV * (vi + r) + col];
+    Sv<S> a = sv_zero<S>();
+    if (p >= 0) {
+      a = w.A[lp][col];
+      S UtA[N];
+      for (int k = 0; k < N; ++k) UtA[k] = dot(w.Uw[vi + k], a);
+      for (int r = 0; r < N; ++r)
+        for (int k = 0; k < N; ++k) x[r] -= w.Dinv[vi + r][k] * UtA[k];
+    }
+    for (int r = 0; r < N; ++r) {
+      Minv[NV * (vi + r) + col] = x[r];
+      a = a + x[r] * w.Sw[vi + r];
+    }
+    w.A[l][col] = a;
   }
-  for (int r = 0; r < N; ++r) {
-    Minv[NV * (vi + r) + col] = x[r];
-    a = a + x[r] * w.Sw[vi + r];
-  }
-  w.A[i] = a;
 }
 
 template <class M, class S> TG_HD void minv(const S* q, S* Minv) {
@@ -102,12 +105,10 @@ template <class M, class S> TG_HD void minv(const S* q, S* Minv) {
     if (d.nvj[i] == 6) minv_backward<6>(i, w, Minv);
     else minv_backward<1>(i, w, Minv);
   }
-  // Forward pass column by column on the upper triangle: body i takes part in the columns col >= vi.
-  for (int col = 0; col < M::NV; ++col)
-    for (int i = 0; i < M::NB && d.vi[i] <= col; ++i) {
-      if (d.nvj[i] == 6) minv_forward<6>(i, col, w, Minv);
-      else minv_forward<1>(i, col, w, Minv);
-    }
+  for (int i = 0; i < M::NB; ++i) {
+    if (d.nvj[i] == 6) minv_forward<6>(i, w, Minv);
+    else minv_forward<1>(i, w, Minv);
+  }
   // Mirror the upper triangle.
   for (int r = 0; r < M::NV; ++r)
     for (int c = 0; c < r; ++c) Minv[M::NV * r + c] = Minv[M::NV * c + r];
