@@ -24,26 +24,30 @@ namespace tg {
     }             \
   };
 
-// X <- -A X for an NV x NV matrix A and an NV x COLS row-major X, in blocks of at most 16 columns
-// (the temporary stays small on a GPU thread): rows of each block of the product are sums of rows
-// of X, which keeps the inner loop contiguous (it vectorises).
-template <class M, class S, int COLS> TG_HD void negate_left_multiply(const S* A, S* X) {
-  constexpr int NV = M::NV, W = COLS < 16 ? COLS : 16;
+// Columns [c0, c0 + W) of X <- -A X for an NV x NV matrix A and an NV x COLS row-major X: rows of
+// the product are sums of rows of X, which keeps the inner loop contiguous; W is a compile-time
+// width, so it vectorises.
+template <class M, class S, int COLS, int W> TG_HD void negate_left_multiply_block(const S* A, S* X, int c0) {
+  constexpr int NV = M::NV;
   S T[NV * W];
-  for (int c0 = 0; c0 < COLS; c0 += W) {
-    const int w = COLS - c0 < W ? COLS - c0 : W;
-    for (int r = 0; r < NV; ++r) {
-      S* t = T + W * r;
-      for (int c = 0; c < w; ++c) t[c] = S(0);
-      for (int k = 0; k < NV; ++k) {
-        const S a = A[NV * r + k];
-        const S* x = X + COLS * k + c0;
-        for (int c = 0; c < w; ++c) t[c] -= a * x[c];
-      }
+  for (int r = 0; r < NV; ++r) {
+    S* t = T + W * r;
+    for (int c = 0; c < W; ++c) t[c] = S(0);
+    for (int k = 0; k < NV; ++k) {
+      const S a = A[NV * r + k];
+      const S* x = X + COLS * k + c0;
+      for (int c = 0; c < W; ++c) t[c] -= a * x[c];
     }
-    for (int r = 0; r < NV; ++r)
-      for (int c = 0; c < w; ++c) X[COLS * r + c0 + c] = T[W * r + c];
   }
+  for (int r = 0; r < NV; ++r)
+    for (int c = 0; c < W; ++c) X[COLS * r + c0 + c] = T[W * r + c];
+}
+
+// X <- -A X in blocks of at most 16 columns: the temporary stays small on a GPU thread.
+template <class M, class S, int COLS> TG_HD void negate_left_multiply(const S* A, S* X) {
+  constexpr int W = COLS < 16 ? COLS : 16, R = COLS % W;
+  for (int c0 = 0; c0 + W <= COLS; c0 += W) negate_left_multiply_block<M, S, COLS, W>(A, X, c0);
+  if constexpr (R > 0) negate_left_multiply_block<M, S, COLS, R>(A, X, COLS - R);
 }
 
 // The base-linear columns of Pinocchio's M (NV x 3, row-major), all a MuJoCo twin's reframe reads
