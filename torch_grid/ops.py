@@ -57,9 +57,14 @@ class OpSpec:
         return f"{self.name}({', '.join(params + ['int convention'])}) -> " + (f"({outs})" if len(self.outputs) > 1 else outs)
 
     def output_shapes(self, model: RobotModel, batch: tuple[int, ...], nsel: int = 0) -> list[tuple[int, ...]]:
-        sizes = {"nv": model.nv, "nq": model.nq, "nbodies": model.nbodies, "nparams": 10 * model.nbodies,
-                 "nframes": len(model.frames), "nsel": nsel}
+        sizes = {**model_sizes(model), "nsel": nsel}
         return [tuple(batch) + tuple(sizes.get(d, d) for d in shape) for shape in self.outputs]
+
+
+def model_sizes(model: RobotModel) -> dict[str, int]:
+    """The value of each size symbol of the table for one robot (all but "nsel", a call's frame count)."""
+    return {"nv": model.nv, "nq": model.nq, "nbodies": model.nbodies, "nparams": 10 * model.nbodies,
+            "nframes": len(model.frames)}
 
 
 Q, QD, QDD, TAU, FEXT = Arg("q", "q"), Arg("qd", "v"), Arg("qdd", "v"), Arg("tau", "v"), Arg("f_ext", "fext", True)

@@ -14,7 +14,7 @@ from torch.autograd import forward_ad
 from .autograd import rpy_rate_matrix
 from .codegen import inertia_about_origin
 from .model import RobotModel
-from .ops import OPS
+from .ops import OPS, model_sizes
 
 _CPU, _CUDA = torch._C.DispatchKeySet(torch._C.DispatchKey.CPU), torch._C.DispatchKeySet(torch._C.DispatchKey.CUDA)
 CONVENTIONS = {"pin": 0, "pinocchio": 0, "mujoco": 1, "mjx": 1}
@@ -282,8 +282,7 @@ class Robot(_Functions):
         self._enable_mujoco_kernels = mujoco_kernels
         self._mujoco_kernels = mujoco_kernels or not model.floating_base
         self._frame_index = {f.name: i for i, f in enumerate(model.frames)}
-        sizes = {"nq": model.nq, "nv": model.nv, "nbodies": model.nbodies, "nframes": len(model.frames),
-                 "nparams": 10 * model.nbodies}
+        sizes = model_sizes(model)
         # op -> (position, trailing shape) of each tensor argument, for the checks of every call
         self._tensor_args = {name: [(k, torch.Size(sizes.get(d, d) for d in a.trailing))
                                     for k, a in enumerate(spec.args) if a.is_tensor] for name, spec in OPS.items()}
