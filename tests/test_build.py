@@ -189,14 +189,48 @@ def test_op_table_limits_are_checked_when_it_is_built():
 
     header = (CSRC / "batch.h").read_text()
     assert f"kMaxIn = {ops.MAX_TENSOR_INPUTS}, kMaxOut = {ops.MAX_OUTPUTS}," in header
-    crba = ops.OPS["crba"]
+    crba, Q, NVxNV = ops.OPS["crba"], ops.Q, ("nv", "nv")
     bad = {
-        "outputs": dataclasses.replace(crba, name="many", outputs=(("nv",),) * 5),
+        "outputs": dataclasses.replace(crba, name="many", outputs=tuple(ops.Out(f"o{k}", "plain", ("nv",)) for k in range(5))),
         "unknown kind": dataclasses.replace(crba, name="kind", args=crba.args + (ops.Arg("k", "weird"),)),
-        "unknown size": dataclasses.replace(crba, name="size", args=(ops.Arg("q", "cotangent", shape=("nx",)),)),
-        "configuration q": dataclasses.replace(crba, name="noq", args=(ops.Arg("qd", "v"),)),
+        "unknown size": dataclasses.replace(crba, name="size", args=(ops.Arg("q", "plain", shape=("nx",)),)),
+        "the configuration": dataclasses.replace(crba, name="noq", args=(ops.Arg("qd", "velocity"),)),
+        "output kind": dataclasses.replace(crba, name="okind", outputs=(ops.Out("M", "weird", NVxNV),)),
+        "the shape": dataclasses.replace(crba, name="oshape", outputs=(ops.Out("M", "congruence", ("nv",)),)),
+        "one velocity": dataclasses.replace(crba, name="accel", args=(Q, ops.Arg("qdd", "acceleration"))),
+        "distinct": dataclasses.replace(crba, name="names", outputs=(ops.Out("q", "congruence", NVxNV),)),
+        "last integer": dataclasses.replace(crba, name="frames", args=(Q, ops.Arg("frames", "frames"), ops.Arg("f", "frame"))),
     }
     for words, op in bad.items():
         with pytest.raises(ValueError, match=re.escape(op.name)) as info:
             ops.check_table({op.name: op})
         assert words.split()[-1] in str(info.value)
+
+
+@pytest.mark.parametrize("rename", [False, True])
+def test_kernels_bind_arguments_by_name(tmp_path, rename):
+    """A kernel reads the arguments the op table names: renaming crba's output in the table (and so in
+    the generated op_args.h) makes the kernel that writes `a.M` fail to compile, not run on the wrong
+    pointer; the unchanged table compiles."""
+    import dataclasses
+
+    import pinocchio as pin
+
+    from torch_grid import codegen, ops, parse
+
+    table = dict(ops.OPS)
+    if rename:
+        table["crba"] = dataclasses.replace(ops.OPS["crba"], outputs=(ops.Out("mass_matrix", "congruence", ("nv", "nv")),))
+    model = parse.from_pinocchio(pin.buildSampleModelManipulator())
+    (tmp_path / "robot.h").write_text(codegen.robot_header(model, "tg_names"))
+    (tmp_path / "op_args.h").write_text(codegen.op_args_header(table))
+    (tmp_path / "bindings.h").write_text(codegen.bindings_header(table))
+    (tmp_path / "unit.cpp").write_text('#include "robot.h"\n#include "bindings.h"\n#include "cpu_range.h"\n'
+                                       "template void tg::cpu_range<tg::bind::Crba, tg_names::Robot, double, tg::PIN>"
+                                       "(const tg::Batch&, int64_t, int64_t);\n")
+    result = subprocess.run(["c++", "-std=c++17", "-fsyntax-only", f"-I{build.CSRC}", f"-I{tmp_path}", "unit.cpp"],
+                            cwd=tmp_path, capture_output=True, text=True)
+    if rename:
+        assert result.returncode != 0 and "CrbaArgs" in result.stderr and "no member named" in result.stderr, result.stderr[-2000:]
+    else:
+        assert result.returncode == 0, result.stderr[-2000:]

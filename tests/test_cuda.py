@@ -41,7 +41,7 @@ def test_every_float32_kernel_compiles_with_nvcc(go2_sources):
     for op in OPS.values():
         for scalar in ("float", "double"):
             for conv in ("tg::PIN", "tg::MJX"):
-                assert f"tg::cuda_launch<tg::{op.kernel}, Robot, {scalar}, {conv}>" in text
+                assert f"tg::cuda_launch<tg::bind::{op.kernel}, Robot, {scalar}, {conv}>" in text
 
     def compile_unit(unit):
         return subprocess.run([NVCC, "-std=c++17", "-O1", "-arch=sm_90", "-c", str(unit), "-o", str(unit.with_suffix(".o")),
@@ -53,22 +53,22 @@ def test_every_float32_kernel_compiles_with_nvcc(go2_sources):
         assert result.returncode == 0, result.stderr[-4000:]
         assert "warning" not in result.stderr.lower(), result.stderr[-4000:]
     symbols = subprocess.run(["nm", "-C", *(str(u.with_suffix(".o")) for u in units)], capture_output=True, text=True).stdout
-    assert "tg::batch_kernel<tg::Minv, torch_grid_nvcc_check::Robot, float, 1>" in symbols
-    assert "tg::batch_kernel<tg::FrameJacobianBackward, torch_grid_nvcc_check::Robot, float, 1>" in symbols
+    assert "tg::batch_kernel<tg::bind::Minv, torch_grid_nvcc_check::Robot, float, 1>" in symbols
+    assert "tg::batch_kernel<tg::bind::FrameJacobianBackward, torch_grid_nvcc_check::Robot, float, 1>" in symbols
 
 
 # Forward-mode backward kernels still above the 64 KiB budget on the humanoid, each with the most
 # stack it may take (bytes, float64, either convention): they run the first-order kernel on dual
 # numbers with every output tangent on the thread; analytic second-order kernels replace them.
 _OVER_BUDGET = {
-    "coriolis_matrix_backward": 83632,
-    "inverse_dynamics_gradient_backward": 105648,
-    "osc_inertia_backward": 109360,
-    "inverse_dynamics_external_force_gradient_backward": 113376,
-    "forward_dynamics_gradient_backward": 160352,
-    "inverse_dynamics_regressor_backward": 182656,
-    "forward_dynamics_external_force_gradient_backward": 213808,
-    "forward_dynamics_parameter_gradient_backward": 288864,
+    "coriolis_matrix_backward": 80896,
+    "inverse_dynamics_gradient_backward": 103168,
+    "osc_inertia_backward": 101072,
+    "inverse_dynamics_external_force_gradient_backward": 107632,
+    "forward_dynamics_gradient_backward": 154336,
+    "inverse_dynamics_regressor_backward": 177680,
+    "forward_dynamics_external_force_gradient_backward": 197120,
+    "forward_dynamics_parameter_gradient_backward": 276592,
 }
 
 

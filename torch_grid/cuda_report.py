@@ -77,7 +77,7 @@ def _parse(log: str) -> list[KernelUsage]:
     names = _demangle([m[0] for m in mangled])
     usages = []
     for (_, stack, stores, loads, regs), name in zip(mangled, names):
-        found = re.search(r"batch_kernel<tg::(\w+), [\w:]+, (float|double), (\d)>", name)
+        found = re.search(r"batch_kernel<tg::bind::(\w+), [\w:]+, (float|double), (\d)>", name)
         if not found:
             raise RuntimeError(f"cannot read the kernel name {name!r}")
         kernel, scalar, conv = found.groups()

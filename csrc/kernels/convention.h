@@ -23,16 +23,28 @@ template <class M, class S, int C> struct Conv {
       R = quat_rotation(q[3], q[4], q[5], q[6]);
     }
   }
+  // Inputs: each returns the input in Pinocchio's convention, `in` itself when there is nothing to
+  // convert, else `buf` (NV) filled.
   // Velocity or generalized force in: base-linear part R^T x.
-  TG_HD void velocity(const S* in, S* v) const {
-    for (int k = 0; k < M::NV; ++k) v[k] = in[k];
-    if constexpr (active) store3(mulT(R, load3(in)), v);
+  TG_HD const S* velocity(const S* in, S* buf) const {
+    if constexpr (active) {
+      for (int k = 0; k < M::NV; ++k) buf[k] = in[k];
+      store3(mulT(R, load3(in)), buf);
+      return buf;
+    } else {
+      return in;
+    }
   }
-  TG_HD void force(const S* in, S* u) const { velocity(in, u); }
+  TG_HD const S* force(const S* in, S* buf) const { return velocity(in, buf); }
   // Acceleration in: a_lin = R^T a_mjx - w x v_lin (v already in Pinocchio's convention).
-  TG_HD void acceleration(const S* v, const S* in, S* a) const {
-    for (int k = 0; k < M::NV; ++k) a[k] = in[k];
-    if constexpr (active) store3(mulT(R, load3(in)) - cross(load3(v + 3), load3(v)), a);
+  TG_HD const S* acceleration(const S* v, const S* in, S* buf) const {
+    if constexpr (active) {
+      for (int k = 0; k < M::NV; ++k) buf[k] = in[k];
+      store3(mulT(R, load3(in)) - cross(load3(v + 3), load3(v)), buf);
+      return buf;
+    } else {
+      return in;
+    }
   }
   // Generalized force out (covector): base-linear rows R x.
   TG_HD void force_out(S* tau) const {

@@ -37,22 +37,14 @@ template <class M, class S> TG_HD void end_effector_pose(const S* q, const int* 
   }
 }
 
-// Jacobian (6 x NV, rows [linear; angular]) of frame f in the given reference. Only the bodies
-// supporting the frame are placed.
-template <class M, class S> TG_HD void frame_jacobian(const S* q, int f, int reference, S* J) {
+// Jacobian (6 x NV, rows [linear; angular]) of frame f in the given reference, from the world
+// placements oMi of (at least) the bodies supporting the frame.
+template <class M, class S> TG_HD void frame_jacobian(const SE3<S>* oMi, int f, int reference, S* J) {
   const auto& d = data<M, S>();
-  int chain[M::NB], n = 0;  // support chain, frame's body first
-  for (int j = d.fparent[f]; j >= 0; j = d.parent[j]) chain[n++] = j;
-  SE3<S> oMi[M::NB];
-  for (int k = n - 1; k >= 0; --k) {
-    const SE3<S> liMi = joint_placement<M, S>(chain[k], q);
-    oMi[chain[k]] = k == n - 1 ? liMi : oMi[chain[k + 1]] * liMi;
-  }
   const SE3<S> oMf = frame_placement<M, S>(f, oMi);
   for (int k = 0; k < 6 * M::NV; ++k) J[k] = S(0);
   // Each joint on the chain contributes its world axis, expressed as asked.
-  for (int c = 0; c < n; ++c) {
-    const int j = chain[c];
+  for (int j = d.fparent[f]; j >= 0; j = d.parent[j]) {
     for (int k = 0; k < d.nvj[j]; ++k) {
       const Sv<S> s = act_motion(oMi[j], joint_axis<M, S>(j, k));
       Vec3<S> l = lin(s), w = ang(s);
@@ -67,6 +59,19 @@ template <class M, class S> TG_HD void frame_jacobian(const S* q, int f, int ref
       }
     }
   }
+}
+
+// The same from q: only the bodies supporting the frame are placed.
+template <class M, class S> TG_HD void frame_jacobian(const S* q, int f, int reference, S* J) {
+  const auto& d = data<M, S>();
+  int chain[M::NB], n = 0;  // support chain, frame's body first
+  for (int j = d.fparent[f]; j >= 0; j = d.parent[j]) chain[n++] = j;
+  SE3<S> oMi[M::NB];
+  for (int k = n - 1; k >= 0; --k) {
+    const SE3<S> liMi = joint_placement<M, S>(chain[k], q);
+    oMi[chain[k]] = k == n - 1 ? liMi : oMi[chain[k + 1]] * liMi;
+  }
+  frame_jacobian<M, S>(oMi, f, reference, J);
 }
 
 // sum_f J_f^T w_f over every frame f (NV), J_f the LOCAL_WORLD_ALIGNED Jacobian and w (NF x 6)
@@ -142,11 +147,10 @@ TG_HD void frame_jacobian_dot(const S* q, const S* qd, int f, int reference, S* 
 
 // d tau / d f_ext (NV x NB x 6): tau = ... - sum_k J_k^T f_k with J_k body k's Jacobian in its joint
 // frame, so column (k, c) is minus row c of J_k: joint j's axis seen from body k's frame.
-template <class M, class S> TG_HD void external_force_jacobian(const S* q, S* out) {
+template <class M, class S> TG_HD void external_force_jacobian(const Placements<M, S>& K, S* out) {
   const auto& d = data<M, S>();
   constexpr int NF6 = 6 * M::NB;
-  SE3<S> liMi[M::NB], oMi[M::NB];
-  forward_kinematics<M, S>(q, liMi, oMi);
+  const SE3<S>* oMi = K.oMi;
   for (int k = 0; k < M::NV * NF6; ++k) out[k] = S(0);
   for (int k = 0; k < M::NB; ++k)
     for (int j = k; j >= 0; j = d.parent[j])

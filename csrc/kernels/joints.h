@@ -148,4 +148,26 @@ template <class M, class S> struct JointPlacements {
 #endif
 };
 
+// The first named pass of an op that runs several algorithms on one sample: world placements oMi
+// and joint placements liMi (local(i)), computed once from q and read by each algorithm in turn.
+// A GPU thread keeps only oMi and rebuilds liMi from q, as JointPlacements does.
+template <class M, class S> struct Placements {
+  SE3<S> oMi[M::NB];
+#if defined(__CUDA_ARCH__)
+  const S* q;
+  TG_HD explicit Placements(const S* q_) : q(q_) {
+    const auto& d = data<M, S>();
+    for (int i = 0; i < M::NB; ++i) oMi[i] = d.parent[i] < 0 ? local(i) : oMi[d.parent[i]] * local(i);
+  }
+  TG_HD SE3<S> local(int i) const { return joint_placement<M, S>(i, q); }
+#else
+  SE3<S> liMi[M::NB];
+  TG_HD explicit Placements(const S* q) { forward_kinematics<M, S>(q, liMi, oMi); }
+  TG_HD const SE3<S>& local(int i) const { return liMi[i]; }
+#endif
+  // JointPlacements' interface: place(i) in a forward pass, [i] later.
+  TG_HD decltype(auto) place(int i) const { return local(i); }
+  TG_HD decltype(auto) operator[](int i) const { return local(i); }
+};
+
 }  // namespace tg

@@ -13,7 +13,7 @@ namespace tg {
 
 template <class M, class S> struct MinvWork {
   static constexpr int NV = M::NV;
-  SE3<S> liMi[M::NB], oMi[M::NB];
+  const Placements<M, S>* K;  // the placements pass
   M6<S> IA[M::NB];  // articulated inertias, joint frames
   // Per dof (joint i's k-th at vi + k): its axis and U = IA S in the world frame, and row k of
   // (S^T U)^-1 (N x N): per dof rather than per body, so a free root's six do not size every body.
@@ -34,8 +34,8 @@ template <int N, class M, class S> TG_HD void minv_backward(int i, MinvWork<M, S
   for (int k = 0; k < N; ++k) {
     const Sv<S> s = joint_axis<M, S>(i, k);
     U[k] = mul(w.IA[i], s);
-    w.Sw[vi + k] = act_motion(w.oMi[i], s);
-    w.Uw[vi + k] = act_force(w.oMi[i], U[k]);
+    w.Sw[vi + k] = act_motion(w.K->oMi[i], s);
+    w.Uw[vi + k] = act_force(w.K->oMi[i], U[k]);
   }
   for (int r = 0; r < N; ++r)
     for (int k = 0; k < N; ++k) D[N * r + k] = N == 6 ? w.IA[i].m[6 * r + k] : dot(joint_axis<M, S>(i, r), U[k]);
@@ -62,7 +62,7 @@ template <int N, class M, class S> TG_HD void minv_backward(int i, MinvWork<M, S
     for (int r = 0; r < 6; ++r)
       for (int c = 0; c < 6; ++c) Ia.m[6 * r + c] -= U[k].v[r] * UD.v[c];
   }
-  const M6<S> Ip = inertia_to_parent(w.liMi[i], Ia);
+  const M6<S> Ip = inertia_to_parent(w.K->local(i), Ia);
   for (int k = 0; k < 36; ++k) w.IA[p].m[k] += Ip.m[k];
 }
 
@@ -91,14 +91,11 @@ template <int N, class M, class S> TG_HD void minv_forward(int i, MinvWork<M, S>
   }
 }
 
-template <class M, class S> TG_HD void minv(const S* q, S* Minv) {
+template <class M, class S> TG_HD void minv(const Placements<M, S>& K, S* Minv) {
   const auto& d = data<M, S>();
   MinvWork<M, S> w;
-  for (int i = 0; i < M::NB; ++i) {
-    w.liMi[i] = joint_placement<M, S>(i, q);
-    w.oMi[i] = d.parent[i] < 0 ? w.liMi[i] : w.oMi[d.parent[i]] * w.liMi[i];
-    w.IA[i] = to_matrix(body_inertia<M, S>(i));
-  }
+  w.K = &K;
+  for (int i = 0; i < M::NB; ++i) w.IA[i] = to_matrix(body_inertia<M, S>(i));
   for (int col = 0; col < M::NV; ++col) w.F[col] = sv_zero<S>();
   for (int k = 0; k < M::NV * M::NV; ++k) Minv[k] = S(0);
   for (int i = M::NB - 1; i >= 0; --i) {
@@ -112,6 +109,11 @@ template <class M, class S> TG_HD void minv(const S* q, S* Minv) {
   // Mirror the upper triangle.
   for (int r = 0; r < M::NV; ++r)
     for (int c = 0; c < r; ++c) Minv[M::NV * r + c] = Minv[M::NV * c + r];
+}
+
+template <class M, class S> TG_HD void minv(const S* q, S* Minv) {
+  const Placements<M, S> K(q);
+  minv<M, S>(K, Minv);
 }
 
 }  // namespace tg

@@ -1,6 +1,9 @@
-// The ops exposed to torch: each binds per-sample input/output pointers to an algorithm and to
-// the convention's input conversion and output reframe. Shapes and argument order match the op
-// table in torch_grid/ops.py, which generates the registration.
+// The kernels of the ops exposed to torch, one struct per op of the op table (torch_grid/ops.py).
+// Each reads its named arguments (`a.q`, `a.tau`, ...: a struct generated from the table in
+// op_args.h), already in Pinocchio's convention; the generated binding (bindings.h) converts the
+// inputs and reframes the outputs by their kind. An op whose MuJoCo outputs need a hand-derived
+// formula (outputs of kind "twin") also gets the convention `cv` and reframes them itself.
+// An op running several algorithms on a sample computes the shared Placements pass once.
 #pragma once
 
 #include "aba.h"
@@ -9,20 +12,12 @@
 #include "crba.h"
 #include "frames.h"
 #include "minv.h"
+#include "op_args.h"
 #include "regressors.h"
 #include "rnea.h"
 #include "rnea_derivatives.h"
 
 namespace tg {
-
-#define TG_OP_BEGIN(Name)                                                   \
-  template <class M, class S, int C> struct Name {                          \
-    TG_HD static void run(const S* const* in, S* const* out, const int* iargs, int n_iargs) { \
-      (void)iargs; (void)n_iargs;                                           \
-      const Conv<M, S, C> cv(in[0]);
-#define TG_OP_END \
-    }             \
-  };
 
 // Columns [c0, c0 + W) of X <- -A X for an NV x NV matrix A and an NV x COLS row-major X: rows of
 // the product are sums of rows of X, which keeps the inner loop contiguous; W is a compile-time
@@ -50,24 +45,12 @@ template <class M, class S, int COLS> TG_HD void negate_left_multiply(const S* A
   if constexpr (R > 0) negate_left_multiply_block<M, S, COLS, R>(A, X, COLS - R);
 }
 
-// The base-linear columns of Pinocchio's M (NV x 3, row-major), all a MuJoCo twin's reframe reads
-// of M: M e_c = RNEA(q, 0, e_c) without gravity, three O(n) passes in little memory.
-template <class M, class S> TG_HD void mass_base_columns(const S* q, S* Mb) {
-  S zero[M::NV], e[M::NV], col[M::NV];
-  for (int k = 0; k < M::NV; ++k) zero[k] = S(0);
-  for (int c = 0; c < 3; ++c) {
-    for (int k = 0; k < M::NV; ++k) e[k] = S(k == c ? 1 : 0);
-    rnea<M, S, false>(q, zero, e, nullptr, col);
-    for (int r = 0; r < M::NV; ++r) Mb[3 * r + c] = col[r];
-  }
-}
-
 // qdd = M^-1 (tau - nle(q, qd, f_ext)) from a computed M^-1 (Pinocchio's convention).
-template <class M, class S>
-TG_HD void forward_dynamics_from_minv(const S* q, const S* qd, const S* tau, const S* fext, const S* Minv, S* qdd) {
+template <class M, class S> TG_HD void forward_dynamics_from_minv(const Placements<M, S>& K, const S* qd, const S* tau,
+                                                                 const S* fext, const S* Minv, S* qdd) {
   S zero[M::NV], nle[M::NV];
   for (int k = 0; k < M::NV; ++k) zero[k] = S(0);
-  rnea<M, S>(q, qd, zero, fext, nle);
+  rnea<M, S>(K, qd, zero, fext, nle);
   for (int r = 0; r < M::NV; ++r) {
     S acc = 0;
     for (int k = 0; k < M::NV; ++k) acc += Minv[M::NV * r + k] * (tau[k] - nle[k]);
@@ -75,285 +58,262 @@ TG_HD void forward_dynamics_from_minv(const S* q, const S* qd, const S* tau, con
   }
 }
 
-// in: q, qd, qdd, f_ext?   out: tau
-TG_OP_BEGIN(InverseDynamics)
-  S qd[M::NV], qdd[M::NV];
-  cv.velocity(in[1], qd);
-  cv.acceleration(qd, in[2], qdd);
-  rnea<M, S>(cv.q, qd, qdd, in[3], out[0]);
-  cv.force_out(out[0]);
-TG_OP_END
+template <class M, class S> struct InverseDynamics {
+  TG_HD static void run(const InverseDynamicsArgs<S>& a) { rnea<M, S>(a.q, a.qd, a.qdd, a.f_ext, a.tau); }
+};
 
-// in: q, qd, tau, f_ext?   out: qdd
-TG_OP_BEGIN(ForwardDynamics)
-  S qd[M::NV], tau[M::NV];
-  cv.velocity(in[1], qd);
-  cv.force(in[2], tau);
-  aba<M, S>(cv.q, qd, tau, in[3], out[0]);
-  cv.acceleration_out(qd, out[0]);
-TG_OP_END
+template <class M, class S> struct ForwardDynamics {
+  TG_HD static void run(const ForwardDynamicsArgs<S>& a) { aba<M, S>(a.q, a.qd, a.tau, a.f_ext, a.qdd); }
+};
 
-// in: q   out: M
-TG_OP_BEGIN(Crba)
-  crba<M, S>(cv.q, out[0]);
-  cv.congruence_out(out[0]);
-TG_OP_END
+template <class M, class S> struct Crba {
+  TG_HD static void run(const CrbaArgs<S>& a) { crba<M, S>(a.q, a.M); }
+};
 
-// in: q   out: M^-1
-TG_OP_BEGIN(Minv)
-  minv<M, S>(cv.q, out[0]);
-  cv.congruence_out(out[0]);
-TG_OP_END
+template <class M, class S> struct Minv {
+  TG_HD static void run(const MinvArgs<S>& a) { minv<M, S>(a.q, a.Minv); }
+};
 
-// in: q   out: g(q)
-TG_OP_BEGIN(GeneralizedGravity)
-  S zero[M::NV];
-  for (int k = 0; k < M::NV; ++k) zero[k] = S(0);
-  rnea<M, S>(cv.q, zero, zero, nullptr, out[0]);
-  cv.force_out(out[0]);
-TG_OP_END
-
-// in: q, qd   out: C(q, qd) qd + g(q); MuJoCo's qacc = 0 is a_lin = -w x v_lin in Pinocchio's.
-TG_OP_BEGIN(NonlinearEffects)
-  S qd[M::NV], zero[M::NV], qdd[M::NV];
-  for (int k = 0; k < M::NV; ++k) zero[k] = S(0);
-  cv.velocity(in[1], qd);
-  cv.acceleration(qd, zero, qdd);
-  rnea<M, S>(cv.q, qd, qdd, nullptr, out[0]);
-  cv.force_out(out[0]);
-TG_OP_END
-
-// in: q, qd   out: [kinetic, potential, mechanical]
-TG_OP_BEGIN(Energy)
-  S qd[M::NV];
-  cv.velocity(in[1], qd);
-  energy<M, S>(cv.q, qd, out[0]);
-TG_OP_END
-
-// in: q   out: com (3)
-TG_OP_BEGIN(Com)
-  com<M, S>(cv.q, out[0]);
-TG_OP_END
-
-// in: q   out: J_com (3 x NV)
-TG_OP_BEGIN(JacobianCom)
-  jacobian_com<M, S>(cv.q, out[0]);
-  cv.columns_out(out[0], 3);
-TG_OP_END
-
-// in: q, qd   out: A (6 x NV), h (6)
-TG_OP_BEGIN(Ccrba)
-  S qd[M::NV];
-  cv.velocity(in[1], qd);
-  ccrba<M, S>(cv.q, qd, out[0], out[1]);
-  cv.columns_out(out[0], 6);
-TG_OP_END
-
-// in: q   out: positions (NF x 3), rotations (NF x 3 x 3)
-TG_OP_BEGIN(ForwardKinematics)
-  frames_forward_kinematics<M, S>(cv.q, out[0], out[1]);
-TG_OP_END
-
-// in: q; iargs: frame indices   out: (n x 6) [xyz, rpy]
-TG_OP_BEGIN(EndEffectorPose)
-  end_effector_pose<M, S>(cv.q, iargs, n_iargs, out[0]);
-TG_OP_END
-
-// in: q; iargs: frame, reference   out: J (6 x NV)
-TG_OP_BEGIN(FrameJacobian)
-  frame_jacobian<M, S>(cv.q, iargs[0], iargs[1], out[0]);
-  cv.columns_out(out[0], 6);
-TG_OP_END
-
-// in: q, qd, qdd, f_ext?   out: dtau/dq, dtau/dqd (tangent derivatives)
-TG_OP_BEGIN(InverseDynamicsGradient)
-  S qd[M::NV], qdd[M::NV], tau[M::NV];
-  cv.velocity(in[1], qd);
-  cv.acceleration(qd, in[2], qdd);
-  rnea_derivatives<M, S>(cv.q, qd, qdd, in[3], tau, out[0], out[1]);
-  if constexpr (Conv<M, S, C>::active) {
-    S Mb[M::NV * 3];
-    mass_base_columns<M, S>(cv.q, Mb);
-    cv.inverse_dynamics_gradient_out(qd, qdd, tau, Mb, out[0], out[1]);
-  }
-TG_OP_END
-
-// in: q, qd   out: spatial velocity [v; w] of each body in its joint frame (NB x 6)
-TG_OP_BEGIN(BodyVelocities)
-  S qd[M::NV];
-  cv.velocity(in[1], qd);
-  body_velocities<M, S>(cv.q, qd, out[0]);
-TG_OP_END
-
-// in: q, qd; iargs: frame, reference   out: d/dt frame_jacobian (6 x NV)
-TG_OP_BEGIN(FrameJacobianDot)
-  S qd[M::NV];
-  cv.velocity(in[1], qd);
-  if constexpr (Conv<M, S, C>::active) {
-    S J[6 * M::NV];
-    frame_jacobian_dot<M, S>(cv.q, qd, iargs[0], iargs[1], out[0], J);
-    cv.jacobian_dot_out(qd, J, out[0], 6);
-  } else {
-    frame_jacobian_dot<M, S>(cv.q, qd, iargs[0], iargs[1], out[0], nullptr);
-  }
-TG_OP_END
-
-// in: q, x   out: M^-1 x, by ABA without velocity or gravity (MuJoCo's: G M^-1 G^T x)
-TG_OP_BEGIN(InertiaSolve)
-  S zero[M::NV], x[M::NV];
-  for (int k = 0; k < M::NV; ++k) zero[k] = S(0);
-  cv.force(in[1], x);
-  aba<M, S, false>(cv.q, zero, x, nullptr, out[0]);
-  cv.force_out(out[0]);
-TG_OP_END
-
-// in: q, w (NF x 6)   out: sum_f J_f^T w_f (NV), the frames' vector-Jacobian product
-TG_OP_BEGIN(FramesVjp)
-  frames_vjp<M, S>(cv.q, in[1], out[0]);
-  cv.force_out(out[0]);
-TG_OP_END
-
-// in: q, qd   out: dA/dt (6 x NV); MuJoCo's as the time derivative of its A at fixed qvel
-TG_OP_BEGIN(CmmTimeVariation)
-  S qd[M::NV];
-  cv.velocity(in[1], qd);
-  if constexpr (Conv<M, S, C>::active) {
-    S A[6 * M::NV];
-    cmm_time_variation<M, S>(cv.q, qd, out[0], A);
-    cv.jacobian_dot_out(qd, A, out[0], 6);
-  } else {
-    cmm_time_variation<M, S>(cv.q, qd, out[0], nullptr);
-  }
-TG_OP_END
-
-// in: q, qd   out: dh/dq (6 x NV), h the centroidal momentum
-TG_OP_BEGIN(Dccrba)
-  S qd[M::NV];
-  cv.velocity(in[1], qd);
-  dccrba<M, S>(cv.q, qd, out[0]);
-  if constexpr (Conv<M, S, C>::active) {
-    S A[6 * M::NV], Adot[6 * M::NV];
-    cmm_time_variation<M, S>(cv.q, qd, Adot, A);
-    cv.momentum_gradient_out(qd, A, out[0]);
-  }
-TG_OP_END
-
-// in: q, qd   out: C (NV x NV), C qd + g = nonlinear effects
-TG_OP_BEGIN(CoriolisMatrix)
-  S qd[M::NV];
-  cv.velocity(in[1], qd);
-  coriolis_matrix<M, S>(cv.q, qd, out[0]);
-  if constexpr (Conv<M, S, C>::active) {
-    S Mb[M::NV * 3];
-    mass_base_columns<M, S>(cv.q, Mb);
-    cv.coriolis_out(qd, Mb, out[0]);
-  }
-TG_OP_END
-
-// in: q   out: d tau / d f_ext (NV x NB x 6)
-TG_OP_BEGIN(InverseDynamicsExternalForceGradient)
-  external_force_jacobian<M, S>(cv.q, out[0]);
-  cv.force_rows_out(out[0], 6 * M::NB);
-TG_OP_END
-
-// in: q   out: d qdd / d f_ext (NV x NB x 6) = -M^-1 d tau / d f_ext
-TG_OP_BEGIN(ForwardDynamicsExternalForceGradient)
-  S Minv[M::NV * M::NV];
-  minv<M, S>(cv.q, Minv);
-  external_force_jacobian<M, S>(cv.q, out[0]);
-  negate_left_multiply<M, S, 6 * M::NB>(Minv, out[0]);
-  cv.force_rows_out(out[0], 6 * M::NB);
-TG_OP_END
-
-// in: q; iargs: frame, reference   out: Lambda = (J M^-1 J^T)^-1 (6 x 6)
-TG_OP_BEGIN(OscInertia)
-  S Minv[M::NV * M::NV], J[6 * M::NV], JMinv[6 * M::NV], A[36];
-  minv<M, S>(cv.q, Minv);
-  frame_jacobian<M, S>(cv.q, iargs[0], iargs[1], J);
-  for (int r = 0; r < 6; ++r)
-    for (int c = 0; c < M::NV; ++c) {
-      S acc = 0;
-      for (int k = 0; k < M::NV; ++k) acc += J[M::NV * r + k] * Minv[M::NV * k + c];
-      JMinv[M::NV * r + c] = acc;
-    }
-  for (int r = 0; r < 6; ++r)
-    for (int c = 0; c < 6; ++c) {
-      S acc = 0;
-      for (int k = 0; k < M::NV; ++k) acc += JMinv[M::NV * r + k] * J[M::NV * c + k];
-      A[6 * r + c] = acc;
-    }
-  spd_inverse(6, A, out[0]);
-TG_OP_END
-
-// in: q, qd, qdd, f_ext?, lambda   out: lambda^T d tau/dq, lambda^T d tau/dqd (NV each), in O(n)
-TG_OP_BEGIN(InverseDynamicsVjp)
-  S qd[M::NV], qdd[M::NV], mu[M::NV], tau[M::NV];
-  cv.velocity(in[1], qd);
-  cv.acceleration(qd, in[2], qdd);
-  cv.force(in[4], mu);  // G^T lambda
-  rnea_vjp<M, S>(cv.q, qd, qdd, in[3], mu, tau, out[0], out[1]);
-  if constexpr (Conv<M, S, C>::active) {
-    S zero[M::NV], Mmu[M::NV];
+template <class M, class S> struct GeneralizedGravity {
+  TG_HD static void run(const GeneralizedGravityArgs<S>& a) {
+    S zero[M::NV];
     for (int k = 0; k < M::NV; ++k) zero[k] = S(0);
-    rnea<M, S, false>(cv.q, zero, mu, nullptr, Mmu);
-    cv.inverse_dynamics_vjp_out(qd, qdd, tau, Mmu, mu, out[0], out[1]);
+    rnea<M, S>(a.q, zero, zero, nullptr, a.g);
   }
-TG_OP_END
+};
 
-// in: q, qd, tau, f_ext?   out: dqdd/dq, dqdd/dqd, dqdd/dtau. Since ID(q, qd, FD(q, qd, tau)) = tau,
-// dqdd/dx = -M^-1 dtau/dx at qdd = FD(q, qd, tau), and dqdd/dtau = M^-1, in either convention.
-TG_OP_BEGIN(ForwardDynamicsGradient)
-  S qd[M::NV], u[M::NV], qdd[M::NV], tau[M::NV];
-  cv.velocity(in[1], qd);
-  cv.force(in[2], u);
-  minv<M, S>(cv.q, out[2]);  // needed anyway, so qdd comes from it rather than from ABA
-  forward_dynamics_from_minv<M, S>(cv.q, qd, u, in[3], out[2], qdd);
-  rnea_derivatives<M, S>(cv.q, qd, qdd, in[3], tau, out[0], out[1]);
+// C(q, qd) qd + g(q): RNEA at zero joint acceleration (MuJoCo's qacc = 0 is a_lin = -w x v_lin in
+// Pinocchio's convention, so the op converts a zero acceleration of its own).
+template <class M, class S> struct NonlinearEffects {
+  template <int C> TG_HD static void run(const NonlinearEffectsArgs<S>& a, const Conv<M, S, C>& cv) {
+    S zero[M::NV], buf[M::NV];
+    for (int k = 0; k < M::NV; ++k) zero[k] = S(0);
+    rnea<M, S>(a.q, a.qd, cv.acceleration(a.qd, zero, buf), nullptr, a.nle);
+    cv.force_out(a.nle);
+  }
+};
+
+template <class M, class S> struct Energy {
+  TG_HD static void run(const EnergyArgs<S>& a) { energy<M, S>(a.q, a.qd, a.energy); }
+};
+
+template <class M, class S> struct Com {
+  TG_HD static void run(const ComArgs<S>& a) { com<M, S>(a.q, a.com); }
+};
+
+template <class M, class S> struct JacobianCom {
+  TG_HD static void run(const JacobianComArgs<S>& a) { jacobian_com<M, S>(a.q, a.J); }
+};
+
+template <class M, class S> struct Ccrba {
+  TG_HD static void run(const CcrbaArgs<S>& a) { ccrba<M, S>(a.q, a.qd, a.A, a.h); }
+};
+
+template <class M, class S> struct ForwardKinematics {
+  TG_HD static void run(const ForwardKinematicsArgs<S>& a) { frames_forward_kinematics<M, S>(a.q, a.positions, a.rotations); }
+};
+
+template <class M, class S> struct EndEffectorPose {
+  TG_HD static void run(const EndEffectorPoseArgs<S>& a) { end_effector_pose<M, S>(a.q, a.frames, a.n_frames, a.pose); }
+};
+
+template <class M, class S> struct FrameJacobian {
+  TG_HD static void run(const FrameJacobianArgs<S>& a) { frame_jacobian<M, S>(a.q, a.frame, a.reference, a.J); }
+};
+
+template <class M, class S> struct FrameJacobianDot {
+  template <int C> TG_HD static void run(const FrameJacobianDotArgs<S>& a, const Conv<M, S, C>& cv) {
+    if constexpr (Conv<M, S, C>::active) {
+      S J[6 * M::NV];
+      frame_jacobian_dot<M, S>(a.q, a.qd, a.frame, a.reference, a.Jdot, J);
+      cv.jacobian_dot_out(a.qd, J, a.Jdot, 6);
+    } else {
+      frame_jacobian_dot<M, S>(a.q, a.qd, a.frame, a.reference, a.Jdot, nullptr);
+    }
+  }
+};
+
+// lambda^T d tau/dq, lambda^T d tau/dqd in O(n); the binding's force conversion of the cotangent is
+// mu = G^T lambda.
+template <class M, class S> struct InverseDynamicsVjp {
+  template <int C> TG_HD static void run(const InverseDynamicsVjpArgs<S>& a, const Conv<M, S, C>& cv) {
+    const Placements<M, S> K(a.q);
+    RneaDerivativesWork<M, S> W;
+    rnea_derivatives_setup<M, S>(K, a.qd, a.qdd, a.f_ext, W);
+    S tau[M::NV];
+    rnea_vjp<M, S>(W, a.cotangent, tau, a.grad_q, a.grad_qd);
+    if constexpr (Conv<M, S, C>::active) {
+      S zero[M::NV], Mmu[M::NV];
+      for (int k = 0; k < M::NV; ++k) zero[k] = S(0);
+      rnea<M, S, false>(K, zero, a.cotangent, nullptr, Mmu);
+      cv.inverse_dynamics_vjp_out(a.qd, a.qdd, tau, Mmu, a.cotangent, a.grad_q, a.grad_qd);
+    }
+  }
+};
+
+// M^-1 x by ABA without velocity or gravity.
+template <class M, class S> struct InertiaSolve {
+  TG_HD static void run(const InertiaSolveArgs<S>& a) {
+    S zero[M::NV];
+    for (int k = 0; k < M::NV; ++k) zero[k] = S(0);
+    aba<M, S, false>(a.q, zero, a.x, nullptr, a.y);
+  }
+};
+
+template <class M, class S> struct BodyVelocities {
+  TG_HD static void run(const BodyVelocitiesArgs<S>& a) { body_velocities<M, S>(a.q, a.qd, a.v); }
+};
+
+template <class M, class S> struct FramesVjp {
+  TG_HD static void run(const FramesVjpArgs<S>& a) { frames_vjp<M, S>(a.q, a.weights, a.tau); }
+};
+
+// d tau/dq, d tau/dqd in the convention C (qd, qdd in Pinocchio's). MuJoCo's base columns of M come
+// from the derivatives' composite inertias. Its workspace lives in this function's frame, which a
+// GPU thread's stack holds only while it runs (not beside the caller's minv).
+template <class M, class S, int C>
+TG_HD void inverse_dynamics_derivatives(const Placements<M, S>& K, const S* qd, const S* qdd, const S* fext,
+                                        const Conv<M, S, C>& cv, S* dtau_dq, S* dtau_dqd) {
+  RneaDerivativesWork<M, S> W;
+  rnea_derivatives_setup<M, S>(K, qd, qdd, fext, W);
+  S tau[M::NV];
+  rnea_derivatives<M, S>(W, tau, dtau_dq, dtau_dqd);
   if constexpr (Conv<M, S, C>::active) {
     S Mb[M::NV * 3];
-    mass_base_columns<M, S>(cv.q, Mb);
-    cv.inverse_dynamics_gradient_out(qd, qdd, tau, Mb, out[0], out[1]);
-    cv.congruence_out(out[2]);
+    mass_base_columns<M, S>(W, Mb);
+    cv.inverse_dynamics_gradient_out(qd, qdd, tau, Mb, dtau_dq, dtau_dqd);
   }
-  negate_left_multiply<M, S, M::NV>(out[2], out[0]);
-  negate_left_multiply<M, S, M::NV>(out[2], out[1]);
-TG_OP_END
+}
 
-// in: q, qd, qdd   out: Y (NV x 10 NB), tau = Y pi
-TG_OP_BEGIN(InverseDynamicsRegressor)
-  S qd[M::NV], qdd[M::NV];
-  cv.velocity(in[1], qd);
-  cv.acceleration(qd, in[2], qdd);
-  inverse_dynamics_regressor<M, S>(cv.q, qd, qdd, out[0]);
-  cv.force_rows_out(out[0], 10 * M::NB);
-TG_OP_END
+template <class M, class S> struct InverseDynamicsGradient {
+  template <int C> TG_HD static void run(const InverseDynamicsGradientArgs<S>& a, const Conv<M, S, C>& cv) {
+    const Placements<M, S> K(a.q);
+    inverse_dynamics_derivatives<M, S>(K, a.qd, a.qdd, a.f_ext, cv, a.dtau_dq, a.dtau_dqd);
+  }
+};
 
-// in: q, qd   out: Yk (10 NB), KE = Yk . pi
-TG_OP_BEGIN(KineticEnergyRegressor)
-  S qd[M::NV];
-  cv.velocity(in[1], qd);
-  kinetic_energy_regressor<M, S>(cv.q, qd, out[0]);
-TG_OP_END
+// Since ID(q, qd, FD(q, qd, tau)) = tau, dqdd/dx = -M^-1 dtau/dx at qdd = FD(q, qd, tau), and
+// dqdd/dtau = M^-1, in either convention. Minv, RNEA (for qdd) and the RNEA derivatives share the
+// Placements pass.
+template <class M, class S> struct ForwardDynamicsGradient {
+  template <int C> TG_HD static void run(const ForwardDynamicsGradientArgs<S>& a, const Conv<M, S, C>& cv) {
+    const Placements<M, S> K(a.q);
+    S qdd[M::NV];
+    minv<M, S>(K, a.dqdd_dtau);  // needed anyway, so qdd comes from it rather than from ABA
+    forward_dynamics_from_minv<M, S>(K, a.qd, a.tau, a.f_ext, a.dqdd_dtau, qdd);
+    inverse_dynamics_derivatives<M, S>(K, a.qd, qdd, a.f_ext, cv, a.dqdd_dq, a.dqdd_dqd);
+    cv.congruence_out(a.dqdd_dtau);
+    negate_left_multiply<M, S, M::NV>(a.dqdd_dtau, a.dqdd_dq);
+    negate_left_multiply<M, S, M::NV>(a.dqdd_dtau, a.dqdd_dqd);
+  }
+};
 
-// in: q   out: Yp (10 NB), PE = Yp . pi
-TG_OP_BEGIN(PotentialEnergyRegressor)
-  potential_energy_regressor<M, S>(cv.q, out[0]);
-TG_OP_END
+template <class M, class S> struct InverseDynamicsExternalForceGradient {
+  TG_HD static void run(const InverseDynamicsExternalForceGradientArgs<S>& a) {
+    const Placements<M, S> K(a.q);
+    external_force_jacobian<M, S>(K, a.dtau_dfext);
+  }
+};
 
-// in: q, qd, tau   out: d qdd / d pi (NV x 10 NB) = -M^-1 Y(q, qd, qdd) at qdd = FD(q, qd, tau).
-// MuJoCo's qdd differs from Pinocchio's by G and a term free of pi, so the twin is G (.).
-TG_OP_BEGIN(ForwardDynamicsParameterGradient)
-  S qd[M::NV], u[M::NV], qdd[M::NV], Minv[M::NV * M::NV];
-  cv.velocity(in[1], qd);
-  cv.force(in[2], u);
-  minv<M, S>(cv.q, Minv);
-  forward_dynamics_from_minv<M, S>(cv.q, qd, u, nullptr, Minv, qdd);
-  inverse_dynamics_regressor<M, S>(cv.q, qd, qdd, out[0]);
-  negate_left_multiply<M, S, 10 * M::NB>(Minv, out[0]);
-  cv.force_rows_out(out[0], 10 * M::NB);
-TG_OP_END
+// d qdd / d f_ext = -M^-1 d tau / d f_ext.
+template <class M, class S> struct ForwardDynamicsExternalForceGradient {
+  TG_HD static void run(const ForwardDynamicsExternalForceGradientArgs<S>& a) {
+    const Placements<M, S> K(a.q);
+    S Minv[M::NV * M::NV];
+    minv<M, S>(K, Minv);
+    external_force_jacobian<M, S>(K, a.dqdd_dfext);
+    negate_left_multiply<M, S, 6 * M::NB>(Minv, a.dqdd_dfext);
+  }
+};
 
-#undef TG_OP_BEGIN
-#undef TG_OP_END
+// Lambda = (J M^-1 J^T)^-1, the same in both conventions (J M^-1 J^T is invariant under G).
+template <class M, class S> struct OscInertia {
+  TG_HD static void run(const OscInertiaArgs<S>& a) {
+    const Placements<M, S> K(a.q);
+    S Minv[M::NV * M::NV], J[6 * M::NV], JMinv[6 * M::NV], A[36];
+    minv<M, S>(K, Minv);
+    frame_jacobian<M, S>(K.oMi, a.frame, a.reference, J);
+    for (int r = 0; r < 6; ++r)
+      for (int c = 0; c < M::NV; ++c) {
+        S acc = 0;
+        for (int k = 0; k < M::NV; ++k) acc += J[M::NV * r + k] * Minv[M::NV * k + c];
+        JMinv[M::NV * r + c] = acc;
+      }
+    for (int r = 0; r < 6; ++r)
+      for (int c = 0; c < 6; ++c) {
+        S acc = 0;
+        for (int k = 0; k < M::NV; ++k) acc += JMinv[M::NV * r + k] * J[M::NV * c + k];
+        A[6 * r + c] = acc;
+      }
+    spd_inverse(6, A, a.Lambda);
+  }
+};
+
+// MuJoCo's dA/dt is the time derivative of its A at fixed qvel.
+template <class M, class S> struct CmmTimeVariation {
+  template <int C> TG_HD static void run(const CmmTimeVariationArgs<S>& a, const Conv<M, S, C>& cv) {
+    if constexpr (Conv<M, S, C>::active) {
+      S A[6 * M::NV];
+      cmm_time_variation<M, S>(a.q, a.qd, a.Adot, A);
+      cv.jacobian_dot_out(a.qd, A, a.Adot, 6);
+    } else {
+      cmm_time_variation<M, S>(a.q, a.qd, a.Adot, nullptr);
+    }
+  }
+};
+
+template <class M, class S> struct Dccrba {
+  template <int C> TG_HD static void run(const DccrbaArgs<S>& a, const Conv<M, S, C>& cv) {
+    dccrba<M, S>(a.q, a.qd, a.dh_dq);
+    if constexpr (Conv<M, S, C>::active) {
+      S A[6 * M::NV], Adot[6 * M::NV];
+      cmm_time_variation<M, S>(a.q, a.qd, Adot, A);
+      cv.momentum_gradient_out(a.qd, A, a.dh_dq);
+    }
+  }
+};
+
+template <class M, class S> struct CoriolisMatrix {
+  template <int C> TG_HD static void run(const CoriolisMatrixArgs<S>& a, const Conv<M, S, C>& cv) {
+    const Placements<M, S> K(a.q);
+    S zero[M::NV];
+    for (int k = 0; k < M::NV; ++k) zero[k] = S(0);
+    RneaDerivativesWork<M, S> W;
+    rnea_derivatives_setup<M, S>(K, a.qd, zero, nullptr, W);
+    coriolis_matrix<M, S>(W, a.C);
+    if constexpr (Conv<M, S, C>::active) {
+      S Mb[M::NV * 3];
+      mass_base_columns<M, S>(W, Mb);
+      cv.coriolis_out(a.qd, Mb, a.C);
+    }
+  }
+};
+
+template <class M, class S> struct InverseDynamicsRegressor {
+  TG_HD static void run(const InverseDynamicsRegressorArgs<S>& a) {
+    inverse_dynamics_regressor<M, S>(a.q, a.qd, a.qdd, a.Y);
+  }
+};
+
+template <class M, class S> struct KineticEnergyRegressor {
+  TG_HD static void run(const KineticEnergyRegressorArgs<S>& a) { kinetic_energy_regressor<M, S>(a.q, a.qd, a.Yk); }
+};
+
+template <class M, class S> struct PotentialEnergyRegressor {
+  TG_HD static void run(const PotentialEnergyRegressorArgs<S>& a) { potential_energy_regressor<M, S>(a.q, a.Yp); }
+};
+
+// d qdd / d pi = -M^-1 Y(q, qd, qdd) at qdd = FD(q, qd, tau). MuJoCo's qdd differs from Pinocchio's
+// by G and a term free of pi, so the binding's force-rows reframe (G .) is the twin.
+template <class M, class S> struct ForwardDynamicsParameterGradient {
+  TG_HD static void run(const ForwardDynamicsParameterGradientArgs<S>& a) {
+    const Placements<M, S> K(a.q);
+    S qdd[M::NV], Minv[M::NV * M::NV];
+    minv<M, S>(K, Minv);
+    forward_dynamics_from_minv<M, S>(K, a.qd, a.tau, nullptr, Minv, qdd);
+    inverse_dynamics_regressor<M, S>(K, a.qd, qdd, a.dqdd_dparams);
+    negate_left_multiply<M, S, 10 * M::NB>(Minv, a.dqdd_dparams);
+  }
+};
 
 }  // namespace tg

@@ -30,31 +30,42 @@ template <class S> TG_HD void body_force_regressor(const Sv<S>& v, const Sv<S>& 
 }
 
 // Y (NV x 10 NB): column block i holds body i's regressor, carried to each joint above it.
-template <class M, class S> TG_HD void inverse_dynamics_regressor(const S* q, const S* qd, const S* qdd, S* Y) {
+// liMi: the joint placements (JointPlacements, or a shared Placements pass).
+template <class M, class S, class P> TG_HD void inverse_dynamics_regressor_placed(P& liMi, const S* qd, const S* qdd, S* Y) {
   const auto& d = data<M, S>();
   constexpr int NP = 10 * M::NB;
-  SE3<S> liMi[M::NB];
   Sv<S> v[M::NB], a[M::NB];
   for (int k = 0; k < M::NV * NP; ++k) Y[k] = S(0);
   for (int i = 0; i < M::NB; ++i) {
     const int p = d.parent[i];
-    liMi[i] = joint_placement<M, S>(i, q);
     const Sv<S> vJ = joint_motion<M, S>(i, qd);
-    v[i] = p < 0 ? vJ : actinv_motion(liMi[i], v[p]) + vJ;
-    a[i] = actinv_motion(liMi[i], p < 0 ? base_acceleration<M, S>() : a[p]) + joint_motion<M, S>(i, qdd) +
+    const auto& X = liMi.place(i);
+    v[i] = p < 0 ? vJ : actinv_motion(X, v[p]) + vJ;
+    a[i] = actinv_motion(X, p < 0 ? base_acceleration<M, S>() : a[p]) + joint_motion<M, S>(i, qdd) +
            cross_motion(v[i], vJ);
-    Sv<S> cols[10];
-    body_force_regressor(v[i], a[i], cols);
-    for (int c = 0; c < 10; ++c) {
-      Sv<S> f = cols[c];
-      for (int j = i;;) {
-        for (int l = 0; l < d.nvj[j]; ++l) Y[NP * (d.vi[j] + l) + 10 * i + c] = dot(joint_axis<M, S>(j, l), f);
-        if (d.parent[j] < 0) break;
-        f = act_force(liMi[j], f);
-        j = d.parent[j];
+    Sv<S> f[10];
+    body_force_regressor(v[i], a[i], f);
+    for (int j = i;;) {
+      for (int l = 0; l < d.nvj[j]; ++l) {
+        const Sv<S> s = joint_axis<M, S>(j, l);
+        for (int c = 0; c < 10; ++c) Y[NP * (d.vi[j] + l) + 10 * i + c] = dot(s, f[c]);
       }
+      if (d.parent[j] < 0) break;
+      const auto& Xj = liMi[j];
+      for (int c = 0; c < 10; ++c) f[c] = act_force(Xj, f[c]);
+      j = d.parent[j];
     }
   }
+}
+
+template <class M, class S> TG_HD void inverse_dynamics_regressor(const S* q, const S* qd, const S* qdd, S* Y) {
+  JointPlacements<M, S> liMi(q);
+  inverse_dynamics_regressor_placed<M, S>(liMi, qd, qdd, Y);
+}
+
+template <class M, class S>
+TG_HD void inverse_dynamics_regressor(const Placements<M, S>& K, const S* qd, const S* qdd, S* Y) {
+  inverse_dynamics_regressor_placed<M, S>(K, qd, qdd, Y);
 }
 
 // Kinetic energy KE = Yk . pi (10 NB): per body [|v_l|^2 / 2, v_l x v_a, v_a v_a^T / 2 (sym)].

@@ -6,12 +6,11 @@
 
 namespace tg {
 
-// q, qd, qdd in Pinocchio's layout; fext (NB x 6, joint frames) may be null; tau is (NV).
-// Gravity = false with qd = 0 gives M qdd.
-template <class M, class S, bool Gravity = true>
-TG_HD void rnea(const S* q, const S* qd, const S* qdd, const S* fext, S* tau) {
+// liMi: the joint placements (JointPlacements, or a shared Placements pass); qd, qdd in Pinocchio's
+// layout; fext (NB x 6, joint frames) may be null; tau is (NV). Gravity = false with qd = 0 gives M qdd.
+template <class M, class S, bool Gravity, class P>
+TG_HD void rnea_placed(P& liMi, const S* qd, const S* qdd, const S* fext, S* tau) {
   const auto& d = data<M, S>();
-  JointPlacements<M, S> liMi(q);
   using L = Levels<M>;
   Sv<S> v[L::N], a[L::N], f[M::NB];
   // Forward pass: body velocities, accelerations and the forces that produce them.
@@ -32,6 +31,17 @@ TG_HD void rnea(const S* q, const S* qd, const S* qdd, const S* fext, S* tau) {
     joint_project<M, S>(i, f[i], tau);
     if (d.parent[i] >= 0) f[d.parent[i]] = f[d.parent[i]] + act_force(liMi[i], f[i]);
   }
+}
+
+template <class M, class S, bool Gravity = true>
+TG_HD void rnea(const S* q, const S* qd, const S* qdd, const S* fext, S* tau) {
+  JointPlacements<M, S> liMi(q);
+  rnea_placed<M, S, Gravity>(liMi, qd, qdd, fext, tau);
+}
+
+template <class M, class S, bool Gravity = true>
+TG_HD void rnea(const Placements<M, S>& K, const S* qd, const S* qdd, const S* fext, S* tau) {
+  rnea_placed<M, S, Gravity>(K, qd, qdd, fext, tau);
 }
 
 }  // namespace tg

@@ -19,7 +19,7 @@
 namespace tg {
 
 template <class M, class S> struct RneaDerivativesWork {
-  SE3<S> oMi[M::NB];
+  const SE3<S>* oMi;                     // the Placements pass
   Sv<S> v[M::NB], a[M::NB], F[M::NB];    // world velocity, acceleration (gravity included), subtree force
   Inertia<S> Yc[M::NB];                  // subtree inertia, world frame
   M6<S> B[M::NB];                        // subtree sum of dI + [. x* h]
@@ -45,12 +45,12 @@ template <class S> TG_HD M6<S> momentum_rate_matrix(const Inertia<S>& I, const S
 // Forward pass (world placements, axes, velocities, accelerations, body forces and the per-column
 // terms), then the subtree sums Yc, B, F.
 template <class M, class S>
-TG_HD void rnea_derivatives_setup(const S* q, const S* qd, const S* qdd, const S* fext, RneaDerivativesWork<M, S>& W) {
+TG_HD void rnea_derivatives_setup(const Placements<M, S>& K, const S* qd, const S* qdd, const S* fext,
+                                  RneaDerivativesWork<M, S>& W) {
   const auto& d = data<M, S>();
+  W.oMi = K.oMi;
   for (int i = 0; i < M::NB; ++i) {
     const int p = d.parent[i], n = d.nvj[i], vi = d.vi[i];
-    const SE3<S> liMi = joint_placement<M, S>(i, q);
-    W.oMi[i] = p < 0 ? liMi : W.oMi[p] * liMi;
     const Sv<S> vp = p < 0 ? sv_zero<S>() : W.v[p];
     const Sv<S> ap = p < 0 ? base_acceleration<M, S>() : W.a[p];
     W.v[i] = vp;
@@ -117,13 +117,10 @@ TG_HD void ancestor_pairs(const RneaDerivativesWork<M, S>& W, const Sv<S>* X, co
   }
 }
 
-// tau (NV), dtau_dq and dtau_dqd (NV x NV, row-major) at (q, qd, qdd), fext (NB x 6, joint frames)
-// may be null. q, qd, qdd in Pinocchio's convention.
+// tau (NV), dtau_dq and dtau_dqd (NV x NV, row-major) at the (q, qd, qdd, fext) W was set up at.
 template <class M, class S>
-TG_HD void rnea_derivatives(const S* q, const S* qd, const S* qdd, const S* fext, S* tau, S* dtau_dq, S* dtau_dqd) {
+TG_HD void rnea_derivatives(const RneaDerivativesWork<M, S>& W, S* tau, S* dtau_dq, S* dtau_dqd) {
   const auto& d = data<M, S>();
-  RneaDerivativesWork<M, S> W;
-  rnea_derivatives_setup<M, S>(q, qd, qdd, fext, W);
   for (int i = 0; i < M::NB; ++i)
     for (int l = 0; l < d.nvj[i]; ++l) tau[d.vi[i] + l] = dot(W.s[d.vi[i] + l], W.F[i]);
   ancestor_pairs<M, S>(W, W.u, W.w, true, dtau_dq);
@@ -136,10 +133,8 @@ TG_HD void rnea_derivatives(const S* q, const S* qd, const S* qdd, const S* fext
 //   (lambda^T d tau/dq)_j = u_j . P_j + w_j . Q_j + L_j . (Yc_j u_j + B_j w_j + s_j x* F_j)
 // and alike for qd with alpha and s. tau is written too.
 template <class M, class S>
-TG_HD void rnea_vjp(const S* q, const S* qd, const S* qdd, const S* fext, const S* lambda, S* tau, S* g_q, S* g_qd) {
+TG_HD void rnea_vjp(const RneaDerivativesWork<M, S>& W, const S* lambda, S* tau, S* g_q, S* g_qd) {
   const auto& d = data<M, S>();
-  RneaDerivativesWork<M, S> W;
-  rnea_derivatives_setup<M, S>(q, qd, qdd, fext, W);
   Sv<S> P[M::NB], Q[M::NB], L[M::NB];
   for (int i = 0; i < M::NB; ++i) {
     P[i] = Q[i] = sv_zero<S>();
@@ -174,15 +169,28 @@ TG_HD void rnea_vjp(const S* q, const S* qd, const S* qdd, const S* fext, const 
 }
 
 // Coriolis matrix C (NV x NV) with C qd = nonlinear effects - gravity, Pinocchio's factorisation
-// (dM/dt - 2 C skew-symmetric): the pairs above with X = dS/dt = v x S and Y = S / 2.
-template <class M, class S> TG_HD void coriolis_matrix(const S* q, const S* qd, S* C) {
-  S zero[M::NV];
-  for (int k = 0; k < M::NV; ++k) zero[k] = S(0);
-  RneaDerivativesWork<M, S> W;
-  rnea_derivatives_setup<M, S>(q, qd, zero, nullptr, W);
+// (dM/dt - 2 C skew-symmetric): the pairs above with X = dS/dt = v x S and Y = S / 2. It reads only
+// W's velocity terms and composite inertias, so W may be set up at any qdd and fext.
+template <class M, class S> TG_HD void coriolis_matrix(const RneaDerivativesWork<M, S>& W, S* C) {
   Sv<S> half_s[M::NV];
   for (int k = 0; k < M::NV; ++k) half_s[k] = S(0.5) * W.s[k];
   ancestor_pairs<M, S>(W, W.sdot, half_s, false, C);
+}
+
+// The base-linear columns of M (NV x 3, row-major) of a free root, from W's composite inertias:
+// M[r, c] = S_r^T Yc_i S_c with i the body of dof r, in the root's subtree (else 0). All a MuJoCo
+// twin's reframe reads of M.
+template <class M, class S> TG_HD void mass_base_columns(const RneaDerivativesWork<M, S>& W, S* Mb) {
+  const auto& d = data<M, S>();
+  for (int i = 0; i < M::NB; ++i) {
+    int root = i;
+    while (d.parent[root] >= 0) root = d.parent[root];
+    for (int l = 0; l < d.nvj[i]; ++l) {
+      const int r = d.vi[i] + l;
+      const Sv<S> Ys = mul(W.Yc[i], W.s[r]);
+      for (int c = 0; c < 3; ++c) Mb[3 * r + c] = root == 0 ? dot(Ys, W.s[c]) : S(0);
+    }
+  }
 }
 
 }  // namespace tg
