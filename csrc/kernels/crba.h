@@ -10,26 +10,22 @@ namespace tg {
 
 template <class M, class S> TG_HD void crba(const S* q, S* Mout) {
   const auto& d = data<M, S>();
-  // Only the world placements are kept (a GPU thread's stack): liMi = oMi[parent]^-1 oMi[i] is
-  // rebuilt where the backward pass needs it, without trigonometry.
-  SE3<S> oMi[M::NB];
-  for (int i = 0; i < M::NB; ++i) {
-    const SE3<S> liMi = joint_placement<M, S>(i, q);
-    oMi[i] = d.parent[i] < 0 ? liMi : oMi[d.parent[i]] * liMi;
-  }
+  // Joint and world placements; on a GPU thread only the world ones are kept (its stack) and liMi
+  // is rebuilt where the backward pass needs it, without trigonometry.
+  const Placements<M, S> K(q);
   Inertia<S> Ic[M::NB];
   Sv<S> Sw[M::NV];  // joint axes in the world frame, per dof (joint i's k-th at vi + k)
   for (int k = 0; k < M::NV * M::NV; ++k) Mout[k] = S(0);  // entries of unrelated branches stay zero
   for (int i = 0; i < M::NB; ++i) {
     Ic[i] = body_inertia<M, S>(i);
-    for (int k = 0; k < d.nvj[i]; ++k) Sw[d.vi[i] + k] = act_motion(oMi[i], joint_axis<M, S>(i, k));
+    for (int k = 0; k < d.nvj[i]; ++k) Sw[d.vi[i] + k] = act_motion(K.oMi[i], joint_axis<M, S>(i, k));
   }
   // Backward pass: composite inertia of each subtree, then the column entries it produces on
   // the support chain: M[j, i] = S_j^T F for every ancestor j of i (i included).
   for (int i = M::NB - 1; i >= 0; --i) {
     for (int k = 0; k < d.nvj[i]; ++k) {
       const int col = d.vi[i] + k;
-      const Sv<S> F = act_force(oMi[i], mul(Ic[i], joint_axis<M, S>(i, k)));
+      const Sv<S> F = act_force(K.oMi[i], mul(Ic[i], joint_axis<M, S>(i, k)));
       for (int j = i; j >= 0; j = d.parent[j])
         for (int l = 0; l < d.nvj[j]; ++l) {
           const int row = d.vi[j] + l;
@@ -39,7 +35,7 @@ template <class M, class S> TG_HD void crba(const S* q, S* Mout) {
         }
     }
     const int p = d.parent[i];
-    if (p >= 0) Ic[p] = Ic[p] + act(inverse_times(oMi[p], oMi[i]), Ic[i]);
+    if (p >= 0) Ic[p] = Ic[p] + act(K.local(i), Ic[i]);
   }
 }
 

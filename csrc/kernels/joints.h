@@ -150,16 +150,22 @@ template <class M, class S> struct JointPlacements {
 
 // The first named pass of an op that runs several algorithms on one sample: world placements oMi
 // and joint placements liMi (local(i)), computed once from q and read by each algorithm in turn.
-// A GPU thread keeps only oMi and rebuilds liMi from q, as JointPlacements does.
+// A GPU thread keeps only oMi (its stack) and rebuilds liMi = oMi[parent]^-1 oMi[i], without
+// trigonometry.
 template <class M, class S> struct Placements {
   SE3<S> oMi[M::NB];
 #if defined(__CUDA_ARCH__)
-  const S* q;
-  TG_HD explicit Placements(const S* q_) : q(q_) {
+  TG_HD explicit Placements(const S* q) {
     const auto& d = data<M, S>();
-    for (int i = 0; i < M::NB; ++i) oMi[i] = d.parent[i] < 0 ? local(i) : oMi[d.parent[i]] * local(i);
+    for (int i = 0; i < M::NB; ++i) {
+      const SE3<S> X = joint_placement<M, S>(i, q);
+      oMi[i] = d.parent[i] < 0 ? X : oMi[d.parent[i]] * X;
+    }
   }
-  TG_HD SE3<S> local(int i) const { return joint_placement<M, S>(i, q); }
+  TG_HD SE3<S> local(int i) const {
+    const int p = data<M, S>().parent[i];
+    return p < 0 ? oMi[i] : inverse_times(oMi[p], oMi[i]);
+  }
 #else
   SE3<S> liMi[M::NB];
   TG_HD explicit Placements(const S* q) { forward_kinematics<M, S>(q, liMi, oMi); }

@@ -156,7 +156,7 @@ template <class M, class S> struct InertiaSolve {
   TG_HD static void run(const InertiaSolveArgs<S>& a) {
     S zero[M::NV];
     for (int k = 0; k < M::NV; ++k) zero[k] = S(0);
-    aba<M, S, false>(a.q, zero, a.x, nullptr, a.y);
+    aba<M, S>(a.q, zero, a.x, nullptr, a.y, false);
   }
 };
 
