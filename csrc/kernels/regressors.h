@@ -31,7 +31,7 @@ template <class S> TG_HD void body_force_regressor(const Sv<S>& v, const Sv<S>& 
 
 // Y (NV x 10 NB): column block i holds body i's regressor, carried to each joint above it.
 // liMi: the joint placements (JointPlacements, or a shared Placements pass).
-template <class M, class S, class P> TG_HD void inverse_dynamics_regressor_placed(P& liMi, const S* qd, const S* qdd, S* Y) {
+template <class M, class S, class P> TG_HD_INLINE void inverse_dynamics_regressor_placed(P& liMi, const S* qd, const S* qdd, S* Y) {
   const auto& d = data<M, S>();
   constexpr int NP = 10 * M::NB;
   Sv<S> v[M::NB], a[M::NB];

