@@ -201,7 +201,9 @@ def _nvcc_flags() -> list[str]:
 def _run_parallel(name: str, jobs: list[tuple[str, list[str], Path]], start: float) -> None:
     """Run the compiler commands, as many at once as there are cores, printing each one done. On any
     failure or interruption (Ctrl-C), every compiler still running is killed before raising."""
-    pending, running, done = list(jobs), [], 0
+    # Finished compilers stay referenced until the end: a Popen's finalizer running inside the loop is
+    # where Python would drop a Ctrl-C (an exception in a finalizer is only printed).
+    pending, running, finished, done = list(jobs), [], [], 0
     width = os.cpu_count() or 1
     last = time.monotonic()
     try:
@@ -217,6 +219,7 @@ def _run_parallel(name: str, jobs: list[tuple[str, list[str], Path]], start: flo
                 if proc.poll() is None:
                     continue
                 running.remove((label, proc))
+                finished.append(proc)
                 output = proc.stdout.read().decode(errors="replace")
                 proc.stdout.close()
                 if proc.returncode:
@@ -229,11 +232,12 @@ def _run_parallel(name: str, jobs: list[tuple[str, list[str], Path]], start: flo
                 last = time.monotonic()
                 print(f"torch_grid: still building {name!r} ({last - start:.0f} s)", file=sys.stderr, flush=True)
     finally:
-        for _, proc in running:
+        for _, proc in running:  # every compiler killed before waiting on any
             try:
                 os.killpg(proc.pid, signal.SIGKILL)
             except ProcessLookupError:
                 pass
+        for _, proc in running:
             proc.wait()
             proc.stdout.close()
 
