@@ -1,6 +1,7 @@
-"""Emit the C++ sources: the robot library (the robot as compile-time data, plus instantiations of
-the hand-written kernel templates in csrc/kernels, one unit per op family and scalar type) and the
-torch glue (one typed wrapper per op of the op table, for any robot; compiled once)."""
+"""Emit the C++ sources: the robot library (the robot as compile-time data; from the op table, the
+named-argument structs of op_args.h and the per-op bindings of bindings.h; instantiations of the
+hand-written kernel templates in csrc/kernels, one unit per op family and scalar type) and the torch
+glue (one typed wrapper per op of the op table, for any robot; compiled once)."""
 from __future__ import annotations
 
 from pathlib import Path
