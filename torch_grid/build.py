@@ -168,7 +168,7 @@ def _compile_robot(root: Path, model: RobotModel, mujoco: bool, cuda: bool, name
             else:
                 cmd = [os.environ.get("CXX", "c++"), *_cxx_flags(unit.stem), *include, "-c", str(unit), "-o", str(obj)]
             jobs.append((unit.name, cmd, obj))
-        jobs.sort(key=lambda job: _UNIT_ORDER.get(job[0].split("_f")[0], len(_UNIT_ORDER)))
+        jobs.sort(key=lambda job: _UNIT_ORDER.get(Path(job[0]).stem.rsplit("_", 1)[0], len(_UNIT_ORDER)))
         _run_parallel(model.name, jobs, start)
         objects = [str(obj) for _, _, obj in jobs]
         if cuda:

@@ -207,17 +207,19 @@ def table_unit(model: RobotModel, mujoco: bool, cuda: bool, namespace: str) -> s
     ])
 
 
+def _kernel_size(d) -> str:
+    """A size symbol of the op table as the kernels' compile-time constant."""
+    if isinstance(d, int):
+        return str(d)
+    if d not in _KERNEL_SIZE:
+        raise ValueError(f"a kernel needs compile-time sizes here; {d!r} is known only at run time")
+    return _KERNEL_SIZE[d]
+
+
 def forward_mode_kernels(ops: list[OpSpec]) -> str:
     """The backward op structs: each op's kernel under ForwardModeVjp, with its tensor sizes."""
-    def size(d) -> str:
-        if isinstance(d, int):
-            return str(d)
-        if d not in _KERNEL_SIZE:
-            raise ValueError(f"a forward-mode backward needs compile-time sizes; {d!r} is known only at run time")
-        return _KERNEL_SIZE[d]
-
     def sizes(shapes) -> str:
-        return "tg::Sizes<" + ", ".join(" * ".join(size(d) for d in shape) for shape in shapes) + ">"
+        return "tg::Sizes<" + ", ".join(" * ".join(_kernel_size(d) for d in shape) for shape in shapes) + ">"
 
     structs = []
     for op in ops:
@@ -289,8 +291,8 @@ def _binding(op: OpSpec) -> str:
                "force_rows": "cv.force_rows_out(a.{o}, {cols})"}
     for o in op.outputs:
         if o.kind in reframe:
-            rows = _KERNEL_SIZE.get(o.shape[0], o.shape[0])
-            cols = " * ".join(str(_KERNEL_SIZE.get(d, d)) for d in o.shape[1:])
+            rows = _kernel_size(o.shape[0])
+            cols = " * ".join(_kernel_size(d) for d in o.shape[1:])
             body.append(f"    {reframe[o.kind].format(o=o.name, rows=rows, cols=cols)};")
     if not iargs:
         body.insert(0, "    (void)iargs; (void)n_iargs;")

@@ -178,19 +178,16 @@ template <class M, class S> TG_HD void coriolis_matrix(const RneaDerivativesWork
 }
 
 // The base-linear columns of M (NV x 3, row-major) of a free root, from W's composite inertias:
-// M[r, c] = S_r^T Yc_i S_c with i the body of dof r, in the root's subtree (else 0). All a MuJoCo
-// twin's reframe reads of M.
+// M[r, c] = S_r^T Yc_i S_c with i the body of dof r, in the root's subtree, dofs [0, vend[0])
+// (else 0). All a MuJoCo twin's reframe reads of M.
 template <class M, class S> TG_HD void mass_base_columns(const RneaDerivativesWork<M, S>& W, S* Mb) {
   const auto& d = data<M, S>();
-  for (int i = 0; i < M::NB; ++i) {
-    int root = i;
-    while (d.parent[root] >= 0) root = d.parent[root];
+  for (int i = 0; i < M::NB; ++i)
     for (int l = 0; l < d.nvj[i]; ++l) {
       const int r = d.vi[i] + l;
       const Sv<S> Ys = mul(W.Yc[i], W.s[r]);
-      for (int c = 0; c < 3; ++c) Mb[3 * r + c] = root == 0 ? dot(Ys, W.s[c]) : S(0);
+      for (int c = 0; c < 3; ++c) Mb[3 * r + c] = r < d.vend[0] ? dot(Ys, W.s[c]) : S(0);
     }
-  }
 }
 
 }  // namespace tg
