@@ -192,34 +192,49 @@ template <class S> TG_HD Mat3<S> skew_mul(Vec3<S> p, const Mat3<S>& B) {
   return out;
 }
 
-// A symmetric 6x6 inertia seen from the parent frame: A^T I A with A the actinv_motion matrix of
-// X = (R, p). Rotate the blocks (B_ij = R I_ij R^T), then shift by p, with P = [p]x:
-//   Y11 = B11, Y12 = B12 - B11 P, Y21 = Y12^T, Y22 = B22 + P B12 + (P B12)^T - P B11 P.
-template <class S> TG_HD M6<S> inertia_to_parent(const SE3<S>& X, const M6<S>& I) {
-  Mat3<S> I11, I12, I22;
+// A symmetric 6x6 inertia about a point moved by d (the old point seen from the new one), axes
+// kept: T^T I T with T = [1 -P; 0 1] the motion transform, P = [d]x:
+//   Y11 = I11, Y12 = I12 - I11 P, Y21 = Y12^T, Y22 = I22 + P I12 + (P I12)^T - P I11 P.
+template <class S> TG_HD M6<S> shift_blocks(const Mat3<S>& I11, const Mat3<S>& I12, const Mat3<S>& I22, Vec3<S> d) {
+  const Mat3<S> I11P = mul_skew(I11, d), PI12 = skew_mul(d, I12), PI11P = skew_mul(d, I11P);
+  M6<S> Y;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) {
+      const S y12 = I12.m[3 * r + c] - I11P.m[3 * r + c];
+      Y.m[6 * r + c] = I11.m[3 * r + c];
+      Y.m[6 * r + 3 + c] = y12;
+      Y.m[6 * (3 + c) + r] = y12;
+      Y.m[6 * (3 + r) + 3 + c] = I22.m[3 * r + c] + PI12.m[3 * r + c] + PI12.m[3 * c + r] - PI11P.m[3 * r + c];
+    }
+  return Y;
+}
+
+template <class S> TG_HD void split_blocks(const M6<S>& I, Mat3<S>& I11, Mat3<S>& I12, Mat3<S>& I22) {
   for (int r = 0; r < 3; ++r)
     for (int c = 0; c < 3; ++c) {
       I11.m[3 * r + c] = I.m[6 * r + c];
       I12.m[3 * r + c] = I.m[6 * r + 3 + c];
       I22.m[3 * r + c] = I.m[6 * (3 + r) + 3 + c];
     }
-  const Mat3<S> B11 = rotate_symmetric(X.R, I11), B22 = rotate_symmetric(X.R, I22);
+}
+
+template <class S> TG_HD M6<S> shift(const M6<S>& I, Vec3<S> d) {
+  Mat3<S> I11, I12, I22;
+  split_blocks(I, I11, I12, I22);
+  return shift_blocks(I11, I12, I22, d);
+}
+
+// A symmetric 6x6 inertia seen from the parent frame: A^T I A with A the actinv_motion matrix of
+// X = (R, p): rotate the blocks (B_ij = R I_ij R^T), then shift them by p.
+template <class S> TG_HD M6<S> inertia_to_parent(const SE3<S>& X, const M6<S>& I) {
+  Mat3<S> I11, I12, I22;
+  split_blocks(I, I11, I12, I22);
   const Mat3<S> RI12 = mul(X.R, I12);
   Mat3<S> B12;
   for (int r = 0; r < 3; ++r)
     for (int c = 0; c < 3; ++c)
       B12.m[3 * r + c] = RI12.m[3 * r] * X.R.m[3 * c] + RI12.m[3 * r + 1] * X.R.m[3 * c + 1] + RI12.m[3 * r + 2] * X.R.m[3 * c + 2];
-  const Mat3<S> B11P = mul_skew(B11, X.p), PB12 = skew_mul(X.p, B12), PB11P = skew_mul(X.p, B11P);
-  M6<S> Y;
-  for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 3; ++c) {
-      const S y12 = B12.m[3 * r + c] - B11P.m[3 * r + c];
-      Y.m[6 * r + c] = B11.m[3 * r + c];
-      Y.m[6 * r + 3 + c] = y12;
-      Y.m[6 * (3 + c) + r] = y12;
-      Y.m[6 * (3 + r) + 3 + c] = B22.m[3 * r + c] + PB12.m[3 * r + c] + PB12.m[3 * c + r] - PB11P.m[3 * r + c];
-    }
-  return Y;
+  return shift_blocks(rotate_symmetric(X.R, I11), B12, rotate_symmetric(X.R, I22), X.p);
 }
 
 // Rigid-body inertia: mass m, first moment h = m c, rotational inertia Io about the frame origin.
@@ -249,6 +264,22 @@ template <class S> TG_HD Inertia<S> act(const SE3<S>& X, const Inertia<S>& I) {
   Inertia<S> out{I.m, hr + I.m * X.p, rotate_symmetric(X.R, I.Io)};
   for (int r = 0; r < 3; ++r)
     for (int c = 0; c < 3; ++c) out.Io.m[3 * r + c] -= HP.m[3 * r + c] + HP.m[3 * c + r] + I.m * PP.m[3 * r + c];
+  return out;
+}
+
+// The same inertia in axes rotated by R, about the same point: (m, R h, R Io R^T).
+template <class S> TG_HD Inertia<S> rotate(const Mat3<S>& R, const Inertia<S>& I) {
+  return {I.m, mul(R, I.h), rotate_symmetric(R, I.Io)};
+}
+
+// The same inertia about another point, axes kept; d is the old point seen from the new one:
+//   h' = h + m d,  Io' = Io - (d h^T + h d^T) - m d d^T + (2 h.d + m |d|^2) 1.
+template <class S> TG_HD Inertia<S> shift(const Inertia<S>& I, Vec3<S> d) {
+  Inertia<S> out{I.m, I.h + I.m * d, I.Io};
+  const S diag = S(2) * dot(I.h, d) + I.m * dot(d, d);
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c)
+      out.Io.m[3 * r + c] -= d.x[r] * I.h.x[c] + I.h.x[r] * d.x[c] + I.m * d.x[r] * d.x[c] - (r == c ? diag : S(0));
   return out;
 }
 
