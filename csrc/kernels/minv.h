@@ -1,9 +1,12 @@
 // M(q)^-1 computed directly, without forming M (Carpentier 2018, as Pinocchio's computeMinverse):
-// the articulated-body algorithm run for unit torques on all columns at once. Articulated inertias
-// IA and D = S^T IA S stay in joint frames, as in ABA: in the world frame the inertias of distal
-// bodies cancel catastrophically in float32. The column blocks (subtree forces F, accelerations A)
-// live in the world frame, where they add up without a frame change per body and column; they
-// only meet U and S, moved to the world once per dof.
+// the articulated-body algorithm run for unit torques on all columns at once. Every quantity has
+// world-aligned axes:
+//   - the articulated inertia IA_i (and D = S^T IA S) is taken about joint i's origin, so passing
+//     it to the parent shifts its reference point without a rotation; the lever arms stay those of
+//     joint frames (about one far point, the inertias of distal bodies would cancel catastrophically
+//     in float32);
+//   - the column blocks (subtree forces F, accelerations A), U and S are taken about the root's
+//     origin, where they add up without a change of point per body and column.
 // Per-body steps are templated on the joint's dof count N (1, or 6 for a free root) to unroll.
 #pragma once
 
@@ -14,31 +17,35 @@ namespace tg {
 template <class M, class S> struct MinvWork {
   static constexpr int NV = M::NV;
   const Placements<M, S>* K;  // the placements pass
-  M6<S> IA[M::NB];  // articulated inertias, joint frames
-  // Per dof (joint i's k-th at vi + k): its axis and U = IA S in the world frame, and row k of
+  M6<S> IA[M::NB];  // articulated inertias, about joint i's origin
+  // Per dof (joint i's k-th at vi + k): its axis and U = IA S about the root's origin, and row k of
   // (S^T U)^-1 (N x N): per dof rather than per body, so a free root's six do not size every body.
   Sv<S> Sw[NV], Uw[NV];
   S Dinv[NV][6];
-  Sv<S> F[NV];  // F[col]: world force on the subtree owning col, per unit torque at col
-  Sv<S> A[Levels<M>::N][NV];  // A[body][col]: its world acceleration per unit torque at col (Levels)
+  Sv<S> F[NV];  // F[col]: force on the subtree owning col per unit torque at col, about the root's origin
+  Sv<S> A[Levels<M>::N][NV];  // A[body][col]: its acceleration per unit torque at col, likewise (Levels)
 };
 
 // Backward step of body i: U, Dinv, the subtree block of rows i of Minv, and IA passed to the
-// parent. N == 6 is the free root: S = I, so D = IA.
+// parent.
 template <int N, class M, class S> TG_HD void minv_backward(int i, MinvWork<M, S>& w, S* Minv) {
   const auto& d = data<M, S>();
   constexpr int NV = M::NV;
   const int vi = d.vi[i], p = d.parent[i];
-  Sv<S> U[N];
+  const Mat3<S>& R = w.K->oMi[i].R;
+  const Vec3<S> o = w.K->oMi[i].p - w.K->oMi[0].p;  // joint i's origin seen from the root's
+  Sv<S> U[N];  // about joint i's origin
   S D[N * N], Dinv[N * N];
   for (int k = 0; k < N; ++k) {
-    const Sv<S> s = joint_axis<M, S>(i, k);
-    U[k] = mul(w.IA[i], s);
-    w.Sw[vi + k] = act_motion(w.K->oMi[i], s);
-    w.Uw[vi + k] = act_force(w.K->oMi[i], U[k]);
+    const Sv<S> sl = joint_axis<M, S>(i, k);
+    const Vec3<S> sa = mul(R, ang(sl)), s = mul(R, lin(sl));
+    U[k] = mul(w.IA[i], sv(s, sa));
+    w.Sw[vi + k] = sv(s + cross(o, sa), sa);
+    w.Uw[vi + k] = sv(lin(U[k]), ang(U[k]) + cross(o, lin(U[k])));
   }
+  // D = S^T U: a motion-force pairing, the same about any point.
   for (int r = 0; r < N; ++r)
-    for (int k = 0; k < N; ++k) D[N * r + k] = N == 6 ? w.IA[i].m[6 * r + k] : dot(joint_axis<M, S>(i, r), U[k]);
+    for (int k = 0; k < N; ++k) D[N * r + k] = dot(w.Sw[vi + r], w.Uw[vi + k]);
   spd_inverse(N, D, Dinv);
   for (int r = 0; r < N; ++r)
     for (int k = 0; k < N; ++k) w.Dinv[vi + r][k] = Dinv[N * r + k];
@@ -54,7 +61,7 @@ template <int N, class M, class S> TG_HD void minv_backward(int i, MinvWork<M, S
     }
   }
   if (p < 0) return;
-  // IA_parent += IA - U Dinv U^T, seen from the parent.
+  // IA_parent += IA - U Dinv U^T, about the parent's origin.
   M6<S> Ia = w.IA[i];
   for (int k = 0; k < N; ++k) {
     Sv<S> UD = sv_zero<S>();
@@ -62,7 +69,7 @@ template <int N, class M, class S> TG_HD void minv_backward(int i, MinvWork<M, S
     for (int r = 0; r < 6; ++r)
       for (int c = 0; c < 6; ++c) Ia.m[6 * r + c] -= U[k].v[r] * UD.v[c];
   }
-  const M6<S> Ip = inertia_to_parent(w.K->local(i), Ia);
+  const M6<S> Ip = shift(Ia, w.K->oMi[i].p - w.K->oMi[p].p);
   for (int k = 0; k < 36; ++k) w.IA[p].m[k] += Ip.m[k];
 }
 
@@ -95,7 +102,7 @@ template <class M, class S> TG_HD void minv(const Placements<M, S>& K, S* Minv) 
   const auto& d = data<M, S>();
   MinvWork<M, S> w;
   w.K = &K;
-  for (int i = 0; i < M::NB; ++i) w.IA[i] = to_matrix(body_inertia<M, S>(i));
+  for (int i = 0; i < M::NB; ++i) w.IA[i] = to_matrix(rotate(K.oMi[i].R, body_inertia<M, S>(i)));
   for (int col = 0; col < M::NV; ++col) w.F[col] = sv_zero<S>();
   for (int k = 0; k < M::NV * M::NV; ++k) Minv[k] = S(0);
   for (int i = M::NB - 1; i >= 0; --i) {
