@@ -195,6 +195,7 @@ def second_order(name: str, batch: int = 256) -> list[tuple[str, float, float]]:
         "frame_jacobian": (lambda q, qd, qdd: robot.frame_jacobian(q, frame)),
         "coriolis_matrix": (lambda q, qd, qdd: robot.coriolis_matrix(q, qd)),
         "inverse_dynamics_gradient": (lambda q, qd, qdd: robot.inverse_dynamics_gradient(q, qd, qdd)),
+        "forward_dynamics_gradient": (lambda q, qd, tau: robot.forward_dynamics_gradient(q, qd, tau)),
     }
     return [(fn_name, *forward_and_backward_us(fn, inputs, batch, seconds=0.5)) for fn_name, fn in functions.items()]
 
@@ -270,7 +271,8 @@ def main() -> None:
         "`torch_grid.load` in a new process after `import torch`.\n\n" + "\n".join(builds) + \
         "\n\nAutograd: forward_dynamics alone against forward + backward with respect to q, qd and tau " \
         "(one thread, float64, B = 4096).\n\n" + "\n".join(grads) + \
-        "\n\nSecond-order backwards (M, M^-1 from inverse-dynamics products; the others by the forward-mode " \
+        "\n\nSecond-order backwards (M, M^-1 from inverse-dynamics products; forward_dynamics_gradient " \
+        "through -M^-1 dtau/dx and the inverse-dynamics gradient's backward; the others by the forward-mode " \
         "dual-number kernels), with respect to every input, one thread, float64, B = 256.\n\n" + "\n".join(second) + "\n"
     overhead = call_overhead()
     text += ("\n\nCall overhead: one small call, µs (best of 7 x 20000; iiwa14, float64, CPU).\n\n| call | µs |\n|---|---|\n"

@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from test_derivatives import _states as random_states
+from torch_grid.autograd import COMPOSED_BACKWARD
 from torch_grid.ops import FORWARD_MODE_BACKWARD
 
 
@@ -64,7 +65,7 @@ def test_every_differentiable_function_is_checked(robots):
     not_differentiable = {"inertial_parameters", "neutral_configuration", "random_configuration", "frame_index",
                           "rnea", "aba"}  # constants and samplers; rnea/aba alias two functions in the table
     assert public - not_differentiable == set(FUNCTIONS)
-    assert set(FORWARD_MODE_BACKWARD) <= set(FUNCTIONS)
+    assert set(FORWARD_MODE_BACKWARD + COMPOSED_BACKWARD) <= set(FUNCTIONS)
 
 
 @pytest.mark.parametrize("function", ["inverse_dynamics_gradient", "forward_dynamics", "crba", "ccrba"])
@@ -96,7 +97,7 @@ def test_gradcheck_every_input(robots, name, convention, function):
     fn = lambda *x: call(view, robot, *x)  # noqa: E731
     # Ops whose backward is the second-order forward-mode pass are checked on random projections
     # (fast mode): the full Jacobian of a matrix-valued op would take thousands of backward calls.
-    fast = function in FORWARD_MODE_BACKWARD or function in ("end_effector_pose_gradient", "centroidal_map_gradient")
+    fast = function in FORWARD_MODE_BACKWARD + COMPOSED_BACKWARD + ("end_effector_pose_gradient", "centroidal_map_gradient")
     assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-6, rtol=1e-5, fast_mode=fast)
 
 

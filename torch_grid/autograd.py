@@ -5,7 +5,9 @@ vector-Jacobian product of inverse dynamics. Those kernels give derivatives alon
 space; the gradient with respect to q is mapped to the ambient coordinates the caller passed (a
 free-flyer quaternion through its normalisation).
 The ops in ops.FORWARD_MODE_BACKWARD (outputs that are already derivatives) use `<op>_backward`,
-their own kernel run on dual numbers, whose q gradient is already in ambient coordinates.
+their own kernel run on dual numbers, whose q gradient is already in ambient coordinates. Those in
+COMPOSED_BACKWARD (forward-dynamics derivatives, the operational-space inertia) are products of
+other ops' outputs and back-propagate through those ops' backwards.
 The internal products raise a clear error when back-propagated through, as does differentiating
 any backward a second time.
 """
@@ -198,6 +200,65 @@ def _end_effector_pose(ops, model, needs, grads, output, q, frames, convention):
     return _tangent_to_ambient(model, q, ops.frames_vjp(q, weights, convention), convention), None, None
 
 
+def _forward_dynamics_gradient(ops, model, needs, grads, output, q, qd, tau, f_ext, convention):
+    """(-M^-1 dtau/dq, -M^-1 dtau/dqd, M^-1) at qdd = FD(q, qd, tau, f_ext): back through that
+    composition, each part by its own backward (the ID gradient's is second order)."""
+    g_dq, g_dqd, g_minv = grads
+    minv = output[2]
+    qdd = ops.forward_dynamics(q, qd, tau, f_ext, convention)
+    d_q, d_qd = ops.inverse_dynamics_gradient(q, qd, qdd, f_ext, convention)
+    g_id = tuple(None if g is None else -minv @ g for g in (g_dq, g_dqd))  # M^-1 is symmetric
+    g_m = _sum(g_minv, None if g_dq is None else -g_dq @ d_q.mT, None if g_dqd is None else -g_dqd @ d_qd.mT)
+    dq, dqd, g_qdd, df, _ = _forward_mode(OPS["inverse_dynamics_gradient"])(
+        ops, model, (needs[0], needs[1], True, needs[3], False), g_id, None, q, qd, qdd, f_ext, convention)
+    fd = _forward_dynamics(ops, model, needs, (g_qdd,), qdd, q, qd, tau, f_ext, convention)
+    dq_m = _minv(ops, model, needs, (g_m,), minv, q, convention)[0] if needs[0] and g_m is not None else None
+    return _sum(dq, fd[0], dq_m), _sum(dqd, fd[1]), fd[2], _sum(df, fd[3]), None
+
+
+def _forward_dynamics_external_force_gradient(ops, model, needs, grads, output, q, convention):
+    """-M^-1 (d tau / d f_ext): back through the product."""
+    minv = ops.minv(q, convention)
+    e = ops.inverse_dynamics_external_force_gradient(q, convention)
+    g = grads[0].flatten(-2)
+    g_e = (-minv @ g).reshape(e.shape)
+    dq = _forward_mode(OPS["inverse_dynamics_external_force_gradient"])(ops, model, needs, (g_e,), None, q, convention)[0]
+    dq_m = _minv(ops, model, needs, (-g @ e.flatten(-2).mT,), minv, q, convention)[0]
+    return dq + dq_m, None
+
+
+def _forward_dynamics_parameter_gradient(ops, model, needs, grads, output, q, qd, tau, convention):
+    """-M^-1 Y(q, qd, qdd) at qdd = FD(q, qd, tau): back through the product, the regressor by its
+    own backward and qdd by forward_dynamics'."""
+    minv = ops.minv(q, convention)
+    qdd = ops.forward_dynamics(q, qd, tau, None, convention)
+    y = ops.inverse_dynamics_regressor(q, qd, qdd, convention)
+    dq, dqd, g_qdd, _ = _forward_mode(OPS["inverse_dynamics_regressor"])(
+        ops, model, (needs[0], needs[1], True, False), (-minv @ grads[0],), None, q, qd, qdd, convention)
+    fd = _forward_dynamics(ops, model, (needs[0], needs[1], needs[2], False, False), (g_qdd,), qdd, q, qd, tau, None,
+                           convention)
+    dq_m = _minv(ops, model, needs, (-grads[0] @ y.mT,), minv, q, convention)[0] if needs[0] else None
+    return _sum(dq, fd[0], dq_m), _sum(dqd, fd[1]), fd[2], None
+
+
+def _osc_inertia(ops, model, needs, grads, output, q, frame, reference, convention):
+    """Lambda = (J M^-1 J^T)^-1: d Lambda = -Lambda dA Lambda with A = J M^-1 J^T, then back to J (by
+    frame_jacobian's backward) and to M^-1."""
+    j = ops.frame_jacobian(q, frame, reference, convention)
+    minv = ops.minv(q, convention)
+    g_a = -output.mT @ grads[0] @ output.mT
+    g_j = g_a @ j @ minv + g_a.mT @ j @ minv
+    dq = _forward_mode(OPS["frame_jacobian"])(ops, model, needs, (g_j,), None, q, frame, reference, convention)[0]
+    dq_m = _minv(ops, model, needs, (j.mT @ g_a @ j,), minv, q, convention)[0]
+    return dq + dq_m, None, None, None
+
+
+def _sum(*terms):
+    """The sum of the terms that are not None (None if all are)."""
+    present = [t for t in terms if t is not None]
+    return sum(present[1:], present[0]) if present else None
+
+
 def rpy_rate_matrix(rpy: torch.Tensor) -> torch.Tensor:
     """(..., 3, 3) E with world angular velocity w = E d(roll, pitch, yaw)/dt, R = Rz(y) Ry(p) Rx(r)."""
     p, y = rpy[..., 1], rpy[..., 2]
@@ -218,7 +279,16 @@ _BACKWARDS = {
     "nonlinear_effects": _nonlinear_effects,
     "com": _com,
     "energy": _energy,
+    "forward_dynamics_gradient": _forward_dynamics_gradient,
+    "forward_dynamics_external_force_gradient": _forward_dynamics_external_force_gradient,
+    "forward_dynamics_parameter_gradient": _forward_dynamics_parameter_gradient,
+    "osc_inertia": _osc_inertia,
 }
+
+# Ops whose outputs are derivatives and whose backward composes other ops' backwards (one of them
+# second order) rather than running a kernel of their own on dual numbers.
+COMPOSED_BACKWARD = ("forward_dynamics_gradient", "forward_dynamics_external_force_gradient",
+                     "forward_dynamics_parameter_gradient", "osc_inertia")
 
 
 def _vjp(jacobian: torch.Tensor, grad: torch.Tensor) -> torch.Tensor:
