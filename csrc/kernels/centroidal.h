@@ -45,7 +45,7 @@ template <class M, class S> TG_HD void jacobian_com(const S* q, S* J) {
   const S inv_m = S(1) / total_mass<M, S>();
   for (int i = 0; i < M::NB; ++i)
     for (int k = 0; k < d.nvj[i]; ++k) {
-      const Sv<S> s = act_motion(oMi[i], joint_axis<M, S>(i, k));
+      const Sv<S> s = placed_axis<M, S>(oMi[i], i, k);
       const Vec3<S> col = inv_m * (ms[i] * lin(s) + cross(ang(s), mc[i]));
       for (int r = 0; r < 3; ++r) J[M::NV * r + d.vi[i] + k] = col.x[r];
     }
@@ -87,7 +87,7 @@ template <class M, class S> TG_HD void ccrba(const S* q, const S* qd, S* A, S* h
   // Column of joint dof: momentum of its subtree moving along the world axis, moved to the com.
   for (int i = 0; i < M::NB; ++i)
     for (int k = 0; k < d.nvj[i]; ++k) {
-      const Sv<S> hk = mul(Yc[i], act_motion(oMi[i], joint_axis<M, S>(i, k)));
+      const Sv<S> hk = mul(Yc[i], placed_axis<M, S>(oMi[i], i, k));
       const Vec3<S> l = lin(hk), n = ang(hk) - cross(c, lin(hk));
       for (int r = 0; r < 3; ++r) {
         A[NV * r + d.vi[i] + k] = l.x[r];

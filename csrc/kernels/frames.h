@@ -46,7 +46,7 @@ template <class M, class S> TG_HD void frame_jacobian(const SE3<S>* oMi, int f, 
   // Each joint on the chain contributes its world axis, expressed as asked.
   for (int j = d.fparent[f]; j >= 0; j = d.parent[j]) {
     for (int k = 0; k < d.nvj[j]; ++k) {
-      const Sv<S> s = act_motion(oMi[j], joint_axis<M, S>(j, k));
+      const Sv<S> s = placed_axis<M, S>(oMi[j], j, k);
       Vec3<S> l = lin(s), w = ang(s);
       if (reference != WORLD) l = l + cross(w, oMf.p);
       if (reference == LOCAL) {
@@ -90,7 +90,7 @@ template <class M, class S> TG_HD void frames_vjp(const S* q, const S* w, S* out
     F[d.fparent[f]] = F[d.fparent[f]] + sv(wl, cross(p, wl) + wa);
   }
   for (int i = M::NB - 1; i >= 0; --i) {
-    for (int k = 0; k < d.nvj[i]; ++k) out[d.vi[i] + k] = dot(act_motion(oMi[i], joint_axis<M, S>(i, k)), F[i]);
+    for (int k = 0; k < d.nvj[i]; ++k) out[d.vi[i] + k] = dot(placed_axis<M, S>(oMi[i], i, k), F[i]);
     if (d.parent[i] >= 0) F[d.parent[i]] = F[d.parent[i]] + F[i];
   }
 }
@@ -121,7 +121,7 @@ TG_HD void frame_jacobian_dot(const S* q, const S* qd, int f, int reference, S* 
   for (int c = 0; c < n; ++c) {
     const int j = chain[c];
     for (int k = 0; k < d.nvj[j]; ++k) {
-      const Sv<S> s = act_motion(oMi[j], joint_axis<M, S>(j, k)), sd = cross_motion(v[j], s);
+      const Sv<S> s = placed_axis<M, S>(oMi[j], j, k), sd = cross_motion(v[j], s);
       Vec3<S> l = lin(s), a = ang(s), ld = lin(sd), ad = ang(sd);
       if (reference != WORLD) {
         ld = ld + cross(ad, oMf.p) + cross(a, pdot);
@@ -155,7 +155,7 @@ template <class M, class S> TG_HD void external_force_jacobian(const Placements<
   for (int k = 0; k < M::NB; ++k)
     for (int j = k; j >= 0; j = d.parent[j])
       for (int l = 0; l < d.nvj[j]; ++l) {
-        const Sv<S> s = actinv_motion(oMi[k], act_motion(oMi[j], joint_axis<M, S>(j, l)));
+        const Sv<S> s = actinv_motion(oMi[k], placed_axis<M, S>(oMi[j], j, l));
         for (int c = 0; c < 6; ++c) out[NF6 * (d.vi[j] + l) + 6 * k + c] = -s.v[c];
       }
 }

@@ -66,6 +66,17 @@ template <class M, class S> TG_HD Sv<S> joint_motion(int i, const S* qd) {
   return x[0] * joint_axis<M, S>(i, 0);
 }
 
+// X S_ik: joint i's k-th axis moved by a placement X (world placements, mostly). A free joint's
+// axes and a cardinal revolute or prismatic axis are a column of X.R, without a product by S.
+template <class M, class S> TG_HD Sv<S> placed_axis(const SE3<S>& X, int i, int k) {
+  const auto& d = data<M, S>();
+  const int t = d.jtype[i], c = t == FREE ? k % 3 : d.axis_index[i];
+  if (c < 0) return act_motion(X, joint_axis<M, S>(i, k));
+  const Vec3<S> e = v3(X.R.m[c], X.R.m[3 + c], X.R.m[6 + c]), zero = v3(S(0), S(0), S(0));
+  const bool rotation = t == REVOLUTE || (t == FREE && k >= 3);
+  return rotation ? sv(cross(X.p, e), e) : sv(e, zero);
+}
+
 // S_i^T f: the generalized force of joint i from a spatial force f in its frame.
 template <class M, class S> TG_HD void joint_project(int i, const Sv<S>& f, S* out) {
   const auto& d = data<M, S>();
