@@ -6,8 +6,9 @@ space; the gradient with respect to q is mapped to the ambient coordinates the c
 free-flyer quaternion through its normalisation).
 The ops in ops.FORWARD_MODE_BACKWARD (outputs that are already derivatives) use `<op>_backward`,
 their own kernel run on dual numbers, whose q gradient is already in ambient coordinates. Those in
-COMPOSED_BACKWARD (forward-dynamics derivatives, the operational-space inertia) are products of
-other ops' outputs and back-propagate through those ops' backwards.
+COMPOSED_BACKWARD (forward-dynamics derivatives, the external-force derivative of inverse dynamics,
+the operational-space inertia) are products of other ops' outputs and back-propagate through those
+ops' backwards.
 The internal products raise a clear error when back-propagated through, as does differentiating
 any backward a second time.
 """
@@ -216,13 +217,24 @@ def _forward_dynamics_gradient(ops, model, needs, grads, output, q, qd, tau, f_e
     return _sum(dq, fd[0], dq_m), _sum(dqd, fd[1]), fd[2], _sum(df, fd[3]), None
 
 
+def _inverse_dynamics_external_force_gradient(ops, model, needs, grads, output, q, convention):
+    """Row i of d tau / d f_ext is minus the body velocities at qd = e_i (-J_k e_i), so the gradient
+    is that of -sum_i <G[i], body_velocities(q, e_i)>, by body_velocities' backward."""
+    nv, batch = model.nv, q.shape[:-1]
+    unit = torch.eye(nv, dtype=q.dtype, device=q.device).expand(*batch, nv, nv)
+    qs = q.unsqueeze(-2).expand(*batch, nv, q.shape[-1])
+    dq = _forward_mode(OPS["body_velocities"])(ops, model, (True, False, False), (-grads[0],), None, qs, unit,
+                                               convention)[0]
+    return dq.sum(-2), None
+
+
 def _forward_dynamics_external_force_gradient(ops, model, needs, grads, output, q, convention):
     """-M^-1 (d tau / d f_ext): back through the product."""
     minv = ops.minv(q, convention)
     e = ops.inverse_dynamics_external_force_gradient(q, convention)
     g = grads[0].flatten(-2)
     g_e = (-minv @ g).reshape(e.shape)
-    dq = _forward_mode(OPS["inverse_dynamics_external_force_gradient"])(ops, model, needs, (g_e,), None, q, convention)[0]
+    dq = _inverse_dynamics_external_force_gradient(ops, model, needs, (g_e,), e, q, convention)[0]
     dq_m = _minv(ops, model, needs, (-g @ e.flatten(-2).mT,), minv, q, convention)[0]
     return dq + dq_m, None
 
@@ -280,6 +292,7 @@ _BACKWARDS = {
     "com": _com,
     "energy": _energy,
     "forward_dynamics_gradient": _forward_dynamics_gradient,
+    "inverse_dynamics_external_force_gradient": _inverse_dynamics_external_force_gradient,
     "forward_dynamics_external_force_gradient": _forward_dynamics_external_force_gradient,
     "forward_dynamics_parameter_gradient": _forward_dynamics_parameter_gradient,
     "osc_inertia": _osc_inertia,
@@ -287,8 +300,8 @@ _BACKWARDS = {
 
 # Ops whose outputs are derivatives and whose backward composes other ops' backwards (one of them
 # second order) rather than running a kernel of their own on dual numbers.
-COMPOSED_BACKWARD = ("forward_dynamics_gradient", "forward_dynamics_external_force_gradient",
-                     "forward_dynamics_parameter_gradient", "osc_inertia")
+COMPOSED_BACKWARD = ("forward_dynamics_gradient", "inverse_dynamics_external_force_gradient",
+                     "forward_dynamics_external_force_gradient", "forward_dynamics_parameter_gradient", "osc_inertia")
 
 
 def _vjp(jacobian: torch.Tensor, grad: torch.Tensor) -> torch.Tensor:

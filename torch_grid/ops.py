@@ -138,12 +138,12 @@ _VALUE_OPS = (
 
 # Ops whose backward runs their own kernel on dual numbers (csrc/kernels/forward_mode.h): those whose
 # outputs are already derivatives, where the gradient is a second-order quantity. (M and M^-1 have
-# an O(n^2) backward from inverse-dynamics products instead, and the forward-dynamics derivatives and
-# osc_inertia compose the backwards of their inverse-dynamics, Jacobian and M^-1 parts: autograd.py.)
+# an O(n^2) backward from inverse-dynamics products instead; the forward-dynamics derivatives, the
+# external-force one of inverse dynamics and osc_inertia compose the backwards of their parts, in
+# autograd.py.)
 FORWARD_MODE_BACKWARD = (
     "jacobian_com", "ccrba", "frame_jacobian", "frame_jacobian_dot", "body_velocities",
-    "inverse_dynamics_gradient", "inverse_dynamics_external_force_gradient", "cmm_time_variation", "dccrba",
-    "coriolis_matrix", "inverse_dynamics_regressor", "kinetic_energy_regressor", "potential_energy_regressor",
+    "inverse_dynamics_gradient", "cmm_time_variation", "dccrba", "coriolis_matrix", "inverse_dynamics_regressor", "kinetic_energy_regressor", "potential_energy_regressor",
 )
 
 
