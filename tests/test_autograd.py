@@ -180,6 +180,34 @@ def test_internal_ops_refuse_to_back_propagate(robots):
         robot._ops.inertia_solve(q, x, 0).sum().backward()
 
 
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+@pytest.mark.parametrize("name", ["iiwa14", "go2"])
+def test_jvp_kernels_match_central_differences(robots, name, convention):
+    """The dual-number Jacobian-vector products (second-order backwards use them) against central
+    differences of their op along random tangents of the inputs they differentiate."""
+    robot = robots[name]
+    ops, c = robot._ops, int(convention == "mujoco")
+    q, qd, qdd, f = _states(robot, 3, 11, convention)
+    lam = torch.randn_like(qd)
+    dq, dqd = torch.randn_like(q), torch.randn_like(qd)
+    cases = {
+        "inverse_dynamics_vjp": ((q, qd, qdd, f, lam), (dq, dqd, None, None, None)),
+        "inverse_dynamics": ((q, qd, qdd, f), (dq, None, None, None)),
+        "body_velocities": ((q, qd), (dq, None)),
+    }
+    h = 1e-6
+    for op, (inputs, tangents) in cases.items():
+        def value(e):
+            moved = [x if t is None else x + e * t for x, t in zip(inputs, tangents)]
+            out = getattr(ops, op)(*moved, c)
+            return out if isinstance(out, tuple) else (out,)
+        jvp = getattr(ops, f"{op}_jvp")(*inputs, *(t for t in tangents if t is not None), c)
+        jvp = jvp if isinstance(jvp, tuple) else (jvp,)
+        for got, plus, minus in zip(jvp, value(h), value(-h)):
+            ref = (plus - minus) / (2 * h)
+            assert torch.allclose(got, ref, rtol=1e-6, atol=1e-6 * ref.abs().max()), op
+
+
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
 @pytest.mark.parametrize("function", ["forward_dynamics", "crba", "inverse_dynamics_gradient"])
 def test_cuda_graph_replays_forward_and_backward(robots, function):

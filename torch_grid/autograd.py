@@ -6,9 +6,10 @@ space; the gradient with respect to q is mapped to the ambient coordinates the c
 free-flyer quaternion through its normalisation).
 The ops in ops.FORWARD_MODE_BACKWARD (outputs that are already derivatives) use `<op>_backward`,
 their own kernel run on dual numbers, whose q gradient is already in ambient coordinates. Those in
-COMPOSED_BACKWARD (forward-dynamics derivatives, the external-force derivative of inverse dynamics,
-the operational-space inertia) are products of other ops' outputs and back-propagate through those
-ops' backwards.
+COMPOSED_BACKWARD are made of other ops: the inverse-dynamics gradient's backward differentiates
+the gradient of lam . tau along 2 nv directions (forward over reverse, the jvp kernels); the
+forward-dynamics derivatives, the external-force derivative of inverse dynamics and the
+operational-space inertia are products of other ops' outputs and back-propagate through those.
 The internal products raise a clear error when back-propagated through, as does differentiating
 any backward a second time.
 """
@@ -210,11 +211,94 @@ def _forward_dynamics_gradient(ops, model, needs, grads, output, q, qd, tau, f_e
     d_q, d_qd = ops.inverse_dynamics_gradient(q, qd, qdd, f_ext, convention)
     g_id = tuple(None if g is None else -minv @ g for g in (g_dq, g_dqd))  # M^-1 is symmetric
     g_m = _sum(g_minv, None if g_dq is None else -g_dq @ d_q.mT, None if g_dqd is None else -g_dqd @ d_qd.mT)
-    dq, dqd, g_qdd, df, _ = _forward_mode(OPS["inverse_dynamics_gradient"])(
-        ops, model, (needs[0], needs[1], True, needs[3], False), g_id, None, q, qd, qdd, f_ext, convention)
+    dq, dqd, g_qdd, df, _ = _inverse_dynamics_gradient(ops, model, (needs[0], needs[1], True, needs[3], False), g_id,
+                                                       None, q, qd, qdd, f_ext, convention)
     fd = _forward_dynamics(ops, model, needs, (g_qdd,), qdd, q, qd, tau, f_ext, convention)
     dq_m = _minv(ops, model, needs, (g_m,), minv, q, convention)[0] if needs[0] and g_m is not None else None
     return _sum(dq, fd[0], dq_m), _sum(dqd, fd[1]), fd[2], _sum(df, fd[3]), None
+
+
+def _inverse_dynamics_gradient(ops, model, needs, grads, output, q, qd, qdd, f_ext, convention):
+    """<Gq, dtau/dq> + <Gqd, dtau/dqd> = sum_j D_j (lam_j . tau) + D'_j (mu_j . tau), with lam_j, mu_j
+    the columns of Gq, Gqd, D_j the derivative along q's tangent j and D'_j along qd_j. Its gradient
+    is forward over reverse: the derivatives along those 2 nv directions of the gradient of
+    lam . tau (O(n) each: inverse_dynamics_vjp, M lam, -J lam), by the dual-number jvp kernels; for
+    q, plus the Lie-bracket term of a free flyer, whose tangent derivatives do not commute."""
+    nv, batch = model.nv, q.shape[:-1]
+    zero = torch.zeros(*batch, nv, nv, dtype=q.dtype, device=q.device)
+    g_q, g_qd = (zero if g is None else g for g in grads)
+    t = _tangent_directions(model, q, convention)
+    lam = torch.cat([g_q.mT, g_qd.mT], dim=-2)  # (..., 2 nv, nv): one cotangent per direction
+    t_q = torch.cat([t, torch.zeros_like(t)], dim=-2)
+    t_qd = torch.cat([zero, torch.eye(nv, dtype=q.dtype, device=q.device).expand_as(zero)], dim=-2)
+    Q, QD, QDD = (_repeat(x, 2 * nv, 1) for x in (q, qd, qdd))
+    F = None if f_ext is None else _repeat(f_ext, 2 * nv, 2)
+    dq = dqd = dqdd = df = None
+    if needs[0] or needs[1]:
+        d_gq, d_gqd = ops.inverse_dynamics_vjp_jvp(Q, QD, QDD, F, lam, t_q, t_qd, convention)
+        if needs[0]:
+            tangent = d_gq.sum(-2)
+            if model.floating_base:
+                g_tan, _ = ops.inverse_dynamics_vjp(Q[..., :nv, :], QD[..., :nv, :], QDD[..., :nv, :],
+                                                    None if F is None else F[..., :nv, :, :], g_q.mT, convention)
+                tangent = tangent + _bracket_term(g_tan, convention)
+            dq = _tangent_to_ambient(model, q, tangent, convention)
+        dqd = d_gqd.sum(-2) if needs[1] else None
+    # d/dqdd (lam . tau) = M lam = ID(q, 0, lam) - ID(q, 0, 0) and d/df_ext = -J lam do not depend on qd
+    Qn, lam_q = Q[..., :nv, :], g_q.mT
+    if needs[2]:
+        still = torch.zeros_like(lam_q)
+        dqdd = (ops.inverse_dynamics_jvp(Qn, still, lam_q, None, t, convention) -
+                ops.inverse_dynamics_jvp(Qn, still, still, None, t, convention)).sum(-2)
+    if needs[3]:
+        df = -ops.body_velocities_jvp(Qn, lam_q, t, convention).sum(-3)
+    return dq, dqd, dqdd, df, None
+
+
+def _tangent_directions(model: RobotModel, q: torch.Tensor, convention: int) -> torch.Tensor:
+    """(..., nv, nq): row j is the change of q along its tangent direction j (Pinocchio's local
+    increment, or mj_integratePos's), d/de (q + e_j e) in the coordinates of q."""
+    nv, nq = model.nv, q.shape[-1]
+    t = torch.zeros(*q.shape[:-1], nv, nq, dtype=q.dtype, device=q.device)
+    if not model.floating_base:
+        return t + torch.eye(nv, dtype=q.dtype, device=q.device)
+    t[..., 6:, 7:] = torch.eye(nv - 6, dtype=q.dtype, device=q.device)
+    if convention:  # position + v (world), quaternion wxyz turned by the local rotation
+        t[..., :3, :3] = torch.eye(3, dtype=q.dtype, device=q.device)
+        w, xyz, iw, ixyz = q[..., 3:4], q[..., 4:7], 3, slice(4, 7)
+    else:  # position + R v, quaternion xyzw
+        t[..., :3, :3] = base_rotation(q).mT
+        w, xyz, iw, ixyz = q[..., 6:7], q[..., 3:6], 6, slice(3, 6)
+    # dQ = Q (x) (w_k, 0) / 2 for the unit rotation rate w_k: d xyz = (w e_k + xyz x e_k) / 2, d w = -xyz_k / 2
+    for k in range(3):
+        e = torch.zeros(3, dtype=q.dtype, device=q.device)
+        e[k] = 1.0
+        t[..., 3 + k, ixyz] = 0.5 * (w * e + torch.cross(xyz, e.expand_as(xyz), dim=-1))
+        t[..., 3 + k, iw] = -0.5 * xyz[..., k]
+    return t
+
+
+def _bracket_term(g_tan: torch.Tensor, convention: int) -> torch.Tensor:
+    """(..., nv): sum_j g_j . [e_k, e_j] over the free flyer's directions j, k, with g_j (rows of
+    g_tan) the tangent gradients: the second derivative along k then j less the one along j then k.
+    Pinocchio's increments are in se(3), [(v1, w1), (v2, w2)] = (w1 x v2 - w2 x v1, w1 x w2);
+    mj_integratePos's position is a plain sum, so only rotations bracket."""
+    c = torch.zeros(6, 6, 6, dtype=g_tan.dtype, device=g_tan.device)
+    basis = torch.eye(6, dtype=g_tan.dtype, device=g_tan.device)
+    for k in range(6):
+        for j in range(6):
+            (vk, wk), (vj, wj) = (basis[k, :3], basis[k, 3:]), (basis[j, :3], basis[j, 3:])
+            lin = torch.zeros(3, dtype=g_tan.dtype, device=g_tan.device) if convention else \
+                torch.cross(wk, vj, dim=0) - torch.cross(wj, vk, dim=0)
+            c[k, j] = torch.cat([lin, torch.cross(wk, wj, dim=0)])
+    out = torch.zeros(g_tan.shape[:-2] + g_tan.shape[-1:], dtype=g_tan.dtype, device=g_tan.device)
+    out[..., :6] = torch.einsum("...jm,kjm->...k", g_tan[..., :6, :6], c)
+    return out
+
+
+def _repeat(x: torch.Tensor, n: int, trailing: int) -> torch.Tensor:
+    """x (..., *tail) with `trailing` tail dimensions, as (..., n, *tail) without a copy."""
+    return x.unsqueeze(-trailing - 1).expand(*x.shape[:-trailing], n, *x.shape[-trailing:])
 
 
 def _inverse_dynamics_external_force_gradient(ops, model, needs, grads, output, q, convention):
@@ -291,6 +375,7 @@ _BACKWARDS = {
     "nonlinear_effects": _nonlinear_effects,
     "com": _com,
     "energy": _energy,
+    "inverse_dynamics_gradient": _inverse_dynamics_gradient,
     "forward_dynamics_gradient": _forward_dynamics_gradient,
     "inverse_dynamics_external_force_gradient": _inverse_dynamics_external_force_gradient,
     "forward_dynamics_external_force_gradient": _forward_dynamics_external_force_gradient,
@@ -298,10 +383,11 @@ _BACKWARDS = {
     "osc_inertia": _osc_inertia,
 }
 
-# Ops whose outputs are derivatives and whose backward composes other ops' backwards (one of them
-# second order) rather than running a kernel of their own on dual numbers.
-COMPOSED_BACKWARD = ("forward_dynamics_gradient", "inverse_dynamics_external_force_gradient",
-                     "forward_dynamics_external_force_gradient", "forward_dynamics_parameter_gradient", "osc_inertia")
+# Ops whose outputs are derivatives and whose backward is made of other ops (their backwards, or the
+# jvp kernels of a first-order gradient) rather than of a kernel of their own on dual numbers.
+COMPOSED_BACKWARD = ("inverse_dynamics_gradient", "forward_dynamics_gradient",
+                     "inverse_dynamics_external_force_gradient", "forward_dynamics_external_force_gradient",
+                     "forward_dynamics_parameter_gradient", "osc_inertia")
 
 
 def _vjp(jacobian: torch.Tensor, grad: torch.Tensor) -> torch.Tensor:

@@ -60,6 +60,13 @@ class OpSpec:
     outputs: tuple[Out, ...]
     family: str = "dynamics"  # the compilation unit of the robot library it goes in (units build in parallel)
     forward_mode_of: str = ""  # set on the vector-Jacobian product of that op by forward-mode kernels
+    jvp_of: str = ""  # set on the Jacobian-vector product of that op by forward-mode kernels
+    jvp_wrt: tuple[str, ...] = ()  # the inputs whose tangents a Jacobian-vector product takes
+
+    @property
+    def derived(self) -> bool:
+        """Whether the op is another op's kernel run on dual numbers (its binding is generated)."""
+        return bool(self.forward_mode_of or self.jvp_of)
 
     @property
     def tensor_args(self) -> tuple[Arg, ...]:
@@ -143,7 +150,7 @@ _VALUE_OPS = (
 # autograd.py.)
 FORWARD_MODE_BACKWARD = (
     "jacobian_com", "ccrba", "frame_jacobian", "frame_jacobian_dot", "body_velocities",
-    "inverse_dynamics_gradient", "cmm_time_variation", "dccrba", "coriolis_matrix", "inverse_dynamics_regressor", "kinetic_energy_regressor", "potential_energy_regressor",
+    "cmm_time_variation", "dccrba", "coriolis_matrix", "inverse_dynamics_regressor", "kinetic_energy_regressor", "potential_energy_regressor",
 )
 
 
@@ -156,8 +163,23 @@ def forward_mode_backward(op: OpSpec) -> OpSpec:
                   grads, f"{op.family}_backward", forward_mode_of=op.name)
 
 
+def forward_mode_jvp(op: OpSpec, wrt: tuple[str, ...]) -> OpSpec:
+    """`<op>_jvp(inputs..., tangents...)`: the derivative of every output along the tangents of the
+    inputs named in `wrt` (the other inputs held fixed; a null tangent is zero)."""
+    args = {a.name: a for a in op.tensor_args}
+    tangents = tuple(Arg(f"{name}_dot", "plain", True, args[name].trailing) for name in wrt)
+    outputs = tuple(Out(f"{o.name}_dot", "plain", o.shape) for o in op.outputs)
+    return OpSpec(f"{op.name}_jvp", f"{op.kernel}Jvp", op.args + tangents, outputs, "derivatives_backward",
+                  jvp_of=op.name, jvp_wrt=wrt)
+
+
+# Jacobian-vector products on dual numbers: the second-order backward of inverse_dynamics_gradient
+# differentiates, along q and qd, the gradient of lam . tau (autograd.py).
+FORWARD_MODE_JVP = (("inverse_dynamics_vjp", ("q", "qd")), ("inverse_dynamics", ("q",)), ("body_velocities", ("q",)))
+
 OPS: dict[str, OpSpec] = {op.name: op for op in _VALUE_OPS}
 OPS.update({f"{name}_backward": forward_mode_backward(OPS[name]) for name in FORWARD_MODE_BACKWARD})
+OPS.update({f"{name}_jvp": forward_mode_jvp(OPS[name], wrt) for name, wrt in FORWARD_MODE_JVP})
 
 
 def check_table(table: dict[str, OpSpec]) -> None:
@@ -196,8 +218,8 @@ def check_table(table: dict[str, OpSpec]) -> None:
         integers = [a.kind for a in op.args if not a.is_tensor and a.kind != "mask"]
         if "frames" in integers and integers[-1] != "frames" or integers.count("frames") > 1:
             raise ValueError(f"op {op.name}: a 'frames' list must be the op's last integer argument (it takes the rest)")
-        if op.forward_mode_of and any(d == "nsel" for a in op.tensor_args for d in a.trailing):
-            raise ValueError(f"op {op.name}: a forward-mode backward needs compile-time sizes, not 'nsel'")
+        if op.derived and any(d == "nsel" for a in op.tensor_args for d in a.trailing):
+            raise ValueError(f"op {op.name}: a forward-mode kernel needs compile-time sizes, not 'nsel'")
 
 
 check_table(OPS)

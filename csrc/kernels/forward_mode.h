@@ -1,7 +1,8 @@
 // Forward-mode differentiation of any op: the op's kernel run on dual numbers a + b eps
 // (eps^2 = 0) carries the exact directional derivative beside every value. It backs the
-// vector-Jacobian products of the ops whose outputs are themselves derivatives (M(q), J(q),
-// dtau/dq, ...), where a hand-written second-order kernel would be one more algorithm per op.
+// vector-Jacobian products of the ops whose outputs are themselves derivatives (J(q), C(q, qd),
+// ...), where a hand-written second-order kernel would be one more algorithm per op, and the
+// Jacobian-vector products of first-order gradients (forward over reverse: Hessian-vector products).
 #pragma once
 
 #include <type_traits>
@@ -119,6 +120,32 @@ struct ForwardModeVjp {
       if (in[NI + o])
         for (int m = 0; m < Out::at(o); ++m) acc += in[NI + o][m] * y[yoff + m].d;
     out[i][k] = acc;
+  }
+};
+
+// The Jacobian-vector product of Op: in = Op's inputs (sizes In), then the tangents of the inputs
+// whose indices Wrt lists (null for zero); iargs = Op's integer arguments; out = the tangent of
+// every output. One forward pass on dual numbers per sample.
+template <template <class, class, int> class Op, class M, class S, int C, class In, class Out, class Wrt>
+struct ForwardModeJvp {
+  TG_HD static void run(const S* const* in, S* const* out, const int* iargs, int n_iargs) {
+    using D = Dual<S>;
+    constexpr int NI = In::count, NO = Out::count;
+    D x[In::total], y[Out::total];
+    const D* xs[NI];
+    D* ys[NO];
+    for (int j = 0, o = 0; j < NI; o += In::at(j), ++j) {
+      xs[j] = in[j] ? x + o : nullptr;
+      if (!in[j]) continue;
+      const S* t = nullptr;  // this input's tangent, if it has one
+      for (int w = 0; w < Wrt::count; ++w)
+        if (Wrt::at(w) == j) t = in[NI + w];
+      for (int m = 0; m < In::at(j); ++m) x[o + m] = D(in[j][m], t ? t[m] : S(0));
+    }
+    for (int o = 0, yoff = 0; o < NO; yoff += Out::at(o), ++o) ys[o] = y + yoff;
+    Op<M, D, C>::run(xs, ys, iargs, n_iargs);
+    for (int o = 0, yoff = 0; o < NO; yoff += Out::at(o), ++o)
+      for (int m = 0; m < Out::at(o); ++m) out[o][m] = y[yoff + m].d;
   }
 };
 

@@ -20,10 +20,10 @@ namespace tg {
 
 template <class M, class S> struct RneaDerivativesWork {
   const SE3<S>* oMi;                     // the Placements pass
-  Sv<S> v[M::NB], a[M::NB], F[M::NB];    // world velocity, acceleration (gravity included), subtree force
+  Sv<S> v[M::NB], F[M::NB];              // world velocity, subtree force
   Inertia<S> Yc[M::NB];                  // subtree inertia, world frame
   M6<S> B[M::NB];                        // subtree sum of dI + [. x* h]
-  Sv<S> s[M::NV], w[M::NV], u[M::NV], alpha[M::NV], sdot[M::NV];  // per column (s: its world axis), see above
+  Sv<S> s[M::NV], w[M::NV], u[M::NV], alpha[M::NV];  // per column (s: its world axis), see above
 };
 
 // The 6x6 matrix of x -> dI x + x x* h with dI = v x* I - I v x and h = I v: the rate of change of
@@ -48,29 +48,30 @@ template <class M, class S>
 TG_HD void rnea_derivatives_setup(const Placements<M, S>& K, const S* qd, const S* qdd, const S* fext,
                                   RneaDerivativesWork<M, S>& W) {
   const auto& d = data<M, S>();
+  using L = Levels<M>;
+  Sv<S> a[L::N];  // world accelerations (gravity included), only for the children
   W.oMi = K.oMi;
   for (int i = 0; i < M::NB; ++i) {
     const int p = d.parent[i], n = d.nvj[i], vi = d.vi[i];
     const Sv<S> vp = p < 0 ? sv_zero<S>() : W.v[p];
-    const Sv<S> ap = p < 0 ? base_acceleration<M, S>() : W.a[p];
+    const Sv<S> ap = p < 0 ? base_acceleration<M, S>() : a[L::parent(d, i)];
+    Sv<S>& ai = a[L::of(d, i)];
     W.v[i] = vp;
     for (int k = 0; k < n; ++k) {
       W.s[vi + k] = act_motion(W.oMi[i], joint_axis<M, S>(i, k));
       W.v[i] = W.v[i] + qd[vi + k] * W.s[vi + k];
     }
-    W.a[i] = ap;
-    for (int k = 0; k < n; ++k)
-      W.a[i] = W.a[i] + qdd[vi + k] * W.s[vi + k] + qd[vi + k] * cross_motion(W.v[i], W.s[vi + k]);
+    ai = ap;
+    for (int k = 0; k < n; ++k) ai = ai + qdd[vi + k] * W.s[vi + k] + qd[vi + k] * cross_motion(W.v[i], W.s[vi + k]);
     for (int k = 0; k < n; ++k) {
       const Sv<S>& s = W.s[vi + k];
       W.w[vi + k] = cross_motion(vp, s);
       W.u[vi + k] = cross_motion(ap, s) + cross_motion(vp, W.w[vi + k]);
       W.alpha[vi + k] = cross_motion(vp + W.v[i], s);
-      W.sdot[vi + k] = cross_motion(W.v[i], s);
     }
     W.Yc[i] = act(W.oMi[i], body_inertia<M, S>(i));
     W.B[i] = momentum_rate_matrix(W.Yc[i], W.v[i]);
-    W.F[i] = mul(W.Yc[i], W.a[i]) + cross_force(W.v[i], mul(W.Yc[i], W.v[i]));
+    W.F[i] = mul(W.Yc[i], ai) + cross_force(W.v[i], mul(W.Yc[i], W.v[i]));
     if (fext) {
       const Sv<S> fe = {{fext[6 * i], fext[6 * i + 1], fext[6 * i + 2], fext[6 * i + 3], fext[6 * i + 4], fext[6 * i + 5]}};
       W.F[i] = W.F[i] - act_force(W.oMi[i], fe);
@@ -135,7 +136,8 @@ TG_HD void rnea_derivatives(const RneaDerivativesWork<M, S>& W, S* tau, S* dtau_
 template <class M, class S>
 TG_HD void rnea_vjp(const RneaDerivativesWork<M, S>& W, const S* lambda, S* tau, S* g_q, S* g_qd) {
   const auto& d = data<M, S>();
-  Sv<S> P[M::NB], Q[M::NB], L[M::NB];
+  using Lv = Levels<M>;
+  Sv<S> P[M::NB], Q[M::NB], L[Lv::N];  // L per tree level: only a body's ancestors' are needed
   for (int i = 0; i < M::NB; ++i) {
     P[i] = Q[i] = sv_zero<S>();
     for (int l = 0; l < d.nvj[i]; ++l) {
@@ -152,18 +154,20 @@ TG_HD void rnea_vjp(const RneaDerivativesWork<M, S>& W, const S* lambda, S* tau,
     }
   for (int i = 0; i < M::NB; ++i) {
     const int p = d.parent[i];
-    L[i] = sv_zero<S>();
+    Sv<S>& Li = L[Lv::of(d, i)];
     if (p >= 0) {
-      L[i] = L[p];
-      for (int l = 0; l < d.nvj[p]; ++l) L[i] = L[i] + lambda[d.vi[p] + l] * W.s[d.vi[p] + l];
+      Li = L[Lv::parent(d, i)];
+      for (int l = 0; l < d.nvj[p]; ++l) Li = Li + lambda[d.vi[p] + l] * W.s[d.vi[p] + l];
+    } else {
+      Li = sv_zero<S>();
     }
     for (int c = 0; c < d.nvj[i]; ++c) {
       const int col = d.vi[i] + c;
       const Sv<S>& s = W.s[col];
       const Sv<S> dFq = mul(W.Yc[i], W.u[col]) + mul(W.B[i], W.w[col]) + cross_force(s, W.F[i]);
       const Sv<S> dFv = mul(W.Yc[i], W.alpha[col]) + mul(W.B[i], s);
-      g_q[col] = dot(W.u[col], P[i]) + dot(W.w[col], Q[i]) + dot(L[i], dFq);
-      g_qd[col] = dot(W.alpha[col], P[i]) + dot(s, Q[i]) + dot(L[i], dFv);
+      g_q[col] = dot(W.u[col], P[i]) + dot(W.w[col], Q[i]) + dot(Li, dFq);
+      g_qd[col] = dot(W.alpha[col], P[i]) + dot(s, Q[i]) + dot(Li, dFv);
     }
   }
 }
@@ -172,9 +176,12 @@ TG_HD void rnea_vjp(const RneaDerivativesWork<M, S>& W, const S* lambda, S* tau,
 // (dM/dt - 2 C skew-symmetric): the pairs above with X = dS/dt = v x S and Y = S / 2. It reads only
 // W's velocity terms and composite inertias, so W may be set up at any qdd and fext.
 template <class M, class S> TG_HD void coriolis_matrix(const RneaDerivativesWork<M, S>& W, S* C) {
-  Sv<S> half_s[M::NV];
+  const auto& d = data<M, S>();
+  Sv<S> sdot[M::NV], half_s[M::NV];
+  for (int i = 0; i < M::NB; ++i)
+    for (int k = 0; k < d.nvj[i]; ++k) sdot[d.vi[i] + k] = cross_motion(W.v[i], W.s[d.vi[i] + k]);
   for (int k = 0; k < M::NV; ++k) half_s[k] = S(0.5) * W.s[k];
-  ancestor_pairs<M, S>(W, W.sdot, half_s, false, C);
+  ancestor_pairs<M, S>(W, sdot, half_s, false, C);
 }
 
 // The base-linear columns of M (NV x 3, row-major) of a free root, from W's composite inertias:
