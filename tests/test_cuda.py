@@ -59,9 +59,9 @@ def test_every_float32_kernel_compiles_with_nvcc(go2_sources):
 
 # Forward-mode backward kernels still above the 64 KiB budget on the humanoid, each with the most
 # stack it may take (bytes, float64, either convention): they run the first-order kernel on dual
-# numbers with every output tangent on the thread; analytic second-order kernels replace them.
+# numbers with every output tangent on the thread (the regressor's: 168 KB of its 178 KB); analytic
+# second-order kernels are to replace them.
 _OVER_BUDGET = {
-    "coriolis_matrix_backward": 78016,
     "inverse_dynamics_regressor_backward": 177680,
 }
 
@@ -85,6 +85,8 @@ def test_cuda_stack_budget_on_a_humanoid(erd_robots_dir):
     for u in usages:
         if u.op in halved:
             assert u.stack <= halved[u.op] // 2, f"{u.op} ({u.convention}): {u.stack} bytes, more than half of {halved[u.op]}"
+
+
 @needs_nvcc
 def test_cuda_glue_compiles(go2_sources):
     from torch.utils.cpp_extension import include_paths

@@ -276,10 +276,8 @@ template <class M, class S> struct Dccrba {
 template <class M, class S> struct CoriolisMatrix {
   template <int C> TG_HD static void run(const CoriolisMatrixArgs<S>& a, const Conv<M, S, C>& cv) {
     const Placements<M, S> K(a.q);
-    S zero[M::NV];
-    for (int k = 0; k < M::NV; ++k) zero[k] = S(0);
-    RneaDerivativesWork<M, S> W;
-    rnea_derivatives_setup<M, S>(K, a.qd, zero, nullptr, W);
+    VelocityWork<M, S> W;
+    velocity_setup<M, S>(K, a.qd, W);
     coriolis_matrix<M, S>(W, a.C);
     if constexpr (Conv<M, S, C>::active) {
       S Mb[M::NV * 3];

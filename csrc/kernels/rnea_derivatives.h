@@ -18,12 +18,20 @@
 
 namespace tg {
 
-template <class M, class S> struct RneaDerivativesWork {
-  const SE3<S>* oMi;                     // the Placements pass
-  Sv<S> v[M::NB], F[M::NB];              // world velocity, subtree force
-  Inertia<S> Yc[M::NB];                  // subtree inertia, world frame
-  M6<S> B[M::NB];                        // subtree sum of dI + [. x* h]
-  Sv<S> s[M::NV], w[M::NV], u[M::NV], alpha[M::NV];  // per column (s: its world axis), see above
+// What the Coriolis matrix and M's base columns read: world axes and velocities, and the subtree
+// sums Yc and B.
+template <class M, class S> struct VelocityWork {
+  const SE3<S>* oMi;      // the Placements pass
+  Sv<S> v[M::NB];         // world velocity
+  Inertia<S> Yc[M::NB];   // subtree inertia, world frame
+  M6<S> B[M::NB];         // subtree sum of dI + [. x* h]
+  Sv<S> s[M::NV];         // per column: its world axis
+};
+
+// Everything the derivatives read: the above, the subtree forces and the per-column terms.
+template <class M, class S> struct RneaDerivativesWork : VelocityWork<M, S> {
+  Sv<S> F[M::NB];                                   // subtree force
+  Sv<S> w[M::NV], u[M::NV], alpha[M::NV];           // per column, see above
 };
 
 // The 6x6 matrix of x -> dI x + x x* h with dI = v x* I - I v x and h = I v: the rate of change of
@@ -42,6 +50,36 @@ template <class S> TG_HD M6<S> momentum_rate_matrix(const Inertia<S>& I, const S
   return B;
 }
 
+// Body i's velocity terms: its world axes and velocity, and its own world inertia and B (summed
+// over subtrees by velocity_sums).
+template <class M, class S> TG_HD void velocity_step(int i, const S* qd, VelocityWork<M, S>& W) {
+  const auto& d = data<M, S>();
+  const int p = d.parent[i], vi = d.vi[i];
+  W.v[i] = p < 0 ? sv_zero<S>() : W.v[p];
+  for (int k = 0; k < d.nvj[i]; ++k) {
+    W.s[vi + k] = act_motion(W.oMi[i], joint_axis<M, S>(i, k));
+    W.v[i] = W.v[i] + qd[vi + k] * W.s[vi + k];
+  }
+  W.Yc[i] = act(W.oMi[i], body_inertia<M, S>(i));
+  W.B[i] = momentum_rate_matrix(W.Yc[i], W.v[i]);
+}
+
+template <class M, class S> TG_HD void velocity_sums(VelocityWork<M, S>& W) {
+  const auto& d = data<M, S>();
+  for (int i = M::NB - 1; i > 0; --i) {
+    const int p = d.parent[i];
+    if (p < 0) continue;
+    W.Yc[p] = W.Yc[p] + W.Yc[i];
+    for (int k = 0; k < 36; ++k) W.B[p].m[k] += W.B[i].m[k];
+  }
+}
+
+template <class M, class S> TG_HD void velocity_setup(const Placements<M, S>& K, const S* qd, VelocityWork<M, S>& W) {
+  W.oMi = K.oMi;
+  for (int i = 0; i < M::NB; ++i) velocity_step<M, S>(i, qd, W);
+  velocity_sums<M, S>(W);
+}
+
 // Forward pass (world placements, axes, velocities, accelerations, body forces and the per-column
 // terms), then the subtree sums Yc, B, F.
 template <class M, class S>
@@ -52,15 +90,11 @@ TG_HD void rnea_derivatives_setup(const Placements<M, S>& K, const S* qd, const 
   Sv<S> a[L::N];  // world accelerations (gravity included), only for the children
   W.oMi = K.oMi;
   for (int i = 0; i < M::NB; ++i) {
+    velocity_step<M, S>(i, qd, W);
     const int p = d.parent[i], n = d.nvj[i], vi = d.vi[i];
     const Sv<S> vp = p < 0 ? sv_zero<S>() : W.v[p];
     const Sv<S> ap = p < 0 ? base_acceleration<M, S>() : a[L::parent(d, i)];
     Sv<S>& ai = a[L::of(d, i)];
-    W.v[i] = vp;
-    for (int k = 0; k < n; ++k) {
-      W.s[vi + k] = act_motion(W.oMi[i], joint_axis<M, S>(i, k));
-      W.v[i] = W.v[i] + qd[vi + k] * W.s[vi + k];
-    }
     ai = ap;
     for (int k = 0; k < n; ++k) ai = ai + qdd[vi + k] * W.s[vi + k] + qd[vi + k] * cross_motion(W.v[i], W.s[vi + k]);
     for (int k = 0; k < n; ++k) {
@@ -69,30 +103,24 @@ TG_HD void rnea_derivatives_setup(const Placements<M, S>& K, const S* qd, const 
       W.u[vi + k] = cross_motion(ap, s) + cross_motion(vp, W.w[vi + k]);
       W.alpha[vi + k] = cross_motion(vp + W.v[i], s);
     }
-    W.Yc[i] = act(W.oMi[i], body_inertia<M, S>(i));
-    W.B[i] = momentum_rate_matrix(W.Yc[i], W.v[i]);
     W.F[i] = mul(W.Yc[i], ai) + cross_force(W.v[i], mul(W.Yc[i], W.v[i]));
     if (fext) {
       const Sv<S> fe = {{fext[6 * i], fext[6 * i + 1], fext[6 * i + 2], fext[6 * i + 3], fext[6 * i + 4], fext[6 * i + 5]}};
       W.F[i] = W.F[i] - act_force(W.oMi[i], fe);
     }
   }
-  for (int i = M::NB - 1; i > 0; --i) {
-    const int p = d.parent[i];
-    if (p < 0) continue;
-    W.Yc[p] = W.Yc[p] + W.Yc[i];
-    for (int k = 0; k < 36; ++k) W.B[p].m[k] += W.B[i].m[k];
-    W.F[p] = W.F[p] + W.F[i];
-  }
+  velocity_sums<M, S>(W);
+  for (int i = M::NB - 1; i > 0; --i)
+    if (d.parent[i] >= 0) W.F[d.parent[i]] = W.F[d.parent[i]] + W.F[i];
 }
 
 // The NV x NV matrix (row-major) with, for every joint j and each joint m on its support chain
 // (j included), per-column motions X, Y:
 //   row m, column j:  S_m^T (Yc_m X_j + B_m Y_j)                        (m below or at j)
 //   row m, column j:  S_m^T (Yc_j X_j + B_j Y_j [+ s_j x* F_j])          (m strictly above j)
-// Entries of unrelated branches are zero.
-template <class M, class S>
-TG_HD void ancestor_pairs(const RneaDerivativesWork<M, S>& W, const Sv<S>* X, const Sv<S>* Y, bool force_term, S* out) {
+// Entries of unrelated branches are zero. HalfY takes Y / 2 for Y (exactly, without its storage).
+template <bool ForceTerm, bool HalfY, class M, class S, class Work>
+TG_HD void ancestor_pairs(const Work& W, const Sv<S>* X, const Sv<S>* Y, S* out) {
   const auto& d = data<M, S>();
   constexpr int NV = M::NV;
   for (int k = 0; k < NV * NV; ++k) out[k] = S(0);
@@ -100,7 +128,9 @@ TG_HD void ancestor_pairs(const RneaDerivativesWork<M, S>& W, const Sv<S>* X, co
     // Rows of joint i, columns of its ancestors and itself.
     for (int l = 0; l < d.nvj[i]; ++l) {
       const int row = d.vi[i] + l;
-      const Sv<S> P = mul(W.Yc[i], W.s[d.vi[i] + l]), Q = mul_transpose(W.B[i], W.s[d.vi[i] + l]);
+      const Sv<S> P = mul(W.Yc[i], W.s[d.vi[i] + l]);
+      Sv<S> Q = mul_transpose(W.B[i], W.s[d.vi[i] + l]);
+      if constexpr (HalfY) Q = S(0.5) * Q;
       for (int j = i; j >= 0; j = d.parent[j])
         for (int c = 0; c < d.nvj[j]; ++c) {
           const int col = d.vi[j] + c;
@@ -110,8 +140,10 @@ TG_HD void ancestor_pairs(const RneaDerivativesWork<M, S>& W, const Sv<S>* X, co
     // Columns of joint i, rows of its strict ancestors.
     for (int c = 0; c < d.nvj[i]; ++c) {
       const int col = d.vi[i] + c;
-      Sv<S> dF = mul(W.Yc[i], X[col]) + mul(W.B[i], Y[col]);
-      if (force_term) dF = dF + cross_force(W.s[col], W.F[i]);
+      Sv<S> BY = mul(W.B[i], Y[col]);
+      if constexpr (HalfY) BY = S(0.5) * BY;
+      Sv<S> dF = mul(W.Yc[i], X[col]) + BY;
+      if constexpr (ForceTerm) dF = dF + cross_force(W.s[col], W.F[i]);
       for (int m = d.parent[i]; m >= 0; m = d.parent[m])
         for (int l = 0; l < d.nvj[m]; ++l) out[NV * (d.vi[m] + l) + col] = dot(W.s[d.vi[m] + l], dF);
     }
@@ -124,8 +156,8 @@ TG_HD void rnea_derivatives(const RneaDerivativesWork<M, S>& W, S* tau, S* dtau_
   const auto& d = data<M, S>();
   for (int i = 0; i < M::NB; ++i)
     for (int l = 0; l < d.nvj[i]; ++l) tau[d.vi[i] + l] = dot(W.s[d.vi[i] + l], W.F[i]);
-  ancestor_pairs<M, S>(W, W.u, W.w, true, dtau_dq);
-  ancestor_pairs<M, S>(W, W.alpha, W.s, false, dtau_dqd);
+  ancestor_pairs<true, false, M, S>(W, W.u, W.w, dtau_dq);
+  ancestor_pairs<false, false, M, S>(W, W.alpha, W.s, dtau_dqd);
 }
 
 // lambda^T d tau / dq and lambda^T d tau / dqd (NV each) without forming the matrices, in O(n):
@@ -174,20 +206,19 @@ TG_HD void rnea_vjp(const RneaDerivativesWork<M, S>& W, const S* lambda, S* tau,
 
 // Coriolis matrix C (NV x NV) with C qd = nonlinear effects - gravity, Pinocchio's factorisation
 // (dM/dt - 2 C skew-symmetric): the pairs above with X = dS/dt = v x S and Y = S / 2. It reads only
-// W's velocity terms and composite inertias, so W may be set up at any qdd and fext.
-template <class M, class S> TG_HD void coriolis_matrix(const RneaDerivativesWork<M, S>& W, S* C) {
+// the velocity terms (velocity_setup, or a derivatives workspace at any qdd and fext).
+template <class M, class S> TG_HD void coriolis_matrix(const VelocityWork<M, S>& W, S* C) {
   const auto& d = data<M, S>();
-  Sv<S> sdot[M::NV], half_s[M::NV];
+  Sv<S> sdot[M::NV];
   for (int i = 0; i < M::NB; ++i)
     for (int k = 0; k < d.nvj[i]; ++k) sdot[d.vi[i] + k] = cross_motion(W.v[i], W.s[d.vi[i] + k]);
-  for (int k = 0; k < M::NV; ++k) half_s[k] = S(0.5) * W.s[k];
-  ancestor_pairs<M, S>(W, sdot, half_s, false, C);
+  ancestor_pairs<false, true, M, S>(W, sdot, W.s, C);
 }
 
 // The base-linear columns of M (NV x 3, row-major) of a free root, from W's composite inertias:
 // M[r, c] = S_r^T Yc_i S_c with i the body of dof r, in the root's subtree, dofs [0, vend[0])
 // (else 0). All a MuJoCo twin's reframe reads of M.
-template <class M, class S> TG_HD void mass_base_columns(const RneaDerivativesWork<M, S>& W, S* Mb) {
+template <class M, class S> TG_HD void mass_base_columns(const VelocityWork<M, S>& W, S* Mb) {
   const auto& d = data<M, S>();
   for (int i = 0; i < M::NB; ++i)
     for (int l = 0; l < d.nvj[i]; ++l) {
