@@ -145,9 +145,6 @@ template <class M, class S> TG_HD void centroidal_setup(const S* q, const S* qd,
   }
 }
 
-// A force at the world origin seen at the com: [f; n - c x f].
-template <class S> TG_HD Sv<S> at_point(const Sv<S>& f, Vec3<S> c) { return sv(lin(f), ang(f) - cross(c, lin(f))); }
-
 // Pinocchio's dAg (6 x NV): the time variation of the centroidal map with h_dot = A qdd + dAg qd,
 // and A itself (may be null). Column j of A is Yc_j S_j seen at the com; dAg's is dYc_j S_j +
 // Yc_j dS_j/dt seen at the com. (The elementwise dA/dt adds -cdot x (A_j)_lin to the angular

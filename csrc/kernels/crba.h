@@ -25,26 +25,21 @@ template <class M, class S> TG_HD void crba(const S* q, S* Mout) {
   for (int i = M::NB - 1; i >= 0; --i) {
     const int vi = d.vi[i], ve = d.vend[i], nj = d.nvj[i];
     const Mat3<S>& R = K.oMi[i].R;
-    const Vec3<S> o = K.oMi[i].p - K.oMi[0].p;  // joint i's origin seen from the root's
-    // F_c = Ic_i S_c about joint i's origin, then about the root's: n += o x f.
+    const SE3<S> X{R, K.oMi[i].p - K.oMi[0].p};  // joint i seen from the root's origin, world axes
+    // F_c = Ic_i S_c about joint i's origin, then about the root's.
     for (int k = 0; k < nj; ++k) {
       const Sv<S> s = joint_axis<M, S>(i, k);
-      const Sv<S> f = mul(Ic[i], sv(mul(R, lin(s)), mul(R, ang(s))));
-      const Vec3<S> fl = lin(f), n = ang(f) + cross(o, fl);
-      for (int r = 0; r < 3; ++r) {
-        F[r][vi + k] = fl.x[r];
-        F[3 + r][vi + k] = n.x[r];
-      }
+      const Sv<S> f = at_point(mul(Ic[i], sv(mul(R, lin(s)), mul(R, ang(s)))), S(-1) * X.p);
+      for (int r = 0; r < 6; ++r) F[r][vi + k] = f.v[r];
     }
-    // M[r, c] = S_r^T F_c over the subtree, S_r about the root's origin: v += o x w. Zero to the
-    // right of the subtree (other branches); the entries left of vi are mirrored below.
+    // M[r, c] = S_r^T F_c over the subtree, S_r about the root's origin. Zero to the right of the
+    // subtree (other branches); the entries left of vi are mirrored below.
     for (int k = 0; k < nj; ++k) {
-      const Sv<S> s = joint_axis<M, S>(i, k);
-      const Vec3<S> w = mul(R, ang(s)), v = mul(R, lin(s)) + cross(o, w);
+      const Sv<S> s = act_motion(X, joint_axis<M, S>(i, k));
       S* row = Mout + NV * (vi + k);
       for (int c = vi; c < ve; ++c)
-        row[c] = v.x[0] * F[0][c] + v.x[1] * F[1][c] + v.x[2] * F[2][c] + w.x[0] * F[3][c] + w.x[1] * F[4][c] +
-                 w.x[2] * F[5][c];
+        row[c] = s.v[0] * F[0][c] + s.v[1] * F[1][c] + s.v[2] * F[2][c] + s.v[3] * F[3][c] + s.v[4] * F[4][c] +
+                 s.v[5] * F[5][c];
       for (int c = ve; c < NV; ++c) row[c] = S(0);
     }
     const int p = d.parent[i];

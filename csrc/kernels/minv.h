@@ -32,16 +32,14 @@ template <int N, class M, class S> TG_HD void minv_backward(int i, MinvWork<M, S
   const auto& d = data<M, S>();
   constexpr int NV = M::NV;
   const int vi = d.vi[i], p = d.parent[i];
-  const Mat3<S>& R = w.K->oMi[i].R;
-  const Vec3<S> o = w.K->oMi[i].p - w.K->oMi[0].p;  // joint i's origin seen from the root's
+  const SE3<S> X{w.K->oMi[i].R, w.K->oMi[i].p - w.K->oMi[0].p};  // joint i seen from the root's origin
   Sv<S> U[N];  // about joint i's origin
   S D[N * N], Dinv[N * N];
   for (int k = 0; k < N; ++k) {
-    const Sv<S> sl = joint_axis<M, S>(i, k);
-    const Vec3<S> sa = mul(R, ang(sl)), s = mul(R, lin(sl));
-    U[k] = mul(w.IA[i], sv(s, sa));
-    w.Sw[vi + k] = sv(s + cross(o, sa), sa);
-    w.Uw[vi + k] = sv(lin(U[k]), ang(U[k]) + cross(o, lin(U[k])));
+    const Sv<S> s = joint_axis<M, S>(i, k);
+    U[k] = mul(w.IA[i], sv(mul(X.R, lin(s)), mul(X.R, ang(s))));
+    w.Sw[vi + k] = act_motion(X, s);
+    w.Uw[vi + k] = at_point(U[k], S(-1) * X.p);
   }
   // D = S^T U: a motion-force pairing, the same about any point.
   for (int r = 0; r < N; ++r)

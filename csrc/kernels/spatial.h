@@ -125,6 +125,8 @@ template <class S> TG_HD Sv<S> act_force(const SE3<S>& X, const Sv<S>& f) {
   const Vec3<S> fl = mul(X.R, lin(f));
   return sv(fl, mul(X.R, ang(f)) + cross(X.p, fl));
 }
+// A force [f; n] about the origin, taken about the point c: [f; n - c x f].
+template <class S> TG_HD Sv<S> at_point(const Sv<S>& f, Vec3<S> c) { return sv(lin(f), ang(f) - cross(c, lin(f))); }
 // Motion cross motion: [w1 x v2 + v1 x w2; w1 x w2].
 template <class S> TG_HD Sv<S> cross_motion(const Sv<S>& a, const Sv<S>& b) {
   return sv(cross(ang(a), lin(b)) + cross(lin(a), ang(b)), cross(ang(a), ang(b)));
@@ -256,16 +258,6 @@ template <class S> TG_HD Inertia<S> operator+(const Inertia<S>& a, const Inertia
   return r;
 }
 
-// The inertia of a body in child coordinates, expressed in the parent frame:
-//   h' = R h + m p,  Io' = R Io R^T - ([h'']x [p]x + [p]x [h'']x) - m [p]x^2,  h'' = R h.
-template <class S> TG_HD Inertia<S> act(const SE3<S>& X, const Inertia<S>& I) {
-  const Vec3<S> hr = mul(X.R, I.h);
-  const Mat3<S> HP = skew_mul(hr, skew(X.p)), PP = skew_mul(X.p, skew(X.p));
-  Inertia<S> out{I.m, hr + I.m * X.p, rotate_symmetric(X.R, I.Io)};
-  for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 3; ++c) out.Io.m[3 * r + c] -= HP.m[3 * r + c] + HP.m[3 * c + r] + I.m * PP.m[3 * r + c];
-  return out;
-}
 
 // The same inertia in axes rotated by R, about the same point: (m, R h, R Io R^T).
 template <class S> TG_HD Inertia<S> rotate(const Mat3<S>& R, const Inertia<S>& I) {
@@ -282,6 +274,10 @@ template <class S> TG_HD Inertia<S> shift(const Inertia<S>& I, Vec3<S> d) {
       out.Io.m[3 * r + c] -= d.x[r] * I.h.x[c] + I.h.x[r] * d.x[c] + I.m * d.x[r] * d.x[c] - (r == c ? diag : S(0));
   return out;
 }
+
+// The inertia of a body in child coordinates, expressed in the parent frame: rotated by R, then
+// taken about the parent's origin, where the child's origin is p.
+template <class S> TG_HD Inertia<S> act(const SE3<S>& X, const Inertia<S>& I) { return shift(rotate(X.R, I), X.p); }
 
 template <class S> TG_HD M6<S> to_matrix(const Inertia<S>& I) {
   M6<S> Y;
