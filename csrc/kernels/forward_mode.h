@@ -75,7 +75,24 @@ template <int... N> struct Sizes {
     const int s[] = {N...};
     return s[k];
   }
+  TG_HD static int offset(int k) {  // the sum of the sizes before k
+    int o = 0;
+    for (int l = 0; l < k; ++l) o += at(l);
+    return o;
+  }
 };
+
+// Dual copies x of an op's inputs (sizes In; zero tangents, absent inputs null in xs) and the
+// output slots ys over y (sizes Out): the arguments of the op run on dual numbers.
+template <class In, class Out, class S>
+TG_HD void dual_arguments(const S* const* in, Dual<S>* x, const Dual<S>** xs, Dual<S>* y, Dual<S>** ys) {
+  for (int j = 0, o = 0; j < In::count; o += In::at(j), ++j) {
+    xs[j] = in[j] ? x + o : nullptr;
+    if (in[j])
+      for (int m = 0; m < In::at(j); ++m) x[o + m] = Dual<S>(in[j][m], S(0));
+  }
+  for (int o = 0, yoff = 0; o < Out::count; yoff += Out::at(o), ++o) ys[o] = y + yoff;
+}
 
 // The vector-Jacobian product of Op with respect to its tensor inputs, one forward pass on dual
 // numbers per input coordinate: in = Op's inputs (sizes In), then one cotangent per output (sizes
@@ -106,13 +123,8 @@ struct ForwardModeVjp {
     D x[In::total], y[Out::total];
     const D* xs[NI];
     D* ys[NO];
-    for (int j = 0, o = 0; j < NI; o += In::at(j), ++j) {
-      xs[j] = in[j] ? x + o : nullptr;
-      if (in[j])
-        for (int m = 0; m < In::at(j); ++m) x[o + m] = D(in[j][m], S(0));
-    }
+    dual_arguments<In, Out>(in, x, xs, y, ys);
     x[off + k].d = S(1);
-    for (int o = 0, yoff = 0; o < NO; yoff += Out::at(o), ++o) ys[o] = y + yoff;
     Op<M, D, C>::run(xs, ys, iargs, n_iargs - 1);
     // the output tangents dotted with the cotangents
     S acc = S(0);
@@ -134,15 +146,14 @@ struct ForwardModeJvp {
     D x[In::total], y[Out::total];
     const D* xs[NI];
     D* ys[NO];
-    for (int j = 0, o = 0; j < NI; o += In::at(j), ++j) {
-      xs[j] = in[j] ? x + o : nullptr;
-      if (!in[j]) continue;
-      const S* t = nullptr;  // this input's tangent, if it has one
-      for (int w = 0; w < Wrt::count; ++w)
-        if (Wrt::at(w) == j) t = in[NI + w];
-      for (int m = 0; m < In::at(j); ++m) x[o + m] = D(in[j][m], t ? t[m] : S(0));
+    dual_arguments<In, Out>(in, x, xs, y, ys);
+    // the tangents seeded on the inputs that have one
+    for (int w = 0; w < Wrt::count; ++w) {
+      const int j = Wrt::at(w);
+      const S* t = in[NI + w];
+      if (t && in[j])
+        for (int m = 0; m < In::at(j); ++m) x[In::offset(j) + m].d = t[m];
     }
-    for (int o = 0, yoff = 0; o < NO; yoff += Out::at(o), ++o) ys[o] = y + yoff;
     Op<M, D, C>::run(xs, ys, iargs, n_iargs);
     for (int o = 0, yoff = 0; o < NO; yoff += Out::at(o), ++o)
       for (int m = 0; m < Out::at(o); ++m) out[o][m] = y[yoff + m].d;
