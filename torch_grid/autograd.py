@@ -140,8 +140,7 @@ def _mass_product_vjp(ops, q, a, lam, convention):
     cotangents lam_m, less one gravity product at (0, 0) with cotangent sum_m lam_m."""
     m = a.shape[-2]
     zero = torch.zeros_like(a)
-    products, _ = ops.inverse_dynamics_vjp(q.unsqueeze(-2).expand(*q.shape[:-1], m, q.shape[-1]), zero, a, None, lam,
-                                           convention)
+    products, _ = ops.inverse_dynamics_vjp(_repeat(q, m, 1), zero, a, None, lam, convention)
     gravity, _ = ops.inverse_dynamics_vjp(q, zero[..., 0, :], zero[..., 0, :], None, lam.sum(-2), convention)
     return products.sum(-2) - gravity
 
@@ -278,19 +277,32 @@ def _tangent_directions(model: RobotModel, q: torch.Tensor, convention: int) -> 
     return t
 
 
+def _bracket_constants(convention: int) -> list:
+    """c[k][j] = [e_k, e_j] (6) for the free flyer's tangent basis e = (v, w): in se(3) for Pinocchio's
+    increments, [(v1, w1), (v2, w2)] = (w1 x v2 - w2 x v1, w1 x w2); mj_integratePos's position is a
+    plain sum, so there only rotations bracket."""
+    def cross(a, b):
+        return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+    e = [[float(r == c) for c in range(6)] for r in range(6)]
+    c = []
+    for k in range(6):
+        row = []
+        for j in range(6):
+            (vk, wk), (vj, wj) = (e[k][:3], e[k][3:]), (e[j][:3], e[j][3:])
+            lin = [0.0] * 3 if convention else [x - y for x, y in zip(cross(wk, vj), cross(wj, vk))]
+            row.append(lin + cross(wk, wj))
+        c.append(row)
+    return c
+
+
+_BRACKET = {convention: _bracket_constants(convention) for convention in (0, 1)}
+
+
 def _bracket_term(g_tan: torch.Tensor, convention: int) -> torch.Tensor:
     """(..., nv): sum_j g_j . [e_k, e_j] over the free flyer's directions j, k, with g_j (rows of
-    g_tan) the tangent gradients: the second derivative along k then j less the one along j then k.
-    Pinocchio's increments are in se(3), [(v1, w1), (v2, w2)] = (w1 x v2 - w2 x v1, w1 x w2);
-    mj_integratePos's position is a plain sum, so only rotations bracket."""
-    c = torch.zeros(6, 6, 6, dtype=g_tan.dtype, device=g_tan.device)
-    basis = torch.eye(6, dtype=g_tan.dtype, device=g_tan.device)
-    for k in range(6):
-        for j in range(6):
-            (vk, wk), (vj, wj) = (basis[k, :3], basis[k, 3:]), (basis[j, :3], basis[j, 3:])
-            lin = torch.zeros(3, dtype=g_tan.dtype, device=g_tan.device) if convention else \
-                torch.cross(wk, vj, dim=0) - torch.cross(wj, vk, dim=0)
-            c[k, j] = torch.cat([lin, torch.cross(wk, wj, dim=0)])
+    g_tan) the tangent gradients: the second derivative along k then j less the one along j then k."""
+    c = torch.tensor(_BRACKET[convention], dtype=g_tan.dtype, device=g_tan.device)
     out = torch.zeros(g_tan.shape[:-2] + g_tan.shape[-1:], dtype=g_tan.dtype, device=g_tan.device)
     out[..., :6] = torch.einsum("...jm,kjm->...k", g_tan[..., :6, :6], c)
     return out
@@ -306,9 +318,8 @@ def _inverse_dynamics_external_force_gradient(ops, model, needs, grads, output, 
     is that of -sum_i <G[i], body_velocities(q, e_i)>, by body_velocities' backward."""
     nv, batch = model.nv, q.shape[:-1]
     unit = torch.eye(nv, dtype=q.dtype, device=q.device).expand(*batch, nv, nv)
-    qs = q.unsqueeze(-2).expand(*batch, nv, q.shape[-1])
-    dq = _forward_mode(OPS["body_velocities"])(ops, model, (True, False, False), (-grads[0],), None, qs, unit,
-                                               convention)[0]
+    dq = _forward_mode(OPS["body_velocities"])(ops, model, (True, False, False), (-grads[0],), None,
+                                               _repeat(q, nv, 1), unit, convention)[0]
     return dq.sum(-2), None
 
 
