@@ -203,6 +203,8 @@ def test_op_table_limits_are_checked_when_it_is_built():
         "one velocity": dataclasses.replace(crba, name="accel", args=(Q, ops.Arg("qdd", "acceleration"))),
         "distinct": dataclasses.replace(crba, name="names", outputs=(ops.Out("q", "congruence", NVxNV),)),
         "last integer": dataclasses.replace(crba, name="frames", args=(Q, ops.Arg("frames", "frames"), ops.Arg("f", "frame"))),
+        "one output": dataclasses.replace(ops.OPS["inverse_dynamics_regressor"],
+                                          outputs=(ops.Out("Y", "force_rows", ("nv", "nparams")), ops.Out("Z", "plain", (1,)))),
     }
     for words, op in bad.items():
         with pytest.raises(ValueError, match=re.escape(op.name)) as info:

@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .model import RobotModel
-from .ops import OPS, Arg, OpSpec, op_signature
+from .ops import CONTRACTED, OPS, Arg, OpSpec, op_signature
 
 _JTYPE = {"free": 0, "revolute": 1, "continuous": 1, "prismatic": 2}
 _KERNEL_SIZE = {"nv": "M::NV", "nq": "M::NQ", "nframes": "M::NF", "nbodies": "M::NB", "nparams": "10 * M::NB"}
@@ -291,6 +291,7 @@ def _binding(op: OpSpec) -> str:
             body.append(f"    a.{arg.name} = iargs[{iargs}];")
         tensors += arg.is_tensor
         iargs += not arg.is_tensor
+    inputs = list(body)
     body += [f"    a.{o.name} = out[{k}];" for k, o in enumerate(op.outputs)]
     body.append(f"    ::tg::{op.kernel}<M, S>::run(a{', cv' if op.twin else ''});")
     reframe = {"force": "cv.force_out(a.{o})", "acceleration": f"cv.acceleration_out(a.{velocity}, a.{{o}})",
@@ -303,9 +304,15 @@ def _binding(op: OpSpec) -> str:
             body.append(f"    {reframe[o.kind].format(o=o.name, rows=rows, cols=cols)};")
     if not iargs:
         body.insert(0, "    (void)iargs; (void)n_iargs;")
+        inputs.insert(0, "    (void)iargs; (void)n_iargs;")
+    contract = ""
+    if op.name in CONTRACTED:  # sum(weight * output) without the output: see ForwardModeVjp
+        contract = ("\n  template <class T>\n  TG_HD static S contract(const S* const* in, const T* weight, const int* iargs, "
+                    "int n_iargs) {\n" + "\n".join(inputs)
+                    + f"\n    return ::tg::{op.kernel}<M, S>::contract(a, weight, cv);\n  }}")
     return (f"template <class M, class S, int C> struct {op.kernel} {{\n"
             f"  TG_HD static void run(const S* const* in, S* const* out, const int* iargs, int n_iargs) {{\n"
-            + "\n".join(body) + "\n  }\n};")
+            + "\n".join(body) + "\n  }" + contract + "\n};")
 
 
 def bindings_header(table: dict[str, OpSpec] = OPS) -> str:

@@ -153,6 +153,11 @@ FORWARD_MODE_BACKWARD = (
     "cmm_time_variation", "dccrba", "coriolis_matrix", "inverse_dynamics_regressor", "kinetic_energy_regressor", "potential_energy_regressor",
 )
 
+# Of those, the ops whose kernel also provides contract(args, weight, cv) = sum(weight * output), which
+# their backward runs instead (in the binding's convention, the output's reframe folded into the
+# weight): the output itself would not fit a GPU thread on dual numbers (Y: nv x 10 nbodies).
+CONTRACTED = ("inverse_dynamics_regressor",)
+
 
 def forward_mode_backward(op: OpSpec) -> OpSpec:
     """`<op>_backward(inputs..., cotangents..., needs)`: the gradient of sum(cotangent * output) for
@@ -218,6 +223,10 @@ def check_table(table: dict[str, OpSpec]) -> None:
         integers = [a.kind for a in op.args if not a.is_tensor and a.kind != "mask"]
         if "frames" in integers and integers[-1] != "frames" or integers.count("frames") > 1:
             raise ValueError(f"op {op.name}: a 'frames' list must be the op's last integer argument (it takes the rest)")
+        if op.name in CONTRACTED and (op.name not in FORWARD_MODE_BACKWARD or len(op.outputs) != 1 or
+                                      op.outputs[0].kind not in ("force_rows", "plain")):
+            raise ValueError(f"op {op.name}: a contracted op has a forward-mode backward and one output of kind "
+                             "'force_rows' or 'plain'")
         if op.derived and any(d == "nsel" for a in op.tensor_args for d in a.trailing):
             raise ValueError(f"op {op.name}: a forward-mode kernel needs compile-time sizes, not 'nsel'")
 

@@ -131,6 +131,12 @@ template <class M, class S, int C> struct Conv {
         X[2 * cols + c] = x.x[2];
       }
   }
+  // The weight of Pinocchio's entry (r, c) in sum(W * X_mjx) for X_mjx = force_rows_out(X): (G^T W)[r, c].
+  template <class T> TG_HD S force_rows_weight(const T* W, int r, int c, int cols) const {
+    if constexpr (active)
+      if (r < 3) return R.m[r] * W[c] + R.m[3 + r] * W[cols + c] + R.m[6 + r] * W[2 * cols + c];
+    return S(W[cols * r + c]);
+  }
   // Symmetric NV x NV matrix out: congruence G X G^T.
   TG_HD void congruence_out(S* X) const {
     if constexpr (active) {

@@ -72,7 +72,7 @@ template <int... N> struct Sizes {
   static constexpr int count = sizeof...(N);
   static constexpr int total = (0 + ... + N);
   TG_HD static int at(int k) {
-    const int s[] = {N...};
+    const int s[] = {N..., 0};  // a trailing 0: Sizes<> is valid too
     return s[k];
   }
   TG_HD static int offset(int k) {  // the sum of the sizes before k
@@ -94,10 +94,17 @@ TG_HD void dual_arguments(const S* const* in, Dual<S>* x, const Dual<S>** xs, Du
   for (int o = 0, yoff = 0; o < Out::count; yoff += Out::at(o), ++o) ys[o] = y + yoff;
 }
 
+// Whether an op's binding provides contract(in, weight, iargs, n_iargs) = sum(weight * output).
+template <class Op, class = void> struct Contracted : std::false_type {};
+template <class Op>
+struct Contracted<Op, std::void_t<decltype(Op::contract(nullptr, static_cast<const float*>(nullptr), nullptr, 0))>>
+    : std::true_type {};
+
 // The vector-Jacobian product of Op with respect to its tensor inputs, one forward pass on dual
 // numbers per input coordinate: in = Op's inputs (sizes In), then one cotangent per output (sizes
 // Out, null for zero); iargs = Op's integer arguments, then a bit mask of the inputs to
-// differentiate; out = one gradient per input (zero where not asked).
+// differentiate; out = one gradient per input (zero where not asked). An op with a contraction
+// (one output) is dotted with its cotangent as it goes, so its output is never held.
 template <template <class, class, int> class Op, class M, class S, int C, class In, class Out>
 struct ForwardModeVjp {
   // One input coordinate per pass: the batch layer runs them as separate work items (a CUDA thread
@@ -120,18 +127,26 @@ struct ForwardModeVjp {
       return;
     }
     // dual copies of the inputs, the tangent seeded on this coordinate
-    D x[In::total], y[Out::total];
+    D x[In::total];
     const D* xs[NI];
-    D* ys[NO];
-    dual_arguments<In, Out>(in, x, xs, y, ys);
-    x[off + k].d = S(1);
-    Op<M, D, C>::run(xs, ys, iargs, n_iargs - 1);
-    // the output tangents dotted with the cotangents
-    S acc = S(0);
-    for (int o = 0, yoff = 0; o < NO; yoff += Out::at(o), ++o)
-      if (in[NI + o])
-        for (int m = 0; m < Out::at(o); ++m) acc += in[NI + o][m] * y[yoff + m].d;
-    out[i][k] = acc;
+    if constexpr (Contracted<Op<M, D, C>>::value) {
+      static_assert(NO == 1, "a contraction dots one output");
+      dual_arguments<In, Sizes<>, S>(in, x, xs, nullptr, nullptr);
+      x[off + k].d = S(1);
+      out[i][k] = in[NI] ? Op<M, D, C>::contract(xs, in[NI], iargs, n_iargs - 1).d : S(0);
+    } else {
+      D y[Out::total];
+      D* ys[NO];
+      dual_arguments<In, Out>(in, x, xs, y, ys);
+      x[off + k].d = S(1);
+      Op<M, D, C>::run(xs, ys, iargs, n_iargs - 1);
+      // the output tangents dotted with the cotangents
+      S acc = S(0);
+      for (int o = 0, yoff = 0; o < NO; yoff += Out::at(o), ++o)
+        if (in[NI + o])
+          for (int m = 0; m < Out::at(o); ++m) acc += in[NI + o][m] * y[yoff + m].d;
+      out[i][k] = acc;
+    }
   }
 };
 

@@ -291,6 +291,16 @@ template <class M, class S> struct InverseDynamicsRegressor {
   TG_HD static void run(const InverseDynamicsRegressorArgs<S>& a) {
     inverse_dynamics_regressor<M, S>(a.q, a.qd, a.qdd, a.Y);
   }
+  // sum(G * Y) for a weight G of the binding's Y, without holding Y: its backward runs this on dual
+  // numbers, where Y (NV x 10 NB of them) would not fit a GPU thread's stack.
+  template <class T, class Cv> TG_HD static S contract(const InverseDynamicsRegressorArgs<S>& a, const T* G, const Cv& cv) {
+    constexpr int NP = 10 * M::NB;
+    JointPlacements<M, S> liMi(a.q);
+    S acc = S(0);
+    inverse_dynamics_regressor_entries<M, S>(
+        liMi, a.qd, a.qdd, [&](int r, int c, const S& y) { acc += cv.force_rows_weight(G, r, c, NP) * y; });
+    return acc;
+  }
 };
 
 template <class M, class S> struct KineticEnergyRegressor {

@@ -29,13 +29,13 @@ template <class S> TG_HD void body_force_regressor(const Sv<S>& v, const Sv<S>& 
   }
 }
 
-// Y (NV x 10 NB): column block i holds body i's regressor, carried to each joint above it.
+// Y (NV x 10 NB): column block i holds body i's regressor, carried to each joint above it; the
+// entries that can be nonzero go to put(row, column, value) (Y's other entries are zero).
 // liMi: the joint placements (JointPlacements, or a shared Placements pass).
-template <class M, class S, class P> TG_HD_INLINE void inverse_dynamics_regressor_placed(P& liMi, const S* qd, const S* qdd, S* Y) {
+template <class M, class S, class P, class Put>
+TG_HD_INLINE void inverse_dynamics_regressor_entries(P& liMi, const S* qd, const S* qdd, Put&& put) {
   const auto& d = data<M, S>();
-  constexpr int NP = 10 * M::NB;
   Sv<S> v[M::NB], a[M::NB];
-  for (int k = 0; k < M::NV * NP; ++k) Y[k] = S(0);
   for (int i = 0; i < M::NB; ++i) {
     const int p = d.parent[i];
     const Sv<S> vJ = joint_motion<M, S>(i, qd);
@@ -48,7 +48,7 @@ template <class M, class S, class P> TG_HD_INLINE void inverse_dynamics_regresso
     for (int j = i;;) {
       for (int l = 0; l < d.nvj[j]; ++l) {
         const Sv<S> s = joint_axis<M, S>(j, l);
-        for (int c = 0; c < 10; ++c) Y[NP * (d.vi[j] + l) + 10 * i + c] = dot(s, f[c]);
+        for (int c = 0; c < 10; ++c) put(d.vi[j] + l, 10 * i + c, dot(s, f[c]));
       }
       if (d.parent[j] < 0) break;
       const auto& Xj = liMi[j];
@@ -56,6 +56,12 @@ template <class M, class S, class P> TG_HD_INLINE void inverse_dynamics_regresso
       j = d.parent[j];
     }
   }
+}
+
+template <class M, class S, class P> TG_HD_INLINE void inverse_dynamics_regressor_placed(P& liMi, const S* qd, const S* qdd, S* Y) {
+  constexpr int NP = 10 * M::NB;
+  for (int k = 0; k < M::NV * NP; ++k) Y[k] = S(0);
+  inverse_dynamics_regressor_entries<M, S>(liMi, qd, qdd, [Y](int r, int c, const S& y) { Y[NP * r + c] = y; });
 }
 
 template <class M, class S> TG_HD void inverse_dynamics_regressor(const S* q, const S* qd, const S* qdd, S* Y) {
