@@ -63,6 +63,7 @@ struct CudaAttributes {
 using CudaFn = int (*)(const Batch& b, void* stream, int sms, CudaAttributes* attributes);
 
 // Every kernel of one op in one robot library: [scalar: 0 float, 1 double][convention: 0 pin, 1 mujoco].
+// The CPU has double kernels only (cpu[0] is null): the glue runs float32 batches through them.
 struct OpKernels {
   CpuFn cpu[2][2];
   CudaFn cuda[2][2];
@@ -70,7 +71,7 @@ struct OpKernels {
 
 // What a robot library exports (one C symbol, named after its op namespace): its sizes and one
 // OpKernels per op, in the order of the op table whose signature it carries.
-constexpr int kTableAbi = 1;
+constexpr int kTableAbi = 2;
 struct RobotTable {
   int abi;
   const char* op_signature;  // hash of the op table the library was generated from

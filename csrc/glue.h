@@ -10,6 +10,7 @@
 #include <ATen/ops/from_blob.h>
 #include <torch/library.h>
 
+#include <algorithm>
 #include <cstdlib>
 #if defined(__linux__)
 #include <sys/mman.h>
@@ -99,6 +100,7 @@ class Call {
     if (!x.is_same(t)) keep_[k] = x;  // a copy outlives the launch
     batch_.in[k] = x.data_ptr();
     batch_.in_stride[k] = numel(batch) == 1 && n_ != 1 ? 0 : stride;
+    in_size_[k] = stride;
   }
   void input(const std::optional<at::Tensor>& t, const char* name, std::initializer_list<int64_t> trailing) {
     if (t.has_value()) {
@@ -154,6 +156,15 @@ class Call {
 #else
       TORCH_CHECK(false, op_, ": torch_grid's glue was built without CUDA (no GPU or nvcc when it was built)");
 #endif
+      return;
+    }
+    if (s == 0) {  // float32 runs the float64 kernels (a robot library holds no others for the CPU)
+      const CpuFn fn = kernels.cpu[1][c];
+      if (n_ == 1) {
+        as_double(fn, 0, 1);
+        return;
+      }
+      at::parallel_for(0, n_, 16, [this, fn](int64_t begin, int64_t end) { as_double(fn, begin, end); });
       return;
     }
     const CpuFn fn = kernels.cpu[s][c];
@@ -246,6 +257,46 @@ class Call {
     return at::empty(shape, options);
   }
 
+  // Samples [begin, end) of a float32 batch through a float64 kernel, a chunk at a time: the chunk's
+  // inputs widened into a buffer that stays in cache, its outputs rounded back into place. On the
+  // CPU, double arithmetic costs about what float does, so this adds only the conversions.
+  void as_double(CpuFn fn, int64_t begin, int64_t end) const {
+    int64_t per_sample = 0;
+    for (int k = 0; k < n_in_; ++k) per_sample += batch_.in[k] ? in_size_[k] : 0;
+    for (int k = 0; k < n_out_; ++k) per_sample += batch_.out[k] ? batch_.out_stride[k] : 0;
+    const int64_t chunk = std::max<int64_t>(1, std::min<int64_t>(64, (int64_t(32) << 10) / std::max<int64_t>(per_sample, 1)));
+    std::vector<double> buffer(static_cast<size_t>(per_sample * chunk));
+    Batch d = batch_;
+    for (int64_t s0 = begin; s0 < end; s0 += chunk) {
+      const int64_t n = std::min(chunk, end - s0);
+      double* next = buffer.data();
+      d.n = n;
+      for (int k = 0; k < n_in_; ++k) {
+        if (!batch_.in[k]) continue;
+        const float* x = static_cast<const float*>(batch_.in[k]);
+        const int64_t size = in_size_[k], stride = batch_.in_stride[k], samples = stride ? n : 1;
+        for (int64_t j = 0; j < samples; ++j)
+          for (int64_t m = 0; m < size; ++m) next[size * j + m] = x[stride * (s0 + j) + m];
+        d.in[k] = next;
+        d.in_stride[k] = stride ? size : 0;
+        next += size * samples;
+      }
+      for (int k = 0; k < n_out_; ++k) {
+        if (!batch_.out[k]) continue;
+        d.out[k] = next;
+        next += batch_.out_stride[k] * n;
+      }
+      fn(d, 0, n);
+      for (int k = 0; k < n_out_; ++k) {
+        if (!batch_.out[k]) continue;
+        const int64_t size = batch_.out_stride[k];
+        const double* y = static_cast<const double*>(d.out[k]);
+        float* x = static_cast<float*>(batch_.out[k]) + size * s0;
+        for (int64_t m = 0; m < size * n; ++m) x[m] = static_cast<float>(y[m]);
+      }
+    }
+  }
+
   void push_int(int64_t v) {
     TORCH_CHECK(batch_.n_iargs < kMaxIargs, op_, ": too many integer arguments (at most ", kMaxIargs, ")");
     batch_.iargs[batch_.n_iargs++] = static_cast<int>(v);
@@ -266,6 +317,7 @@ class Call {
   int64_t n_ = 0;
   int n_in_ = 0, n_out_ = 0;
   at::Tensor keep_[kMaxIn];  // contiguous copies
+  int64_t in_size_[kMaxIn] = {};  // elements of one sample of each input
   Batch batch_;
 };
 

@@ -154,6 +154,35 @@ def test_raw_op_checks_arguments(robots):
         robot._ops.crba(q, 5)
 
 
+def test_float32_on_the_cpu_is_float64_rounded(robots):
+    """float32 CPU calls run the float64 kernels a chunk of samples at a time: each result is exactly
+    the float64 one on the widened inputs, rounded, across chunk boundaries, for a shared (stride 0)
+    or absent input, integer arguments, large outputs and a backward op with an absent cotangent."""
+    robot = robots["go2"]
+    g = torch.Generator().manual_seed(3)
+    q = robot.random_configuration(150, generator=g).float()
+    qd, qdd = torch.randn(150, robot.nv, generator=g).float(), torch.randn(robot.nv, generator=g).float()
+    f = torch.randn(150, robot.nbodies, 6, generator=g).float()
+    w = torch.randn(150, robot.nv, robot.nv, generator=g).float()
+    ops = robot._ops
+    calls = [
+        lambda q, qd, qdd, f, w: ops.inverse_dynamics(q, qd, qdd, None, 1),  # qdd shared by the batch
+        lambda q, qd, qdd, f, w: ops.inverse_dynamics(q, qd, qdd, f, 0),
+        lambda q, qd, qdd, f, w: ops.crba(q, 1),
+        lambda q, qd, qdd, f, w: ops.frame_jacobian(q, 7, 2, 1),
+        lambda q, qd, qdd, f, w: ops.inverse_dynamics_gradient(q, qd, qdd, f, 1),
+        lambda q, qd, qdd, f, w: ops.inverse_dynamics_regressor(q, qd, qdd.expand_as(qd), 1),  # 3 samples a chunk
+        lambda q, qd, qdd, f, w: ops.frame_jacobian_backward(q, 7, 2, None, 1, 1),
+        lambda q, qd, qdd, f, w: ops.coriolis_matrix_backward(q, qd, w, 3, 1),
+    ]
+    for call in calls:
+        single = call(q, qd, qdd, f, w)
+        double = call(q.double(), qd.double(), qdd.double(), f.double(), w.double())
+        for s, d in zip(single if isinstance(single, (tuple, list)) else (single,),
+                        double if isinstance(double, (tuple, list)) else (double,)):
+            assert s.dtype == torch.float32 and torch.equal(s, d.float())
+
+
 def test_meta_tensors_propagate_shapes(robots):
     robot = robots["go2"]
     q = torch.empty(7, 3, robot.nq, dtype=torch.float64, device="meta")

@@ -4,7 +4,8 @@ Two kinds of binaries live in the cache:
   - the glue (`.glue/<key>/`): the torch side of every op, compiled once per torch version,
     compiler and flags, and shared by every robot;
   - one robot library per robot (`<name>-<key>/`): plain C++ (and CUDA) kernels without torch,
-    compiled in parallel units, one per op family and scalar type.
+    compiled in parallel units, one per op family (double on the CPU, which the glue also runs
+    float32 through; float and double for CUDA).
 A robot's cache key covers everything that changes its binary (model, build options, kernel
 sources, compiler, CPU, torch version); its op namespace only what changes results (the model,
 the build options, the op table), so a program exported on one machine finds its ops on another.

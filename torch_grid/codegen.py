@@ -14,6 +14,9 @@ _KERNEL_SIZE = {"nv": "M::NV", "nq": "M::NQ", "nframes": "M::NF", "nbodies": "M:
 _SIZE = {"nv": "r.nv", "nq": "r.nq", "nframes": "r.nf", "nbodies": "r.nb", "nparams": "10 * r.nb",
          "nsel": "static_cast<int64_t>(frames.size())"}
 _SCALARS = (("float", "f32"), ("double", "f64"))  # index 0 and 1 of OpKernels' scalar dimension
+# The CPU kernels are built for double only: the glue runs float32 through them, a chunk of samples at
+# a time (csrc/glue.h), which halves a robot's build for about what float arithmetic would save.
+_CPU_SCALARS = ("double",)
 _CONVENTIONS = (("tg::PIN", "pin"), ("tg::MJX", "mujoco"))
 
 
@@ -24,7 +27,8 @@ def write_robot_sources(model: RobotModel, mujoco: bool, cuda: bool, namespace: 
              "table.cpp": table_unit(model, mujoco, cuda, namespace)}
     for family in dict.fromkeys(op.family for op in OPS.values()):
         for scalar, suffix in _SCALARS:
-            files[f"{family}_{suffix}.cpp"] = kernel_unit(model, mujoco, namespace, family, scalar, cuda=False)
+            if scalar in _CPU_SCALARS:
+                files[f"{family}_{suffix}.cpp"] = kernel_unit(model, mujoco, namespace, family, scalar, cuda=False)
             if cuda:
                 files[f"{family}_{suffix}.cu"] = kernel_unit(model, mujoco, namespace, family, scalar, cuda=True)
     for name, text in files.items():
@@ -183,7 +187,9 @@ def table_unit(model: RobotModel, mujoco: bool, cuda: bool, namespace: str) -> s
     for op in OPS.values():
         slots = {}
         for device in ("cpu", "cuda") if cuda else ("cpu",):
-            for _, suffix in _SCALARS:
+            for scalar, suffix in _SCALARS:
+                if device == "cpu" and scalar not in _CPU_SCALARS:
+                    continue
                 for _, cname in convs:
                     name = _entry(device, op, suffix, cname)
                     slots[device, suffix, cname] = name
