@@ -34,14 +34,27 @@ template <class M, class S> TG_HD void crba(const S* q, S* Mout) {
     }
     // M[r, c] = S_r^T F_c over the subtree, S_r about the root's origin. Zero to the right of the
     // subtree (other branches); the entries left of vi are mirrored below.
-    for (int k = 0; k < nj; ++k) {
-      const Sv<S> s = act_motion(X, joint_axis<M, S>(i, k));
-      S* row = Mout + NV * (vi + k);
-      for (int c = vi; c < ve; ++c)
-        row[c] = s.v[0] * F[0][c] + s.v[1] * F[1][c] + s.v[2] * F[2][c] + s.v[3] * F[3][c] + s.v[4] * F[4][c] +
-                 s.v[5] * F[5][c];
-      for (int c = ve; c < NV; ++c) row[c] = S(0);
+    if (d.jtype[i] == FREE) {
+      // A free joint's axes are R's columns about its origin: its rows are F_c there, in its axes.
+      for (int c = vi; c < ve; ++c) {
+        const Vec3<S> fl = v3(F[0][c], F[1][c], F[2][c]), fa = v3(F[3][c], F[4][c], F[5][c]);
+        const Vec3<S> l = mulT(R, fl), a = mulT(R, fa - cross(X.p, fl));
+        for (int k = 0; k < 3; ++k) {
+          Mout[NV * (vi + k) + c] = l.x[k];
+          Mout[NV * (vi + 3 + k) + c] = a.x[k];
+        }
+      }
+    } else {
+      for (int k = 0; k < nj; ++k) {
+        const Sv<S> s = act_motion(X, joint_axis<M, S>(i, k));
+        S* row = Mout + NV * (vi + k);
+        for (int c = vi; c < ve; ++c)
+          row[c] = s.v[0] * F[0][c] + s.v[1] * F[1][c] + s.v[2] * F[2][c] + s.v[3] * F[3][c] + s.v[4] * F[4][c] +
+                   s.v[5] * F[5][c];
+      }
     }
+    for (int k = 0; k < nj; ++k)
+      for (int c = ve; c < NV; ++c) Mout[NV * (vi + k) + c] = S(0);
     const int p = d.parent[i];
     if (p >= 0) Ic[p] = Ic[p] + shift(Ic[i], K.oMi[i].p - K.oMi[p].p);
   }

@@ -12,8 +12,9 @@ namespace tg {
 enum JointType : int { FREE = 0, REVOLUTE = 1, PRISMATIC = 2 };
 
 // Placement of joint i's frame in its parent's frame, liMi = placement * Mj(q). q is Pinocchio's
-// layout: a free joint reads [pos(3), quat xyzw(4)].
-template <class M, class S> TG_HD SE3<S> joint_placement(int i, const S* q) {
+// layout: a free joint reads [pos(3), quat xyzw(4)]. Always inlined where i is a constant (the
+// forward kinematics), so that it folds to the joint's own case.
+template <class M, class S> TG_HD_INLINE SE3<S> joint_placement_inline(int i, const S* q) {
   const auto& d = data<M, S>();
   SE3<S> X;
   for (int k = 0; k < 9; ++k) X.R.m[k] = S(d.R[i][k]);
@@ -45,6 +46,8 @@ template <class M, class S> TG_HD SE3<S> joint_placement(int i, const S* q) {
   }
   return X;
 }
+
+template <class M, class S> TG_HD SE3<S> joint_placement(int i, const S* q) { return joint_placement_inline<M, S>(i, q); }
 
 // Column k of joint i's motion subspace S_i, in the joint frame.
 template <class M, class S> TG_HD Sv<S> joint_axis(int i, int k) {
@@ -100,8 +103,13 @@ template <class M, class S> TG_HD Sv<S> base_acceleration() {
 // Forward kinematics: local placements liMi and world placements oMi of every body.
 template <class M, class S> TG_HD void forward_kinematics(const S* q, SE3<S>* liMi, SE3<S>* oMi) {
   const auto& d = data<M, S>();
+  // Unrolled, each body's placement is specialised to its constant joint (type, axis, placement):
+  // no switch, and the products by identity or zero entries fold away (10-25% of crba on the host).
+#if !defined(__CUDACC__)
+#pragma GCC unroll 128
+#endif
   for (int i = 0; i < M::NB; ++i) {
-    liMi[i] = joint_placement<M, S>(i, q);
+    liMi[i] = joint_placement_inline<M, S>(i, q);
     oMi[i] = d.parent[i] < 0 ? liMi[i] : oMi[d.parent[i]] * liMi[i];
   }
 }
