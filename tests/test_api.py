@@ -183,6 +183,22 @@ def test_float32_on_the_cpu_is_float64_rounded(robots):
             assert s.dtype == torch.float32 and torch.equal(s, d.float())
 
 
+def test_large_cpu_outputs_reuse_their_blocks(robots):
+    """An output above 32 MiB is backed by a block kept when freed and handed to the next output of
+    its size; a block is never shared by two live tensors, and results are those of small batches."""
+    robot = robots["go2"]
+    q = robot.random_configuration(13_000, generator=torch.Generator().manual_seed(4))  # M: 33.7 MB
+    first = robot.crba(q)
+    block = first.data_ptr()
+    expected = torch.cat([robot.crba(part) for part in q.split(1000)])
+    assert torch.equal(first, expected)
+    del first
+    again = robot.crba(q)
+    assert again.data_ptr() == block and torch.equal(again, expected)
+    other = robot.crba(q)  # `again` is alive: a new block
+    assert other.data_ptr() != block and torch.equal(other, expected) and torch.equal(again, expected)
+
+
 def test_meta_tensors_propagate_shapes(robots):
     robot = robots["go2"]
     q = torch.empty(7, 3, robot.nq, dtype=torch.float64, device="meta")
