@@ -185,7 +185,7 @@ def test_float32_on_the_cpu_is_float64_rounded(robots):
 
 def test_large_cpu_outputs_reuse_their_blocks(robots):
     """An output above 32 MiB is backed by a block kept when freed and handed to the next output of
-    its size; a block is never shared by two live tensors. Outputs above 16 MiB in all are streamed
+    its size; a block is never shared by two live tensors. Outputs above 8 MiB in all are streamed
     from the kernel's buffer. Results are those of small batches, bit for bit."""
     robot = robots["go2"]
     q = robot.random_configuration(13_000, generator=torch.Generator().manual_seed(4))  # M: 33.7 MB
