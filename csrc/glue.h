@@ -12,8 +12,12 @@
 
 #include <algorithm>
 #include <cstdlib>
+#include <cstring>
 #if defined(__linux__)
 #include <sys/mman.h>
+#endif
+#if defined(__x86_64__)
+#include <emmintrin.h>
 #endif
 
 #include <mutex>
@@ -224,6 +228,10 @@ class Call {
       fn(b, 0, 1);
       return;
     }
+    if (n_ * out_per_sample() * int64_t(sizeof(double)) > kStreamBytes) {
+      at::parallel_for(0, n_, 16, [this, fn](int64_t begin, int64_t end) { streamed(fn, begin, end); });
+      return;
+    }
     at::parallel_for(0, n_, 16, [fn, &b](int64_t begin, int64_t end) { fn(b, begin, end); });
   }
 
@@ -303,6 +311,65 @@ class Call {
     }
 #endif
     return at::empty(shape, options);
+  }
+
+  // Outputs of a float64 batch above this many bytes are written around the cache (streamed).
+  static constexpr int64_t kStreamBytes = int64_t(8) << 20;
+
+  int64_t out_per_sample() const {
+    int64_t n = 0;
+    for (int k = 0; k < n_out_; ++k) n += batch_.out[k] ? batch_.out_stride[k] : 0;
+    return n;
+  }
+
+  // Samples [begin, end) of a batch whose outputs exceed what a core keeps in cache (go2's M at
+  // B = 4096: 10.6 MB): a few samples at a time into a buffer that stays in L1, then copied to the
+  // outputs with non-temporal stores, which skip reading in the lines about to be overwritten
+  // (G1 crba 3.6 -> 2.9 µs per sample at B = 4096).
+  void streamed(CpuFn fn, int64_t begin, int64_t end) const {
+    const int64_t per_sample = out_per_sample();
+    const int64_t chunk = std::max<int64_t>(1, std::min<int64_t>(16, (int64_t(4) << 10) / per_sample));
+    std::vector<double> buffer(static_cast<size_t>(per_sample * chunk));
+    Batch d = batch_;
+    for (int64_t s0 = begin; s0 < end; s0 += chunk) {
+      const int64_t n = std::min(chunk, end - s0);
+      d.n = n;
+      for (int k = 0; k < n_in_; ++k)
+        if (batch_.in[k]) d.in[k] = static_cast<const double*>(batch_.in[k]) + s0 * batch_.in_stride[k];
+      double* next = buffer.data();
+      for (int k = 0; k < n_out_; ++k)
+        if (batch_.out[k]) {
+          d.out[k] = next;
+          next += batch_.out_stride[k] * n;
+        }
+      fn(d, 0, n);
+      for (int k = 0; k < n_out_; ++k)
+        if (batch_.out[k])
+          stream_copy(static_cast<double*>(batch_.out[k]) + batch_.out_stride[k] * s0, static_cast<const double*>(d.out[k]),
+                      batch_.out_stride[k] * n);
+    }
+#if defined(__x86_64__)
+    _mm_sfence();  // streamed stores are weakly ordered: complete them before the batch returns
+#endif
+  }
+
+  // dst[0, n) <- src with non-temporal stores where the CPU has them.
+  static void stream_copy(double* dst, const double* src, int64_t n) {
+#if defined(__x86_64__)
+    int64_t m = 0;
+    long long bits;
+    for (; m < n && (reinterpret_cast<uintptr_t>(dst + m) & 15); ++m) {
+      std::memcpy(&bits, src + m, 8);
+      _mm_stream_si64(reinterpret_cast<long long*>(dst + m), bits);
+    }
+    for (; m + 2 <= n; m += 2) _mm_stream_pd(dst + m, _mm_loadu_pd(src + m));
+    for (; m < n; ++m) {
+      std::memcpy(&bits, src + m, 8);
+      _mm_stream_si64(reinterpret_cast<long long*>(dst + m), bits);
+    }
+#else
+    std::memcpy(dst, src, static_cast<size_t>(n) * sizeof(double));
+#endif
   }
 
   // Samples [begin, end) of a float32 batch through a float64 kernel, a chunk at a time: the chunk's

@@ -186,7 +186,7 @@ def test_float32_on_the_cpu_is_float64_rounded(robots):
 def test_large_cpu_outputs_reuse_their_blocks(robots):
     """An output above 32 MiB is backed by a block kept when freed and handed to the next output of
     its size; a block is never shared by two live tensors. Outputs above 8 MiB in all are streamed
-    from the kernel's buffer. Results are those of small batches, bit for bit."""
+    from a buffer the kernel fills a few samples at a time. Results equal small batches' bit for bit."""
     robot = robots["go2"]
     q = robot.random_configuration(13_000, generator=torch.Generator().manual_seed(4))  # M: 33.7 MB
     first = robot.crba(q)
@@ -198,7 +198,7 @@ def test_large_cpu_outputs_reuse_their_blocks(robots):
     assert again.data_ptr() == block and torch.equal(again, expected)
     other = robot.crba(q)  # `again` is alive: a new block
     assert other.data_ptr() != block and torch.equal(other, expected) and torch.equal(again, expected)
-    # several outputs, each streamed from the kernel's buffer
+    # several outputs, each streamed from the buffer
     qd, qdd = (torch.randn(13_000, robot.nv, generator=torch.Generator().manual_seed(k), dtype=torch.float64)
                for k in (5, 6))
     parts = [robot.mujoco.inverse_dynamics_gradient(*x) for x in zip(q.split(1000), qd.split(1000), qdd.split(1000))]
