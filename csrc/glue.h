@@ -213,26 +213,17 @@ class Call {
 #endif
       return;
     }
-    if (s == 0) {  // float32 runs the float64 kernels (a robot library holds no others for the CPU)
-      const CpuFn fn = kernels.cpu[1][c];
-      if (n_ == 1) {
-        as_double(fn, 0, 1);
-        return;
-      }
-      at::parallel_for(0, n_, 16, [this, fn](int64_t begin, int64_t end) { as_double(fn, begin, end); });
-      return;
-    }
-    const CpuFn fn = kernels.cpu[s][c];
-    const Batch& b = batch_;
+    // The CPU kernels are double (a robot library holds no others): float32 goes through as_double;
+    // float64 outputs too large for the cache are streamed.
+    const CpuFn fn = kernels.cpu[1][c];
+    const auto range = s == 0 ? &Call::as_double
+                       : n_ * out_per_sample() * int64_t(sizeof(double)) > kStreamBytes ? &Call::streamed
+                                                                                        : &Call::direct;
     if (n_ == 1) {  // a single sample: no thread pool
-      fn(b, 0, 1);
+      (this->*range)(fn, 0, 1);
       return;
     }
-    if (n_ * out_per_sample() * int64_t(sizeof(double)) > kStreamBytes) {
-      at::parallel_for(0, n_, 16, [this, fn](int64_t begin, int64_t end) { streamed(fn, begin, end); });
-      return;
-    }
-    at::parallel_for(0, n_, 16, [fn, &b](int64_t begin, int64_t end) { fn(b, begin, end); });
+    at::parallel_for(0, n_, 16, [this, fn, range](int64_t begin, int64_t end) { (this->*range)(fn, begin, end); });
   }
 
  private:
@@ -322,6 +313,19 @@ class Call {
     return n;
   }
 
+  // d's outputs for n samples, laid out in a buffer from `next`; returns the end of them.
+  double* output_slots(Batch& d, double* next, int64_t n) const {
+    for (int k = 0; k < n_out_; ++k)
+      if (batch_.out[k]) {
+        d.out[k] = next;
+        next += batch_.out_stride[k] * n;
+      }
+    return next;
+  }
+
+  // Samples [begin, end) straight into the outputs.
+  void direct(CpuFn fn, int64_t begin, int64_t end) const { fn(batch_, begin, end); }
+
   // Samples [begin, end) of a batch whose outputs exceed what a core keeps in cache (go2's M at
   // B = 4096: 10.6 MB): a few samples at a time into a buffer that stays in L1, then copied to the
   // outputs with non-temporal stores, which skip reading in the lines about to be overwritten
@@ -336,12 +340,7 @@ class Call {
       d.n = n;
       for (int k = 0; k < n_in_; ++k)
         if (batch_.in[k]) d.in[k] = static_cast<const double*>(batch_.in[k]) + s0 * batch_.in_stride[k];
-      double* next = buffer.data();
-      for (int k = 0; k < n_out_; ++k)
-        if (batch_.out[k]) {
-          d.out[k] = next;
-          next += batch_.out_stride[k] * n;
-        }
+      output_slots(d, buffer.data(), n);
       fn(d, 0, n);
       for (int k = 0; k < n_out_; ++k)
         if (batch_.out[k])
@@ -376,9 +375,8 @@ class Call {
   // inputs widened into a buffer that stays in cache, its outputs rounded back into place. On the
   // CPU, double arithmetic costs about what float does, so this adds only the conversions.
   void as_double(CpuFn fn, int64_t begin, int64_t end) const {
-    int64_t per_sample = 0;
+    int64_t per_sample = out_per_sample();
     for (int k = 0; k < n_in_; ++k) per_sample += batch_.in[k] ? in_size_[k] : 0;
-    for (int k = 0; k < n_out_; ++k) per_sample += batch_.out[k] ? batch_.out_stride[k] : 0;
     const int64_t chunk = std::max<int64_t>(1, std::min<int64_t>(64, (int64_t(32) << 10) / std::max<int64_t>(per_sample, 1)));
     std::vector<double> buffer(static_cast<size_t>(per_sample * chunk));
     Batch d = batch_;
@@ -396,11 +394,7 @@ class Call {
         d.in_stride[k] = stride ? size : 0;
         next += size * samples;
       }
-      for (int k = 0; k < n_out_; ++k) {
-        if (!batch_.out[k]) continue;
-        d.out[k] = next;
-        next += batch_.out_stride[k] * n;
-      }
+      output_slots(d, next, n);
       fn(d, 0, n);
       for (int k = 0; k < n_out_; ++k) {
         if (!batch_.out[k]) continue;
