@@ -178,6 +178,34 @@ def test_energy_is_sum(robots, robot_name):
     assert rel_err(e[..., 2], e[..., 0] + e[..., 1]) <= 1e-12
 
 
+def test_joint_angles_of_any_size(robots, pin_models):
+    """The kernels' sine and cosine (a vectorised range reduction and polynomial, the C library past
+    2^24 or for non-finite angles) against Pinocchio's, over angles from subnormal to 1e12 and at
+    multiples of pi/2, where the reduction cancels most digits."""
+    robot, pm = robots.get("iiwa14"), pin_models.get("iiwa14")
+    g = torch.Generator().manual_seed(60)
+    j = torch.arange(1, 8, dtype=torch.float64)
+    rows = [
+        torch.rand(7, generator=g, dtype=torch.float64) * 6.3 - 3.15,
+        j * (np.pi / 2),
+        (torch.rand(7, generator=g, dtype=torch.float64) - 0.5) * 2e5,
+        (1e6 + j) * (np.pi / 2),
+        torch.tensor([2.0**24 - 0.5, 2.0**24, 2.0**24 + 1, -(2.0**24), 1e17, -3e20, 1e300], dtype=torch.float64),
+        (torch.rand(7, generator=g, dtype=torch.float64) - 0.5) * 2e12,
+        torch.tensor([1e-300, -0.0, 5e-324, 1e-9, -1e-5, 0.7853981633974483, -2.356194490192345], dtype=torch.float64),
+    ]
+    s = {"q": torch.stack(rows)}
+    for case in ("forward_kinematics", "crba"):
+        ours_fn, ref_fn, keys = CASES[case]
+        check(case, ours_fn(robot, s), reference(robot, pm, s, ref_fn, keys), 1e-12, torch.float64)
+    frame = frames_to_test(robot)[0]
+    ref = reference(robot, pm, s, lambda o, q: o.frame_jacobian(q, pm.getFrameId(frame), "local_world_aligned"), [])
+    check("frame_jacobian", robot.frame_jacobian(s["q"], frame), ref, 1e-12, torch.float64)
+    bad = s["q"][:2].clone()
+    bad[0, 3], bad[1, 5] = float("nan"), float("inf")
+    assert torch.isnan(robot.crba(bad)).any(dim=(-2, -1)).all(), "a non-finite angle must not read as a finite one"
+
+
 # --------------------------------------------------------------------------------------------
 # convention selection
 # --------------------------------------------------------------------------------------------

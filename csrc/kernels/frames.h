@@ -67,10 +67,7 @@ template <class M, class S> TG_HD void frame_jacobian(const S* q, int f, int ref
   int chain[M::NB], n = 0;  // support chain, frame's body first
   for (int j = d.fparent[f]; j >= 0; j = d.parent[j]) chain[n++] = j;
   SE3<S> oMi[M::NB];
-  for (int k = n - 1; k >= 0; --k) {
-    const SE3<S> liMi = joint_placement<M, S>(chain[k], q);
-    oMi[chain[k]] = k == n - 1 ? liMi : oMi[chain[k + 1]] * liMi;
-  }
+  chain_placements<M, S>(q, chain, n, oMi);
   frame_jacobian<M, S>(oMi, f, reference, J);
 }
 
@@ -105,10 +102,9 @@ TG_HD void frame_jacobian_dot(const S* q, const S* qd, int f, int reference, S* 
   for (int j = d.fparent[f]; j >= 0; j = d.parent[j]) chain[n++] = j;
   SE3<S> oMi[M::NB];
   Sv<S> v[M::NB];
+  chain_placements<M, S>(q, chain, n, oMi);
   for (int k = n - 1; k >= 0; --k) {
     const int i = chain[k];
-    const SE3<S> liMi = joint_placement<M, S>(i, q);
-    oMi[i] = k == n - 1 ? liMi : oMi[chain[k + 1]] * liMi;
     v[i] = act_motion(oMi[i], joint_motion<M, S>(i, qd)) + (k == n - 1 ? sv_zero<S>() : v[chain[k + 1]]);
   }
   const SE3<S> oMf = frame_placement<M, S>(f, oMi);

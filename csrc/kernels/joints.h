@@ -6,15 +6,17 @@
 #pragma once
 
 #include "spatial.h"
+#include "trig.h"
 
 namespace tg {
 
 enum JointType : int { FREE = 0, REVOLUTE = 1, PRISMATIC = 2 };
 
 // Placement of joint i's frame in its parent's frame, liMi = placement * Mj(q). q is Pinocchio's
-// layout: a free joint reads [pos(3), quat xyzw(4)]. Always inlined where i is a constant (the
-// forward kinematics), so that it folds to the joint's own case.
-template <class M, class S> TG_HD_INLINE SE3<S> joint_placement_inline(int i, const S* q) {
+// layout: a free joint reads [pos(3), quat xyzw(4)]; c, s are the cosine and sine of a revolute
+// joint's angle. Always inlined where i is a constant (the forward kinematics), so that it folds
+// to the joint's own case.
+template <class M, class S> TG_HD_INLINE SE3<S> joint_placement_inline(int i, const S* q, S c, S s) {
   const auto& d = data<M, S>();
   SE3<S> X;
   for (int k = 0; k < 9; ++k) X.R.m[k] = S(d.R[i][k]);
@@ -30,14 +32,13 @@ template <class M, class S> TG_HD_INLINE SE3<S> joint_placement_inline(int i, co
       if (k >= 0) {
         // R Rot(e_k, t) mixes only the two columns other than k.
         const int a = (k + 1) % 3, b = (k + 2) % 3;
-        const S c = cos(qi[0]), s = sin(qi[0]);
         for (int r = 0; r < 3; ++r) {
           const S ra = X.R.m[3 * r + a], rb = X.R.m[3 * r + b];
           X.R.m[3 * r + a] = c * ra + s * rb;
           X.R.m[3 * r + b] = c * rb - s * ra;
         }
       } else {
-        X.R = mul(X.R, axis_rotation(v3(S(d.axis[i][0]), S(d.axis[i][1]), S(d.axis[i][2])), qi[0]));
+        X.R = mul(X.R, axis_rotation(v3(S(d.axis[i][0]), S(d.axis[i][1]), S(d.axis[i][2])), c, s));
       }
       break;
     default:  // PRISMATIC
@@ -47,7 +48,19 @@ template <class M, class S> TG_HD_INLINE SE3<S> joint_placement_inline(int i, co
   return X;
 }
 
-template <class M, class S> TG_HD SE3<S> joint_placement(int i, const S* q) { return joint_placement_inline<M, S>(i, q); }
+template <class M, class S> TG_HD SE3<S> joint_placement(int i, const S* q) {
+  const auto& d = data<M, S>();
+  const S t = d.jtype[i] == REVOLUTE ? q[d.qi[i]] : S(0);
+  return joint_placement_inline<M, S>(i, q, cos(t), sin(t));
+}
+
+// sin and cos of every revolute joint's angle (0 for the other joints), computed together (trig.h).
+template <class M, class S> TG_HD void joint_sincos(const S* q, S* s, S* c) {
+  const auto& d = data<M, S>();
+  S t[M::NB];
+  for (int i = 0; i < M::NB; ++i) t[i] = d.jtype[i] == REVOLUTE ? q[d.qi[i]] : S(0);
+  sincos_n(M::NB, t, s, c);
+}
 
 // Column k of joint i's motion subspace S_i, in the joint frame.
 template <class M, class S> TG_HD Sv<S> joint_axis(int i, int k) {
@@ -103,15 +116,42 @@ template <class M, class S> TG_HD Sv<S> base_acceleration() {
 // Forward kinematics: local placements liMi and world placements oMi of every body.
 template <class M, class S> TG_HD void forward_kinematics(const S* q, SE3<S>* liMi, SE3<S>* oMi) {
   const auto& d = data<M, S>();
-  // Unrolled, each body's placement is specialised to its constant joint (type, axis, placement):
-  // no switch, and the products by identity or zero entries fold away (10-25% of crba on the host).
-#if !defined(__CUDACC__)
-#pragma GCC unroll 128
-#endif
+#if defined(__CUDACC__)
   for (int i = 0; i < M::NB; ++i) {
-    liMi[i] = joint_placement_inline<M, S>(i, q);
+    liMi[i] = joint_placement<M, S>(i, q);
     oMi[i] = d.parent[i] < 0 ? liMi[i] : oMi[d.parent[i]] * liMi[i];
   }
+#else
+  S s[M::NB], c[M::NB];
+  joint_sincos<M, S>(q, s, c);
+  // Unrolled, each body's placement is specialised to its constant joint (type, axis, placement):
+  // no switch, and the products by identity or zero entries fold away (10-25% of crba).
+#pragma GCC unroll 128
+  for (int i = 0; i < M::NB; ++i) {
+    liMi[i] = joint_placement_inline<M, S>(i, q, c[i], s[i]);
+    oMi[i] = d.parent[i] < 0 ? liMi[i] : oMi[d.parent[i]] * liMi[i];
+  }
+#endif
+}
+
+// World placements oMi of the bodies of a support chain, chain[0] a frame's body and chain[n - 1]
+// a root; the other entries of oMi are left alone.
+template <class M, class S> TG_HD void chain_placements(const S* q, const int* chain, int n, SE3<S>* oMi) {
+  const auto& d = data<M, S>();
+#if defined(__CUDACC__)
+  for (int k = n - 1; k >= 0; --k) {
+    const SE3<S> liMi = joint_placement<M, S>(chain[k], q);
+    oMi[chain[k]] = k == n - 1 ? liMi : oMi[chain[k + 1]] * liMi;
+  }
+#else
+  S t[M::NB], s[M::NB], c[M::NB];
+  for (int k = 0; k < n; ++k) t[k] = d.jtype[chain[k]] == REVOLUTE ? q[d.qi[chain[k]]] : S(0);
+  sincos_n(n, t, s, c);
+  for (int k = n - 1; k >= 0; --k) {
+    const SE3<S> liMi = joint_placement_inline<M, S>(chain[k], q, c[k], s[k]);
+    oMi[chain[k]] = k == n - 1 ? liMi : oMi[chain[k + 1]] * liMi;
+  }
+#endif
 }
 
 // World placement of frame f.
@@ -160,9 +200,10 @@ template <class M, class S> struct JointPlacements {
   TG_HD SE3<S> operator[](int i) const { return joint_placement<M, S>(i, q); }
 #else
   const S* q;
+  S s[M::NB], c[M::NB];
   SE3<S> X[M::NB];
-  TG_HD explicit JointPlacements(const S* q_) : q(q_) {}
-  TG_HD const SE3<S>& place(int i) { return X[i] = joint_placement<M, S>(i, q); }
+  TG_HD explicit JointPlacements(const S* q_) : q(q_) { joint_sincos<M, S>(q, s, c); }
+  TG_HD const SE3<S>& place(int i) { return X[i] = joint_placement_inline<M, S>(i, q, c[i], s[i]); }
   TG_HD const SE3<S>& operator[](int i) const { return X[i]; }
 #endif
 };

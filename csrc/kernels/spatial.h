@@ -68,9 +68,9 @@ template <class S> TG_HD Mat3<S> mul(const Mat3<S>& A, const Mat3<S>& B) {
 }
 template <class S> TG_HD Mat3<S> identity3() { return {{S(1), S(0), S(0), S(0), S(1), S(0), S(0), S(0), S(1)}}; }
 
-// Rotation by angle t about the unit axis a (Rodrigues).
-template <class S> TG_HD Mat3<S> axis_rotation(Vec3<S> a, S t) {
-  const S s = sin(t), c = cos(t), k = S(1) - c;
+// Rotation about the unit axis a by the angle of cosine c and sine s (Rodrigues).
+template <class S> TG_HD Mat3<S> axis_rotation(Vec3<S> a, S c, S s) {
+  const S k = S(1) - c;
   const S x = a.x[0], y = a.x[1], z = a.x[2];
   return {{c + k * x * x, k * x * y - s * z, k * x * z + s * y,
            k * x * y + s * z, c + k * y * y, k * y * z - s * x,
