@@ -12,11 +12,25 @@ namespace tg {
 
 enum JointType : int { FREE = 0, REVOLUTE = 1, PRISMATIC = 2 };
 
+template <class S> struct CosSin {
+  S c, s;
+};
+// A revolute angle's cosine and sine: computed when asked (one library call), or taken from a pass
+// that computed every joint's at once (joint_sincos).
+template <class S> struct TrigOf {
+  const S* t;
+  TG_HD CosSin<S> operator()() const { return {cos(*t), sin(*t)}; }
+};
+template <class S> struct TrigFrom {
+  S c, s;
+  TG_HD CosSin<S> operator()() const { return {c, s}; }
+};
+
 // Placement of joint i's frame in its parent's frame, liMi = placement * Mj(q). q is Pinocchio's
-// layout: a free joint reads [pos(3), quat xyzw(4)]; c, s are the cosine and sine of a revolute
-// joint's angle. Always inlined where i is a constant (the forward kinematics), so that it folds
-// to the joint's own case.
-template <class M, class S> TG_HD_INLINE SE3<S> joint_placement_inline(int i, const S* q, S c, S s) {
+// layout: a free joint reads [pos(3), quat xyzw(4)]; trig() gives a revolute joint's cosine and
+// sine. Always inlined where i is a constant (the forward kinematics), so that it folds to the
+// joint's own case.
+template <class M, class S, class Trig> TG_HD_INLINE SE3<S> joint_placement_inline(int i, const S* q, const Trig& trig) {
   const auto& d = data<M, S>();
   SE3<S> X;
   for (int k = 0; k < 9; ++k) X.R.m[k] = S(d.R[i][k]);
@@ -28,7 +42,9 @@ template <class M, class S> TG_HD_INLINE SE3<S> joint_placement_inline(int i, co
       X.p = X.p + mul(X.R, load3(qi));
       X.R = mul(X.R, quat_rotation(qi[3], qi[4], qi[5], qi[6]));
       break;
-    case REVOLUTE:
+    case REVOLUTE: {
+      const CosSin<S> cs = trig();
+      const S c = cs.c, s = cs.s;
       if (k >= 0) {
         // R Rot(e_k, t) mixes only the two columns other than k.
         const int a = (k + 1) % 3, b = (k + 2) % 3;
@@ -41,6 +57,7 @@ template <class M, class S> TG_HD_INLINE SE3<S> joint_placement_inline(int i, co
         X.R = mul(X.R, axis_rotation(v3(S(d.axis[i][0]), S(d.axis[i][1]), S(d.axis[i][2])), c, s));
       }
       break;
+    }
     default:  // PRISMATIC
       X.p = X.p + mul(X.R, qi[0] * v3(S(d.axis[i][0]), S(d.axis[i][1]), S(d.axis[i][2])));
       break;
@@ -49,9 +66,7 @@ template <class M, class S> TG_HD_INLINE SE3<S> joint_placement_inline(int i, co
 }
 
 template <class M, class S> TG_HD SE3<S> joint_placement(int i, const S* q) {
-  const auto& d = data<M, S>();
-  const S t = d.jtype[i] == REVOLUTE ? q[d.qi[i]] : S(0);
-  return joint_placement_inline<M, S>(i, q, cos(t), sin(t));
+  return joint_placement_inline<M, S>(i, q, TrigOf<S>{q + data<M, S>().qi[i]});
 }
 
 // sin and cos of every revolute joint's angle (0 for the other joints), computed together (trig.h).
@@ -128,7 +143,7 @@ template <class M, class S> TG_HD void forward_kinematics(const S* q, SE3<S>* li
   // no switch, and the products by identity or zero entries fold away (10-25% of crba).
 #pragma GCC unroll 128
   for (int i = 0; i < M::NB; ++i) {
-    liMi[i] = joint_placement_inline<M, S>(i, q, c[i], s[i]);
+    liMi[i] = joint_placement_inline<M, S>(i, q, TrigFrom<S>{c[i], s[i]});
     oMi[i] = d.parent[i] < 0 ? liMi[i] : oMi[d.parent[i]] * liMi[i];
   }
 #endif
@@ -148,7 +163,7 @@ template <class M, class S> TG_HD void chain_placements(const S* q, const int* c
   for (int k = 0; k < n; ++k) t[k] = d.jtype[chain[k]] == REVOLUTE ? q[d.qi[chain[k]]] : S(0);
   sincos_n(n, t, s, c);
   for (int k = n - 1; k >= 0; --k) {
-    const SE3<S> liMi = joint_placement_inline<M, S>(chain[k], q, c[k], s[k]);
+    const SE3<S> liMi = joint_placement_inline<M, S>(chain[k], q, TrigFrom<S>{c[k], s[k]});
     oMi[chain[k]] = k == n - 1 ? liMi : oMi[chain[k + 1]] * liMi;
   }
 #endif
@@ -200,10 +215,9 @@ template <class M, class S> struct JointPlacements {
   TG_HD SE3<S> operator[](int i) const { return joint_placement<M, S>(i, q); }
 #else
   const S* q;
-  S s[M::NB], c[M::NB];
   SE3<S> X[M::NB];
-  TG_HD explicit JointPlacements(const S* q_) : q(q_) { joint_sincos<M, S>(q, s, c); }
-  TG_HD const SE3<S>& place(int i) { return X[i] = joint_placement_inline<M, S>(i, q, c[i], s[i]); }
+  TG_HD explicit JointPlacements(const S* q_) : q(q_) {}
+  TG_HD const SE3<S>& place(int i) { return X[i] = joint_placement<M, S>(i, q); }
   TG_HD const SE3<S>& operator[](int i) const { return X[i]; }
 #endif
 };
