@@ -34,6 +34,7 @@ setup(
     install_requires=["torch>=2.4", "ninja"],
     extras_require={
         "pin": ["pin>=3.4"],
+        "mujoco": ["mujoco>=3.2"],
         "test": ["pytest>=8", "pin==4.1.0", "mujoco==4.0.0", "example-robot-data==6.0.0"],
         # bench/pinocchio_cpp.py compiles against Pinocchio's headers, which need these two too
         "bench": ["pin==4.1.0", "example-robot-data==6.0.0", "cmeel-eigen==3.4.1", "cmeel-urdfdom-headers==3.0.0"],

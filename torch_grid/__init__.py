@@ -22,9 +22,11 @@ def load(source, *, floating_base: bool | None = None, convention: str = "pin", 
     """Build (or reuse from the cache) a robot's kernels and return its `Robot`.
 
     source: a bundled robot name ("iiwa14", "go2"), a URDF path or XML string, an MJCF path or
-    string, a saved model (.json, see Robot.save), a `pinocchio.Model` or a `RobotModel`.
+    string, a saved model (.json, see Robot.save), a `pinocchio.Model`, a `mujoco.MjModel` or a
+    `RobotModel`. MJCF is compiled by MuJoCo: joint, dof and body order are MuJoCo's.
     floating_base: None takes the source's own choice (a bundled robot's default, fixed for a URDF,
-    floating when an MJCF has a free joint); True adds a free-flyer root.
+    floating when an MJCF has a free joint); True adds a free-flyer root to a URDF (an MJCF must
+    declare its own free joint).
     convention: default convention of the returned handle, "pin" or "mujoco".
     enable_mujoco_kernels: False builds Pinocchio-convention kernels only (a smaller build); a
     floating robot then refuses convention="mujoco".

@@ -153,8 +153,9 @@ def validate(model: RobotModel) -> None:
             raise ValueError(f"joint {j.name!r}: joints must be in depth-first order (each subtree contiguous), but "
                              f"its parent {joints[j.parent].name if j.parent >= 0 else 'world'!r} is not an ancestor of "
                              f"the joint before it, {joints[i - 1].name!r}")
-        if j.type == "free" and j.parent != -1:
-            raise ValueError(f"joint {j.name!r}: a free joint is only supported at the root")
+        if j.type == "free" and i != 0:
+            raise ValueError(f"joint {j.name!r}: a free joint is only supported as the first joint, at the root of "
+                             "the first tree")
     for f in model.frames:
         if not -1 <= f.parent < len(joints):
             raise ValueError(f"frame {f.name!r}: parent {f.parent} is not a body index")

@@ -1,18 +1,19 @@
-"""Turn a robot source (URDF, MJCF, pinocchio.Model, saved model, bundled name) into a RobotModel.
+"""Turn a robot source (URDF, MJCF, pinocchio.Model, mujoco.MjModel, saved model, bundled name) into
+a RobotModel.
 
-Descriptions are parsed by Pinocchio, so joint order, the q/v layout and frame names are
-Pinocchio's. The one deliberate difference: a continuous joint has one angle coordinate, where
-Pinocchio stores (cos, sin).
+URDF is parsed by Pinocchio, so joint order, the q/v layout and frame names are Pinocchio's; the one
+deliberate difference: a continuous joint has one angle coordinate, where Pinocchio stores (cos, sin).
+MJCF is compiled by MuJoCo (mjcf.py), so they are MuJoCo's.
 """
 from __future__ import annotations
 
 import math
 import os
 import re
-import tempfile
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+from . import mjcf
 from .model import Frame, Joint, RobotModel
 
 ROBOTS_DIR = Path(__file__).parent / "robots"
@@ -32,12 +33,14 @@ def source_to_model(source, floating_base: bool | None) -> RobotModel:
         return _check_floating(source, floating_base, "RobotModel")
     if _is_pinocchio_model(source):
         return _check_floating(from_pinocchio(source), floating_base, "pinocchio.Model")
+    if type(source).__name__ == "MjModel" and type(source).__module__.startswith("mujoco"):
+        return _check_floating(mjcf.from_mujoco(source), floating_base, "mujoco.MjModel")
     if isinstance(source, os.PathLike):
         source = os.fspath(source)
     if not isinstance(source, str):
         raise TypeError(
-            "source must be a bundled robot name, a URDF/MJCF path or string, a saved model path "
-            f"or a pinocchio.Model, got {type(source).__name__}"
+            "source must be a bundled robot name, a URDF/MJCF path or string, a saved model path, "
+            f"a pinocchio.Model or a mujoco.MjModel, got {type(source).__name__}"
         )
     text = source.lstrip()
     if text.startswith("<"):
@@ -120,9 +123,8 @@ def _from_text(text: str, floating_base: bool | None, name: str | None, path: Pa
         _check_urdf_numbers(root)
         return _parse_urdf(text, bool(floating_base), name or root.get("name") or "robot")
     if root.tag == "mujoco":
-        _reject_mjcf_features(root)
         _check_mjcf_numbers(root)
-        return _parse_mjcf(text, root, floating_base, name or root.get("model") or "robot", path)
+        return _check_floating(mjcf.from_mjcf(text, path, name), floating_base, "MJCF model")
     raise ValueError(f"source: expected a URDF <robot> or an MJCF <mujoco> document, got <{root.tag}>")
 
 
@@ -138,15 +140,6 @@ def _reject_urdf_features(root: ET.Element) -> None:
         if c in seen:
             raise ValueError(f"link {c!r} is the child of several joints (a kinematic loop), which is not supported")
         seen.add(c)
-
-
-def _reject_mjcf_features(root: ET.Element) -> None:
-    for eq in root.iter("equality"):
-        for c in eq:
-            raise ValueError(f"MJCF equality constraint <{c.tag}> (a kinematic loop or coupling) is not supported")
-    for j in root.iter("joint"):
-        if j.get("type") == "ball":
-            raise ValueError(f"joint {j.get('name')!r} has type ball, which is not supported")
 
 
 # A number as urdfdom, Pinocchio's URDF reader, reads one: leading whitespace allowed, nothing after it
@@ -211,8 +204,8 @@ def _attribute(element: ET.Element | None, name: str) -> str | None:
 
 
 def _check_mjcf_numbers(root: ET.Element) -> None:
-    """Refuse what Pinocchio's MJCF reader silently misreads: a non-finite number (the vector holding
-    it is filled with uninitialised memory) and a negative <inertial> mass or diagonal inertia (read as 0)."""
+    """Refuse, naming the element, a non-finite number (MuJoCo's compiler would carry it into the
+    model) and a negative <inertial> mass or diagonal inertia."""
     parents = {child: parent for parent in root.iter() for child in parent}
     for element in root.iter():
         for name, text in element.attrib.items():
@@ -224,7 +217,7 @@ def _check_mjcf_numbers(root: ET.Element) -> None:
                 values = _floats(element.get(name, ""))
                 if values and min(values) < 0:
                     raise ValueError(f"{_mjcf_where(element, parents)}: {name} must be >= 0, got "
-                                     f"{element.get(name)!r}; Pinocchio's MJCF reader would silently read it as 0")
+                                     f"{element.get(name)!r}")
 
 
 def _floats(text: str) -> list[float] | None:
@@ -254,26 +247,6 @@ def _parse_urdf(text: str, floating: bool, name: str) -> RobotModel:
             model = pin.buildModelFromXML(text)
     except Exception as e:  # Pinocchio raises a bare RuntimeError/ValueError with its own message
         raise ValueError(f"source: Pinocchio could not parse the URDF: {e}") from None
-    return from_pinocchio(model, name)
-
-
-def _parse_mjcf(text: str, root: ET.Element, floating_base: bool | None, name: str, path: Path | None) -> RobotModel:
-    pin = _pinocchio("parse an MJCF file")
-    has_free = any(j.get("type") == "free" for j in root.iter("joint")) or any(True for _ in root.iter("freejoint"))
-    if floating_base is False and has_free:
-        raise ValueError("floating_base=False, but the MJCF file has a free joint")
-    with tempfile.TemporaryDirectory() as tmp:
-        # MJCF may include files relative to itself: parse the original path when there is one.
-        target = path if path is not None else Path(tmp) / "model.xml"
-        if path is None:
-            target.write_text(text)
-        try:
-            if floating_base and not has_free:
-                model = pin.buildModelFromMJCF(str(target), pin.JointModelFreeFlyer())
-            else:
-                model = pin.buildModelFromMJCF(str(target))
-        except Exception as e:
-            raise ValueError(f"source: Pinocchio could not parse the MJCF file: {e}") from None
     return from_pinocchio(model, name)
 
 

@@ -1,0 +1,193 @@
+"""MJCF read through MuJoCo's compiler, against MuJoCo itself (its convention, float64, <= 1e-9).
+
+The model exercises what MuJoCo's compiled model brings and a URDF does not: a planar root of
+slide, slide, hinge; a body with two hinges about different anchors; bodies welded to their parent
+(inertia from geoms, a site on one); angles in degrees and euler orientations; several trees, one
+of them on a free joint; the model's own gravity.
+"""
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+
+import torch_grid
+from torch_grid.parse import source_to_model
+
+MODEL = """
+<mujoco model="zoo">
+  <option gravity="0.5 -1 -7"/>
+  <worldbody>
+    <body name="flyer" pos="0.3 0.2 1" euler="10 20 30">
+      <freejoint name="root"/>
+      <geom type="box" size="0.2 0.1 0.05" density="800"/>
+      <body name="arm" pos="0.2 0 0" euler="0 0 45">
+        <joint name="yaw" type="hinge" axis="0 0 1" pos="0.05 0 0"/>
+        <joint name="pitch" type="hinge" axis="0 1 1" pos="0.1 0.02 0" range="-60 60"/>
+        <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.03"/>
+        <body name="hand" pos="0.3 0 0" quat="0.9 0.1 0.3 0.2">
+          <geom type="sphere" size="0.04" pos="0.02 0 0"/>
+          <site name="tip" pos="0.05 0.01 0" euler="0 90 0"/>
+        </body>
+      </body>
+    </body>
+    <body name="hopper" pos="-1 0 0.5">
+      <joint name="slide_x" type="slide" axis="1 0 0"/>
+      <joint name="slide_z" type="slide" axis="0 0 1"/>
+      <joint name="tilt" type="hinge" axis="0 1 0" pos="0 0 0.1"/>
+      <geom type="capsule" fromto="0 0 0 0 0 0.4" size="0.05"/>
+      <body name="leg" pos="0 0 -0.05">
+        <joint name="knee" type="hinge" axis="0 -1 0" pos="0 0 0.02"/>
+        <inertial pos="0 0.01 -0.2" mass="0.8" diaginertia="0.01 0.012 0.004" quat="0.8 0.6 0 0"/>
+      </body>
+    </body>
+    <body name="pendulum" pos="1 1 1">
+      <joint name="swing" type="hinge" axis="1 0 0"/>
+      <geom type="cylinder" fromto="0 0 0 0 0 -0.5" size="0.02"/>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+JOINTS = ["root", "yaw", "pitch", "slide_x", "slide_z", "tilt", "knee", "swing"]
+TOL = 1e-9
+
+
+@pytest.fixture(scope="module")
+def zoo(tmp_path_factory):
+    m = mujoco.MjModel.from_xml_string(MODEL)
+    # Only the rigid-body dynamics: no contacts or limits.
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
+    robot = torch_grid.load(MODEL, cache_dir=tmp_path_factory.mktemp("cache"))
+    return robot, m
+
+
+def states(m, n, seed):
+    rng = np.random.default_rng(seed)
+    for _ in range(n):
+        qpos = rng.uniform(-1.5, 1.5, m.nq)
+        qpos[3:7] /= np.linalg.norm(qpos[3:7])
+        yield qpos, rng.normal(size=m.nv), rng.normal(size=m.nv)
+
+
+def rel(a, b):
+    return np.abs(np.asarray(a) - np.asarray(b)).max() / max(np.abs(np.asarray(b)).max(), 1e-12)
+
+
+def test_layout_is_mujocos(zoo):
+    robot, m = zoo
+    assert robot.joint_names == JOINTS
+    assert (robot.nq, robot.nv) == (m.nq, m.nv) == (7 + 7, 6 + 7)
+    assert robot.floating_base
+    assert [j.type for j in robot.model.joints] == ["free", "revolute", "revolute", "prismatic", "prismatic",
+                                                    "revolute", "revolute", "revolute"]
+    pitch = robot.model.joints[2]
+    assert (pitch.lower, pitch.upper) == pytest.approx((-np.pi / 3, np.pi / 3))  # degrees, converted
+    bodies = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in range(m.nbody)]
+    assert robot.frame_names == bodies + ["tip"]
+    assert robot.model.gravity == (0.5, -1.0, -7.0)
+
+
+def test_dynamics_match_mujoco(zoo):
+    robot, m = zoo
+    d = mujoco.MjData(m)
+    view = robot.mujoco
+    for qpos, qvel, qacc in states(m, 4, seed=1):
+        d.qpos[:], d.qvel[:], d.qacc[:] = qpos, qvel, qacc
+        mujoco.mj_forward(m, d)
+        q, v, a = (torch.from_numpy(x.copy()) for x in (qpos, qvel, qacc))
+        M = np.zeros((m.nv, m.nv))
+        mujoco.mj_fullM(m, d, M)
+        assert rel(view.crba(q), M) <= TOL
+        assert rel(view.nonlinear_effects(q, v), d.qfrc_bias) <= TOL
+        tau = M @ qacc + d.qfrc_bias
+        assert rel(view.inverse_dynamics(q, v, a), tau) <= TOL
+        d.qacc[:] = qacc  # mj_forward replaced it by its own
+        mujoco.mj_inverse(m, d)
+        assert rel(view.inverse_dynamics(q, v, a), d.qfrc_inverse) <= TOL
+        d.qfrc_applied[:] = tau
+        mujoco.mj_forward(m, d)
+        assert rel(view.forward_dynamics(q, v, torch.from_numpy(tau)), d.qacc) <= 1e-8
+        assert rel(view.forward_dynamics(q, v, torch.from_numpy(tau)), qacc) <= 1e-8
+
+
+def test_frames_match_mujoco(zoo):
+    robot, m = zoo
+    d = mujoco.MjData(m)
+    for qpos, _, _ in states(m, 3, seed=2):
+        d.qpos[:] = qpos
+        mujoco.mj_kinematics(m, d)
+        pos, rot = robot.mujoco.forward_kinematics(torch.from_numpy(qpos.copy()))
+        want_pos = np.concatenate([d.xpos, d.site_xpos])
+        want_rot = np.concatenate([d.xmat, d.site_xmat]).reshape(-1, 3, 3)
+        assert rel(pos, want_pos) <= TOL
+        assert rel(rot, want_rot) <= TOL
+
+
+def test_mjmodel_source_is_the_same_robot(zoo, tmp_path):
+    robot, m = zoo
+    from_object = source_to_model(mujoco.MjModel.from_xml_string(MODEL), None)
+    assert from_object == robot.model
+    assert from_object.name == "zoo"
+
+
+def test_pin_convention_is_the_same_dynamics(zoo):
+    """pin and MuJoCo views of one MJCF model differ only by the conventions' transforms."""
+    robot, m = zoo
+    g = torch.Generator().manual_seed(3)
+    q = robot.random_configuration(2, generator=g)
+    qm = torch_grid.conventions.q_pin_to_mjx(q, True)
+    M_pin = robot.crba(q)
+    M_mjx = robot.mujoco.crba(qm)
+    assert rel(torch_grid.conventions.congruence_pin_to_mjx(q, M_pin, True), M_mjx) <= TOL
+
+
+def with_joint(attributes: str) -> str:
+    return MODEL.replace('<joint name="swing" type="hinge" axis="1 0 0"/>',
+                         f'<joint name="swing" type="hinge" axis="1 0 0" {attributes}/>')
+
+
+@pytest.mark.parametrize("attributes, words", [
+    ('armature="0.1"', ["'swing'", "armature"]),
+    ('damping="0.5"', ["'swing'", "damping"]),
+    ('stiffness="3"', ["'swing'", "stiffness"]),
+    ('ref="0.2"', ["'swing'", "ref"]),
+])
+def test_joint_features_not_yet_modelled_are_refused(attributes, words):
+    with pytest.raises(ValueError) as info:
+        source_to_model(with_joint(attributes), None)
+    for w in words:
+        assert w in str(info.value)
+
+
+def test_couplings_are_refused():
+    ball = MODEL.replace('type="hinge" axis="1 0 0"', 'type="ball"')
+    with pytest.raises(ValueError, match="'swing' has type ball"):
+        source_to_model(ball, None)
+    coupled = MODEL.replace("</worldbody>", "</worldbody><equality><joint name='tie' joint1='knee' joint2='swing'/>"
+                            "</equality>")
+    with pytest.raises(ValueError, match="equality constraint 'tie'"):
+        source_to_model(coupled, None)
+    two_free = MODEL.replace('<joint name="swing" type="hinge" axis="1 0 0"/>', '<freejoint name="loose"/>')
+    with pytest.raises(ValueError, match="'loose'.*free joint"):
+        source_to_model(two_free, None)
+
+
+def test_unmodelled_features_are_listed_once():
+    text = with_joint('range="-1 1" limited="true"').replace(
+        "</worldbody>", "</worldbody><actuator><motor joint='knee'/><motor joint='swing'/></actuator>")
+    with pytest.warns(UserWarning) as record:
+        source_to_model(text, None)
+    assert len(record) == 1
+    message = str(record[0].message)
+    for w in ("2 actuators", "contacts", "joint limits (pitch, swing)", "without them"):
+        assert w in message
+
+
+def test_floating_base_must_agree():
+    with pytest.raises(ValueError, match="floating_base=False"):
+        source_to_model(MODEL, False)
+    fixed = MODEL.replace('<freejoint name="root"/>', "")
+    assert not source_to_model(fixed, None).floating_base
+    with pytest.raises(ValueError, match="floating_base=True"):
+        source_to_model(fixed, True)

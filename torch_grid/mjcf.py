@@ -1,0 +1,213 @@
+"""MJCF sources and `mujoco.MjModel`s, read from MuJoCo's compiled model: what MuJoCo simulates.
+
+MuJoCo's compiler has already applied defaults, converted degrees, computed inertias from geoms and
+ordered bodies depth first; this module only re-expresses its tree as a RobotModel:
+
+- a body with several joints becomes a chain of one-dof joints. MuJoCo moves a body by its joints
+  in order, each about its own anchor in the body frame (B = B0 T(a1) J1 T(-a1) T(a2) J2 T(-a2)...),
+  so joint k's frame sits at anchor a_k, at a_k - a_(k-1) from the one before; the body's inertia
+  goes to the last joint, the others are massless;
+- a body without joints is welded to its parent: its inertia joins the parent's, its frame is kept;
+- joint, dof and body order are MuJoCo's; bodies and sites are frames, with MuJoCo's names.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from .model import Frame, Joint, RobotModel
+
+
+def from_mjcf(text: str, path: Path | None, name: str | None) -> RobotModel:
+    """Compile an MJCF document (from its file when there is one, so relative includes and assets
+    resolve) with MuJoCo and convert the result."""
+    mujoco = _mujoco()
+    try:
+        m = mujoco.MjModel.from_xml_path(str(path)) if path is not None else mujoco.MjModel.from_xml_string(text)
+    except ValueError as e:
+        raise ValueError(f"source: MuJoCo could not compile the MJCF: {e}") from None
+    return from_mujoco(m, name)
+
+
+def from_mujoco(m, name: str | None = None) -> RobotModel:
+    """Convert a compiled `mujoco.MjModel` (hinge, slide, and free joints at the root of each tree)."""
+    mujoco = _mujoco()
+    names = _Names(mujoco, m)
+    _refuse_unmodelled_couplings(mujoco, m, names)
+    _warn_unmodelled(mujoco, m, names)
+    joints: list[dict] = []
+    # MuJoCo body b's frame in the frame of the RobotModel body that carries it: (body, R, p)
+    carrier: list[tuple[int, np.ndarray, np.ndarray]] = [(-1, np.eye(3), np.zeros(3))]
+    for b in range(1, m.nbody):
+        body, Rp, pp = carrier[m.body_parentid[b]]
+        R, p = Rp @ _quat(m.body_quat[b]), Rp @ m.body_pos[b] + pp
+        anchor = np.zeros(3)
+        for jid in range(m.body_jntadr[b], m.body_jntadr[b] + m.body_jntnum[b]):
+            jname, kind = names.joint(jid), int(m.jnt_type[jid])
+            if kind == _BALL:
+                raise ValueError(f"joint {jname!r} has type ball, which is not supported")
+            if kind == _FREE:
+                if body != -1 or m.body_jntnum[b] != 1:
+                    raise ValueError(f"joint {jname!r}: a free joint is only supported alone in a body whose "
+                                     "parent is the world")
+                # qpos is the body's world pose: the joint sits at the world origin.
+                R, p, placement = np.eye(3), np.zeros(3), (np.eye(3), np.zeros(3))
+            else:
+                # A slide's anchor does not move anything: keep the previous one.
+                a = m.jnt_pos[jid] if kind == _HINGE else anchor
+                placement = (R, p + R @ a) if jid == m.body_jntadr[b] else (np.eye(3), a - anchor)
+                anchor = np.array(a, dtype=float)
+            limited = bool(m.jnt_limited[jid]) and kind != _FREE
+            joints.append(dict(
+                name=jname, type=_KIND[kind], parent=body,
+                axis=(0.0, 0.0, 0.0) if kind == _FREE else _tuple(m.jnt_axis[jid]),
+                rotation=_tuple(placement[0].reshape(-1)), translation=_tuple(placement[1]),
+                lower=float(m.jnt_range[jid][0]) if limited else -math.pi if kind == _FREE else -math.inf,
+                upper=float(m.jnt_range[jid][1]) if limited else math.pi if kind == _FREE else math.inf,
+                inertia=_Inertia.zero(),
+            ))
+            body, R, p = len(joints) - 1, np.eye(3), np.zeros(3)
+        if m.body_jntnum[b]:
+            p = -anchor  # the body frame, seen from its last joint's frame
+        carrier.append((body, R, p))
+        if body >= 0:  # bodies welded to the world do not move
+            Ri = R @ _quat(m.body_iquat[b])
+            own = _Inertia(float(m.body_mass[b]), R @ m.body_ipos[b] + p, Ri @ np.diag(m.body_inertia[b]) @ Ri.T)
+            joints[body]["inertia"] = joints[body]["inertia"] + own
+    frames = [Frame(name=names.body(b), parent=carrier[b][0], rotation=_tuple(carrier[b][1].reshape(-1)),
+                    translation=_tuple(carrier[b][2]), kind="body") for b in range(m.nbody)]
+    for s in range(m.nsite):
+        body, R, p = carrier[m.site_bodyid[s]]
+        frames.append(Frame(name=names.site(s), parent=body, rotation=_tuple((R @ _quat(m.site_quat[s])).reshape(-1)),
+                            translation=_tuple(R @ m.site_pos[s] + p), kind="op"))
+    gravity = np.zeros(3) if m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_GRAVITY) else m.opt.gravity
+    return RobotModel(
+        name=name or names.model() or "robot",
+        joints=tuple(Joint(**{k: v for k, v in j.items() if k != "inertia"}, **j["inertia"].fields()) for j in joints),
+        frames=tuple(frames), gravity=_tuple(gravity),
+    )
+
+
+_FREE, _BALL, _SLIDE, _HINGE = 0, 1, 2, 3  # mjtJoint
+_KIND = {_FREE: "free", _SLIDE: "prismatic", _HINGE: "revolute"}
+
+
+class _Inertia:
+    """Mass, centre of mass and rotational inertia about it, in one frame; + is the composite body."""
+
+    def __init__(self, mass: float, com: np.ndarray, about_com: np.ndarray):
+        self.mass, self.com, self.about_com = mass, np.asarray(com, dtype=float), np.asarray(about_com, dtype=float)
+
+    @classmethod
+    def zero(cls) -> "_Inertia":
+        return cls(0.0, np.zeros(3), np.zeros((3, 3)))
+
+    def __add__(self, other: "_Inertia") -> "_Inertia":
+        mass = self.mass + other.mass
+        com = (self.mass * self.com + other.mass * other.com) / mass if mass > 0 else np.zeros(3)
+        about = self.about_com + other.about_com
+        for part in (self, other):  # parallel axes: each part's offset from the new centre
+            d = part.com - com
+            about = about + part.mass * (d @ d * np.eye(3) - np.outer(d, d))
+        return _Inertia(mass, com, about)
+
+    def fields(self) -> dict:
+        return dict(mass=self.mass, com=_tuple(self.com), inertia=_tuple(self.about_com.reshape(-1)))
+
+
+class _Names:
+    """MuJoCo's names, and a stand-in for an unnamed object: body3, joint2, site0."""
+
+    def __init__(self, mujoco, m):
+        self._mujoco, self._m = mujoco, m
+
+    def _get(self, kind, index: int, stem: str) -> str:
+        return self._mujoco.mj_id2name(self._m, kind, index) or f"{stem}{index}"
+
+    def body(self, b: int) -> str:
+        return self._get(self._mujoco.mjtObj.mjOBJ_BODY, b, "body")
+
+    def joint(self, j: int) -> str:
+        return self._get(self._mujoco.mjtObj.mjOBJ_JOINT, j, "joint")
+
+    def site(self, s: int) -> str:
+        return self._get(self._mujoco.mjtObj.mjOBJ_SITE, s, "site")
+
+    def model(self) -> str | None:
+        return bytes(self._m.names).split(b"\0", 1)[0].decode() or None  # the first of MuJoCo's names
+
+
+def _refuse_unmodelled_couplings(mujoco, m, names: _Names) -> None:
+    """Raise for what would change the dynamics torch_grid computes without it being modelled."""
+    obj = mujoco.mjtObj
+    for e in range(m.neq):
+        ename = mujoco.mj_id2name(m, obj.mjOBJ_EQUALITY, e) or f"equality{e}"
+        raise ValueError(f"MJCF equality constraint {ename!r} couples bodies or joints, which is not supported")
+    for t in range(m.ntendon):
+        tname = mujoco.mj_id2name(m, obj.mjOBJ_TENDON, t) or f"tendon{t}"
+        for what, value in (("stiffness", m.tendon_stiffness[t]), ("damping", m.tendon_damping[t]),
+                            ("armature", getattr(m, "tendon_armature", np.zeros(m.ntendon))[t])):
+            if np.any(value != 0):
+                raise ValueError(f"MJCF tendon {tname!r} has {what} {value}: its passive forces couple joints, "
+                                 "which is not supported")
+    for jid in range(m.njnt):
+        dofs = range(m.jnt_dofadr[jid], m.jnt_dofadr[jid] + {_FREE: 6, _BALL: 3}.get(int(m.jnt_type[jid]), 1))
+        for what, values in (("armature", m.dof_armature[dofs]), ("damping", m.dof_damping[dofs]),
+                             ("stiffness", [m.jnt_stiffness[jid]])):
+            if np.any(np.asarray(values) != 0):
+                raise ValueError(f"joint {names.joint(jid)!r} has {what} {np.asarray(values).max()}, which is not "
+                                 "supported yet")
+        if m.jnt_type[jid] in (_SLIDE, _HINGE) and m.qpos0[m.jnt_qposadr[jid]] != 0:
+            raise ValueError(f"joint {names.joint(jid)!r} has ref {m.qpos0[m.jnt_qposadr[jid]]} (MuJoCo measures "
+                             "its position from there), which is not supported")
+    for b in range(m.nbody):
+        if m.body_gravcomp[b] != 0:
+            raise ValueError(f"body {names.body(b)!r} has gravcomp {m.body_gravcomp[b]}, which is not supported")
+
+
+def _warn_unmodelled(mujoco, m, names: _Names) -> None:
+    """One warning listing what MuJoCo simulates beyond the rigid-body dynamics torch_grid computes."""
+    off = int(m.opt.disableflags)
+    bits = {k: int(v) for k, v in mujoco.mjtDisableBit.__members__.items()}
+    found = []
+    if m.nu:
+        found.append(f"{m.nu} actuators")
+    if m.ntendon:
+        found.append(f"{m.ntendon} tendons (actuation and limits)")
+    if not off & bits["mjDSBL_CONTACT"] and np.any((m.geom_contype != 0) | (m.geom_conaffinity != 0)):
+        found.append("contacts")
+    limited = [names.joint(j) for j in range(m.njnt) if m.jnt_limited[j]]
+    if limited and not off & bits["mjDSBL_LIMIT"]:
+        found.append(f"joint limits ({', '.join(limited[:5])}{', ...' if len(limited) > 5 else ''})")
+    if np.any(m.dof_frictionloss != 0) and not off & bits["mjDSBL_FRICTIONLOSS"]:
+        found.append("joint friction loss")
+    if m.opt.density > 0 or m.opt.viscosity > 0:
+        found.append("fluid forces")
+    if found:
+        warnings.warn(f"the MJCF model has {'; '.join(found)}: torch_grid computes the rigid-body dynamics "
+                      "without them", stacklevel=4)
+
+
+def _quat(q) -> np.ndarray:
+    """Rotation matrix of MuJoCo's unit quaternion (w, x, y, z)."""
+    w, x, y, z = (float(v) for v in q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def _tuple(v) -> tuple[float, ...]:
+    return tuple(float(x) for x in np.asarray(v).reshape(-1))
+
+
+def _mujoco():
+    try:
+        import mujoco
+    except ImportError:
+        raise ImportError("MuJoCo is needed to read MJCF: pip install mujoco") from None
+    return mujoco
