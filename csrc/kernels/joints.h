@@ -159,11 +159,17 @@ template <class M, class S> TG_HD void chain_placements(const S* q, const int* c
     oMi[chain[k]] = k == n - 1 ? liMi : oMi[chain[k + 1]] * liMi;
   }
 #else
+  // The revolute joints' angles, in chain order, then taken back from the root down.
   S t[M::NB], s[M::NB], c[M::NB];
-  for (int k = 0; k < n; ++k) t[k] = d.jtype[chain[k]] == REVOLUTE ? q[d.qi[chain[k]]] : S(0);
-  sincos_n(n, t, s, c);
+  int m = 0;
+  for (int k = 0; k < n; ++k)
+    if (d.jtype[chain[k]] == REVOLUTE) t[m++] = q[d.qi[chain[k]]];
+  if (m > 0) sincos_n(m, t, s, c);
   for (int k = n - 1; k >= 0; --k) {
-    const SE3<S> liMi = joint_placement_inline<M, S>(chain[k], q, TrigFrom<S>{c[k], s[k]});
+    const bool revolute = d.jtype[chain[k]] == REVOLUTE;
+    m -= revolute;
+    const TrigFrom<S> trig{revolute ? c[m] : S(1), revolute ? s[m] : S(0)};
+    const SE3<S> liMi = joint_placement_inline<M, S>(chain[k], q, trig);
     oMi[chain[k]] = k == n - 1 ? liMi : oMi[chain[k + 1]] * liMi;
   }
 #endif

@@ -82,11 +82,11 @@ template <class S> TG_HD Mat3<S> axis_rotation(Vec3<S> a, S c, S s) {
 template <class S> TG_HD Mat3<S> quat_rotation(S x, S y, S z, S w) {
   const S n2 = x * x + y * y + z * z + w * w;
   if (!(n2 > S(0) && n2 < S(INFINITY))) return identity3<S>();
-  const S n = S(1) / sqrt(n2);
-  x *= n; y *= n; z *= n; w *= n;
-  return {{S(1) - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
-           2 * (x * y + z * w), S(1) - 2 * (x * x + z * z), 2 * (y * z - x * w),
-           2 * (x * z - y * w), 2 * (y * z + x * w), S(1) - 2 * (x * x + y * y)}};
+  // The unit-quaternion formula with its factor 2 replaced by 2 / |q|^2: no square root.
+  const S k = S(2) / n2;
+  return {{S(1) - k * (y * y + z * z), k * (x * y - z * w), k * (x * z + y * w),
+           k * (x * y + z * w), S(1) - k * (x * x + z * z), k * (y * z - x * w),
+           k * (x * z - y * w), k * (y * z + x * w), S(1) - k * (x * x + y * y)}};
 }
 
 // -- placements --------------------------------------------------------------------------
