@@ -147,8 +147,36 @@ def with_joint(attributes: str) -> str:
                          f'<joint name="swing" type="hinge" axis="1 0 0" {attributes}/>')
 
 
+def test_armature_and_energy_match_mujoco(tmp_path):
+    text = MODEL
+    for joint, value in (("yaw", 0.03), ("slide_x", 0.2), ("knee", 0.05), ("swing", 0.1)):
+        text = text.replace(f'name="{joint}"', f'name="{joint}" armature="{value}"')
+    m = mujoco.MjModel.from_xml_string(text)
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
+    m.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_ENERGY)
+    robot = torch_grid.load(text, cache_dir=tmp_path, convention="mujoco")
+    assert [j.armature for j in robot.model.joints] == [0.0, 0.03, 0.0, 0.2, 0.0, 0.0, 0.05, 0.1]
+    d = mujoco.MjData(m)
+    for qpos, qvel, qacc in states(m, 3, seed=4):
+        d.qpos[:], d.qvel[:] = qpos, qvel
+        mujoco.mj_forward(m, d)
+        q, v, a = (torch.from_numpy(x.copy()) for x in (qpos, qvel, qacc))
+        M = np.zeros((m.nv, m.nv))
+        mujoco.mj_fullM(m, d, M)
+        assert rel(robot.crba(q), M) <= TOL
+        assert rel(robot.minv(q), np.linalg.inv(M)) <= 1e-8
+        assert rel(robot.forward_dynamics(q, v, torch.zeros(m.nv, dtype=torch.float64)), d.qacc) <= 1e-8
+        energy = robot.energy(q, v).numpy()
+        assert rel(energy[:2], d.energy[::-1]) <= TOL  # MuJoCo's is [potential, kinetic]
+        d.qacc[:] = qacc
+        mujoco.mj_inverse(m, d)
+        assert rel(robot.inverse_dynamics(q, v, a), d.qfrc_inverse) <= TOL
+    with pytest.raises(ValueError, match="'root': armature on a free joint"):
+        source_to_model(MODEL.replace('<freejoint name="root"/>', '<joint name="root" type="free" armature="1"/>'),
+                        None)
+
+
 @pytest.mark.parametrize("attributes, words", [
-    ('armature="0.1"', ["'swing'", "armature"]),
     ('damping="0.5"', ["'swing'", "damping"]),
     ('stiffness="3"', ["'swing'", "stiffness"]),
     ('ref="0.2"', ["'swing'", "ref"]),

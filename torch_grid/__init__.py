@@ -2,12 +2,13 @@
 in Pinocchio's or MuJoCo's convention."""
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 from . import conventions
 from .autograd import register_autograd
 from .build import build as _build
-from .model import Frame, Joint, RobotModel
+from .model import Frame, Joint, RobotModel, with_armature
 from .parse import BUNDLED, from_pinocchio, source_to_model
 from .robot import Robot
 
@@ -18,7 +19,7 @@ _AUTOGRAD_DONE: set[str] = set()
 
 
 def load(source, *, floating_base: bool | None = None, convention: str = "pin", enable_mujoco_kernels: bool = True,
-         cache_dir: str | Path | None = None) -> Robot:
+         armature: Mapping[str, float] | None = None, cache_dir: str | Path | None = None) -> Robot:
     """Build (or reuse from the cache) a robot's kernels and return its `Robot`.
 
     source: a bundled robot name ("iiwa14", "go2"), a URDF path or XML string, an MJCF path or
@@ -30,11 +31,17 @@ def load(source, *, floating_base: bool | None = None, convention: str = "pin", 
     convention: default convention of the returned handle, "pin" or "mujoco".
     enable_mujoco_kernels: False builds Pinocchio-convention kernels only (a smaller build); a
     floating robot then refuses convention="mujoco".
+    armature: rotor inertia per joint name, replacing the source's (an MJCF's `armature`, a
+    pinocchio.Model's `armature`; 0 in a URDF), for 1-dof joints. It adds to M's diagonal and so
+    enters inverse and forward dynamics, M^-1, the kinetic energy and their derivatives, as in
+    Pinocchio and MuJoCo.
     cache_dir: where compiled kernels are kept (default $TORCH_GRID_CACHE or ~/.cache/torch_grid).
     """
     if not isinstance(enable_mujoco_kernels, bool):
         raise TypeError(f"enable_mujoco_kernels must be True or False, got {enable_mujoco_kernels!r}")
     model = source_to_model(source, floating_base)
+    if armature is not None:
+        model = with_armature(model, armature)
     if convention not in ("pin", "pinocchio", "mujoco", "mjx"):
         raise ValueError(f"convention must be 'pin' or 'mujoco', got {convention!r}")
     if convention in ("mujoco", "mjx") and model.floating_base and not enable_mujoco_kernels:

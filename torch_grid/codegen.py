@@ -94,6 +94,7 @@ def robot_header(model: RobotModel, namespace: str) -> str:
         ("T", "h", [[x.mass * c for c in x.com] for x in j]),
         ("T", "Io", [inertia_about_origin(x.mass, x.com, x.inertia) for x in j]),
         ("T", "com", [list(x.com) for x in j]),
+        ("T", "armature", [x.armature for x in j for _ in range(x.nv)]),
         ("int", "fparent", [f.parent for f in model.frames]),
         ("T", "fR", [list(f.rotation) for f in model.frames]),
         ("T", "fp", [list(f.translation) for f in model.frames]),

@@ -67,6 +67,7 @@ def from_mujoco(m, name: str | None = None) -> RobotModel:
                 rotation=_tuple(placement[0].reshape(-1)), translation=_tuple(placement[1]),
                 lower=float(m.jnt_range[jid][0]) if limited else -math.pi if kind == _FREE else -math.inf,
                 upper=float(m.jnt_range[jid][1]) if limited else math.pi if kind == _FREE else math.inf,
+                armature=float(np.max(m.dof_armature[m.jnt_dofadr[jid]:m.jnt_dofadr[jid] + (6 if kind == _FREE else 1)])),
                 inertia=_Inertia.zero(),
             ))
             body, R, p = len(joints) - 1, np.eye(3), np.zeros(3)
@@ -155,8 +156,7 @@ def _refuse_unmodelled_couplings(mujoco, m, names: _Names) -> None:
                                  "which is not supported")
     for jid in range(m.njnt):
         dofs = range(m.jnt_dofadr[jid], m.jnt_dofadr[jid] + {_FREE: 6, _BALL: 3}.get(int(m.jnt_type[jid]), 1))
-        for what, values in (("armature", m.dof_armature[dofs]), ("damping", m.dof_damping[dofs]),
-                             ("stiffness", [m.jnt_stiffness[jid]])):
+        for what, values in (("damping", m.dof_damping[dofs]), ("stiffness", [m.jnt_stiffness[jid]])):
             if np.any(np.asarray(values) != 0):
                 raise ValueError(f"joint {names.joint(jid)!r} has {what} {np.asarray(values).max()}, which is not "
                                  "supported yet")

@@ -9,7 +9,8 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-from dataclasses import asdict, dataclass, field
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 JOINT_TYPES = ("free", "revolute", "continuous", "prismatic")
@@ -31,6 +32,7 @@ class Joint:
     inertia: tuple[float, ...]  # rotational inertia about the centre of mass, row-major 3x3
     lower: float = -math.pi  # position limits (1-dof joints)
     upper: float = math.pi
+    armature: float = 0.0  # rotor inertia on the dof (1-dof joints), added to M's diagonal
 
     @property
     def nq(self) -> int:
@@ -135,6 +137,18 @@ SINGULAR_RTOL = 1e-12
 UNIT_TOL = 1e-9
 
 
+def with_armature(model: RobotModel, armature: Mapping[str, float]) -> RobotModel:
+    """The same model with the given joints' armature (rotor inertia, kg m^2 or kg), by joint name."""
+    if not isinstance(armature, Mapping):
+        raise TypeError(f"armature must be a mapping from joint name to value, got {type(armature).__name__}")
+    names = [j.name for j in model.joints]
+    unknown = [name for name in armature if name not in names]
+    if unknown:
+        raise ValueError(f"armature: no joint named {unknown[0]!r} (joints: {', '.join(names)})")
+    joints = tuple(replace(j, armature=armature[j.name]) if j.name in armature else j for j in model.joints)
+    return RobotModel(name=model.name, joints=joints, frames=model.frames, gravity=model.gravity)
+
+
 def validate(model: RobotModel) -> None:
     """Raise ValueError, naming the joint, link or frame and the offending value, for a model the
     kernels would turn into silently wrong numbers (or that they do not support)."""
@@ -190,6 +204,11 @@ def _check_joint(j: Joint, link: str | None) -> None:
         norm = math.hypot(*j.axis)
         if abs(norm - 1) > UNIT_TOL:
             raise ValueError(f"{who}: axis must be a unit vector, got {j.axis!r} (norm {norm:.9g})")
+    _check_number(f"{who}: armature", j.armature)
+    if j.armature < 0:
+        raise ValueError(f"{who}: armature must be >= 0, got {j.armature!r}")
+    if j.type == "free" and j.armature != 0:
+        raise ValueError(f"{who}: armature on a free joint is not supported, got {j.armature!r}")
     _check_number(f"{body}: mass", j.mass)
     if j.mass < 0:
         raise ValueError(f"{body}: mass must be >= 0, got {j.mass!r}")

@@ -77,6 +77,7 @@ def from_pinocchio(model, name: str | None = None) -> RobotModel:
                 mass=float(inertia.mass), com=_vec(inertia.lever), inertia=_flat(inertia.inertia),
                 # NaN passes through for RobotModel to refuse, naming the joint.
                 lower=-math.inf if math.isinf(lo) else lo, upper=math.inf if math.isinf(hi) else hi,
+                armature=float(max(model.armature[jm.idx_v:jm.idx_v + jm.nv], default=0.0)),
             )
         )
     frames = tuple(

@@ -52,7 +52,7 @@ TG_HD void aba(const S* q, const S* qd, const S* tau, const S* fext, S* qdd, boo
     // Dinv_u = D^-1 u and Dinv_U = D^-1 U^T (n x 6), through one SPD factorisation each column.
     S D[36], Dinv_u[6], Dinv_Ut[6][6];
     for (int r = 0; r < n; ++r)
-      for (int k = 0; k < n; ++k) D[n * r + k] = dot(Si[r], U[vi + k]);
+      for (int k = 0; k < n; ++k) D[n * r + k] = dot(Si[r], U[vi + k]) + (r == k ? S(d.armature[vi + r]) : S(0));
     for (int r = 0; r < n; ++r) Dinv_u[r] = u[vi + r];
     spd_solve(n, D, Dinv_u);
     for (int col = 0; col < 6; ++col) {
@@ -86,7 +86,7 @@ TG_HD void aba(const S* q, const S* qd, const S* tau, const S* fext, S* qdd, boo
     const Sv<S> a_in = actinv_motion(liMi[i], p < 0 ? a0 : va[L::parent(d, i)]) + c[i];
     S D[36], x[6];
     for (int r = 0; r < n; ++r) {
-      for (int k = 0; k < n; ++k) D[n * r + k] = dot(joint_axis<M, S>(i, r), U[vi + k]);
+      for (int k = 0; k < n; ++k) D[n * r + k] = dot(joint_axis<M, S>(i, r), U[vi + k]) + (r == k ? S(d.armature[vi + r]) : S(0));
       x[r] = u[vi + r] - dot(U[vi + r], a_in);
     }
     spd_solve(n, D, x);

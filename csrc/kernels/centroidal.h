@@ -65,6 +65,8 @@ template <class M, class S> TG_HD void energy(const S* q, const S* qd, S* out) {
     kinetic += S(0.5) * dot(v[i], mul(body_inertia<M, S>(i), v[i]));
     potential -= S(d.mass[i]) * dot(g, body_com<M, S>(i, oMi));
   }
+  // The rotors' (armature) kinetic energy.
+  for (int k = 0; k < M::NV; ++k) kinetic += S(0.5) * S(d.armature[k]) * qd[k] * qd[k];
   out[0] = kinetic;
   out[1] = potential;
   out[2] = kinetic + potential;

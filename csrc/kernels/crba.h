@@ -62,9 +62,11 @@ template <class M, class S> TG_HD void crba(const S* q, S* Mout) {
     const int p = d.parent[i];
     if (p >= 0) Ic[p] = Ic[p] + shift(Ic[i], K.oMi[i].p - K.oMi[p].p);
   }
-  // Mirror the upper triangle.
-  for (int r = 0; r < NV; ++r)
+  // Mirror the upper triangle; the rotors' inertia (armature) adds to the diagonal.
+  for (int r = 0; r < NV; ++r) {
     for (int c = 0; c < r; ++c) Mout[NV * r + c] = Mout[NV * c + r];
+    Mout[NV * r + r] += S(d.armature[r]);
+  }
 }
 
 }  // namespace tg

@@ -41,9 +41,9 @@ template <int N, class M, class S> TG_HD void minv_backward(int i, MinvWork<M, S
     w.Sw[vi + k] = act_motion(X, s);
     w.Uw[vi + k] = at_point(U[k], S(-1) * X.p);
   }
-  // D = S^T U: a motion-force pairing, the same about any point.
+  // D = S^T U + armature: a motion-force pairing, the same about any point.
   for (int r = 0; r < N; ++r)
-    for (int k = 0; k < N; ++k) D[N * r + k] = dot(w.Sw[vi + r], w.Uw[vi + k]);
+    for (int k = 0; k < N; ++k) D[N * r + k] = dot(w.Sw[vi + r], w.Uw[vi + k]) + (r == k ? S(d.armature[vi + r]) : S(0));
   spd_inverse(N, D, Dinv);
   for (int r = 0; r < N; ++r)
     for (int k = 0; k < N; ++k) w.Dinv[vi + r][k] = Dinv[N * r + k];

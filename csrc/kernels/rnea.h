@@ -26,9 +26,11 @@ TG_HD_INLINE void rnea_placed(P& liMi, const S* qd, const S* qdd, const S* fext,
     f[i] = mul(I, a[k]) + cross_force(v[k], mul(I, v[k]));
     if (fext) f[i] = f[i] - Sv<S>{{fext[6 * i], fext[6 * i + 1], fext[6 * i + 2], fext[6 * i + 3], fext[6 * i + 4], fext[6 * i + 5]}};
   }
-  // Backward pass: project each body's force on its joint, pass it to the parent.
+  // Backward pass: project each body's force on its joint (plus the rotors' armature qdd), pass it
+  // to the parent.
   for (int i = M::NB - 1; i >= 0; --i) {
     joint_project<M, S>(i, f[i], tau);
+    for (int k = d.vi[i]; k < d.vi[i] + d.nvj[i]; ++k) tau[k] += S(d.armature[k]) * qdd[k];
     if (d.parent[i] >= 0) f[d.parent[i]] = f[d.parent[i]] + act_force(liMi[i], f[i]);
   }
 }
