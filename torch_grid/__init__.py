@@ -19,7 +19,8 @@ _AUTOGRAD_DONE: set[str] = set()
 
 
 def load(source, *, floating_base: bool | None = None, convention: str = "pin", enable_mujoco_kernels: bool = True,
-         armature: Mapping[str, float] | None = None, cache_dir: str | Path | None = None) -> Robot:
+         armature: Mapping[str, float] | None = None, passive_forces: bool | None = None,
+         cache_dir: str | Path | None = None) -> Robot:
     """Build (or reuse from the cache) a robot's kernels and return its `Robot`.
 
     source: a bundled robot name ("iiwa14", "go2"), a URDF path or XML string, an MJCF path or
@@ -35,10 +36,16 @@ def load(source, *, floating_base: bool | None = None, convention: str = "pin", 
     pinocchio.Model's `armature`; 0 in a URDF), for 1-dof joints. It adds to M's diagonal and so
     enters inverse and forward dynamics, M^-1, the kinetic energy and their derivatives, as in
     Pinocchio and MuJoCo.
+    passive_forces: whether inverse_dynamics, forward_dynamics and their gradients include the
+    joints' damping and stiffness (Robot.passive_forces, MuJoCo's qfrc_passive). None follows the
+    source: an MJCF's are included, as mj_forward and mj_inverse do; a URDF or pinocchio.Model has
+    none, as Pinocchio's algorithms ignore them.
     cache_dir: where compiled kernels are kept (default $TORCH_GRID_CACHE or ~/.cache/torch_grid).
     """
     if not isinstance(enable_mujoco_kernels, bool):
         raise TypeError(f"enable_mujoco_kernels must be True or False, got {enable_mujoco_kernels!r}")
+    if passive_forces is not None and not isinstance(passive_forces, bool):
+        raise TypeError(f"passive_forces must be None, True or False, got {passive_forces!r}")
     model = source_to_model(source, floating_base)
     if armature is not None:
         model = with_armature(model, armature)
@@ -50,4 +57,5 @@ def load(source, *, floating_base: bool | None = None, convention: str = "pin", 
     if namespace not in _AUTOGRAD_DONE:
         register_autograd(namespace, model)
         _AUTOGRAD_DONE.add(namespace)
-    return Robot(model, namespace, convention=convention, mujoco_kernels=enable_mujoco_kernels)
+    return Robot(model, namespace, convention=convention, mujoco_kernels=enable_mujoco_kernels,
+                 passive_forces=passive_forces is not False)

@@ -67,7 +67,7 @@ def from_mujoco(m, name: str | None = None) -> RobotModel:
                 rotation=_tuple(placement[0].reshape(-1)), translation=_tuple(placement[1]),
                 lower=float(m.jnt_range[jid][0]) if limited else -math.pi if kind == _FREE else -math.inf,
                 upper=float(m.jnt_range[jid][1]) if limited else math.pi if kind == _FREE else math.inf,
-                armature=float(np.max(m.dof_armature[m.jnt_dofadr[jid]:m.jnt_dofadr[jid] + (6 if kind == _FREE else 1)])),
+                **_dof_coefficients(m, jid, kind),
                 inertia=_Inertia.zero(),
             ))
             body, R, p = len(joints) - 1, np.eye(3), np.zeros(3)
@@ -93,6 +93,15 @@ def from_mujoco(m, name: str | None = None) -> RobotModel:
 
 
 _FREE, _BALL, _SLIDE, _HINGE = 0, 1, 2, 3  # mjtJoint
+
+
+def _dof_coefficients(m, jid: int, kind: int) -> dict:
+    """Armature, damping, stiffness and spring reference of a joint (a free joint's largest over its
+    dofs, which the model refuses when not 0)."""
+    dofs = slice(m.jnt_dofadr[jid], m.jnt_dofadr[jid] + (6 if kind == _FREE else 1))
+    springref = 0.0 if kind == _FREE else float(m.qpos_spring[m.jnt_qposadr[jid]])
+    return dict(armature=float(np.max(m.dof_armature[dofs])), damping=float(np.max(m.dof_damping[dofs])),
+                stiffness=float(m.jnt_stiffness[jid]), springref=springref)
 _KIND = {_FREE: "free", _SLIDE: "prismatic", _HINGE: "revolute"}
 
 
@@ -155,11 +164,6 @@ def _refuse_unmodelled_couplings(mujoco, m, names: _Names) -> None:
                 raise ValueError(f"MJCF tendon {tname!r} has {what} {value}: its passive forces couple joints, "
                                  "which is not supported")
     for jid in range(m.njnt):
-        dofs = range(m.jnt_dofadr[jid], m.jnt_dofadr[jid] + {_FREE: 6, _BALL: 3}.get(int(m.jnt_type[jid]), 1))
-        for what, values in (("damping", m.dof_damping[dofs]), ("stiffness", [m.jnt_stiffness[jid]])):
-            if np.any(np.asarray(values) != 0):
-                raise ValueError(f"joint {names.joint(jid)!r} has {what} {np.asarray(values).max()}, which is not "
-                                 "supported yet")
         if m.jnt_type[jid] in (_SLIDE, _HINGE) and m.qpos0[m.jnt_qposadr[jid]] != 0:
             raise ValueError(f"joint {names.joint(jid)!r} has ref {m.qpos0[m.jnt_qposadr[jid]]} (MuJoCo measures "
                              "its position from there), which is not supported")

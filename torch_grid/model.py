@@ -33,6 +33,9 @@ class Joint:
     lower: float = -math.pi  # position limits (1-dof joints)
     upper: float = math.pi
     armature: float = 0.0  # rotor inertia on the dof (1-dof joints), added to M's diagonal
+    damping: float = 0.0  # passive force -damping qd - stiffness (q - springref) (1-dof joints)
+    stiffness: float = 0.0
+    springref: float = 0.0
 
     @property
     def nq(self) -> int:
@@ -204,11 +207,13 @@ def _check_joint(j: Joint, link: str | None) -> None:
         norm = math.hypot(*j.axis)
         if abs(norm - 1) > UNIT_TOL:
             raise ValueError(f"{who}: axis must be a unit vector, got {j.axis!r} (norm {norm:.9g})")
-    _check_number(f"{who}: armature", j.armature)
-    if j.armature < 0:
-        raise ValueError(f"{who}: armature must be >= 0, got {j.armature!r}")
-    if j.type == "free" and j.armature != 0:
-        raise ValueError(f"{who}: armature on a free joint is not supported, got {j.armature!r}")
+    for name in ("armature", "damping", "stiffness", "springref"):
+        value = getattr(j, name)
+        _check_number(f"{who}: {name}", value)
+        if name != "springref" and value < 0:
+            raise ValueError(f"{who}: {name} must be >= 0, got {value!r}")
+        if j.type == "free" and value != 0:
+            raise ValueError(f"{who}: {name} on a free joint is not supported, got {value!r}")
     _check_number(f"{body}: mass", j.mass)
     if j.mass < 0:
         raise ValueError(f"{body}: mass must be >= 0, got {j.mass!r}")

@@ -15,6 +15,7 @@ from .autograd import rpy_rate_matrix
 from .codegen import inertia_about_origin
 from .model import RobotModel
 from .ops import OPS, model_sizes
+from .passive import PassiveForces
 
 _CPU, _CUDA = torch._C.DispatchKeySet(torch._C.DispatchKey.CPU), torch._C.DispatchKeySet(torch._C.DispatchKey.CUDA)
 CONVENTIONS = {"pin": 0, "pinocchio": 0, "mujoco": 1, "mjx": 1}
@@ -32,17 +33,21 @@ class _Functions:
     _convention: int
 
     def inverse_dynamics(self, q, qd, qdd, f_ext=None) -> torch.Tensor:
-        """Joint forces tau (..., nv) = M qdd + C qd + g - J^T f_ext.
+        """Joint forces tau (..., nv) = M qdd + C qd + g - J^T f_ext (- passive_forces, when included).
 
         q (..., nq), qd (..., nv), qdd (..., nv); f_ext (..., nbodies, 6): a spatial force
         [force; torque] on each body, in its joint frame (Pinocchio's fext without the universe).
         """
-        return self._call("inverse_dynamics", q, qd, qdd, f_ext)
+        tau = self._call("inverse_dynamics", q, qd, qdd, f_ext)
+        return tau - self._robot._passive(q, qd) if self._robot._with_passive else tau
 
     rnea = inverse_dynamics
 
     def forward_dynamics(self, q, qd, tau, f_ext=None) -> torch.Tensor:
-        """Joint accelerations qdd (..., nv) by the articulated-body algorithm; f_ext as in inverse_dynamics."""
+        """Joint accelerations qdd (..., nv) by the articulated-body algorithm, under tau (+ passive_forces,
+        when included); f_ext as in inverse_dynamics."""
+        if self._robot._with_passive:
+            tau = tau + self._robot._passive(q, qd)
         return self._call("forward_dynamics", q, qd, tau, f_ext)
 
     aba = forward_dynamics
@@ -113,14 +118,30 @@ class _Functions:
         local increment q (+) dq (as pinocchio.computeRNEADerivatives); in MuJoCo's convention,
         mj_integratePos's increment, with qvel and qacc held fixed in MuJoCo's frame.
         """
-        return self._call("inverse_dynamics_gradient", q, qd, qdd, f_ext)
+        dq, dqd = self._call("inverse_dynamics_gradient", q, qd, qdd, f_ext)
+        if not self._robot._with_passive:
+            return dq, dqd
+        # - passive_forces adds stiffness and damping to the diagonals.
+        damping, stiffness, _ = self._robot._passive.coefficients(dq)
+        return dq + torch.diag_embed(stiffness), dqd + torch.diag_embed(damping)
 
     def forward_dynamics_gradient(self, q, qd, tau, f_ext=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Analytic (d qdd / dq, d qdd / dqd, d qdd / dtau), each (..., nv, nv), of forward_dynamics.
 
         Tangent derivatives as in inverse_dynamics_gradient; d qdd / dtau = M^-1.
         """
-        return self._call("forward_dynamics_gradient", q, qd, tau, f_ext)
+        if not self._robot._with_passive:
+            return self._call("forward_dynamics_gradient", q, qd, tau, f_ext)
+        # qdd = FD(q, qd, tau + passive(q, qd)): the chain rule through the passive forces' diagonals.
+        dq, dqd, minv = self._call("forward_dynamics_gradient", q, qd, tau + self._robot._passive(q, qd), f_ext)
+        damping, stiffness, _ = self._robot._passive.coefficients(minv)
+        return dq - minv * stiffness, dqd - minv * damping, minv
+
+    def passive_forces(self, q, qd) -> torch.Tensor:
+        """MuJoCo's qfrc_passive of the joints' damping and stiffness (..., nv):
+        -damping qd - stiffness (q - springref) on hinge and slide joints, whether or not the other
+        functions include it (`load(..., passive_forces=...)`); zero for a model without them."""
+        return self._robot._passive(q, qd)
 
     def end_effector_pose_gradient(self, q, frames: Sequence[str | int]) -> torch.Tensor:
         """d end_effector_pose / dq along the tangent, (..., len(frames), 6, nv): [xyz; rpy] rows.
@@ -195,6 +216,8 @@ class _Functions:
 
     def forward_dynamics_parameter_gradient(self, q, qd, tau) -> torch.Tensor:
         """d forward_dynamics / d inertial_parameters (..., nv, 10 nbodies) = -M^-1 Y at qdd = FD."""
+        if self._robot._with_passive:
+            tau = tau + self._robot._passive(q, qd)
         return self._call("forward_dynamics_parameter_gradient", q, qd, tau)
 
     def inertial_parameters(self, dtype: torch.dtype = torch.float64, device="cpu") -> torch.Tensor:
@@ -276,8 +299,12 @@ class Robot(_Functions):
     are views that always use one convention.
     """
 
-    def __init__(self, model: RobotModel, namespace: str, convention: str = "pin", mujoco_kernels: bool = True):
+    def __init__(self, model: RobotModel, namespace: str, convention: str = "pin", mujoco_kernels: bool = True,
+                 passive_forces: bool = True):
         self.model = model
+        self._passive = PassiveForces(model)
+        self._include_passive = passive_forces
+        self._with_passive = passive_forces and self._passive.any
         self._ops = getattr(torch.ops, namespace)
         self._enable_mujoco_kernels = mujoco_kernels
         self._mujoco_kernels = mujoco_kernels or not model.floating_base
@@ -346,7 +373,7 @@ class Robot(_Functions):
     def __reduce__(self):
         """Pickles as its model and options (pickle, copy.deepcopy, torch.save, spawned workers): the
         receiving process loads it again, from its kernel cache or by building it."""
-        return _restore, (self.model.to_json(), self.convention, self._enable_mujoco_kernels)
+        return _restore, (self.model.to_json(), self.convention, self._enable_mujoco_kernels, self._include_passive)
 
     def _convention_code(self, value: str) -> int:
         if not isinstance(value, str) or value.lower() not in CONVENTIONS:
@@ -361,11 +388,11 @@ class Robot(_Functions):
         return f"<Robot {self.name!r}: {base} base, nq={self.nq}, nv={self.nv}, {self.convention} convention>"
 
 
-def _restore(model_json: str, convention: str, enable_mujoco_kernels: bool) -> "Robot":
+def _restore(model_json: str, convention: str, enable_mujoco_kernels: bool, passive_forces: bool = True) -> "Robot":
     from . import load
 
     return load(RobotModel.from_dict(json.loads(model_json)), convention=convention,
-                enable_mujoco_kernels=enable_mujoco_kernels)
+                enable_mujoco_kernels=enable_mujoco_kernels, passive_forces=passive_forces)
 
 
 def _check_tensor(op: str, name: str, x, trailing: tuple[int, ...], q) -> None:
