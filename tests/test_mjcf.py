@@ -176,13 +176,14 @@ def test_armature_and_energy_match_mujoco(tmp_path):
                         None)
 
 
-PASSIVE = {"yaw": 'damping="0.3" stiffness="2" springref="10"', "slide_z": 'damping="1.5"',
+PASSIVE = {"yaw": 'damping="0.3" stiffness="2" springref="10" ref="15"', "slide_z": 'damping="1.5" ref="0.1"',
            "knee": 'stiffness="4" springref="-20" armature="0.02"', "swing": 'damping="0.2"'}
 
 
 @pytest.fixture(scope="module")
 def springy(tmp_path_factory):
-    """The model with joint damping, stiffness and spring references, as MuJoCo and as two robots."""
+    """The model with joint damping, stiffness, spring references and refs (MuJoCo moves a joint by
+    qpos - ref), as MuJoCo and as two robots."""
     text = MODEL
     for joint, attributes in PASSIVE.items():
         text = text.replace(f'name="{joint}"', f'name="{joint}" {attributes}')
@@ -201,6 +202,12 @@ def test_passive_forces_match_mujoco(springy):
         d.qpos[:], d.qvel[:], d.qacc[:] = qpos, qvel, qacc
         mujoco.mj_forward(m, d)
         q, v, a = (torch.from_numpy(x.copy()) for x in (qpos, qvel, qacc))
+        pos, rot = robot.forward_kinematics(q)
+        assert rel(pos, np.concatenate([d.xpos, d.site_xpos])) <= TOL
+        assert rel(rot, np.concatenate([d.xmat, d.site_xmat]).reshape(-1, 3, 3)) <= TOL
+        M = np.zeros((m.nv, m.nv))
+        mujoco.mj_fullM(m, d, M)
+        assert rel(robot.crba(q), M) <= TOL
         assert rel(robot.passive_forces(q, v), d.qfrc_passive) <= TOL
         assert np.abs(d.qfrc_passive).max() > 0.1
         tau = torch.from_numpy(np.random.default_rng(0).normal(size=m.nv))
@@ -259,16 +266,6 @@ def test_passive_forces_in_autograd(springy):
     assert rel(grad, dqdd_dqd.sum(dim=-2)) <= 1e-12
 
 
-@pytest.mark.parametrize("attributes, words", [
-    ('ref="0.2"', ["'swing'", "ref"]),
-])
-def test_joint_features_not_yet_modelled_are_refused(attributes, words):
-    with pytest.raises(ValueError) as info:
-        source_to_model(with_joint(attributes), None)
-    for w in words:
-        assert w in str(info.value)
-
-
 def test_couplings_are_refused():
     ball = MODEL.replace('type="hinge" axis="1 0 0"', 'type="ball"')
     with pytest.raises(ValueError, match="'swing' has type ball"):
@@ -277,6 +274,9 @@ def test_couplings_are_refused():
                             "</equality>")
     with pytest.raises(ValueError, match="equality constraint 'tie'"):
         source_to_model(coupled, None)
+    heavy = MODEL.replace('<body name="pendulum" pos="1 1 1">', '<body name="pendulum" pos="1 1 1" gravcomp="1">')
+    with pytest.raises(ValueError, match="'pendulum' has gravcomp"):
+        source_to_model(heavy, None)
     two_free = MODEL.replace('<joint name="swing" type="hinge" axis="1 0 0"/>', '<freejoint name="loose"/>')
     with pytest.raises(ValueError, match="'loose'.*free joint"):
         source_to_model(two_free, None)

@@ -58,7 +58,10 @@ def from_mujoco(m, name: str | None = None) -> RobotModel:
             else:
                 # A slide's anchor does not move anything: keep the previous one.
                 a = m.jnt_pos[jid] if kind == _HINGE else anchor
-                placement = (R, p + R @ a) if jid == m.body_jntadr[b] else (np.eye(3), a - anchor)
+                Rj, pj = (R, p + R @ a) if jid == m.body_jntadr[b] else (np.eye(3), a - anchor)
+                # MuJoCo moves the joint by qpos - ref (qpos0): the motion at -ref joins the placement.
+                ref, axis = float(m.qpos0[m.jnt_qposadr[jid]]), np.asarray(m.jnt_axis[jid], dtype=float)
+                placement = (Rj @ _axis_angle(axis, -ref), pj) if kind == _HINGE else (Rj, pj - ref * (Rj @ axis))
                 anchor = np.array(a, dtype=float)
             limited = bool(m.jnt_limited[jid]) and kind != _FREE
             joints.append(dict(
@@ -163,10 +166,6 @@ def _refuse_unmodelled_couplings(mujoco, m, names: _Names) -> None:
             if np.any(value != 0):
                 raise ValueError(f"MJCF tendon {tname!r} has {what} {value}: its passive forces couple joints, "
                                  "which is not supported")
-    for jid in range(m.njnt):
-        if m.jnt_type[jid] in (_SLIDE, _HINGE) and m.qpos0[m.jnt_qposadr[jid]] != 0:
-            raise ValueError(f"joint {names.joint(jid)!r} has ref {m.qpos0[m.jnt_qposadr[jid]]} (MuJoCo measures "
-                             "its position from there), which is not supported")
     for b in range(m.nbody):
         if m.body_gravcomp[b] != 0:
             raise ValueError(f"body {names.body(b)!r} has gravcomp {m.body_gravcomp[b]}, which is not supported")
@@ -203,6 +202,12 @@ def _quat(q) -> np.ndarray:
         [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
     ])
+
+
+def _axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
+    """Rotation by angle about the unit axis (Rodrigues)."""
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * (K @ K)
 
 
 def _tuple(v) -> tuple[float, ...]:
