@@ -30,7 +30,7 @@ setup(
     license="BSD-3-Clause",
     python_requires=">=3.9",
     packages=find_packages(include=["torch_grid", "torch_grid.*"]),
-    package_data={"torch_grid": ["robots/*.urdf", "robots/*.json", "robots/NOTICE"]},
+    package_data={"torch_grid": ["robots/*.urdf", "robots/*.xml", "robots/*.json", "robots/NOTICE"]},
     install_requires=["torch>=2.4", "ninja"],
     extras_require={
         "pin": ["pin>=3.4"],

@@ -300,3 +300,22 @@ def test_floating_base_must_agree():
     assert not source_to_model(fixed, None).floating_base
     with pytest.raises(ValueError, match="floating_base=True"):
         source_to_model(fixed, True)
+
+
+def test_bundled_humanoid_matches_mujoco(tmp_path):
+    """The bundled MJCF robot (multi-hinge bodies, armature, damping, springs), loaded by name from its
+    JSON, against MuJoCo compiling its XML."""
+    robot = torch_grid.load("humanoid", convention="mujoco", cache_dir=tmp_path)
+    m = mujoco.MjModel.from_xml_path(str(torch_grid.parse.ROBOTS_DIR / "humanoid.xml"))
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
+    assert robot.joint_names == [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(m.njnt)]
+    d = mujoco.MjData(m)
+    for qpos, qvel, qacc in states(m, 2, seed=8):
+        d.qpos[:], d.qvel[:], d.qacc[:] = qpos, qvel, qacc
+        mujoco.mj_inverse(m, d)
+        q, v, a = (torch.from_numpy(x.copy()) for x in (qpos, qvel, qacc))
+        M = np.zeros((m.nv, m.nv))
+        mujoco.mj_fullM(m, d, M)
+        assert rel(robot.crba(q), M) <= TOL
+        assert rel(robot.inverse_dynamics(q, v, a), d.qfrc_inverse) <= TOL
+        assert rel(robot.forward_dynamics(q, v, torch.from_numpy(d.qfrc_inverse.copy())), qacc) <= 1e-8

@@ -303,7 +303,11 @@ def test_valid_edge_cases_load(case):
 @pytest.mark.parametrize("name", sorted(torch_grid.BUNDLED))
 def test_bundled_robots_pass(name):
     RobotModel.load(ROBOTS_DIR / f"{name}.json")
-    source_to_model(str(ROBOTS_DIR / f"{name}.urdf"), not torch_grid.BUNDLED[name])  # the other base too
+    if (ROBOTS_DIR / f"{name}.urdf").exists():
+        source_to_model(str(ROBOTS_DIR / f"{name}.urdf"), not torch_grid.BUNDLED[name])  # the other base too
+    else:  # an MJCF: its free joint is part of the description
+        with pytest.raises(ValueError, match="floating_base=False contradicts"):
+            torch_grid.load(name, floating_base=False)
 
 
 def test_conftest_robots_pass():

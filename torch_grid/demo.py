@@ -1,5 +1,6 @@
 """Demo: every function on the bundled robots, a batch of 4096 states on the best device, a sample
-checked against Pinocchio when it is installed, and a table of per-sample times.
+checked against Pinocchio (URDF robots) or MuJoCo (the MJCF humanoid) when installed, and a table of
+per-sample times.
 
     python -m torch_grid.demo [--batch 4096] [--dtype float64|float32] [--device cpu|cuda]
 """
@@ -64,6 +65,31 @@ def _check_against_pinocchio(robot, q, qd, qdd) -> str:
     return f"sample vs Pinocchio (inverse/forward dynamics, crba): max relative error {err:.1e}"
 
 
+def _check_against_mujoco(robot) -> str:
+    try:
+        import mujoco
+    except ImportError:
+        return "MuJoCo not installed: sample check skipped"
+    import numpy as np
+
+    m = mujoco.MjModel.from_xml_path(str(torch_grid.parse.ROBOTS_DIR / f"{robot.name}.xml"))
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
+    d = mujoco.MjData(m)
+    view, g = robot.mujoco, torch.Generator().manual_seed(1)
+    q = view.random_configuration(generator=g)
+    qd, tau = (torch.randn(robot.nv, generator=g, dtype=torch.float64) for _ in range(2))
+    d.qpos[:], d.qvel[:], d.qfrc_applied[:] = q.numpy(), qd.numpy(), tau.numpy()
+    mujoco.mj_forward(m, d)
+    M = np.zeros((m.nv, m.nv))
+    mujoco.mj_fullM(m, d, M)
+    pairs = [(view.crba(q), M), (view.forward_dynamics(q, qd, tau), d.qacc.copy()),
+             (view.passive_forces(q, qd), d.qfrc_passive.copy())]
+    mujoco.mj_inverse(m, d)
+    pairs.append((view.inverse_dynamics(q, qd, torch.from_numpy(d.qacc.copy())), d.qfrc_inverse.copy()))
+    err = max(float(np.abs(ours.numpy() - ref).max() / max(np.abs(ref).max(), 1e-12)) for ours, ref in pairs)
+    return f"sample vs MuJoCo (crba, forward/inverse dynamics, passive forces): max relative error {err:.1e}"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description="torch_grid demo on the bundled robots")
     parser.add_argument("--batch", type=int, default=4096)
@@ -82,7 +108,8 @@ def main() -> None:
         print(f"  {'function':<22}{'µs/sample':>12}")
         for fn_name, fn in _calls(robot, q, qd, qdd).items():
             print(f"  {fn_name:<22}{_time(fn, device) / args.batch * 1e6:>12.3f}")
-        print(f"  {_check_against_pinocchio(robot, q, qd, qdd)}\n")
+        mjcf = (torch_grid.parse.ROBOTS_DIR / f"{name}.xml").exists()
+        print(f"  {_check_against_mujoco(robot) if mjcf else _check_against_pinocchio(robot, q, qd, qdd)}\n")
 
 
 if __name__ == "__main__":

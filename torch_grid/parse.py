@@ -17,7 +17,7 @@ from . import mjcf
 from .model import Frame, Joint, RobotModel
 
 ROBOTS_DIR = Path(__file__).parent / "robots"
-BUNDLED = {"iiwa14": False, "go2": True}  # name -> floating base by default
+BUNDLED = {"iiwa14": False, "go2": True, "humanoid": True}  # name -> floating base by default
 
 _REVOLUTE = {"JointModelRX": (1.0, 0.0, 0.0), "JointModelRY": (0.0, 1.0, 0.0), "JointModelRZ": (0.0, 0.0, 1.0)}
 _CONTINUOUS = {"JointModelRUBX": (1.0, 0.0, 0.0), "JointModelRUBY": (0.0, 1.0, 0.0), "JointModelRUBZ": (0.0, 0.0, 1.0)}
@@ -255,6 +255,9 @@ def _bundled(name: str, floating_base: bool | None) -> RobotModel:
     default = BUNDLED[name]
     if floating_base is None or floating_base == default:
         return RobotModel.load(ROBOTS_DIR / f"{name}.json")
+    mjcf_path = ROBOTS_DIR / f"{name}.xml"
+    if mjcf_path.exists():  # an MJCF's free joint is part of the description
+        return _check_floating(mjcf.from_mjcf(mjcf_path.read_text(), mjcf_path, name), floating_base, f"{name!r}")
     return _parse_urdf((ROBOTS_DIR / f"{name}.urdf").read_text(), floating_base, name)
 
 
