@@ -56,6 +56,7 @@ FUNCTIONS = {
     "kinetic_energy_regressor": (lambda v, r, *x: v.kinetic_energy_regressor(*x), 2),
     "potential_energy_regressor": (lambda v, r, q: v.potential_energy_regressor(q), 1),
     "forward_dynamics_parameter_gradient": (lambda v, r, *x: v.forward_dynamics_parameter_gradient(*x), 3),
+    "passive_forces": (lambda v, r, *x: v.passive_forces(*x), 2),
 }
 
 

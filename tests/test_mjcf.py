@@ -264,6 +264,11 @@ def test_passive_forces_in_autograd(springy):
     (grad,) = torch.autograd.grad(qdd.sum(), v)
     _, dqdd_dqd, _ = robot.forward_dynamics_gradient(q, v.detach(), tau)
     assert rel(grad, dqdd_dqd.sum(dim=-2)) <= 1e-12
+    inputs = [x.detach().clone().requires_grad_(True) for x in (q, v, tau)]
+    for fn in (robot.passive_forces, robot.forward_dynamics, robot.inverse_dynamics, robot.inverse_dynamics_gradient,
+               robot.forward_dynamics_gradient):
+        arity = 2 if fn == robot.passive_forces else 3
+        assert torch.autograd.gradcheck(fn, inputs[:arity], eps=1e-6, atol=1e-6, rtol=1e-5, fast_mode=True)
 
 
 def test_couplings_are_refused():

@@ -172,7 +172,6 @@ URDF_TEMPLATE = """<robot name="bad">
     [
         ("planar", "", ["'j2'", "planar"]),
         ("floating", "", ["'j2'", "floating"]),
-        ("revolute", '<mimic joint="j1" multiplier="2"/>', ["'j2'", "mimic"]),
     ],
 )
 def test_unsupported_urdf_joints_are_refused(kind, extra, words):
@@ -180,6 +179,38 @@ def test_unsupported_urdf_joints_are_refused(kind, extra, words):
         torch_grid.load(URDF_TEMPLATE.format(kind=kind, extra=extra))
     for w in words:
         assert w in str(info.value)
+
+
+def test_mimic_joints_are_independent_by_default():
+    mimic = URDF_TEMPLATE.format(kind="revolute", extra='<mimic joint="j1" multiplier="2" offset="0.1"/>')
+    with pytest.warns(UserWarning, match="mimic joints 'j2' \\(mimics 'j1'\\) are independent"):
+        model = source_to_model(mimic, None)
+    pm = pin.buildModelFromXML(mimic)
+    assert [j.name for j in model.joints] == list(pm.names[1:]) and model.nv == pm.nv == 2
+    with pytest.raises(NotImplementedError, match="mimic=True.*'j2'"):
+        source_to_model(mimic, None, mimic=True)
+    plain = URDF_TEMPLATE.format(kind="revolute", extra="")
+    assert source_to_model(plain, None, mimic=True) == source_to_model(plain, None)
+
+
+def test_panda_with_mimic_fingers_matches_pinocchio(tmp_path):
+    """A published robot with a mimic joint (the Panda's second finger) loads as Pinocchio's default
+    model does and computes its dynamics."""
+    from oracles import erd_dir
+
+    path = erd_dir() / "panda_description" / "urdf" / "panda.urdf"
+    with pytest.warns(UserWarning, match="panda_finger_joint2"):
+        robot = torch_grid.load(str(path), cache_dir=tmp_path)
+    pm = pin.buildModelFromUrdf(str(path))
+    pd = pm.createData()
+    g = torch.Generator().manual_seed(9)
+    q = robot.random_configuration(generator=g)
+    qd, qdd = (torch.randn(robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
+    ref = pin.rnea(pm, pd, q.numpy(), qd.numpy(), qdd.numpy())
+    assert np.abs(robot.inverse_dynamics(q, qd, qdd).numpy() - ref).max() <= 1e-9 * np.abs(ref).max()
+    M = pin.crba(pm, pd, q.numpy())
+    M = np.triu(M) + np.triu(M, 1).T
+    assert np.abs(robot.crba(q).numpy() - M).max() <= 1e-9 * np.abs(M).max()
 
 
 def test_kinematic_loop_is_refused():

@@ -317,9 +317,10 @@ def test_conftest_robots_pass():
         source_to_model(source, floating)
 
 
-# example-robot-data robots that validation refuses, with why: their URDF inertias are not physical
-# (MuJoCo refuses both as well).
+# example-robot-data robots that validation refuses, with why: their URDF inertias are not physical, or
+# a finger joint moves no mass (M singular); MuJoCo refuses these as well.
 REFUSED_PUBLISHED = {
+    "romeo_description/urdf/romeo.urdf": "joint 'LFinger21': the links it moves have no mass and no inertia",
     "romeo_description/urdf/romeo_laas_small.urdf": "'LHipPitch_joint' (link 'LHipPitch_link'): inertia about "
                                                     "the centre of mass must be positive semi-definite",
     "romeo_description/urdf/romeo_small.urdf": "'RShoulderYaw' (link 'RShoulderYawLink'): inertia about the "
@@ -333,7 +334,7 @@ def test_example_robot_data_passes_except_unphysical_inertias(erd_robots_dir):
         try:
             source_to_model(str(path), False)
         except ValueError as e:
-            if "not supported" not in str(e) and "Pinocchio could not parse" not in str(e):  # mimic joints, ur3
+            if "not supported" not in str(e) and "Pinocchio could not parse" not in str(e):  # unsupported joint types, ur3
                 refusals[str(path.relative_to(erd_robots_dir))] = str(e)
     assert set(refusals) == set(REFUSED_PUBLISHED), refusals
     for rel, words in REFUSED_PUBLISHED.items():

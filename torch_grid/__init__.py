@@ -19,7 +19,7 @@ _AUTOGRAD_DONE: set[str] = set()
 
 
 def load(source, *, floating_base: bool | None = None, convention: str = "pin", enable_mujoco_kernels: bool = True,
-         armature: Mapping[str, float] | None = None, passive_forces: bool | None = None,
+         armature: Mapping[str, float] | None = None, passive_forces: bool | None = None, mimic: bool = False,
          cache_dir: str | Path | None = None) -> Robot:
     """Build (or reuse from the cache) a robot's kernels and return its `Robot`.
 
@@ -40,13 +40,15 @@ def load(source, *, floating_base: bool | None = None, convention: str = "pin", 
     joints' damping and stiffness (Robot.passive_forces, MuJoCo's qfrc_passive). None follows the
     source: an MJCF's are included, as mj_forward and mj_inverse do; a URDF or pinocchio.Model has
     none, as Pinocchio's algorithms ignore them.
+    mimic: a URDF's mimic joints are independent joints by default (pinocchio.buildModelFromUrdf's
+    default; a warning says so); True, coupling them, is not supported yet and raises.
     cache_dir: where compiled kernels are kept (default $TORCH_GRID_CACHE or ~/.cache/torch_grid).
     """
     if not isinstance(enable_mujoco_kernels, bool):
         raise TypeError(f"enable_mujoco_kernels must be True or False, got {enable_mujoco_kernels!r}")
     if passive_forces is not None and not isinstance(passive_forces, bool):
         raise TypeError(f"passive_forces must be None, True or False, got {passive_forces!r}")
-    model = source_to_model(source, floating_base)
+    model = source_to_model(source, floating_base, mimic)
     if armature is not None:
         model = with_armature(model, armature)
     if convention not in ("pin", "pinocchio", "mujoco", "mjx"):

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -25,8 +26,10 @@ _PRISMATIC = {"JointModelPX": (1.0, 0.0, 0.0), "JointModelPY": (0.0, 1.0, 0.0), 
 _FRAME_KINDS = {"BODY": "body", "JOINT": "joint", "FIXED_JOINT": "fixed_joint", "OP_FRAME": "op", "SENSOR": "sensor"}
 
 
-def source_to_model(source, floating_base: bool | None) -> RobotModel:
+def source_to_model(source, floating_base: bool | None, mimic: bool = False) -> RobotModel:
     """Parse `source` into a RobotModel; see `torch_grid.load` for what `source` may be."""
+    if not isinstance(mimic, bool):
+        raise TypeError(f"mimic must be True or False, got {mimic!r}")
     if floating_base is not None and not isinstance(floating_base, bool):
         raise TypeError(f"floating_base must be None, True or False, got {floating_base!r}")
     if isinstance(source, RobotModel):
@@ -44,7 +47,7 @@ def source_to_model(source, floating_base: bool | None) -> RobotModel:
         )
     text = source.lstrip()
     if text.startswith("<"):
-        return _from_text(text, floating_base, name=None)
+        return _from_text(text, floating_base, name=None, mimic=mimic)
     if source in BUNDLED:
         return _bundled(source, floating_base)
     path = Path(source).expanduser()
@@ -53,7 +56,7 @@ def source_to_model(source, floating_base: bool | None) -> RobotModel:
         raise ValueError(f"source {source!r} is neither a bundled robot ({bundled}) nor an existing file")
     if path.suffix == ".json":
         return _check_floating(RobotModel.load(path), floating_base, str(path))
-    return _from_text(path.read_text(), floating_base, name=path.stem, path=path)
+    return _from_text(path.read_text(), floating_base, name=path.stem, path=path, mimic=mimic)
 
 
 def from_pinocchio(model, name: str | None = None) -> RobotModel:
@@ -114,13 +117,15 @@ def _joint_kind(jm, jname: str) -> tuple[str, tuple[float, float, float]]:
     )
 
 
-def _from_text(text: str, floating_base: bool | None, name: str | None, path: Path | None = None) -> RobotModel:
+def _from_text(text: str, floating_base: bool | None, name: str | None, path: Path | None = None,
+               mimic: bool = False) -> RobotModel:
     try:
         root = ET.fromstring(text)
     except ET.ParseError as e:
         raise ValueError(f"source is not well-formed XML ({e})") from None
     if root.tag == "robot":
         _reject_urdf_features(root)
+        _mimic_joints(root, mimic)
         _check_urdf_numbers(root)
         return _parse_urdf(text, bool(floating_base), name or root.get("name") or "robot")
     if root.tag == "mujoco":
@@ -131,8 +136,6 @@ def _from_text(text: str, floating_base: bool | None, name: str | None, path: Pa
 
 def _reject_urdf_features(root: ET.Element) -> None:
     for j in root.iter("joint"):
-        if j.find("mimic") is not None:
-            raise ValueError(f"joint {j.get('name')!r} has type mimic, which is not supported")
         if j.get("type") in ("planar", "floating", "spherical"):
             raise ValueError(f"joint {j.get('name')!r} has type {j.get('type')}, which is not supported")
     children = [j.find("child").get("link") for j in root.iter("joint") if j.find("child") is not None]
@@ -141,6 +144,20 @@ def _reject_urdf_features(root: ET.Element) -> None:
         if c in seen:
             raise ValueError(f"link {c!r} is the child of several joints (a kinematic loop), which is not supported")
         seen.add(c)
+
+
+def _mimic_joints(root: ET.Element, couple: bool) -> None:
+    """Mimic joints are independent joints, as pinocchio.buildModelFromUrdf makes them by default:
+    say so once. Coupling them (mimic=True) is refused, naming them."""
+    mimics = [f"{j.get('name')!r} (mimics {j.find('mimic').get('joint')!r})" for j in root.iter("joint")
+              if j.find("mimic") is not None]
+    if not mimics:
+        return
+    if couple:
+        raise NotImplementedError(f"mimic=True: coupling mimic joints is not supported yet; the URDF's mimic "
+                                  f"joints: {', '.join(mimics)}")
+    warnings.warn(f"the URDF's mimic joints {', '.join(mimics)} are independent joints, as in "
+                  "pinocchio.buildModelFromUrdf's default model", stacklevel=4)
 
 
 # A number as urdfdom, Pinocchio's URDF reader, reads one: leading whitespace allowed, nothing after it
