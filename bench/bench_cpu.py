@@ -94,6 +94,7 @@ def call_overhead(number: int = 20000) -> list[tuple[str, float]]:
     autograd kernel included), best of 7; Pinocchio's rnea from Python for scale."""
     robot = torch_grid.load("iiwa14")
     q, qd, qdd = (torch.rand(1, robot.nv, dtype=torch.float64) for _ in range(3))
+    q1, qd1, qdd1 = q[0].clone(), qd[0].clone(), qdd[0].clone()  # sliced once, so that only the call is timed
     op = robot._ops.inverse_dynamics
     model = pin.buildModelFromUrdf(ROBOTS["iiwa14"][0])
     data, x = model.createData(), np.zeros(model.nq)
@@ -102,7 +103,7 @@ def call_overhead(number: int = 20000) -> list[tuple[str, float]]:
         return min(timeit.timeit(fn, number=number) for _ in range(7)) / number * 1e6
 
     return [("Robot.inverse_dynamics, batch (1, 7)", best(lambda: robot.inverse_dynamics(q, qd, qdd))),
-            ("Robot.inverse_dynamics, unbatched (7,)", best(lambda: robot.inverse_dynamics(q[0], qd[0], qdd[0]))),
+            ("Robot.inverse_dynamics, unbatched (7,)", best(lambda: robot.inverse_dynamics(q1, qd1, qdd1))),
             ("torch.ops op (through its autograd kernel)", best(lambda: op(q, qd, qdd, None, 0))),
             ("pinocchio.rnea from Python", best(lambda: pin.rnea(model, data, x, x, x)))]
 

@@ -324,3 +324,26 @@ def test_bundled_humanoid_matches_mujoco(tmp_path):
         assert rel(robot.crba(q), M) <= TOL
         assert rel(robot.inverse_dynamics(q, v, a), d.qfrc_inverse) <= TOL
         assert rel(robot.forward_dynamics(q, v, torch.from_numpy(d.qfrc_inverse.copy())), qacc) <= 1e-8
+
+
+def test_float32_and_gradcheck_on_the_planar_and_multi_joint_model(zoo):
+    """float32 against MuJoCo's float64, and gradcheck of the main functions, on the model with a
+    planar root, a two-hinge body and several trees."""
+    robot, m = zoo
+    d = mujoco.MjData(m)
+    qpos, qvel, qacc = next(states(m, 1, seed=9))
+    d.qpos[:], d.qvel[:], d.qacc[:] = qpos, qvel, qacc
+    mujoco.mj_inverse(m, d)
+    M = np.zeros((m.nv, m.nv))
+    mujoco.mj_fullM(m, d, M)
+    q, v, a = (torch.from_numpy(x.copy()).float() for x in (qpos, qvel, qacc))
+    assert robot.mujoco.crba(q).dtype == torch.float32
+    assert rel(robot.mujoco.crba(q), M) <= 1e-5
+    assert rel(robot.mujoco.inverse_dynamics(q, v, a), d.qfrc_inverse) <= 1e-5
+    g = torch.Generator().manual_seed(10)
+    for view in (robot.pin, robot.mujoco):
+        q = view.random_configuration(2, generator=g).requires_grad_(True)
+        v, a = (torch.randn(2, robot.nv, dtype=torch.float64, generator=g, requires_grad=True) for _ in range(2))
+        for fn, inputs in ((view.inverse_dynamics, (q, v, a)), (view.forward_dynamics, (q, v, a)), (view.crba, (q,)),
+                           (view.inverse_dynamics_gradient, (q, v, a))):
+            assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-6, rtol=1e-5, fast_mode=True)
