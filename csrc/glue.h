@@ -42,7 +42,7 @@ namespace tg {
 // kKeep bytes in all, for the life of the process) and handed to the next output of its size,
 // already mapped: a loop calling an op on the same batch pays the page faults once.
 struct LargeBlocks {
-  static constexpr size_t kMin = size_t(32) << 20, kHuge = size_t(2) << 20, kKeep = size_t(512) << 20;
+  static constexpr size_t kMin = size_t(8) << 20, kHuge = size_t(2) << 20, kKeep = size_t(512) << 20;
   static size_t rounded(size_t bytes) { return (bytes + kHuge - 1) / kHuge * kHuge; }
   static void* take(size_t size) {
     {
@@ -290,8 +290,11 @@ class Call {
 
   // A CPU output above glibc's largest mmap threshold (32 MiB) would be mapped afresh on every call,
   // and the kernel would zero each of its pages on first touch: about 1 µs per sample for G1's M at
-  // B = 4096, 10-25 % of crba or minv. It is backed by transparent huge pages instead, and its block
-  // is kept for the next output of the same size (LargeBlocks). Smaller outputs reuse the heap.
+  // B = 4096, 10-25 % of crba or minv. From 8 MiB the heap does not reliably help either: freed at
+  // its top, such blocks are trimmed back to the system (go2's three 10.6 MB forward-dynamics
+  // gradients took 11.7 instead of 8.8 µs per sample in a long-running process). Outputs above
+  // 8 MiB are backed by transparent huge pages instead, and each block is kept for the next output
+  // of the same size (LargeBlocks). Smaller outputs reuse the heap.
   static at::Tensor empty(const std::vector<int64_t>& shape, const at::TensorOptions& options) {
 #if defined(__linux__) && defined(MADV_HUGEPAGE)
     const size_t bytes = static_cast<size_t>(numel(shape)) * options.dtype().itemsize();

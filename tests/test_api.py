@@ -184,7 +184,7 @@ def test_float32_on_the_cpu_is_float64_rounded(robots):
 
 
 def test_large_cpu_outputs_reuse_their_blocks(robots):
-    """An output above 32 MiB is backed by a block kept when freed and handed to the next output of
+    """An output above 8 MiB is backed by a block kept when freed and handed to the next output of
     its size; a block is never shared by two live tensors. Outputs above 8 MiB in all are streamed
     from a buffer the kernel fills a few samples at a time. Results equal small batches' bit for bit."""
     robot = robots["go2"]
