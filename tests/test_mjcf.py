@@ -55,11 +55,25 @@ TOL = 1e-9
 
 @pytest.fixture(scope="module")
 def zoo(tmp_path_factory):
-    m = mujoco.MjModel.from_xml_string(MODEL)
-    # Only the rigid-body dynamics: no contacts or limits.
-    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
+    m = rigid_only(mujoco.MjModel.from_xml_string(MODEL))
     robot = torch_grid.load(MODEL, cache_dir=tmp_path_factory.mktemp("cache"))
     return robot, m
+
+
+def rigid_only(m):
+    """m with contacts and joint limits disabled: the rigid-body dynamics torch_grid computes."""
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
+    return m
+
+
+def at_state(m, d, qpos, qvel, qacc, step):
+    """d at (qpos, qvel, qacc) after MuJoCo's `step` (mj_forward replaces qacc, mj_inverse reads it),
+    the state as tensors, and MuJoCo's M."""
+    d.qpos[:], d.qvel[:], d.qacc[:] = qpos, qvel, qacc
+    step(m, d)
+    M = np.zeros((m.nv, m.nv))
+    mujoco.mj_fullM(m, d, M)
+    return [torch.from_numpy(x.copy()) for x in (qpos, qvel, qacc)], M
 
 
 def states(m, n, seed):
@@ -93,11 +107,7 @@ def test_dynamics_match_mujoco(zoo):
     d = mujoco.MjData(m)
     view = robot.mujoco
     for qpos, qvel, qacc in states(m, 4, seed=1):
-        d.qpos[:], d.qvel[:], d.qacc[:] = qpos, qvel, qacc
-        mujoco.mj_forward(m, d)
-        q, v, a = (torch.from_numpy(x.copy()) for x in (qpos, qvel, qacc))
-        M = np.zeros((m.nv, m.nv))
-        mujoco.mj_fullM(m, d, M)
+        (q, v, a), M = at_state(m, d, qpos, qvel, qacc, mujoco.mj_forward)
         assert rel(view.crba(q), M) <= TOL
         assert rel(view.nonlinear_effects(q, v), d.qfrc_bias) <= TOL
         tau = M @ qacc + d.qfrc_bias
@@ -151,18 +161,13 @@ def test_armature_and_energy_match_mujoco(tmp_path):
     text = MODEL
     for joint, value in (("yaw", 0.03), ("slide_x", 0.2), ("knee", 0.05), ("swing", 0.1)):
         text = text.replace(f'name="{joint}"', f'name="{joint}" armature="{value}"')
-    m = mujoco.MjModel.from_xml_string(text)
-    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
+    m = rigid_only(mujoco.MjModel.from_xml_string(text))
     m.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_ENERGY)
     robot = torch_grid.load(text, cache_dir=tmp_path, convention="mujoco")
     assert [j.armature for j in robot.model.joints] == [0.0, 0.03, 0.0, 0.2, 0.0, 0.0, 0.05, 0.1]
     d = mujoco.MjData(m)
     for qpos, qvel, qacc in states(m, 3, seed=4):
-        d.qpos[:], d.qvel[:] = qpos, qvel
-        mujoco.mj_forward(m, d)
-        q, v, a = (torch.from_numpy(x.copy()) for x in (qpos, qvel, qacc))
-        M = np.zeros((m.nv, m.nv))
-        mujoco.mj_fullM(m, d, M)
+        (q, v, a), M = at_state(m, d, qpos, qvel, qacc, mujoco.mj_forward)
         assert rel(robot.crba(q), M) <= TOL
         assert rel(robot.minv(q), np.linalg.inv(M)) <= 1e-8
         assert rel(robot.forward_dynamics(q, v, torch.zeros(m.nv, dtype=torch.float64)), d.qacc) <= 1e-8
@@ -187,8 +192,7 @@ def springy(tmp_path_factory):
     text = MODEL
     for joint, attributes in PASSIVE.items():
         text = text.replace(f'name="{joint}"', f'name="{joint}" {attributes}')
-    m = mujoco.MjModel.from_xml_string(text)
-    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
+    m = rigid_only(mujoco.MjModel.from_xml_string(text))
     cache = tmp_path_factory.mktemp("cache")
     with_passive = torch_grid.load(text, cache_dir=cache, convention="mujoco")
     without = torch_grid.load(text, cache_dir=cache, convention="mujoco", passive_forces=False)
@@ -199,14 +203,10 @@ def test_passive_forces_match_mujoco(springy):
     m, robot, rigid = springy
     d = mujoco.MjData(m)
     for qpos, qvel, qacc in states(m, 3, seed=5):
-        d.qpos[:], d.qvel[:], d.qacc[:] = qpos, qvel, qacc
-        mujoco.mj_forward(m, d)
-        q, v, a = (torch.from_numpy(x.copy()) for x in (qpos, qvel, qacc))
+        (q, v, a), M = at_state(m, d, qpos, qvel, qacc, mujoco.mj_forward)
         pos, rot = robot.forward_kinematics(q)
         assert rel(pos, np.concatenate([d.xpos, d.site_xpos])) <= TOL
         assert rel(rot, np.concatenate([d.xmat, d.site_xmat]).reshape(-1, 3, 3)) <= TOL
-        M = np.zeros((m.nv, m.nv))
-        mujoco.mj_fullM(m, d, M)
         assert rel(robot.crba(q), M) <= TOL
         assert rel(robot.passive_forces(q, v), d.qfrc_passive) <= TOL
         assert np.abs(d.qfrc_passive).max() > 0.1
@@ -311,16 +311,11 @@ def test_bundled_humanoid_matches_mujoco(tmp_path):
     """The bundled MJCF robot (multi-hinge bodies, armature, damping, springs), loaded by name from its
     JSON, against MuJoCo compiling its XML."""
     robot = torch_grid.load("humanoid", convention="mujoco", cache_dir=tmp_path)
-    m = mujoco.MjModel.from_xml_path(str(torch_grid.parse.ROBOTS_DIR / "humanoid.xml"))
-    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
+    m = rigid_only(mujoco.MjModel.from_xml_path(str(torch_grid.parse.ROBOTS_DIR / "humanoid.xml")))
     assert robot.joint_names == [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(m.njnt)]
     d = mujoco.MjData(m)
     for qpos, qvel, qacc in states(m, 2, seed=8):
-        d.qpos[:], d.qvel[:], d.qacc[:] = qpos, qvel, qacc
-        mujoco.mj_inverse(m, d)
-        q, v, a = (torch.from_numpy(x.copy()) for x in (qpos, qvel, qacc))
-        M = np.zeros((m.nv, m.nv))
-        mujoco.mj_fullM(m, d, M)
+        (q, v, a), M = at_state(m, d, qpos, qvel, qacc, mujoco.mj_inverse)
         assert rel(robot.crba(q), M) <= TOL
         assert rel(robot.inverse_dynamics(q, v, a), d.qfrc_inverse) <= TOL
         assert rel(robot.forward_dynamics(q, v, torch.from_numpy(d.qfrc_inverse.copy())), qacc) <= 1e-8
@@ -332,11 +327,8 @@ def test_float32_and_gradcheck_on_the_planar_and_multi_joint_model(zoo):
     robot, m = zoo
     d = mujoco.MjData(m)
     qpos, qvel, qacc = next(states(m, 1, seed=9))
-    d.qpos[:], d.qvel[:], d.qacc[:] = qpos, qvel, qacc
-    mujoco.mj_inverse(m, d)
-    M = np.zeros((m.nv, m.nv))
-    mujoco.mj_fullM(m, d, M)
-    q, v, a = (torch.from_numpy(x.copy()).float() for x in (qpos, qvel, qacc))
+    state, M = at_state(m, d, qpos, qvel, qacc, mujoco.mj_inverse)
+    q, v, a = (x.float() for x in state)
     assert robot.mujoco.crba(q).dtype == torch.float32
     assert rel(robot.mujoco.crba(q), M) <= 1e-5
     assert rel(robot.mujoco.inverse_dynamics(q, v, a), d.qfrc_inverse) <= 1e-5

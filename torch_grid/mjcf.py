@@ -33,7 +33,8 @@ def from_mjcf(text: str, path: Path | None, name: str | None) -> RobotModel:
 
 
 def from_mujoco(m, name: str | None = None) -> RobotModel:
-    """Convert a compiled `mujoco.MjModel` (hinge, slide, and free joints at the root of each tree)."""
+    """Convert a compiled `mujoco.MjModel` (hinge and slide joints, and a free joint at the root of the
+    first tree)."""
     mujoco = _mujoco()
     names = _Names(mujoco, m)
     _refuse_unmodelled_couplings(mujoco, m, names)
@@ -63,15 +64,17 @@ def from_mujoco(m, name: str | None = None) -> RobotModel:
                 ref, axis = float(m.qpos0[m.jnt_qposadr[jid]]), np.asarray(m.jnt_axis[jid], dtype=float)
                 placement = (Rj @ _axis_angle(axis, -ref), pj) if kind == _HINGE else (Rj, pj - ref * (Rj @ axis))
                 anchor = np.array(a, dtype=float)
-            limited = bool(m.jnt_limited[jid]) and kind != _FREE
+            if kind == _FREE:
+                lower, upper = -math.pi, math.pi
+            elif m.jnt_limited[jid]:
+                lower, upper = (float(x) for x in m.jnt_range[jid])
+            else:
+                lower, upper = -math.inf, math.inf
             joints.append(dict(
                 name=jname, type=_KIND[kind], parent=body,
                 axis=(0.0, 0.0, 0.0) if kind == _FREE else _tuple(m.jnt_axis[jid]),
                 rotation=_tuple(placement[0].reshape(-1)), translation=_tuple(placement[1]),
-                lower=float(m.jnt_range[jid][0]) if limited else -math.pi if kind == _FREE else -math.inf,
-                upper=float(m.jnt_range[jid][1]) if limited else math.pi if kind == _FREE else math.inf,
-                **_dof_coefficients(m, jid, kind),
-                inertia=_Inertia.zero(),
+                lower=lower, upper=upper, **_dof_coefficients(m, jid, kind), inertia=_Inertia.zero(),
             ))
             body, R, p = len(joints) - 1, np.eye(3), np.zeros(3)
         if m.body_jntnum[b]:
@@ -96,6 +99,7 @@ def from_mujoco(m, name: str | None = None) -> RobotModel:
 
 
 _FREE, _BALL, _SLIDE, _HINGE = 0, 1, 2, 3  # mjtJoint
+_KIND = {_FREE: "free", _SLIDE: "prismatic", _HINGE: "revolute"}
 
 
 def _dof_coefficients(m, jid: int, kind: int) -> dict:
@@ -105,7 +109,6 @@ def _dof_coefficients(m, jid: int, kind: int) -> dict:
     springref = 0.0 if kind == _FREE else float(m.qpos_spring[m.jnt_qposadr[jid]])
     return dict(armature=float(np.max(m.dof_armature[dofs])), damping=float(np.max(m.dof_damping[dofs])),
                 stiffness=float(m.jnt_stiffness[jid]), springref=springref)
-_KIND = {_FREE: "free", _SLIDE: "prismatic", _HINGE: "revolute"}
 
 
 class _Inertia:

@@ -18,8 +18,7 @@ class PassiveForces:
 
     def __init__(self, model: RobotModel):
         nv = model.nv
-        damping, stiffness, springref = torch.zeros(nv, dtype=torch.float64), torch.zeros(nv, dtype=torch.float64), \
-            torch.zeros(nv, dtype=torch.float64)
+        damping, stiffness, springref = (torch.zeros(nv, dtype=torch.float64) for _ in range(3))
         q_index, v_index = [], []
         for joint, iq, iv in zip(model.joints, model.q_index, model.v_index):
             if joint.nv == 1:
@@ -32,18 +31,21 @@ class PassiveForces:
         self._coefficients = (damping, stiffness, springref)
         self._cache: dict[tuple[torch.dtype, torch.device], tuple[torch.Tensor, ...]] = {}
 
-    def coefficients(self, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(damping, stiffness, springref), each (nv,), in like's dtype and device."""
+    def _on(self, like: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """(damping, stiffness, springref, q_index, v_index) in like's dtype (the coefficients) and device."""
         key = (like.dtype, like.device)
         if key not in self._cache:
             self._cache[key] = tuple(c.to(dtype=like.dtype, device=like.device) for c in self._coefficients) + (
                 self._q_index.to(like.device), self._v_index.to(like.device))
-        return self._cache[key][:3]
+        return self._cache[key]
+
+    def coefficients(self, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(damping, stiffness, springref), each (nv,), in like's dtype and device."""
+        return self._on(like)[:3]
 
     def __call__(self, q: torch.Tensor, qd: torch.Tensor) -> torch.Tensor:
         """qfrc_passive (..., nv) from q (..., nq) and qd (..., nv)."""
-        damping, stiffness, springref = self.coefficients(q)
-        q_index, v_index = self._cache[(q.dtype, q.device)][3:]
+        damping, stiffness, springref, q_index, v_index = self._on(q)
         # The 1-dof joints' positions at their dofs; 0 on a free joint's, whose coefficients are 0.
         q_dof = torch.zeros(*q.shape[:-1], self.nv, dtype=q.dtype, device=q.device)
         q_dof = q_dof.index_copy(-1, v_index, q.index_select(-1, q_index))

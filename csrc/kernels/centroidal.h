@@ -118,10 +118,9 @@ template <class M, class S> TG_HD void centroidal_setup(const S* q, const S* qd,
   const auto& d = data<M, S>();
   W.m = total_mass<M, S>();
   W.c = v3(S(0), S(0), S(0));
-  JointPlacements<M, S> L(q);
   for (int i = 0; i < M::NB; ++i) {
     const int p = d.parent[i];
-    const SE3<S> liMi = L.place(i);
+    const SE3<S> liMi = joint_placement<M, S>(i, q);
     W.oMi[i] = p < 0 ? liMi : W.oMi[p] * liMi;
     const Sv<S> vp = p < 0 ? sv_zero<S>() : W.v[p];
     W.v[i] = vp;
