@@ -279,6 +279,13 @@ def test_couplings_are_refused():
                             "</equality>")
     with pytest.raises(ValueError, match="equality constraint 'tie'"):
         source_to_model(coupled, None)
+    tendon = MODEL.replace("</worldbody>", "</worldbody><tendon><fixed name='tie' stiffness='3'><joint joint='knee' "
+                           "coef='1'/><joint joint='swing' coef='1'/></fixed></tendon>")
+    with pytest.raises(ValueError, match="tendon 'tie' has stiffness"):
+        source_to_model(tendon, None)
+    free_damping = MODEL.replace('<freejoint name="root"/>', '<joint name="root" type="free" damping="1"/>')
+    with pytest.raises(ValueError, match="'root': damping on a free joint"):
+        source_to_model(free_damping, None)
     heavy = MODEL.replace('<body name="pendulum" pos="1 1 1">', '<body name="pendulum" pos="1 1 1" gravcomp="1">')
     with pytest.raises(ValueError, match="'pendulum' has gravcomp"):
         source_to_model(heavy, None)
