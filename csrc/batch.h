@@ -76,7 +76,7 @@ struct RobotTable {
   int abi;
   const char* op_signature;  // hash of the op table the library was generated from
   int nq, nv, nb, nf;
-  int floating, mujoco, cuda;  // flags: a free root; MuJoCo-convention kernels built; CUDA kernels built
+  int converts, mujoco, cuda;  // flags: a quaternion joint (the conventions differ); MuJoCo-convention kernels built; CUDA kernels built
   int nops;
   const OpKernels* ops;
 };

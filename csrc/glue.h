@@ -200,8 +200,8 @@ class Call {
   void run(const OpKernels& kernels) {
     if (n_ == 0) return;
     const int s = dtype_ == at::kDouble ? 1 : 0;
-    // A fixed base has nothing to convert: both conventions share the Pinocchio kernel.
-    const int c = convention_ == MJX && robot_.floating ? 1 : 0;
+    // Without a quaternion joint there is nothing to convert: both conventions share the Pinocchio kernel.
+    const int c = convention_ == MJX && robot_.converts ? 1 : 0;
     TORCH_CHECK(!c || robot_.mujoco, op_, ": this build has no MuJoCo-convention kernels (enable_mujoco_kernels=False)");
     if (device_.is_cuda()) {
 #ifdef TG_WITH_CUDA

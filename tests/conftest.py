@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import sys
+import warnings
 from pathlib import Path
 
 import pytest
@@ -9,6 +10,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # make `import oracles` work from any rootdir
 
 import oracles  # noqa: E402
+from mjcf_models import TREES  # noqa: E402
 
 _ERD = oracles.erd_dir()
 
@@ -20,6 +22,8 @@ ROBOT_SPECS = {
     "tiago": (str(_ERD / "tiago_description" / "robots" / "tiago_no_hand.urdf"), False),  # 2 continuous wheels + prismatic torso
 }
 FLOATING = {name: oracles.BUNDLED_FLOATING.get(src, False) if fb is None else fb for name, (src, fb) in ROBOT_SPECS.items()}
+# name -> MJCF text: robots whose MuJoCo oracle is the MJCF itself (no Pinocchio model)
+MJCF_SPECS = {"trees": TREES}
 
 
 class LazyCache:
@@ -40,6 +44,10 @@ class LazyCache:
 def _load_robot(name):
     import torch_grid
 
+    if name in MJCF_SPECS:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", "the MJCF model has contacts")
+            return torch_grid.load(MJCF_SPECS[name])
     src, fb = ROBOT_SPECS[name]
     return torch_grid.load(src, floating_base=fb)
 
@@ -50,6 +58,8 @@ def _pin_model(name):
 
 
 def _mj_sim(name):
+    if name in MJCF_SPECS:
+        return oracles.mujoco_from_mjcf(MJCF_SPECS[name])
     src, _ = ROBOT_SPECS[name]
     pmodel = _pin_model(name)
     return oracles.mujoco_from_urdf(oracles.urdf_path_for(src), FLOATING[name], list(pmodel.names[1:]))

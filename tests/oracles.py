@@ -286,6 +286,16 @@ def mujoco_from_urdf(urdf_path, floating: bool, joint_names: list[str] | None = 
     return sim
 
 
+def mujoco_from_mjcf(text: str) -> MjSim:
+    """MuJoCo model of an MJCF with contacts and limits off (the rigid-body dynamics torch_grid
+    computes); its centroidal quantities are those of every tree (the world body's subtree)."""
+    m = mujoco.MjModel.from_xml_string(text)
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
+    sim = MjSim(m)
+    sim.root = 0
+    return sim
+
+
 # --------------------------------------------------------------------------------------------
 # numpy reference of the pin <-> MuJoCo transforms (conventions.md), used to validate this harness
 # --------------------------------------------------------------------------------------------

@@ -87,7 +87,7 @@ def test_gradient_of_some_inputs_equals_the_full_one(robots, function):
         assert torch.allclose(leaves[k].grad, full[k].grad, rtol=1e-12, atol=1e-12)
 
 
-@pytest.mark.parametrize("name", ["iiwa14", "go2"])
+@pytest.mark.parametrize("name", ["iiwa14", "go2", "trees"])  # trees: two free roots, a ball joint
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
 @pytest.mark.parametrize("function", sorted(FUNCTIONS))
 def test_gradcheck_every_input(robots, name, convention, function):

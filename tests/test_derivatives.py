@@ -16,7 +16,7 @@ import torch
 from oracles import pin_forces, rel_err, to_pin_q
 
 ROBOTS = ["iiwa14", "go2", "g1", "tiago"]
-FLOATING = ["go2", "g1"]
+FLOATING = ["go2", "g1", "trees"]  # "trees": two free roots, a ball, an MJCF (MuJoCo oracle only)
 
 
 def _states(robot, batch=3, seed=0, convention="pin"):
@@ -348,8 +348,8 @@ def _mujoco_momentum(sim, qpos, qvel):
     sim._set(qpos, qvel)
     mujoco.mj_forward(sim.m, sim.d)
     mujoco.mj_subtreeVel(sim.m, sim.d)
-    mass = sim.m.body_subtreemass[1]
-    return np.concatenate([mass * sim.d.subtree_linvel[1], sim.d.subtree_angmom[1]])
+    mass = sim.m.body_subtreemass[sim.root]
+    return np.concatenate([mass * sim.d.subtree_linvel[sim.root], sim.d.subtree_angmom[sim.root]])
 
 
 @pytest.mark.parametrize("name", FLOATING)

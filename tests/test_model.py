@@ -221,10 +221,10 @@ def test_kinematic_loop_is_refused():
         torch_grid.load(loop)
 
 
-def test_unsupported_mjcf_joint_is_refused(tmp_path):
+def test_unsupported_mjcf_joint_feature_is_refused(tmp_path):
     path = tmp_path / "ball.xml"
-    path.write_text(ARM_MJCF.format(free="").replace('type="slide" axis="0.6 0 0.8"', 'type="ball"'))
-    with pytest.raises(ValueError, match="'extend' has type ball"):
+    path.write_text(ARM_MJCF.format(free="").replace('type="slide" axis="0.6 0 0.8"', 'type="ball" stiffness="3"'))
+    with pytest.raises(ValueError, match="'extend': stiffness on a ball joint is not supported"):
         torch_grid.load(str(path))
 
 

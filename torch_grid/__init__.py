@@ -53,8 +53,8 @@ def load(source, *, floating_base: bool | None = None, convention: str = "pin", 
         model = with_armature(model, armature)
     if convention not in ("pin", "pinocchio", "mujoco", "mjx"):
         raise ValueError(f"convention must be 'pin' or 'mujoco', got {convention!r}")
-    if convention in ("mujoco", "mjx") and model.floating_base and not enable_mujoco_kernels:
-        raise ValueError("convention='mujoco' needs enable_mujoco_kernels=True for a floating-base robot")
+    if convention in ("mujoco", "mjx") and model.conventions_differ and not enable_mujoco_kernels:
+        raise ValueError("convention='mujoco' needs enable_mujoco_kernels=True for a robot with a free or ball joint")
     namespace = _build(model, mujoco=enable_mujoco_kernels, cache_dir=cache_dir)
     if namespace not in _AUTOGRAD_DONE:
         register_autograd(namespace, model)

@@ -3,7 +3,7 @@
 The ops in _BACKWARDS differentiate with respect to every tensor input, mostly through the O(n)
 vector-Jacobian product of inverse dynamics. Those kernels give derivatives along the tangent
 space; the gradient with respect to q is mapped to the ambient coordinates the caller passed (a
-free-flyer quaternion through its normalisation).
+quaternion through its normalisation: tangent.py).
 The ops in ops.FORWARD_MODE_BACKWARD (outputs that are already derivatives) use `<op>_backward`,
 their own kernel run on dual numbers, whose q gradient is already in ambient coordinates. Those in
 COMPOSED_BACKWARD are made of other ops: the inverse-dynamics gradient's backward differentiates
@@ -19,9 +19,9 @@ from typing import Callable
 
 import torch
 
-from .conventions import base_rotation, unit_quaternion
 from .model import RobotModel
 from .ops import FORWARD_MODE_BACKWARD, OPS, OpSpec
+from .tangent import bracket_term, has_brackets, tangent_directions, tangent_to_ambient
 
 
 def register_autograd(namespace: str, model: RobotModel) -> None:
@@ -95,7 +95,7 @@ def _inverse_dynamics(ops, model, needs, grads, output, q, qd, qdd, f_ext, conve
     dq = dqd = dqdd = df = None
     if needs[0] or needs[1]:
         g_q, g_qd = ops.inverse_dynamics_vjp(q, qd, qdd, f_ext, grad, convention)
-        dq = _tangent_to_ambient(model, q, g_q, convention) if needs[0] else None
+        dq = tangent_to_ambient(model, q, g_q, convention) if needs[0] else None
         dqd = g_qd if needs[1] else None
     if needs[2]:
         dqdd = _vjp(ops.crba(q, convention), grad)
@@ -114,7 +114,7 @@ def _forward_dynamics(ops, model, needs, grads, output, q, qd, tau, f_ext, conve
     dq = dqd = None
     if needs[0] or needs[1]:
         g_q, g_qd = ops.inverse_dynamics_vjp(q, qd, output, f_ext, lam, convention)
-        dq = _tangent_to_ambient(model, q, -g_q, convention) if needs[0] else None
+        dq = tangent_to_ambient(model, q, -g_q, convention) if needs[0] else None
         dqd = -g_qd if needs[1] else None
     df = ops.body_velocities(q, lam, convention) if needs[3] else None
     return dq, dqd, lam if needs[2] else None, df, None
@@ -125,7 +125,7 @@ def _crba(ops, model, needs, grads, output, q, convention):
     second-order kernel."""
     unit = torch.eye(model.nv, dtype=q.dtype, device=q.device).expand(grads[0].shape)
     dq = _mass_product_vjp(ops, q, unit, grads[0].transpose(-1, -2), convention)
-    return _tangent_to_ambient(model, q, dq, convention), None
+    return tangent_to_ambient(model, q, dq, convention), None
 
 
 def _minv(ops, model, needs, grads, output, q, convention):
@@ -149,18 +149,18 @@ def _generalized_gravity(ops, model, needs, grads, output, q, convention):
     """g(q) = ID(q, 0, 0)."""
     zero = torch.zeros(*q.shape[:-1], model.nv, dtype=q.dtype, device=q.device)
     g_q, _ = ops.inverse_dynamics_vjp(q, zero, zero, None, grads[0], convention)
-    return _tangent_to_ambient(model, q, g_q, convention), None
+    return tangent_to_ambient(model, q, g_q, convention), None
 
 
 def _nonlinear_effects(ops, model, needs, grads, output, q, qd, convention):
     """nle(q, qd) = ID(q, qd, 0): MuJoCo's qacc = 0 in MuJoCo's convention, as the op itself."""
     g_q, g_qd = ops.inverse_dynamics_vjp(q, qd, torch.zeros_like(qd), None, grads[0], convention)
-    return _tangent_to_ambient(model, q, g_q, convention), g_qd, None
+    return tangent_to_ambient(model, q, g_q, convention), g_qd, None
 
 
 def _com(ops, model, needs, grads, output, q, convention):
     """d com / dq = J_com along the tangent."""
-    return _tangent_to_ambient(model, q, _vjp(ops.jacobian_com(q, convention), grads[0]), convention), None
+    return tangent_to_ambient(model, q, _vjp(ops.jacobian_com(q, convention), grads[0]), convention), None
 
 
 def _energy(ops, model, needs, grads, output, q, qd, convention):
@@ -170,7 +170,7 @@ def _energy(ops, model, needs, grads, output, q, qd, convention):
     g_potential = grad[..., 1:2] + grad[..., 2:3]
     dke_dq = 0.5 * _mass_product_vjp(ops, q, qd.unsqueeze(-2), qd.unsqueeze(-2), convention)
     dpe_dq = ops.generalized_gravity(q, convention)
-    dq = _tangent_to_ambient(model, q, g_kinetic * dke_dq + g_potential * dpe_dq, convention)
+    dq = tangent_to_ambient(model, q, g_kinetic * dke_dq + g_potential * dpe_dq, convention)
     dqd = g_kinetic * _vjp(ops.crba(q, convention), qd)
     return dq, dqd, None
 
@@ -187,7 +187,7 @@ def _forward_kinematics(ops, model, needs, grads, output, q, convention):
         A = rotations @ g_rot.transpose(-1, -2)
         weights[..., 3:] = torch.stack([A[..., 1, 2] - A[..., 2, 1], A[..., 2, 0] - A[..., 0, 2],
                                         A[..., 0, 1] - A[..., 1, 0]], dim=-1)
-    return _tangent_to_ambient(model, q, ops.frames_vjp(q, weights, convention), convention), None
+    return tangent_to_ambient(model, q, ops.frames_vjp(q, weights, convention), convention), None
 
 
 def _end_effector_pose(ops, model, needs, grads, output, q, frames, convention):
@@ -198,7 +198,7 @@ def _end_effector_pose(ops, model, needs, grads, output, q, frames, convention):
     index = torch.tensor(frames, device=q.device)
     w_ang = torch.linalg.solve(rpy_rate_matrix(output[..., 3:]).transpose(-1, -2), grad[..., 3:].unsqueeze(-1))
     weights.index_add_(-2, index, torch.cat([grad[..., :3], w_ang.squeeze(-1)], dim=-1))
-    return _tangent_to_ambient(model, q, ops.frames_vjp(q, weights, convention), convention), None, None
+    return tangent_to_ambient(model, q, ops.frames_vjp(q, weights, convention), convention), None, None
 
 
 def _forward_dynamics_gradient(ops, model, needs, grads, output, q, qd, tau, f_ext, convention):
@@ -222,11 +222,11 @@ def _inverse_dynamics_gradient(ops, model, needs, grads, output, q, qd, qdd, f_e
     the columns of Gq, Gqd, D_j the derivative along q's tangent j and D'_j along qd_j. Its gradient
     is forward over reverse: the derivatives along those 2 nv directions of the gradient of
     lam . tau (O(n) each: inverse_dynamics_vjp, M lam, -J lam), by the dual-number jvp kernels; for
-    q, plus the Lie-bracket term of a free flyer, whose tangent derivatives do not commute."""
+    q, plus the Lie-bracket term of each quaternion joint, whose tangent derivatives do not commute."""
     nv, batch = model.nv, q.shape[:-1]
     zero = torch.zeros(*batch, nv, nv, dtype=q.dtype, device=q.device)
     g_q, g_qd = (zero if g is None else g for g in grads)
-    t = _tangent_directions(model, q, convention)
+    t = tangent_directions(model, q, convention)
     lam = torch.cat([g_q.mT, g_qd.mT], dim=-2)  # (..., 2 nv, nv): one cotangent per direction
     t_q = torch.cat([t, torch.zeros_like(t)], dim=-2)
     t_qd = torch.cat([zero, torch.eye(nv, dtype=q.dtype, device=q.device).expand_as(zero)], dim=-2)
@@ -237,11 +237,11 @@ def _inverse_dynamics_gradient(ops, model, needs, grads, output, q, qd, qdd, f_e
         d_gq, d_gqd = ops.inverse_dynamics_vjp_jvp(Q, QD, QDD, F, lam, t_q, t_qd, convention)
         if needs[0]:
             tangent = d_gq.sum(-2)
-            if model.floating_base:
+            if has_brackets(model):
                 g_tan, _ = ops.inverse_dynamics_vjp(Q[..., :nv, :], QD[..., :nv, :], QDD[..., :nv, :],
                                                     None if F is None else F[..., :nv, :, :], g_q.mT, convention)
-                tangent = tangent + _bracket_term(g_tan, convention)
-            dq = _tangent_to_ambient(model, q, tangent, convention)
+                tangent = tangent + bracket_term(model, g_tan, convention)
+            dq = tangent_to_ambient(model, q, tangent, convention)
         dqd = d_gqd.sum(-2) if needs[1] else None
     # d/dqdd (lam . tau) = M lam = ID(q, 0, lam) - ID(q, 0, 0) and d/df_ext = -J lam do not depend on qd
     Qn, lam_q = Q[..., :nv, :], g_q.mT
@@ -252,60 +252,6 @@ def _inverse_dynamics_gradient(ops, model, needs, grads, output, q, qd, qdd, f_e
     if needs[3]:
         df = -ops.body_velocities_jvp(Qn, lam_q, t, convention).sum(-3)
     return dq, dqd, dqdd, df, None
-
-
-def _tangent_directions(model: RobotModel, q: torch.Tensor, convention: int) -> torch.Tensor:
-    """(..., nv, nq): row j is the change of q along its tangent direction j (Pinocchio's local
-    increment, or mj_integratePos's), d/de (q + e_j e) in the coordinates of q."""
-    nv, nq = model.nv, q.shape[-1]
-    t = torch.zeros(*q.shape[:-1], nv, nq, dtype=q.dtype, device=q.device)
-    if not model.floating_base:
-        return t + torch.eye(nv, dtype=q.dtype, device=q.device)
-    t[..., 6:, 7:] = torch.eye(nv - 6, dtype=q.dtype, device=q.device)
-    if convention:  # position + v (world), quaternion wxyz turned by the local rotation
-        t[..., :3, :3] = torch.eye(3, dtype=q.dtype, device=q.device)
-        w, xyz, iw, ixyz = q[..., 3:4], q[..., 4:7], 3, slice(4, 7)
-    else:  # position + R v, quaternion xyzw
-        t[..., :3, :3] = base_rotation(q).mT
-        w, xyz, iw, ixyz = q[..., 6:7], q[..., 3:6], 6, slice(3, 6)
-    # dQ = Q (x) (w_k, 0) / 2 for the unit rotation rate w_k: d xyz = (w e_k + xyz x e_k) / 2, d w = -xyz_k / 2
-    for k in range(3):
-        e = torch.zeros(3, dtype=q.dtype, device=q.device)
-        e[k] = 1.0
-        t[..., 3 + k, ixyz] = 0.5 * (w * e + torch.cross(xyz, e.expand_as(xyz), dim=-1))
-        t[..., 3 + k, iw] = -0.5 * xyz[..., k]
-    return t
-
-
-def _bracket_constants(convention: int) -> list:
-    """c[k][j] = [e_k, e_j] (6) for the free flyer's tangent basis e = (v, w): in se(3) for Pinocchio's
-    increments, [(v1, w1), (v2, w2)] = (w1 x v2 - w2 x v1, w1 x w2); mj_integratePos's position is a
-    plain sum, so there only rotations bracket."""
-    def cross(a, b):
-        return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-
-    e = [[float(r == c) for c in range(6)] for r in range(6)]
-    c = []
-    for k in range(6):
-        row = []
-        for j in range(6):
-            (vk, wk), (vj, wj) = (e[k][:3], e[k][3:]), (e[j][:3], e[j][3:])
-            lin = [0.0] * 3 if convention else [x - y for x, y in zip(cross(wk, vj), cross(wj, vk))]
-            row.append(lin + cross(wk, wj))
-        c.append(row)
-    return c
-
-
-_BRACKET = {convention: _bracket_constants(convention) for convention in (0, 1)}
-
-
-def _bracket_term(g_tan: torch.Tensor, convention: int) -> torch.Tensor:
-    """(..., nv): sum_j g_j . [e_k, e_j] over the free flyer's directions j, k, with g_j (rows of
-    g_tan) the tangent gradients: the second derivative along k then j less the one along j then k."""
-    c = torch.tensor(_BRACKET[convention], dtype=g_tan.dtype, device=g_tan.device)
-    out = torch.zeros(g_tan.shape[:-2] + g_tan.shape[-1:], dtype=g_tan.dtype, device=g_tan.device)
-    out[..., :6] = torch.einsum("...jm,kjm->...k", g_tan[..., :6, :6], c)
-    return out
 
 
 def _repeat(x: torch.Tensor, n: int, trailing: int) -> torch.Tensor:
@@ -404,28 +350,3 @@ COMPOSED_BACKWARD = ("inverse_dynamics_gradient", "forward_dynamics_gradient",
 def _vjp(jacobian: torch.Tensor, grad: torch.Tensor) -> torch.Tensor:
     """grad^T J for a batch of (n, m) Jacobians: (..., m)."""
     return (grad.unsqueeze(-2) @ jacobian).squeeze(-2)
-
-
-def _tangent_to_ambient(model: RobotModel, q: torch.Tensor, g: torch.Tensor, convention: int) -> torch.Tensor:
-    """Gradient along the tangent space (..., nv) -> gradient in the coordinates of q (..., nq).
-
-    A floating base moves by Pinocchio's local increment (position R dv_lin) or by MuJoCo's
-    (position + dv_lin, world frame); both turn the quaternion Q by the local rotation
-    dw = 2 vec(conj(Q/|Q|) (x) dQ) / |Q|, whose transpose maps the angular gradient to dQ.
-    """
-    if not model.floating_base:
-        return g
-    if convention:  # MuJoCo: position in the world frame, quaternion wxyz
-        w, xyz = q[..., 3:4], q[..., 4:7]
-    else:
-        xyz, w = q[..., 3:6], q[..., 6:7]
-    # A zero or non-finite quaternion reads as the identity (the kernels do the same): its gradient is
-    # the one at the identity, so that an optimiser started there moves off it.
-    unit, norm = unit_quaternion(torch.cat([xyz, w], dim=-1))
-    xyz_n, w_n = unit[..., :3], unit[..., 3:]
-    g_lin, g_ang = g[..., :3], g[..., 3:6]
-    g_pos = g_lin if convention else (base_rotation(q) @ g_lin.unsqueeze(-1)).squeeze(-1)
-    g_xyz = 2 / norm * (w_n * g_ang + torch.cross(xyz_n, g_ang, dim=-1))
-    g_w = -2 / norm * (xyz_n * g_ang).sum(-1, keepdim=True)
-    g_quat = torch.cat([g_w, g_xyz], dim=-1) if convention else torch.cat([g_xyz, g_w], dim=-1)
-    return torch.cat([g_pos, g_quat, g[..., 6:]], dim=-1)

@@ -153,7 +153,7 @@ def _robot_library(root: Path, model: RobotModel, mujoco: bool, cuda: bool, name
 
 def _compile_robot(root: Path, model: RobotModel, mujoco: bool, cuda: bool, namespace: str, entry: Path,
                    library: str) -> None:
-    what = f"{'CPU + CUDA' if cuda else 'CPU'}, float32 + float64, {'pin + mujoco' if mujoco and model.floating_base else 'pin'}"
+    what = f"{'CPU + CUDA' if cuda else 'CPU'}, float32 + float64, {'pin + mujoco' if mujoco and model.conventions_differ else 'pin'}"
     print(f"torch_grid: building kernels for {model.name!r} ({what}) in {entry}", file=sys.stderr, flush=True)
     start = time.monotonic()
     with _staging(root, entry) as tmp:

@@ -6,10 +6,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .model import RobotModel
+from .model import RobotModel, inertia_about_origin
 from .ops import CONTRACTED, OPS, Arg, OpSpec, op_signature
 
-_JTYPE = {"free": 0, "revolute": 1, "continuous": 1, "prismatic": 2}
+_JTYPE = {"free": 0, "revolute": 1, "continuous": 1, "prismatic": 2, "ball": 3}
 _KERNEL_SIZE = {"nv": "M::NV", "nq": "M::NQ", "nframes": "M::NF", "nbodies": "M::NB", "nparams": "10 * M::NB"}
 _SIZE = {"nv": "r.nv", "nq": "r.nq", "nframes": "r.nf", "nbodies": "r.nb", "nparams": "10 * r.nb",
          "nsel": "static_cast<int64_t>(frames.size())"}
@@ -48,12 +48,6 @@ def table_symbol(namespace: str) -> str:
     return f"{namespace}_table"
 
 
-def inertia_about_origin(mass: float, com, inertia) -> list[float]:
-    """Rotational inertia (row-major 3x3) about the joint frame origin: I_c - m [c]x^2."""
-    c2 = sum(x * x for x in com)
-    return [inertia[3 * r + k] + mass * ((c2 if r == k else 0.0) - com[r] * com[k]) for r in range(3) for k in range(3)]
-
-
 def robot_header(model: RobotModel, namespace: str) -> str:
     """robot.h: sizes, the tree and every constant the kernels read, in the robot's own C++ namespace
     (so that no two robot libraries define the same symbol)."""
@@ -87,6 +81,7 @@ def robot_header(model: RobotModel, namespace: str) -> str:
         ("int", "vi", vi),
         ("int", "nvj", [x.nv for x in j]),
         ("int", "vend", vend),
+        ("int", "free_joint", [i for i, x in enumerate(j) if x.type == "free"] or [-1]),
         ("T", "axis", [list(x.axis) for x in j]),
         ("T", "R", [list(x.rotation) for x in j]),
         ("T", "p", [list(x.translation) for x in j]),
@@ -126,7 +121,8 @@ constexpr RobotData<float> kHostData32 = TG_ROBOT_DATA;
 
 struct Robot {{
   static constexpr int NB = {nb}, NQ = {model.nq}, NV = {model.nv}, NF = {len(model.frames)}, ND = {max(depth) + 1};
-  static constexpr bool FLOATING = {'true' if model.floating_base else 'false'};
+  static constexpr int NFREE = {sum(x.type == 'free' for x in model.joints)};  // free joints (tree roots)
+  static constexpr bool BALLS = {'true' if any(x.type == 'ball' for x in model.joints) else 'false'};
   // The constants as float or double (tg::data<M, S>() picks the kernel's own precision).
   template <class T> TG_HD static const RobotData<T>& data() {{
     if constexpr (sizeof(T) == sizeof(double)) {{
@@ -149,9 +145,9 @@ struct Robot {{
 
 
 def conventions(model: RobotModel, mujoco: bool) -> tuple[tuple[str, str], ...]:
-    """The (C++ constant, name) of every convention a robot library has kernels for: a fixed base has
-    nothing to convert, so both conventions run the Pinocchio kernel."""
-    return _CONVENTIONS if mujoco and model.floating_base else _CONVENTIONS[:1]
+    """The (C++ constant, name) of every convention a robot library has kernels for: without a quaternion
+    joint there is nothing to convert, so both conventions run the Pinocchio kernel."""
+    return _CONVENTIONS if mujoco and model.conventions_differ else _CONVENTIONS[:1]
 
 
 def _entry(device: str, op: OpSpec, suffix: str, convention: str) -> str:
@@ -202,7 +198,7 @@ def table_unit(model: RobotModel, mujoco: bool, cuda: bool, namespace: str) -> s
                                    + "}" for _, suffix in _SCALARS) + "}"
 
         entries.append(f"    {{{grid('cpu')}, {grid('cuda')}}},  // {op.name}")
-    flags = f"{int(model.floating_base)}, {int(mujoco)}, {int(cuda)}"
+    flags = f"{int(model.conventions_differ)}, {int(mujoco)}, {int(cuda)}"
     return _unit(["batch.h"], [
         f"namespace {namespace} {{", *decls,
         f"const tg::OpKernels kOps[] = {{\n" + "\n".join(entries) + "\n};",

@@ -1,27 +1,42 @@
 """Pinocchio <-> MuJoCo convention transforms in plain torch: the readable oracle that the fused
 kernel twins are tested against.
 
-Only a free-flyer root differs between the conventions:
-  - configuration: MuJoCo's quaternion is wxyz, Pinocchio's xyzw;
-  - velocity: MuJoCo's base linear velocity is in the world frame, Pinocchio's in the base frame.
-With R the base rotation and G = blockdiag(R, I), v_mjx = G v_pin; generalized forces transform
-like velocities (G orthogonal), M -> G M G^T, Jacobians J -> J G^T. An acceleration also picks up
-the rate of change of G: a_lin_mjx = R (a_lin_pin + w x v_lin_pin).
+Only quaternion joints differ between the conventions:
+  - configuration: MuJoCo's quaternions (free and ball joints) are wxyz, Pinocchio's xyzw;
+  - velocity: a free joint's linear velocity is in the world frame in MuJoCo's, in the body frame in
+    Pinocchio's (angular velocities, a ball joint's included, are local in both).
+With R_f free joint f's rotation and G = blockdiag(R_f on each free joint's linear dofs, I elsewhere),
+v_mjx = G v_pin; generalized forces transform like velocities (G orthogonal), M -> G M G^T,
+Jacobians J -> J G^T. An acceleration also picks up the rate of change of G:
+a_lin_mjx = R_f (a_lin_pin + w x v_lin_pin).
 
 Every function takes any leading batch shape. `q_pin` is a configuration in Pinocchio's layout.
-Pass floating=False for a fixed-base robot: every transform is then the identity.
+`free` lists each free joint's (first q index, first v index); by default one free root at (0, 0)
+when floating, none when floating=False. `balls` lists each ball joint's first q index. A robot's
+own lists: `free_joints(model)`, `ball_joints(model)`.
 """
 from __future__ import annotations
+
+from typing import Sequence
 
 import torch
 
 __all__ = [
-    "unit_quaternion", "base_rotation", "q_mjx_to_pin", "q_pin_to_mjx", "v_mjx_to_pin", "v_pin_to_mjx", "a_mjx_to_pin",
+    "free_joints", "ball_joints", "unit_quaternion", "quaternion_rotation", "base_rotation", "q_mjx_to_pin", "q_pin_to_mjx", "v_mjx_to_pin", "v_pin_to_mjx", "a_mjx_to_pin",
     "a_pin_to_mjx", "covector_mjx_to_pin", "covector_pin_to_mjx", "congruence_pin_to_mjx", "columns_pin_to_mjx",
 ]
 
-_WXYZ_TO_XYZW = [0, 1, 2, 4, 5, 6, 3]
-_XYZW_TO_WXYZ = [0, 1, 2, 6, 3, 4, 5]
+Free = Sequence[tuple[int, int]]
+
+
+def free_joints(model) -> list[tuple[int, int]]:
+    """(first q index, first v index) of each free joint of a RobotModel."""
+    return [(qi, vi) for j, qi, vi in zip(model.joints, model.q_index, model.v_index) if j.type == "free"]
+
+
+def ball_joints(model) -> list[int]:
+    """First q index of each ball joint of a RobotModel."""
+    return [qi for j, qi in zip(model.joints, model.q_index) if j.type == "ball"]
 
 
 def unit_quaternion(quat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -37,81 +52,112 @@ def unit_quaternion(quat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 def base_rotation(q_pin: torch.Tensor) -> torch.Tensor:
     """(..., 3, 3) rotation of the normalised base quaternion q_pin[..., 3:7] (xyzw); the identity for
     a quaternion of zero or non-finite norm."""
-    x, y, z, w = unit_quaternion(q_pin[..., 3:7])[0].unbind(-1)
+    return quaternion_rotation(q_pin[..., 3:7])
+
+
+def quaternion_rotation(quat: torch.Tensor) -> torch.Tensor:
+    """(..., 3, 3) rotation of the normalised (..., 4) xyzw quaternion; the identity for a quaternion of
+    zero or non-finite norm."""
+    x, y, z, w = unit_quaternion(quat)[0].unbind(-1)
     rows = [
         1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
         2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
         2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y),
     ]
-    return torch.stack(rows, dim=-1).reshape(*q_pin.shape[:-1], 3, 3)
+    return torch.stack(rows, dim=-1).reshape(*quat.shape[:-1], 3, 3)
 
 
-def q_mjx_to_pin(q: torch.Tensor, floating: bool = True) -> torch.Tensor:
-    """MuJoCo qpos (quaternion wxyz) -> Pinocchio q (xyzw)."""
-    return _reorder(q, _WXYZ_TO_XYZW) if floating else q
+def q_mjx_to_pin(q: torch.Tensor, floating: bool = True, balls: Sequence[int] = (), free: Free | None = None) -> torch.Tensor:
+    """MuJoCo qpos (quaternions wxyz) -> Pinocchio q (xyzw)."""
+    return _reorder(q, [qi + 3 for qi, _ in _free(floating, free)] + list(balls), [1, 2, 3, 0])
 
 
-def q_pin_to_mjx(q: torch.Tensor, floating: bool = True) -> torch.Tensor:
-    """Pinocchio q (quaternion xyzw) -> MuJoCo qpos (wxyz)."""
-    return _reorder(q, _XYZW_TO_WXYZ) if floating else q
+def q_pin_to_mjx(q: torch.Tensor, floating: bool = True, balls: Sequence[int] = (), free: Free | None = None) -> torch.Tensor:
+    """Pinocchio q (quaternions xyzw) -> MuJoCo qpos (wxyz)."""
+    return _reorder(q, [qi + 3 for qi, _ in _free(floating, free)] + list(balls), [3, 0, 1, 2])
 
 
-def v_mjx_to_pin(q_pin: torch.Tensor, v: torch.Tensor, floating: bool = True) -> torch.Tensor:
-    """qvel -> Pinocchio v: v_lin = R^T v_lin_mjx."""
-    return _base_lin(v, _mul(base_rotation(q_pin).transpose(-1, -2), v[..., :3])) if floating else v
+def v_mjx_to_pin(q_pin: torch.Tensor, v: torch.Tensor, floating: bool = True, free: Free | None = None) -> torch.Tensor:
+    """qvel -> Pinocchio v: each free joint's v_lin = R^T v_lin_mjx."""
+    return _linear(v, {vi: _mul(_rotation(q_pin, qi).mT, v[..., vi:vi + 3]) for qi, vi in _free(floating, free)})
 
 
-def v_pin_to_mjx(q_pin: torch.Tensor, v: torch.Tensor, floating: bool = True) -> torch.Tensor:
-    """Pinocchio v -> qvel: v_lin_mjx = R v_lin."""
-    return _base_lin(v, _mul(base_rotation(q_pin), v[..., :3])) if floating else v
+def v_pin_to_mjx(q_pin: torch.Tensor, v: torch.Tensor, floating: bool = True, free: Free | None = None) -> torch.Tensor:
+    """Pinocchio v -> qvel: each free joint's v_lin_mjx = R v_lin."""
+    return _linear(v, {vi: _mul(_rotation(q_pin, qi), v[..., vi:vi + 3]) for qi, vi in _free(floating, free)})
 
 
 covector_mjx_to_pin = v_mjx_to_pin  # G orthogonal: G^-T = G, forces transform as velocities
 covector_pin_to_mjx = v_pin_to_mjx
 
 
-def a_mjx_to_pin(q_pin: torch.Tensor, v_pin: torch.Tensor, a: torch.Tensor, floating: bool = True) -> torch.Tensor:
+def a_mjx_to_pin(q_pin: torch.Tensor, v_pin: torch.Tensor, a: torch.Tensor, floating: bool = True,
+                 free: Free | None = None) -> torch.Tensor:
     """qacc -> Pinocchio a: a_lin = R^T a_lin_mjx - w x v_lin (v_pin in Pinocchio's convention)."""
-    if not floating:
-        return a
-    lin = _mul(base_rotation(q_pin).transpose(-1, -2), a[..., :3]) - torch.cross(v_pin[..., 3:6], v_pin[..., :3], dim=-1)
-    return _base_lin(a, lin)
+    return _linear(a, {vi: _mul(_rotation(q_pin, qi).mT, a[..., vi:vi + 3]) - _w_cross_v(v_pin, vi)
+                       for qi, vi in _free(floating, free)})
 
 
-def a_pin_to_mjx(q_pin: torch.Tensor, v_pin: torch.Tensor, a_pin: torch.Tensor, floating: bool = True) -> torch.Tensor:
+def a_pin_to_mjx(q_pin: torch.Tensor, v_pin: torch.Tensor, a_pin: torch.Tensor, floating: bool = True,
+                 free: Free | None = None) -> torch.Tensor:
     """Pinocchio a -> qacc: a_lin_mjx = R (a_lin + w x v_lin)."""
-    if not floating:
-        return a_pin
-    lin = _mul(base_rotation(q_pin), a_pin[..., :3] + torch.cross(v_pin[..., 3:6], v_pin[..., :3], dim=-1))
-    return _base_lin(a_pin, lin)
+    return _linear(a_pin, {vi: _mul(_rotation(q_pin, qi), a_pin[..., vi:vi + 3] + _w_cross_v(v_pin, vi))
+                           for qi, vi in _free(floating, free)})
 
 
-def congruence_pin_to_mjx(q_pin: torch.Tensor, M: torch.Tensor, floating: bool = True) -> torch.Tensor:
+def congruence_pin_to_mjx(q_pin: torch.Tensor, M: torch.Tensor, floating: bool = True,
+                          free: Free | None = None) -> torch.Tensor:
     """(..., nv, nv) G M G^T: mass matrix and its inverse."""
-    return _rows(q_pin, columns_pin_to_mjx(q_pin, M, floating), floating)
+    MGt = columns_pin_to_mjx(q_pin, M, floating, free)
+    return columns_pin_to_mjx(q_pin, MGt.mT, floating, free).mT
 
 
-def columns_pin_to_mjx(q_pin: torch.Tensor, J: torch.Tensor, floating: bool = True) -> torch.Tensor:
-    """(..., rows, nv) J G^T: base-linear columns right-multiplied by R^T (Jacobians, centroidal map)."""
-    if not floating:
+def columns_pin_to_mjx(q_pin: torch.Tensor, J: torch.Tensor, floating: bool = True,
+                       free: Free | None = None) -> torch.Tensor:
+    """(..., rows, nv) J G^T: each free joint's linear columns right-multiplied by R^T (Jacobians,
+    centroidal map)."""
+    cols = {vi: J[..., :, vi:vi + 3] @ _rotation(q_pin, qi).mT for qi, vi in _free(floating, free)}
+    if not cols:
         return J
-    cols = J[..., :, :3] @ base_rotation(q_pin).transpose(-1, -2)
-    return torch.cat([cols, J[..., :, 3:]], dim=-1)
+    parts, k = [], 0
+    for vi in sorted(cols):
+        parts += [J[..., :, k:vi], cols[vi]]
+        k = vi + 3
+    return torch.cat(parts + [J[..., :, k:]], dim=-1)
 
 
-def _rows(q_pin: torch.Tensor, X: torch.Tensor, floating: bool) -> torch.Tensor:
-    if not floating:
-        return X
-    return torch.cat([base_rotation(q_pin) @ X[..., :3, :], X[..., 3:, :]], dim=-2)
+def _free(floating: bool, free: Free | None) -> list[tuple[int, int]]:
+    return list(free) if free is not None else [(0, 0)] if floating else []
 
 
-def _reorder(q: torch.Tensor, index: list[int]) -> torch.Tensor:
-    return torch.cat([q[..., index], q[..., 7:]], dim=-1)
+def _rotation(q_pin: torch.Tensor, qi: int) -> torch.Tensor:
+    return quaternion_rotation(q_pin[..., qi + 3:qi + 7])
+
+
+def _w_cross_v(v_pin: torch.Tensor, vi: int) -> torch.Tensor:
+    return torch.cross(v_pin[..., vi + 3:vi + 6], v_pin[..., vi:vi + 3], dim=-1)
+
+
+def _reorder(q: torch.Tensor, quats: Sequence[int], order: list[int]) -> torch.Tensor:
+    """q with each quaternion (at the q indices `quats`) taken in the order `order`."""
+    if not quats:
+        return q
+    index = list(range(q.shape[-1]))
+    for b in quats:
+        index[b:b + 4] = [b + k for k in order]
+    return q[..., index]
+
+
+def _linear(x: torch.Tensor, parts: dict[int, torch.Tensor]) -> torch.Tensor:
+    """x with x[..., vi:vi + 3] replaced by parts[vi] for each key."""
+    if not parts:
+        return x
+    pieces, k = [], 0
+    for vi in sorted(parts):
+        pieces += [x[..., k:vi], parts[vi]]
+        k = vi + 3
+    return torch.cat(pieces + [x[..., k:]], dim=-1)
 
 
 def _mul(R: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     return (R @ x.unsqueeze(-1)).squeeze(-1)
-
-
-def _base_lin(x: torch.Tensor, lin: torch.Tensor) -> torch.Tensor:
-    return torch.cat([lin, x[..., 3:]], dim=-1)

@@ -33,8 +33,8 @@ def from_mjcf(text: str, path: Path | None, name: str | None) -> RobotModel:
 
 
 def from_mujoco(m, name: str | None = None) -> RobotModel:
-    """Convert a compiled `mujoco.MjModel` (hinge and slide joints, and a free joint at the root of the
-    first tree)."""
+    """Convert a compiled `mujoco.MjModel` (hinge, slide and ball joints, and free joints at the roots of
+    trees)."""
     mujoco = _mujoco()
     names = _Names(mujoco, m)
     _refuse_unmodelled_couplings(mujoco, m, names)
@@ -48,23 +48,25 @@ def from_mujoco(m, name: str | None = None) -> RobotModel:
         anchor = np.zeros(3)
         for jid in range(m.body_jntadr[b], m.body_jntadr[b] + m.body_jntnum[b]):
             jname, kind = names.joint(jid), int(m.jnt_type[jid])
-            if kind == _BALL:
-                raise ValueError(f"joint {jname!r} has type ball, which is not supported")
             if kind == _FREE:
-                if body != -1 or m.body_jntnum[b] != 1:
-                    raise ValueError(f"joint {jname!r}: a free joint is only supported alone in a body whose "
-                                     "parent is the world")
-                # qpos is the body's world pose: the joint sits at the world origin.
+                # qpos is the body's world pose: the joint sits at the world origin (MuJoCo allows a
+                # free joint only alone, in a body under the world).
                 R, p, placement = np.eye(3), np.zeros(3), (np.eye(3), np.zeros(3))
             else:
                 # A slide's anchor does not move anything: keep the previous one.
-                a = m.jnt_pos[jid] if kind == _HINGE else anchor
+                a = anchor if kind == _SLIDE else m.jnt_pos[jid]
                 Rj, pj = (R, p + R @ a) if jid == m.body_jntadr[b] else (np.eye(3), a - anchor)
-                # MuJoCo moves the joint by qpos - ref (qpos0): the motion at -ref joins the placement.
+                # MuJoCo moves a hinge or slide by qpos - ref (qpos0): the motion at -ref joins the
+                # placement. A ball's qpos is its rotation from the body frame, whatever qpos0.
                 ref, axis = float(m.qpos0[m.jnt_qposadr[jid]]), np.asarray(m.jnt_axis[jid], dtype=float)
-                placement = (Rj @ _axis_angle(axis, -ref), pj) if kind == _HINGE else (Rj, pj - ref * (Rj @ axis))
+                if kind == _HINGE:
+                    placement = (Rj @ _axis_angle(axis, -ref), pj)
+                elif kind == _SLIDE:
+                    placement = (Rj, pj - ref * (Rj @ axis))
+                else:
+                    placement = (Rj, pj)
                 anchor = np.array(a, dtype=float)
-            if kind == _FREE:
+            if kind in (_FREE, _BALL):
                 lower, upper = -math.pi, math.pi
             elif m.jnt_limited[jid]:
                 lower, upper = (float(x) for x in m.jnt_range[jid])
@@ -72,9 +74,9 @@ def from_mujoco(m, name: str | None = None) -> RobotModel:
                 lower, upper = -math.inf, math.inf
             joints.append(dict(
                 name=jname, type=_KIND[kind], parent=body,
-                axis=(0.0, 0.0, 0.0) if kind == _FREE else _tuple(m.jnt_axis[jid]),
+                axis=(0.0, 0.0, 0.0) if kind in (_FREE, _BALL) else _tuple(m.jnt_axis[jid]),
                 rotation=_tuple(placement[0].reshape(-1)), translation=_tuple(placement[1]),
-                lower=lower, upper=upper, **_dof_coefficients(m, jid, kind), inertia=_Inertia.zero(),
+                lower=lower, upper=upper, **_dof_coefficients(m, jid, jname, kind), inertia=_Inertia.zero(),
             ))
             body, R, p = len(joints) - 1, np.eye(3), np.zeros(3)
         if m.body_jntnum[b]:
@@ -99,16 +101,25 @@ def from_mujoco(m, name: str | None = None) -> RobotModel:
 
 
 _FREE, _BALL, _SLIDE, _HINGE = 0, 1, 2, 3  # mjtJoint
-_KIND = {_FREE: "free", _SLIDE: "prismatic", _HINGE: "revolute"}
+_KIND = {_FREE: "free", _BALL: "ball", _SLIDE: "prismatic", _HINGE: "revolute"}
+_DOFS = {_FREE: 6, _BALL: 3, _SLIDE: 1, _HINGE: 1}
 
 
-def _dof_coefficients(m, jid: int, kind: int) -> dict:
-    """Armature, damping, stiffness and spring reference of a joint (a free joint's largest over its
-    dofs, which the model refuses when not 0)."""
-    dofs = slice(m.jnt_dofadr[jid], m.jnt_dofadr[jid] + (6 if kind == _FREE else 1))
-    springref = 0.0 if kind == _FREE else float(m.qpos_spring[m.jnt_qposadr[jid]])
-    return dict(armature=float(np.max(m.dof_armature[dofs])), damping=float(np.max(m.dof_damping[dofs])),
+def _dof_coefficients(m, jid: int, jname: str, kind: int) -> dict:
+    """Armature, damping, stiffness and spring reference of a joint (one value over a free or ball
+    joint's dofs, as MJCF sets them; a ball's spring reference is a quaternion, which the model refuses
+    with a stiffness)."""
+    dofs = slice(m.jnt_dofadr[jid], m.jnt_dofadr[jid] + _DOFS[kind])
+    springref = float(m.qpos_spring[m.jnt_qposadr[jid]]) if _DOFS[kind] == 1 else 0.0
+    return dict(armature=_one(jname, "armature", m.dof_armature[dofs]),
+                damping=_one(jname, "damping", m.dof_damping[dofs]),
                 stiffness=float(m.jnt_stiffness[jid]), springref=springref)
+
+
+def _one(jname: str, what: str, values: np.ndarray) -> float:
+    if np.any(values != values[0]):
+        raise ValueError(f"joint {jname!r}: {what} differs between its dofs ({values.tolist()}), which is not supported")
+    return float(values[0])
 
 
 class _Inertia:

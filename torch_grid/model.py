@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
-JOINT_TYPES = ("free", "revolute", "continuous", "prismatic")
+JOINT_TYPES = ("free", "ball", "revolute", "continuous", "prismatic")
 FORMAT_VERSION = 1
 
 
@@ -24,7 +24,7 @@ class Joint:
     name: str
     type: str  # one of JOINT_TYPES
     parent: int  # index of the parent body, -1 for the world
-    axis: tuple[float, float, float]  # unit axis in the joint frame (unused for "free")
+    axis: tuple[float, float, float]  # unit axis in the joint frame (unused for "free" and "ball")
     rotation: tuple[float, ...]  # placement in the parent joint frame at q = 0, row-major 3x3
     translation: tuple[float, float, float]
     mass: float
@@ -32,18 +32,20 @@ class Joint:
     inertia: tuple[float, ...]  # rotational inertia about the centre of mass, row-major 3x3
     lower: float = -math.pi  # position limits (1-dof joints)
     upper: float = math.pi
-    armature: float = 0.0  # rotor inertia on the dof (1-dof joints), added to M's diagonal
-    damping: float = 0.0  # passive force -damping qd - stiffness (q - springref) (1-dof joints)
-    stiffness: float = 0.0
+    armature: float = 0.0  # rotor inertia on each dof (not a free joint's), added to M's diagonal
+    damping: float = 0.0  # passive force -damping qd - stiffness (q - springref) (damping: not a free joint;
+    stiffness: float = 0.0  # stiffness: 1-dof joints)
     springref: float = 0.0
 
     @property
     def nq(self) -> int:
-        return 7 if self.type == "free" else 1
+        """Configuration size: a free joint [pos(3), quat(4)], a ball joint [quat(4)], else 1."""
+        return {"free": 7, "ball": 4}.get(self.type, 1)
 
     @property
     def nv(self) -> int:
-        return 6 if self.type == "free" else 1
+        """Velocity size: a free joint [v_lin, w], a ball joint the local angular velocity w, else 1."""
+        return {"free": 6, "ball": 3}.get(self.type, 1)
 
 
 @dataclass(frozen=True)
@@ -86,7 +88,13 @@ class RobotModel:
 
     @property
     def floating_base(self) -> bool:
+        """Whether the first joint is free (the first tree's root; other trees may have free roots too)."""
         return bool(self.joints) and self.joints[0].type == "free"
+
+    @property
+    def conventions_differ(self) -> bool:
+        """Whether the MuJoCo convention differs from Pinocchio's: a quaternion joint (free or ball)."""
+        return any(j.type in ("free", "ball") for j in self.joints)
 
     @property
     def q_index(self) -> list[int]:
@@ -140,6 +148,12 @@ SINGULAR_RTOL = 1e-12
 UNIT_TOL = 1e-9
 
 
+def inertia_about_origin(mass: float, com, inertia) -> list[float]:
+    """Rotational inertia (row-major 3x3) about the joint frame origin: I_c - m [c]x^2."""
+    c2 = sum(x * x for x in com)
+    return [inertia[3 * r + k] + mass * ((c2 if r == k else 0.0) - com[r] * com[k]) for r in range(3) for k in range(3)]
+
+
 def with_armature(model: RobotModel, armature: Mapping[str, float]) -> RobotModel:
     """The same model with the given joints' armature (rotor inertia, kg m^2 or kg), by joint name."""
     if not isinstance(armature, Mapping):
@@ -170,9 +184,9 @@ def validate(model: RobotModel) -> None:
             raise ValueError(f"joint {j.name!r}: joints must be in depth-first order (each subtree contiguous), but "
                              f"its parent {joints[j.parent].name if j.parent >= 0 else 'world'!r} is not an ancestor of "
                              f"the joint before it, {joints[i - 1].name!r}")
-        if j.type == "free" and i != 0:
-            raise ValueError(f"joint {j.name!r}: a free joint is only supported as the first joint, at the root of "
-                             "the first tree")
+        if j.type == "free" and j.parent != -1:
+            raise ValueError(f"joint {j.name!r}: a free joint is only supported at the root of a tree (its parent "
+                             f"the world), but its parent is {joints[j.parent].name!r}")
     for f in model.frames:
         if not -1 <= f.parent < len(joints):
             raise ValueError(f"frame {f.name!r}: parent {f.parent} is not a body index")
@@ -203,7 +217,7 @@ def _check_joint(j: Joint, link: str | None) -> None:
         value = getattr(j, limit)
         if not _is_number(value) or math.isnan(value):
             raise ValueError(f"{who}: {limit} limit must be a number or +-inf (unbounded), got {value!r}")
-    if j.type != "free":
+    if j.type not in ("free", "ball"):
         norm = math.hypot(*j.axis)
         if abs(norm - 1) > UNIT_TOL:
             raise ValueError(f"{who}: axis must be a unit vector, got {j.axis!r} (norm {norm:.9g})")
@@ -212,8 +226,8 @@ def _check_joint(j: Joint, link: str | None) -> None:
         _check_number(f"{who}: {name}", value)
         if name != "springref" and value < 0:
             raise ValueError(f"{who}: {name} must be >= 0, got {value!r}")
-        if j.type == "free" and value != 0:
-            raise ValueError(f"{who}: {name} on a free joint is not supported, got {value!r}")
+        if value != 0 and (j.type == "free" or (j.type == "ball" and name in ("stiffness", "springref"))):
+            raise ValueError(f"{who}: {name} on a {j.type} joint is not supported, got {value!r}")
     _check_number(f"{body}: mass", j.mass)
     if j.mass < 0:
         raise ValueError(f"{body}: mass must be >= 0, got {j.mass!r}")
@@ -268,6 +282,12 @@ def _check_moves_inertia(joints: tuple[Joint, ...]) -> None:
             raise ValueError(f"joint {j.name!r}: the links it moves have no inertia about its axis {j.axis!r} "
                              f"({mass}, and no rotational inertia about it), so the joint-space inertia "
                              "matrix is singular")
+        if j.type == "ball":
+            low = _symmetric_eigenvalues(inertia_about_origin(j.mass, j.com, j.inertia))[0]
+            if low <= SINGULAR_RTOL * scale:
+                raise ValueError(f"joint {j.name!r}: a ball joint's links need a positive definite rotational inertia "
+                                 f"about the joint, got smallest principal moment {low:.9g} there, so the joint-space "
+                                 "inertia matrix is singular")
         if j.type == "free":
             low = _symmetric_eigenvalues(j.inertia)[0]
             if j.mass == 0 or low <= SINGULAR_RTOL * scale:

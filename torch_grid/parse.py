@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import sys
 import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -60,7 +61,7 @@ def source_to_model(source, floating_base: bool | None, mimic: bool = False) -> 
 
 
 def from_pinocchio(model, name: str | None = None) -> RobotModel:
-    """Convert a pinocchio.Model (revolute, continuous, prismatic, free-flyer root) to a RobotModel."""
+    """Convert a pinocchio.Model (revolute, continuous, prismatic, spherical, free-flyer root) to a RobotModel."""
     joints = []
     for jid in range(1, model.njoints):
         jm = model.joints[jid]
@@ -79,8 +80,8 @@ def from_pinocchio(model, name: str | None = None) -> RobotModel:
                 rotation=_flat(placement.rotation), translation=_vec(placement.translation),
                 mass=float(inertia.mass), com=_vec(inertia.lever), inertia=_flat(inertia.inertia),
                 # NaN passes through for RobotModel to refuse, naming the joint.
-                lower=-math.inf if math.isinf(lo) else lo, upper=math.inf if math.isinf(hi) else hi,
-                armature=float(max(model.armature[jm.idx_v:jm.idx_v + jm.nv], default=0.0)),
+                lower=-math.inf if abs(lo) >= _UNBOUNDED else lo, upper=math.inf if abs(hi) >= _UNBOUNDED else hi,
+                armature=_joint_value(jname, "armature", model.armature[jm.idx_v:jm.idx_v + jm.nv]),
             )
         )
     frames = tuple(
@@ -94,10 +95,16 @@ def from_pinocchio(model, name: str | None = None) -> RobotModel:
     return RobotModel(name=name or model.name or "robot", joints=tuple(joints), frames=frames, gravity=gravity)
 
 
+# Pinocchio's default limits are +-DBL_MAX: unbounded.
+_UNBOUNDED = sys.float_info.max
+
+
 def _joint_kind(jm, jname: str) -> tuple[str, tuple[float, float, float]]:
     short = jm.shortname()
     if short == "JointModelFreeFlyer":
         return "free", (0.0, 0.0, 0.0)
+    if short == "JointModelSpherical":
+        return "ball", (0.0, 0.0, 0.0)
     if short in _REVOLUTE:
         return "revolute", _REVOLUTE[short]
     if short in _CONTINUOUS:
@@ -113,8 +120,16 @@ def _joint_kind(jm, jname: str) -> tuple[str, tuple[float, float, float]]:
         return kind.get(short, "continuous"), axis
     raise ValueError(
         f"joint {jname!r} has type {short.replace('JointModel', '')}, which is not supported "
-        "(supported: revolute, continuous, prismatic, fixed, and a free-flyer root)"
+        "(supported: revolute, continuous, prismatic, spherical, fixed, and a free-flyer root)"
     )
+
+
+def _joint_value(jname: str, what: str, values) -> float:
+    """A joint's one value of a per-dof coefficient (the model holds one per joint)."""
+    values = [float(v) for v in values]
+    if any(v != values[0] for v in values):
+        raise ValueError(f"joint {jname!r}: {what} differs between its dofs ({values}), which is not supported")
+    return values[0] if values else 0.0
 
 
 def _from_text(text: str, floating_base: bool | None, name: str | None, path: Path | None = None,

@@ -2,7 +2,8 @@
 
     qfrc_passive = -damping * qd - stiffness * (q - springref)
 
-on hinge and slide joints (a free joint has neither). Elementwise in torch, so autograd, vmap and
+on hinge and slide joints, and damping alone on each dof of a ball joint (a free joint has neither;
+a ball's stiffness is refused by the model). Elementwise in torch, so autograd, vmap and
 torch.compile see through it; the rigid-body functions that include it (`load(...,
 passive_forces=...)`) add it to the generalized forces around their kernels.
 """
@@ -21,10 +22,11 @@ class PassiveForces:
         damping, stiffness, springref = (torch.zeros(nv, dtype=torch.float64) for _ in range(3))
         q_index, v_index = [], []
         for joint, iq, iv in zip(model.joints, model.q_index, model.v_index):
+            damping[iv:iv + joint.nv] = joint.damping
             if joint.nv == 1:
                 q_index.append(iq)
                 v_index.append(iv)
-                damping[iv], stiffness[iv], springref[iv] = joint.damping, joint.stiffness, joint.springref
+                stiffness[iv], springref[iv] = joint.stiffness, joint.springref
         self.nv = nv
         self.any = bool(damping.any() or stiffness.any())
         self._q_index, self._v_index = torch.tensor(q_index, dtype=torch.long), torch.tensor(v_index, dtype=torch.long)
@@ -46,7 +48,7 @@ class PassiveForces:
     def __call__(self, q: torch.Tensor, qd: torch.Tensor) -> torch.Tensor:
         """qfrc_passive (..., nv) from q (..., nq) and qd (..., nv)."""
         damping, stiffness, springref, q_index, v_index = self._on(q)
-        # The 1-dof joints' positions at their dofs; 0 on a free joint's, whose coefficients are 0.
+        # The 1-dof joints' positions at their dofs; 0 on a free or ball joint's, whose stiffness is 0.
         q_dof = torch.zeros(*q.shape[:-1], self.nv, dtype=q.dtype, device=q.device)
         q_dof = q_dof.index_copy(-1, v_index, q.index_select(-1, q_index))
         return -(damping * qd + stiffness * (q_dof - springref))

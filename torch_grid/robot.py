@@ -12,8 +12,7 @@ import torch
 from torch.autograd import forward_ad
 
 from .autograd import rpy_rate_matrix
-from .codegen import inertia_about_origin
-from .model import RobotModel
+from .model import RobotModel, inertia_about_origin
 from .ops import OPS, model_sizes
 from .passive import PassiveForces
 
@@ -230,29 +229,34 @@ class _Functions:
         return torch.tensor(rows, dtype=dtype, device=device).reshape(-1)
 
     def neutral_configuration(self, dtype: torch.dtype = torch.float64, device="cpu") -> torch.Tensor:
-        """(nq,) zero joint positions and, for a floating base, the identity orientation at the origin."""
-        q = torch.zeros(self._robot.nq, dtype=dtype, device=device)
-        if self._robot.floating_base:
-            q[3 if self._convention else 6] = 1.0  # w, first in MuJoCo's wxyz, last in xyzw
+        """(nq,) zero joint positions, identity ball orientations and, for a floating base, the identity
+        orientation at the origin."""
+        model = self._robot.model
+        q = torch.zeros(model.nq, dtype=dtype, device=device)
+        for joint, qi in zip(model.joints, model.q_index):
+            if joint.type in ("free", "ball"):
+                quat = qi + (3 if joint.type == "free" else 0)
+                q[quat if self._convention else quat + 3] = 1.0  # w, first in MuJoCo's wxyz, last in xyzw
         return q
 
     def random_configuration(self, *batch_shape: int, dtype: torch.dtype = torch.float64, device="cpu",
                              generator: torch.Generator | None = None) -> torch.Tensor:
         """(*batch_shape, nq) joints uniform within their limits ([-pi, pi] or [-1, 1] when unbounded),
-        a base position in [-1, 1]^3 and a uniformly random unit quaternion."""
+        a base position in [-1, 1]^3 and uniformly random unit quaternions (free and ball joints)."""
         model, cols = self._robot.model, []
         for joint in model.joints:
-            if joint.type == "free":
-                pos = 2 * torch.rand(*batch_shape, 3, dtype=torch.float64, generator=generator) - 1
+            if joint.type in ("free", "ball"):
+                if joint.type == "free":
+                    cols.append(2 * torch.rand(*batch_shape, 3, dtype=torch.float64, generator=generator) - 1)
                 quat = torch.randn(*batch_shape, 4, dtype=torch.float64, generator=generator)
                 quat = quat / quat.norm(dim=-1, keepdim=True)
-                if self._convention:
-                    quat = quat[..., [3, 0, 1, 2]]
-                cols += [pos, quat]
+                cols.append(quat[..., [3, 0, 1, 2]] if self._convention else quat)
                 continue
             default = math.pi if joint.type != "prismatic" else 1.0
             lo = joint.lower if math.isfinite(joint.lower) else -default
             hi = joint.upper if math.isfinite(joint.upper) else default
+            if not math.isfinite(hi - lo):  # too wide to draw from
+                lo, hi = -default, default
             cols.append(lo + (hi - lo) * torch.rand(*batch_shape, 1, dtype=torch.float64, generator=generator))
         return torch.cat(cols, dim=-1).to(dtype=dtype, device=device)
 
@@ -307,7 +311,7 @@ class Robot(_Functions):
         self._with_passive = passive_forces and self._passive.any
         self._ops = getattr(torch.ops, namespace)
         self._enable_mujoco_kernels = mujoco_kernels
-        self._mujoco_kernels = mujoco_kernels or not model.floating_base
+        self._mujoco_kernels = mujoco_kernels or not model.conventions_differ
         self._frame_index = {f.name: i for i, f in enumerate(model.frames)}
         sizes = model_sizes(model)
         # op -> (position, trailing shape) of each tensor argument, for the checks of every call

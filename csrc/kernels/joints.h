@@ -1,7 +1,7 @@
 // Joint models and the kinematic forward pass shared by every algorithm.
 //
 // A generated robot header provides a type `M` with compile-time sizes (NB bodies, NQ, NV, NF
-// frames, ND tree levels, FLOATING) and `data<M, S>()` (spatial.h), the tree, axes, placements and inertias as constants.
+// frames, ND tree levels, NFREE free joints, BALLS) and `data<M, S>()` (spatial.h), the tree, axes, placements and inertias as constants.
 // Body i is moved by joint i; parent[i] < i (depth-first order), -1 is the world.
 #pragma once
 
@@ -10,7 +10,8 @@
 
 namespace tg {
 
-enum JointType : int { FREE = 0, REVOLUTE = 1, PRISMATIC = 2 };
+// A ball joint is a free joint without translation: q a quaternion, qd the local angular velocity.
+enum JointType : int { FREE = 0, REVOLUTE = 1, PRISMATIC = 2, BALL = 3 };
 
 template <class S> struct CosSin {
   S c, s;
@@ -27,7 +28,7 @@ template <class S> struct TrigFrom {
 };
 
 // Placement of joint i's frame in its parent's frame, liMi = placement * Mj(q). q is Pinocchio's
-// layout: a free joint reads [pos(3), quat xyzw(4)]; trig() gives a revolute joint's cosine and
+// layout: a free joint reads [pos(3), quat xyzw(4)], a ball joint [quat xyzw(4)]; trig() gives a revolute joint's cosine and
 // sine. Always inlined where i is a constant (the forward kinematics), so that it folds to the
 // joint's own case.
 template <class M, class S, class Trig> TG_HD_INLINE SE3<S> joint_placement_inline(int i, const S* q, const Trig& trig) {
@@ -41,6 +42,9 @@ template <class M, class S, class Trig> TG_HD_INLINE SE3<S> joint_placement_inli
     case FREE:
       X.p = X.p + mul(X.R, load3(qi));
       X.R = mul(X.R, quat_rotation(qi[3], qi[4], qi[5], qi[6]));
+      break;
+    case BALL:
+      X.R = mul(X.R, quat_rotation(qi[0], qi[1], qi[2], qi[3]));
       break;
     case REVOLUTE: {
       const CosSin<S> cs = trig();
@@ -83,6 +87,7 @@ template <class M, class S> TG_HD Sv<S> joint_axis(int i, int k) {
   Sv<S> s = sv_zero<S>();
   switch (d.jtype[i]) {
     case FREE: s.v[k] = S(1); break;
+    case BALL: s.v[3 + k] = S(1); break;
     case REVOLUTE: for (int c = 0; c < 3; ++c) s.v[3 + c] = S(d.axis[i][c]); break;
     default: for (int c = 0; c < 3; ++c) s.v[c] = S(d.axis[i][c]); break;
   }
@@ -94,17 +99,18 @@ template <class M, class S> TG_HD Sv<S> joint_motion(int i, const S* qd) {
   const auto& d = data<M, S>();
   const S* x = qd + d.vi[i];
   if (d.jtype[i] == FREE) return {{x[0], x[1], x[2], x[3], x[4], x[5]}};
+  if (d.jtype[i] == BALL) return {{S(0), S(0), S(0), x[0], x[1], x[2]}};
   return x[0] * joint_axis<M, S>(i, 0);
 }
 
-// X S_ik: joint i's k-th axis moved by a placement X (world placements, mostly). A free joint's
-// axes and a cardinal revolute or prismatic axis are a column of X.R, without a product by S.
+// X S_ik: joint i's k-th axis moved by a placement X (world placements, mostly). A free or ball
+// joint's axes and a cardinal revolute or prismatic axis are a column of X.R, without a product by S.
 template <class M, class S> TG_HD Sv<S> placed_axis(const SE3<S>& X, int i, int k) {
   const auto& d = data<M, S>();
-  const int t = d.jtype[i], c = t == FREE ? k % 3 : d.axis_index[i];
+  const int t = d.jtype[i], c = t == FREE ? k % 3 : t == BALL ? k : d.axis_index[i];
   if (c < 0) return act_motion(X, joint_axis<M, S>(i, k));
   const Vec3<S> e = v3(X.R.m[c], X.R.m[3 + c], X.R.m[6 + c]), zero = v3(S(0), S(0), S(0));
-  const bool rotation = t == REVOLUTE || (t == FREE && k >= 3);
+  const bool rotation = t == REVOLUTE || t == BALL || (t == FREE && k >= 3);
   return rotation ? sv(cross(X.p, e), e) : sv(e, zero);
 }
 

@@ -7,7 +7,7 @@
 //     in float32);
 //   - the column blocks (subtree forces F, accelerations A), U and S are taken about the root's
 //     origin, where they add up without a change of point per body and column.
-// Per-body steps are templated on the joint's dof count N (1, or 6 for a free root) to unroll.
+// Per-body steps are templated on the joint's dof count N (1, 3 for a ball, 6 for a free root) to unroll.
 #pragma once
 
 #include "joints.h"
@@ -105,11 +105,13 @@ template <class M, class S> TG_HD void minv(const Placements<M, S>& K, S* Minv) 
   for (int k = 0; k < M::NV * M::NV; ++k) Minv[k] = S(0);
   for (int i = M::NB - 1; i >= 0; --i) {
     if (d.nvj[i] == 6) minv_backward<6>(i, w, Minv);
-    else minv_backward<1>(i, w, Minv);
+    else if (d.nvj[i] == 1) minv_backward<1>(i, w, Minv);
+    else if constexpr (M::BALLS) minv_backward<3>(i, w, Minv);
   }
   for (int i = 0; i < M::NB; ++i) {
     if (d.nvj[i] == 6) minv_forward<6>(i, w, Minv);
-    else minv_forward<1>(i, w, Minv);
+    else if (d.nvj[i] == 1) minv_forward<1>(i, w, Minv);
+    else if constexpr (M::BALLS) minv_forward<3>(i, w, Minv);
   }
   // Mirror the upper triangle.
   for (int r = 0; r < M::NV; ++r)

@@ -168,7 +168,7 @@ template <class M, class S> struct FramesVjp {
   TG_HD static void run(const FramesVjpArgs<S>& a) { frames_vjp<M, S>(a.q, a.weights, a.tau); }
 };
 
-// d tau/dq, d tau/dqd in the convention C (qd, qdd in Pinocchio's). MuJoCo's base columns of M come
+// d tau/dq, d tau/dqd in the convention C (qd, qdd in Pinocchio's). The free joints' columns of M come
 // from the derivatives' composite inertias. Its workspace lives in this function's frame, which a
 // GPU thread's stack holds only while it runs (not beside the caller's minv).
 template <class M, class S, int C>
@@ -179,7 +179,7 @@ TG_HD void inverse_dynamics_derivatives(const Placements<M, S>& K, const S* qd, 
   S tau[M::NV];
   rnea_derivatives<M, S>(W, tau, dtau_dq, dtau_dqd);
   if constexpr (Conv<M, S, C>::active) {
-    S Mb[M::NV * 3];
+    S Mb[M::NV * Conv<M, S, C>::NB3];
     mass_base_columns<M, S>(W, Mb);
     cv.inverse_dynamics_gradient_out(qd, qdd, tau, Mb, dtau_dq, dtau_dqd);
   }
@@ -280,7 +280,7 @@ template <class M, class S> struct CoriolisMatrix {
     velocity_setup<M, S>(K, a.qd, W);
     coriolis_matrix<M, S>(W, a.C);
     if constexpr (Conv<M, S, C>::active) {
-      S Mb[M::NV * 3];
+      S Mb[M::NV * Conv<M, S, C>::NB3];
       mass_base_columns<M, S>(W, Mb);
       cv.coriolis_out(a.qd, Mb, a.C);
     }

@@ -215,16 +215,20 @@ template <class M, class S> TG_HD void coriolis_matrix(const VelocityWork<M, S>&
   ancestor_pairs<false, true, M, S>(W, sdot, W.s, C);
 }
 
-// The base-linear columns of M (NV x 3, row-major) of a free root, from W's composite inertias:
-// M[r, c] = S_r^T Yc_i S_c with i the body of dof r, in the root's subtree, dofs [0, vend[0])
-// (else 0). All a MuJoCo twin's reframe reads of M.
+// The linear columns of M of each free joint f (NV x 3 NFREE, row-major, f's at 3f), from W's
+// composite inertias: M[r, c] = S_r^T Yc_i S_c with i the body of dof r, in f's subtree (else 0).
+// All a MuJoCo twin's reframe reads of M.
 template <class M, class S> TG_HD void mass_base_columns(const VelocityWork<M, S>& W, S* Mb) {
   const auto& d = data<M, S>();
+  constexpr int NB3 = 3 * (M::NFREE > 0 ? M::NFREE : 1);
   for (int i = 0; i < M::NB; ++i)
     for (int l = 0; l < d.nvj[i]; ++l) {
       const int r = d.vi[i] + l;
       const Sv<S> Ys = mul(W.Yc[i], W.s[r]);
-      for (int c = 0; c < 3; ++c) Mb[3 * r + c] = r < d.vend[0] ? dot(Ys, W.s[c]) : S(0);
+      for (int f = 0; f < M::NFREE; ++f) {
+        const int j = d.free_joint[f], b = d.vi[j];
+        for (int c = 0; c < 3; ++c) Mb[NB3 * r + 3 * f + c] = r >= b && r < d.vend[j] ? dot(Ys, W.s[b + c]) : S(0);
+      }
     }
 }
 

@@ -1,0 +1,160 @@
+"""The tangent space of a configuration and the ambient coordinates of q.
+
+The derivative kernels differentiate along the tangent space (nv directions); a caller's q has nq
+coordinates. They differ at the quaternion joints:
+  - a free joint moves by Pinocchio's local increment (position + R dv_lin) or by mj_integratePos's
+    (position + dv_lin, world frame); both turn its quaternion by the local rotation;
+  - a ball joint turns its quaternion by the local rotation, in both conventions.
+The quaternion is xyzw in Pinocchio's convention and wxyz in MuJoCo's.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from .conventions import quaternion_rotation, unit_quaternion
+from .model import RobotModel
+
+
+@dataclass(frozen=True)
+class QuaternionJoint:
+    free: bool  # a free joint (position first), else a ball joint
+    qi: int  # first configuration coordinate
+    vi: int  # first velocity coordinate
+
+    @property
+    def quat(self) -> int:
+        """First coordinate of the quaternion."""
+        return self.qi + 3 if self.free else self.qi
+
+    @property
+    def angular(self) -> int:
+        """First velocity coordinate of the local angular velocity."""
+        return self.vi + 3 if self.free else self.vi
+
+
+@dataclass(frozen=True)
+class Layout:
+    quaternions: tuple[QuaternionJoint, ...]
+    scalar_q: tuple[int, ...]  # q coordinate of each one-dof joint
+    scalar_v: tuple[int, ...]  # its velocity coordinate
+
+
+_LAYOUTS: dict[str, Layout] = {}
+
+
+def layout(model: RobotModel) -> Layout:
+    """Where each joint's coordinates sit in q and in the tangent space (cached per model)."""
+    found = _LAYOUTS.get(model.hash)
+    if found is None:
+        quats, sq, sv = [], [], []
+        for j, qi, vi in zip(model.joints, model.q_index, model.v_index):
+            if j.type in ("free", "ball"):
+                quats.append(QuaternionJoint(j.type == "free", qi, vi))
+            else:
+                sq.append(qi)
+                sv.append(vi)
+        found = _LAYOUTS[model.hash] = Layout(tuple(quats), tuple(sq), tuple(sv))
+    return found
+
+
+def _xyzw(q: torch.Tensor, j: QuaternionJoint, convention: int) -> tuple[torch.Tensor, torch.Tensor, int, slice]:
+    """(xyz (..., 3), w (..., 1), the index of w, the slice of xyz) of joint j's quaternion in q."""
+    a = j.quat
+    if convention:
+        return q[..., a + 1:a + 4], q[..., a:a + 1], a, slice(a + 1, a + 4)
+    return q[..., a:a + 3], q[..., a + 3:a + 4], a + 3, slice(a, a + 3)
+
+
+def tangent_directions(model: RobotModel, q: torch.Tensor, convention: int) -> torch.Tensor:
+    """(..., nv, nq): row j is the change of q along its tangent direction j (Pinocchio's local
+    increment, or mj_integratePos's), d/de (q + e_j e) in the coordinates of q."""
+    lay = layout(model)
+    t = torch.zeros(*q.shape[:-1], model.nv, q.shape[-1], dtype=q.dtype, device=q.device)
+    if lay.scalar_q:
+        t[..., list(lay.scalar_v), list(lay.scalar_q)] = 1.0
+    eye = torch.eye(3, dtype=q.dtype, device=q.device)
+    for j in lay.quaternions:
+        xyz, w, iw, ixyz = _xyzw(q, j, convention)
+        if j.free:  # position + v (MuJoCo, world frame) or + R v (Pinocchio)
+            rows = t[..., j.vi:j.vi + 3, j.qi:j.qi + 3]
+            rows.copy_(eye if convention else quaternion_rotation(torch.cat([xyz, w], dim=-1)).mT)
+        # dQ = Q (x) (w_k, 0) / 2 for the unit rotation rate w_k: d xyz = (w e_k + xyz x e_k) / 2, d w = -xyz_k / 2
+        for k in range(3):
+            e = eye[k].expand_as(xyz)
+            t[..., j.angular + k, ixyz] = 0.5 * (w * e + torch.cross(xyz, e, dim=-1))
+            t[..., j.angular + k, iw] = -0.5 * xyz[..., k]
+    return t
+
+
+def tangent_to_ambient(model: RobotModel, q: torch.Tensor, g: torch.Tensor, convention: int) -> torch.Tensor:
+    """Gradient along the tangent space (..., nv) -> gradient in the coordinates of q (..., nq).
+
+    A quaternion Q turns by the local rotation dw = 2 vec(conj(Q/|Q|) (x) dQ) / |Q|, whose transpose
+    maps the angular gradient to dQ. A zero or non-finite quaternion reads as the identity (the
+    kernels do the same): its gradient is the one at the identity, so that an optimiser started
+    there moves off it.
+    """
+    lay = layout(model)
+    if not lay.quaternions:
+        return g
+    out = torch.zeros(*g.shape[:-1], q.shape[-1], dtype=g.dtype, device=g.device)
+    if lay.scalar_q:
+        out[..., list(lay.scalar_q)] = g[..., list(lay.scalar_v)]
+    for j in lay.quaternions:
+        xyz, w, iw, ixyz = _xyzw(q, j, convention)
+        unit, norm = unit_quaternion(torch.cat([xyz, w], dim=-1))
+        xyz_n, w_n = unit[..., :3], unit[..., 3:]
+        g_ang = g[..., j.angular:j.angular + 3]
+        if j.free:
+            g_lin = g[..., j.vi:j.vi + 3]
+            out[..., j.qi:j.qi + 3] = g_lin if convention else (quaternion_rotation(unit) @ g_lin.unsqueeze(-1)).squeeze(-1)
+        out[..., ixyz] = 2 / norm * (w_n * g_ang + torch.cross(xyz_n, g_ang, dim=-1))
+        out[..., iw] = (-2 / norm * (xyz_n * g_ang).sum(-1, keepdim=True)).squeeze(-1)
+    return out
+
+
+def _cross(a: list[float], b: list[float]) -> list[float]:
+    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+
+def _bracket_constants(free: bool, convention: int) -> list:
+    """c[k][j] = [e_k, e_j] for a quaternion joint's tangent basis e: for a free joint e = (v, w), in
+    se(3) for Pinocchio's increments, [(v1, w1), (v2, w2)] = (w1 x v2 - w2 x v1, w1 x w2);
+    mj_integratePos's position is a plain sum, so there only rotations bracket. A ball joint's e = w,
+    [w1, w2] = w1 x w2."""
+    if not free:
+        e = [[float(r == c) for c in range(3)] for r in range(3)]
+        return [[_cross(e[k], e[j]) for j in range(3)] for k in range(3)]
+    e = [[float(r == c) for c in range(6)] for r in range(6)]
+    c = []
+    for k in range(6):
+        row = []
+        for j in range(6):
+            (vk, wk), (vj, wj) = (e[k][:3], e[k][3:]), (e[j][:3], e[j][3:])
+            lin = [0.0] * 3 if convention else [x - y for x, y in zip(_cross(wk, vj), _cross(wj, vk))]
+            row.append(lin + _cross(wk, wj))
+        c.append(row)
+    return c
+
+
+_BRACKET = {(free, convention): _bracket_constants(free, convention) for free in (True, False) for convention in (0, 1)}
+
+
+def has_brackets(model: RobotModel) -> bool:
+    """Whether some tangent directions of q do not commute (a quaternion joint)."""
+    return bool(layout(model).quaternions)
+
+
+def bracket_term(model: RobotModel, g_tan: torch.Tensor, convention: int) -> torch.Tensor:
+    """(..., nv): sum_j g_j . [e_k, e_j] over each quaternion joint's directions j, k, with g_j (rows
+    of g_tan, (..., nv, nv)) the tangent gradients: the second derivative along k then j less the
+    one along j then k."""
+    out = torch.zeros(g_tan.shape[:-2] + g_tan.shape[-1:], dtype=g_tan.dtype, device=g_tan.device)
+    for j in layout(model).quaternions:
+        n = 6 if j.free else 3
+        c = torch.tensor(_BRACKET[j.free, convention], dtype=g_tan.dtype, device=g_tan.device)
+        block = g_tan[..., j.vi:j.vi + n, j.vi:j.vi + n]
+        out[..., j.vi:j.vi + n] = torch.einsum("...jm,kjm->...k", block, c)
+    return out
