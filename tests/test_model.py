@@ -13,7 +13,7 @@ import pytest
 import torch
 
 import torch_grid
-from torch_grid.model import RobotModel
+from torch_grid.model import Mimic, RobotModel
 from torch_grid.parse import ROBOTS_DIR, source_to_model
 
 ARM_MJCF = """
@@ -187,8 +187,9 @@ def test_mimic_joints_are_independent_by_default():
         model = source_to_model(mimic, None)
     pm = pin.buildModelFromXML(mimic)
     assert [j.name for j in model.joints] == list(pm.names[1:]) and model.nv == pm.nv == 2
-    with pytest.raises(NotImplementedError, match="mimic=True.*'j2'"):
-        source_to_model(mimic, None, mimic=True)
+    coupled = source_to_model(mimic, None, mimic=True)
+    assert coupled.mimics == (Mimic(joint="j2", master="j1", multiplier=2.0, offset=0.1),)
+    assert coupled.kernel_model == model  # the same kernels
     plain = URDF_TEMPLATE.format(kind="revolute", extra="")
     assert source_to_model(plain, None, mimic=True) == source_to_model(plain, None)
 
@@ -211,6 +212,15 @@ def test_panda_with_mimic_fingers_matches_pinocchio(tmp_path):
     M = pin.crba(pm, pd, q.numpy())
     M = np.triu(M) + np.triu(M, 1).T
     assert np.abs(robot.crba(q).numpy() - M).max() <= 1e-9 * np.abs(M).max()
+    # mimic=True: Pinocchio's mimic model, from the same kernels
+    coupled = torch_grid.load(str(path), mimic=True, cache_dir=tmp_path)
+    pm = pin.buildModelFromUrdf(str(path), True)
+    pd = pm.createData()
+    assert coupled.nv == pm.nv == robot.nv - 1
+    q = coupled.random_configuration(generator=g)
+    qd, qdd = (torch.randn(coupled.nv, dtype=torch.float64, generator=g) for _ in range(2))
+    ref = pin.rnea(pm, pd, q.numpy(), qd.numpy(), qdd.numpy())
+    assert np.abs(coupled.inverse_dynamics(q, qd, qdd).numpy() - ref).max() <= 1e-9 * np.abs(ref).max()
 
 
 def test_kinematic_loop_is_refused():

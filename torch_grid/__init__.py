@@ -33,7 +33,7 @@ def load(source, *, floating_base: bool | None = None, convention: str = "pin", 
     enable_mujoco_kernels: False builds Pinocchio-convention kernels only (a smaller build); a
     floating robot then refuses convention="mujoco".
     armature: rotor inertia per joint name, replacing the source's (an MJCF's `armature`, a
-    pinocchio.Model's `armature`; 0 in a URDF), for 1-dof joints. It adds to M's diagonal and so
+    pinocchio.Model's `armature`; 0 in a URDF), for 1-dof and ball joints. It adds to M's diagonal and so
     enters inverse and forward dynamics, M^-1, the kinetic energy and their derivatives, as in
     Pinocchio and MuJoCo.
     passive_forces: whether inverse_dynamics, forward_dynamics and their gradients include the
@@ -41,7 +41,11 @@ def load(source, *, floating_base: bool | None = None, convention: str = "pin", 
     source: an MJCF's are included, as mj_forward and mj_inverse do; a URDF or pinocchio.Model has
     none, as Pinocchio's algorithms ignore them.
     mimic: a URDF's mimic joints are independent joints by default (pinocchio.buildModelFromUrdf's
-    default; a warning says so); True, coupling them, is not supported yet and raises.
+    default; a warning says so); True couples them, q_mimic = multiplier q_master + offset, in
+    reduced coordinates (nq, nv and joint_names count the independent joints only), as
+    pinocchio.buildModelFromUrdf(..., mimic=True): every function is the uncoupled one projected by
+    the constant G = d q_full / d q (M -> G^T M G, tau -> G^T tau, J -> J G), and forward dynamics
+    and M^-1 solve with the reduced M.
     cache_dir: where compiled kernels are kept (default $TORCH_GRID_CACHE or ~/.cache/torch_grid).
     """
     if not isinstance(enable_mujoco_kernels, bool):
@@ -55,9 +59,9 @@ def load(source, *, floating_base: bool | None = None, convention: str = "pin", 
         raise ValueError(f"convention must be 'pin' or 'mujoco', got {convention!r}")
     if convention in ("mujoco", "mjx") and model.conventions_differ and not enable_mujoco_kernels:
         raise ValueError("convention='mujoco' needs enable_mujoco_kernels=True for a robot with a free or ball joint")
-    namespace = _build(model, mujoco=enable_mujoco_kernels, cache_dir=cache_dir)
+    namespace = _build(model.kernel_model, mujoco=enable_mujoco_kernels, cache_dir=cache_dir)
     if namespace not in _AUTOGRAD_DONE:
-        register_autograd(namespace, model)
+        register_autograd(namespace, model.kernel_model)
         _AUTOGRAD_DONE.add(namespace)
     return Robot(model, namespace, convention=convention, mujoco_kernels=enable_mujoco_kernels,
                  passive_forces=passive_forces is not False)

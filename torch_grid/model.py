@@ -60,13 +60,28 @@ class Frame:
 
 
 @dataclass(frozen=True)
+class Mimic:
+    """A coupled joint: q[joint] = multiplier * q[master] + offset (URDF <mimic>)."""
+
+    joint: str
+    master: str
+    multiplier: float = 1.0
+    offset: float = 0.0
+
+
+@dataclass(frozen=True)
 class RobotModel:
-    """A robot's kinematic tree, joints in depth-first order (every parent before its children)."""
+    """A robot's kinematic tree, joints in depth-first order (every parent before its children).
+
+    `mimics` couples joints (reduced coordinates, torch_grid/mimic.py); the kernels are those of the
+    tree with every joint independent (`kernel_model`), and nq, nv, q_index, v_index are theirs.
+    """
 
     name: str
     joints: tuple[Joint, ...]
     frames: tuple[Frame, ...]
     gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
+    mimics: tuple[Mimic, ...] = ()
     _hash: str = field(default="", compare=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -90,6 +105,11 @@ class RobotModel:
     def floating_base(self) -> bool:
         """Whether the first joint is free (the first tree's root; other trees may have free roots too)."""
         return bool(self.joints) and self.joints[0].type == "free"
+
+    @property
+    def kernel_model(self) -> "RobotModel":
+        """The same tree with every joint independent: what the kernels are generated from."""
+        return replace(self, mimics=()) if self.mimics else self
 
     @property
     def conventions_differ(self) -> bool:
@@ -127,7 +147,8 @@ class RobotModel:
             raise ValueError(f"model format {d.get('format')!r} is not supported (expected {FORMAT_VERSION})")
         joints = tuple(Joint(**{k: _tuple(v) for k, v in j.items()}) for j in d["joints"])
         frames = tuple(Frame(**{k: _tuple(v) for k, v in f.items()}) for f in d["frames"])
-        return cls(name=d["name"], joints=joints, frames=frames, gravity=tuple(d["gravity"]))
+        mimics = tuple(Mimic(**m) for m in d.get("mimics", ()))
+        return cls(name=d["name"], joints=joints, frames=frames, gravity=tuple(d["gravity"]), mimics=mimics)
 
     def save(self, path: str | Path) -> None:
         Path(path).write_text(json.dumps(self.to_dict(), indent=1, sort_keys=True))
@@ -163,7 +184,7 @@ def with_armature(model: RobotModel, armature: Mapping[str, float]) -> RobotMode
     if unknown:
         raise ValueError(f"armature: no joint named {unknown[0]!r} (joints: {', '.join(names)})")
     joints = tuple(replace(j, armature=armature[j.name]) if j.name in armature else j for j in model.joints)
-    return RobotModel(name=model.name, joints=joints, frames=model.frames, gravity=model.gravity)
+    return replace(model, joints=joints)
 
 
 def validate(model: RobotModel) -> None:
@@ -197,6 +218,29 @@ def validate(model: RobotModel) -> None:
     for f in model.frames:
         _check_placement(f"frame {f.name!r}", f.rotation, f.translation)
     _check_moves_inertia(joints)
+    _check_mimics(model)
+
+
+def _check_mimics(model: RobotModel) -> None:
+    """Each mimic couples a one-dof joint to another, independent one-dof joint, once."""
+    kinds = {j.name: j.type for j in model.joints}
+    coupled = set()
+    for m in model.mimics:
+        who = f"mimic joint {m.joint!r}"
+        for role, name in (("joint", m.joint), ("master", m.master)):
+            if name not in kinds:
+                raise ValueError(f"{who}: {role} {name!r} is not a joint of the model")
+            if kinds[name] not in ("revolute", "continuous", "prismatic"):
+                raise ValueError(f"{who}: {role} {name!r} is a {kinds[name]} joint; only one-dof joints can be coupled")
+        if m.joint == m.master or m.joint in coupled:
+            raise ValueError(f"{who}: mimics {m.master!r}, but a joint can mimic one other joint only once")
+        for name in ("multiplier", "offset"):
+            _check_number(f"{who}: {name}", getattr(m, name))
+        coupled.add(m.joint)
+    for m in model.mimics:
+        if m.master in coupled:
+            raise ValueError(f"mimic joint {m.joint!r}: its master {m.master!r} is itself a mimic joint (chains of mimic "
+                             "joints are not supported)")
 
 
 def _link_names(model: RobotModel) -> dict[int, str]:

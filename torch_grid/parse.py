@@ -13,10 +13,11 @@ import re
 import sys
 import warnings
 import xml.etree.ElementTree as ET
+from dataclasses import replace
 from pathlib import Path
 
 from . import mjcf
-from .model import Frame, Joint, RobotModel
+from .model import Frame, Joint, Mimic, RobotModel
 
 ROBOTS_DIR = Path(__file__).parent / "robots"
 BUNDLED = {"iiwa14": False, "go2": True, "humanoid": True}  # name -> floating base by default
@@ -140,9 +141,10 @@ def _from_text(text: str, floating_base: bool | None, name: str | None, path: Pa
         raise ValueError(f"source is not well-formed XML ({e})") from None
     if root.tag == "robot":
         _reject_urdf_features(root)
-        _mimic_joints(root, mimic)
+        mimics = _mimic_joints(root, mimic)
         _check_urdf_numbers(root)
-        return _parse_urdf(text, bool(floating_base), name or root.get("name") or "robot")
+        model = _parse_urdf(text, bool(floating_base), name or root.get("name") or "robot")
+        return replace(model, mimics=mimics) if mimics else model
     if root.tag == "mujoco":
         _check_mjcf_numbers(root)
         return _check_floating(mjcf.from_mjcf(text, path, name), floating_base, "MJCF model")
@@ -161,18 +163,28 @@ def _reject_urdf_features(root: ET.Element) -> None:
         seen.add(c)
 
 
-def _mimic_joints(root: ET.Element, couple: bool) -> None:
-    """Mimic joints are independent joints, as pinocchio.buildModelFromUrdf makes them by default:
-    say so once. Coupling them (mimic=True) is refused, naming them."""
-    mimics = [f"{j.get('name')!r} (mimics {j.find('mimic').get('joint')!r})" for j in root.iter("joint")
-              if j.find("mimic") is not None]
-    if not mimics:
-        return
+def _mimic_joints(root: ET.Element, couple: bool) -> tuple[Mimic, ...]:
+    """The URDF's mimic joints, coupled when `couple` (mimic=True, as pinocchio.buildModelFromUrdf's
+    mimic=True model); else they are independent joints, as in its default model: say so once."""
+    found = [(j.get("name"), j.find("mimic")) for j in root.iter("joint") if j.find("mimic") is not None]
+    if not found:
+        return ()
     if couple:
-        raise NotImplementedError(f"mimic=True: coupling mimic joints is not supported yet; the URDF's mimic "
-                                  f"joints: {', '.join(mimics)}")
-    warnings.warn(f"the URDF's mimic joints {', '.join(mimics)} are independent joints, as in "
-                  "pinocchio.buildModelFromUrdf's default model", stacklevel=4)
+        return tuple(Mimic(joint=name, master=m.get("joint"), multiplier=_urdf_float(m, "multiplier", 1.0),
+                           offset=_urdf_float(m, "offset", 0.0)) for name, m in found)
+    listed = ", ".join(f"{name!r} (mimics {m.get('joint')!r})" for name, m in found)
+    warnings.warn(f"the URDF's mimic joints {listed} are independent joints, as in pinocchio.buildModelFromUrdf's "
+                  "default model (load(..., mimic=True) couples them)", stacklevel=4)
+    return ()
+
+
+def _urdf_float(element: ET.Element, attribute: str, default: float) -> float:
+    text = element.get(attribute)
+    if text is None:
+        return default
+    if not _URDF_NUMBER.fullmatch(text):
+        raise ValueError(f"<mimic> {attribute}={text!r} is not a number")
+    return float(text)
 
 
 # A number as urdfdom, Pinocchio's URDF reader, reads one: leading whitespace allowed, nothing after it

@@ -12,6 +12,7 @@ import torch
 from torch.autograd import forward_ad
 
 from .autograd import rpy_rate_matrix
+from .mimic import Coupling
 from .model import RobotModel, inertia_about_origin
 from .ops import OPS, model_sizes
 from .passive import PassiveForces
@@ -140,7 +141,10 @@ class _Functions:
         """MuJoCo's qfrc_passive of the joints' damping and stiffness (..., nv):
         -damping qd - stiffness (q - springref) on hinge and slide joints, whether or not the other
         functions include it (`load(..., passive_forces=...)`); zero for a model without them."""
-        return self._robot._passive(q, qd)
+        coupling = self._robot._coupling
+        if coupling is None:
+            return self._robot._passive(q, qd)
+        return coupling.rows(self._robot._passive(coupling.q(q), coupling.v(qd)), -1)
 
     def end_effector_pose_gradient(self, q, frames: Sequence[str | int]) -> torch.Tensor:
         """d end_effector_pose / dq along the tangent, (..., len(frames), 6, nv): [xyz; rpy] rows.
@@ -237,7 +241,7 @@ class _Functions:
             if joint.type in ("free", "ball"):
                 quat = qi + (3 if joint.type == "free" else 0)
                 q[quat if self._convention else quat + 3] = 1.0  # w, first in MuJoCo's wxyz, last in xyzw
-        return q
+        return self._reduced(q)
 
     def random_configuration(self, *batch_shape: int, dtype: torch.dtype = torch.float64, device="cpu",
                              generator: torch.Generator | None = None) -> torch.Tensor:
@@ -258,9 +262,21 @@ class _Functions:
             if not math.isfinite(hi - lo):  # too wide to draw from
                 lo, hi = -default, default
             cols.append(lo + (hi - lo) * torch.rand(*batch_shape, 1, dtype=torch.float64, generator=generator))
-        return torch.cat(cols, dim=-1).to(dtype=dtype, device=device)
+        return self._reduced(torch.cat(cols, dim=-1).to(dtype=dtype, device=device))
+
+    def _reduced(self, q: torch.Tensor) -> torch.Tensor:
+        """The coordinates of q that are the robot's own (a coupled mimic joint has none)."""
+        coupling = self._robot._coupling
+        return q if coupling is None else coupling.reduce_q(q)
 
     def _call(self, name: str, *args):
+        coupling = self._robot._coupling
+        if coupling is None:
+            return self._kernel_call(name, *args)
+        return coupling.call(self._kernel_call, name, _checked(name, coupling.tensor_args[name], args))
+
+    def _kernel_call(self, name: str, *args):
+        """Op `name` of the kernels (every joint independent), in this view's convention."""
         robot = self._robot
         op = getattr(robot._ops, name)
         if torch.compiler.is_compiling():
@@ -306,7 +322,11 @@ class Robot(_Functions):
     def __init__(self, model: RobotModel, namespace: str, convention: str = "pin", mujoco_kernels: bool = True,
                  passive_forces: bool = True):
         self.model = model
+        self._coupling = Coupling(model) if model.mimics else None
         self._passive = PassiveForces(model)
+        if self._coupling is not None and self._passive.any:
+            raise ValueError(f"robot {model.name!r}: mimic joints together with joint damping or stiffness are not "
+                             "supported")
         self._include_passive = passive_forces
         self._with_passive = passive_forces and self._passive.any
         self._ops = getattr(torch.ops, namespace)
@@ -322,12 +342,15 @@ class Robot(_Functions):
 
     # -- description -----------------------------------------------------------------------
     name = property(lambda self: self.model.name)
-    nq = property(lambda self: self.model.nq, doc="Configuration size (a continuous joint has one angle).")
-    nv = property(lambda self: self.model.nv, doc="Velocity size.")
+    nq = property(lambda self: (self._coupling or self.model).nq,
+                  doc="Configuration size (a continuous joint has one angle; mimic joints coupled by load(..., "
+                      "mimic=True) have none).")
+    nv = property(lambda self: (self._coupling or self.model).nv, doc="Velocity size.")
     nbodies = property(lambda self: self.model.nbodies, doc="Moving bodies (one per joint).")
     nframes = property(lambda self: len(self.model.frames))
     floating_base = property(lambda self: self.model.floating_base)
-    joint_names = property(lambda self: [j.name for j in self.model.joints])
+    joint_names = property(lambda self: self._coupling.joint_names if self._coupling else [j.name for j in self.model.joints],
+                           doc="The joints whose coordinates make up q and qd, in order.")
     frame_names = property(lambda self: [f.name for f in self.model.frames])
 
     @property
@@ -363,12 +386,14 @@ class Robot(_Functions):
         return self._frame_index[frame]
 
     def _frame_dofs(self, index: int) -> int:
-        """Number of dofs on the chain from frame `index` to the root: those that move it."""
-        joints, body, dofs = self.model.joints, self.model.frames[index].parent, 0
+        """Number of dofs on the chain from frame `index` to the root: those that move it (a mimic joint
+        and its master in the chain count once)."""
+        model, body, dofs = self.model, self.model.frames[index].parent, set()
         while body >= 0:
-            dofs += joints[body].nv
-            body = joints[body].parent
-        return dofs
+            vi = model.v_index[body]
+            dofs.update(range(vi, vi + model.joints[body].nv))
+            body = model.joints[body].parent
+        return len({self._coupling.v_src[k] for k in dofs} if self._coupling else dofs)
 
     def save(self, path: str | Path) -> None:
         """Write the model description (JSON); `torch_grid.load(path)` rebuilds it, without Pinocchio."""

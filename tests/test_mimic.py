@@ -1,0 +1,220 @@
+"""Mimic joints coupled in reduced coordinates (load(..., mimic=True)).
+
+- Against Pinocchio's mimic model (pinocchio.buildModelFromUrdf(..., mimic=True)) where Pinocchio
+  supports the algorithm (rnea, crba, nonLinearEffects, ccrba, centre of mass, frame Jacobians,
+  frame placements), float64 <= 1e-9, fixed and floating.
+- Against the projection of the uncoupled robot (M = G^T M_full G, tau = G^T tau_full) for what
+  Pinocchio's mimic model does not compute (ABA, M^-1, the derivatives), in both conventions.
+- gradcheck of every function in both conventions; serialization keeps the coupling.
+"""
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pinocchio as pin
+import pytest
+import torch
+
+import torch_grid
+from oracles import rel_err
+from test_autograd import FUNCTIONS
+
+# A gripper on an arm: finger_right mimics finger_left (prismatic, multiplier -1, offset 0.01);
+# thumb mimics the wrist, its parent joint (revolute, multiplier 0.5, offset -0.2).
+URDF = """
+<robot name="gripper">
+  <link name="base"><inertial><mass value="2"/><origin xyz="0 0 0.05"/>
+    <inertia ixx="0.02" iyy="0.02" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <joint name="shoulder" type="revolute"><parent link="base"/><child link="upper"/>
+    <origin xyz="0 0 0.1" rpy="0 0.2 0"/><axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="1" velocity="1"/></joint>
+  <link name="upper"><inertial><mass value="1.2"/><origin xyz="0.15 0 0"/>
+    <inertia ixx="0.002" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <joint name="wrist" type="revolute"><parent link="upper"/><child link="hand"/>
+    <origin xyz="0.3 0 0" rpy="0.1 0 0"/><axis xyz="1 0 0"/><limit lower="-2" upper="2" effort="1" velocity="1"/></joint>
+  <link name="hand"><inertial><mass value="0.5"/><origin xyz="0.04 0.01 0"/>
+    <inertia ixx="0.001" iyy="0.001" izz="0.001" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <joint name="finger_left" type="prismatic"><parent link="hand"/><child link="left"/>
+    <origin xyz="0.08 0.02 0"/><axis xyz="0 1 0"/><limit lower="0" upper="0.04" effort="1" velocity="1"/></joint>
+  <link name="left"><inertial><mass value="0.1"/><origin xyz="0.02 0 0"/>
+    <inertia ixx="0.0001" iyy="0.0001" izz="0.0001" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <joint name="finger_right" type="prismatic"><parent link="hand"/><child link="right"/>
+    <origin xyz="0.08 -0.02 0"/><axis xyz="0 1 0"/><limit lower="-0.04" upper="0" effort="1" velocity="1"/>
+    <mimic joint="finger_left" multiplier="-1" offset="0.01"/></joint>
+  <link name="right"><inertial><mass value="0.1"/><origin xyz="0.02 0 0"/>
+    <inertia ixx="0.0001" iyy="0.0001" izz="0.0001" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <joint name="thumb" type="revolute"><parent link="hand"/><child link="thumb_link"/>
+    <origin xyz="0.1 0.05 0" rpy="0 0 0.3"/><axis xyz="0 0 1"/><limit lower="-2" upper="2" effort="1" velocity="1"/>
+    <mimic joint="wrist" multiplier="0.5" offset="-0.2"/></joint>
+  <link name="thumb_link"><inertial><mass value="0.2"/><origin xyz="0.03 0 0.01"/>
+    <inertia ixx="0.0002" iyy="0.0003" izz="0.0002" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <joint name="tool_joint" type="fixed"><parent link="hand"/><child link="tool"/><origin xyz="0.12 0 0"/></joint>
+  <link name="tool"/>
+</robot>
+"""
+TOL = 1e-9
+
+
+@pytest.fixture(scope="module", params=[False, True], ids=["fixed", "floating"])
+def gripper(request, tmp_path_factory):
+    path = tmp_path_factory.mktemp("urdf") / "gripper.urdf"
+    path.write_text(URDF)
+    floating = request.param
+    robot = torch_grid.load(str(path), floating_base=floating, mimic=True)
+    with pytest.warns(UserWarning, match="independent joints"):
+        full = torch_grid.load(str(path), floating_base=floating)
+    pm = pin.buildModelFromUrdf(str(path), pin.JointModelFreeFlyer(), True) if floating else \
+        pin.buildModelFromUrdf(str(path), True)
+    return robot, full, pm
+
+
+def _states(robot, convention, n=3, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    view = getattr(robot, convention)
+    q = view.random_configuration(n, generator=g)
+    v, a = (torch.randn(n, robot.nv, dtype=q.dtype, generator=g) for _ in range(2))
+    f = torch.randn(n, robot.nbodies, 6, dtype=q.dtype, generator=g)
+    return q, v, a, f
+
+
+def _G(robot, full):
+    """d q_full / d q, built here from the URDF's numbers: the oracle of the projection."""
+    G = torch.zeros(full.nv, robot.nv, dtype=torch.float64)
+    reduced = robot.joint_names
+    base = 6 if robot.floating_base else 0
+    G[:base, :base] = torch.eye(base, dtype=torch.float64)
+    coupled = {"finger_right": ("finger_left", -1.0), "thumb": ("wrist", 0.5)}
+    for k, name in enumerate(full.joint_names[1 if base else 0:]):
+        master, m = coupled.get(name, (name, 1.0))
+        G[base + k, base + reduced[1 if base else 0:].index(master)] = m
+    return G
+
+
+def test_layout(gripper):
+    robot, full, pm = gripper
+    assert (robot.nq, robot.nv) == (pm.nq, pm.nv) == (full.nq - 2, full.nv - 2)
+    assert "finger_right" not in robot.joint_names and "thumb" not in robot.joint_names
+    q = robot.random_configuration(4, generator=torch.Generator().manual_seed(1))
+    assert q.shape == (4, robot.nq)
+    assert robot.neutral_configuration().shape == (robot.nq,)
+    with pytest.raises(ValueError, match=rf"q must have shape \(\.\.\., {robot.nq}\)"):
+        robot.crba(torch.zeros(full.nq, dtype=torch.float64))
+
+
+def test_matches_pinocchio_mimic_model(gripper):
+    robot, _, pm = gripper
+    pd = pm.createData()
+    q, v, a, _ = _states(robot, "pin")
+    tool = pm.getFrameId("tool")
+    for b in range(q.shape[0]):
+        qn, vn, an = q[b].numpy(), v[b].numpy(), a[b].numpy()
+        assert rel_err(robot.inverse_dynamics(q[b], v[b], a[b]), pin.rnea(pm, pd, qn, vn, an)) <= TOL
+        M = pin.crba(pm, pd, qn)
+        assert rel_err(robot.crba(q[b]), np.triu(M) + np.triu(M, 1).T) <= TOL
+        assert rel_err(robot.nonlinear_effects(q[b], v[b]), pin.nonLinearEffects(pm, pd, qn, vn)) <= TOL
+        A, h = robot.ccrba(q[b], v[b])
+        assert rel_err(A, pin.ccrba(pm, pd, qn, vn)) <= TOL and rel_err(h, pd.hg.vector) <= TOL
+        assert rel_err(robot.com(q[b]), pin.centerOfMass(pm, pd, qn)) <= TOL
+        for frame in ("tool", "right", "thumb_link"):
+            J = pin.computeFrameJacobian(pm, pd, qn, pm.getFrameId(frame), pin.LOCAL_WORLD_ALIGNED)
+            assert rel_err(robot.frame_jacobian(q[b], frame), J) <= TOL
+        pin.framesForwardKinematics(pm, pd, qn)
+        pos, rot = robot.forward_kinematics(q[b])
+        assert rel_err(pos[robot.frame_index("tool")], pd.oMf[tool].translation) <= TOL
+        assert rel_err(pos[robot.frame_index("right")], pd.oMf[pm.getFrameId("right")].translation) <= TOL
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+def test_projection_of_the_uncoupled_robot(gripper, convention):
+    robot, full, _ = gripper
+    G = _G(robot, full)
+    view, fview = getattr(robot, convention), getattr(full, convention)
+    q, v, a, f = _states(robot, convention, seed=2)
+    q_full = robot._coupling.q(q)
+    mimic_q = [full.model.q_index[full.joint_names.index(n)] for n in ("finger_right", "thumb")]
+    masters = [full.model.q_index[full.joint_names.index(n)] for n in ("finger_left", "wrist")]
+    assert torch.allclose(q_full[:, mimic_q], torch.stack([-q_full[:, masters[0]] + 0.01,
+                                                           0.5 * q_full[:, masters[1]] - 0.2], -1))
+    vf, af = v @ G.mT, a @ G.mT
+    M = G.mT @ fview.crba(q_full) @ G
+    assert rel_err(view.crba(q), M) <= TOL
+    assert rel_err(view.minv(q), torch.linalg.inv(M)) <= 1e-8
+    tau = fview.inverse_dynamics(q_full, vf, af, f) @ G
+    assert rel_err(view.inverse_dynamics(q, v, a, f), tau) <= TOL
+    assert rel_err(view.forward_dynamics(q, v, tau, f), a) <= 1e-8
+    dq, dv = fview.inverse_dynamics_gradient(q_full, vf, af, f)
+    ours = view.inverse_dynamics_gradient(q, v, a, f)
+    assert rel_err(ours[0], G.mT @ dq @ G) <= TOL and rel_err(ours[1], G.mT @ dv @ G) <= TOL
+    gq, gv, gt = view.forward_dynamics_gradient(q, v, tau, f)
+    minv = torch.linalg.inv(M)
+    assert rel_err(gq, -minv @ ours[0]) <= 1e-8 and rel_err(gv, -minv @ ours[1]) <= 1e-8 and rel_err(gt, minv) <= 1e-8
+    C = view.coriolis_matrix(q, v)
+    assert rel_err(C, G.mT @ fview.coriolis_matrix(q_full, vf) @ G) <= TOL
+    Y = view.inverse_dynamics_regressor(q, v, a)
+    assert rel_err(Y @ robot.inertial_parameters(), view.inverse_dynamics(q, v, a)) <= TOL
+    dfd = view.forward_dynamics_external_force_gradient(q)
+    assert rel_err((dfd.flatten(-2) @ f.flatten(-2).unsqueeze(-1)).squeeze(-1),
+                   view.forward_dynamics(q, v, tau, f) - view.forward_dynamics(q, v, tau)) <= 1e-8
+    if not robot.floating_base:  # 2 dofs move the tool (shoulder, wrist; the thumb is not on its chain)
+        with pytest.raises(ValueError, match="'tool' is moved by 2 dofs"):
+            view.osc_inertia(q, "tool")
+        return
+    lam = view.osc_inertia(q, "tool")
+    J = view.frame_jacobian(q, "tool")
+    assert rel_err(lam, torch.linalg.inv(J @ minv @ J.mT)) <= 1e-8
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+def test_forward_dynamics_gradient_vs_central_differences(gripper, convention):
+    robot, _, _ = gripper
+    view = getattr(robot, convention)
+    q, v, tau, _ = _states(robot, convention, n=1, seed=3)
+    gq, gv, _ = view.forward_dynamics_gradient(q[0], v[0], tau[0])
+    eps, n0 = 1e-6, 7 if robot.floating_base else 0  # perturb the joints (the base's tangent is tested elsewhere)
+    for k in range(n0, robot.nq):
+        dq = torch.zeros(robot.nq, dtype=q.dtype)
+        dq[k] = eps
+        fd = (view.forward_dynamics(q[0] + dq, v[0], tau[0]) - view.forward_dynamics(q[0] - dq, v[0], tau[0])) / (2 * eps)
+        assert rel_err(gq[:, k - 1 if robot.floating_base else k], fd) <= 1e-6
+        dv = torch.zeros(robot.nv, dtype=q.dtype)
+        dv[k - (1 if robot.floating_base else 0)] = eps
+        fd = (view.forward_dynamics(q[0], v[0] + dv, tau[0]) - view.forward_dynamics(q[0], v[0] - dv, tau[0])) / (2 * eps)
+        assert rel_err(gv[:, k - 1 if robot.floating_base else k], fd) <= 1e-6
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+@pytest.mark.parametrize("function", sorted(FUNCTIONS))
+def test_gradcheck_every_function(gripper, convention, function):
+    robot, _, _ = gripper
+    call, arity = FUNCTIONS[function]
+    view = getattr(robot, convention)
+    inputs = [t.requires_grad_(True) for t in _states(robot, convention, n=2, seed=4)[:arity]]
+    if function == "osc_inertia" and not robot.floating_base:
+        with pytest.raises(ValueError, match="dofs; its operational-space inertia exists only"):
+            call(view, robot, *inputs)  # the fixed gripper's frames have fewer than 6 dofs
+        return
+    assert torch.autograd.gradcheck(lambda *x: call(view, robot, *x), inputs, eps=1e-6, atol=1e-6, rtol=1e-5,
+                                    fast_mode=True)
+
+
+def test_serialization_keeps_the_coupling(gripper, tmp_path):
+    robot, _, _ = gripper
+    again = pickle.loads(pickle.dumps(robot))
+    assert again.model == robot.model and again.model.mimics and (again.nq, again.nv) == (robot.nq, robot.nv)
+    robot.save(tmp_path / "gripper.json")
+    loaded = torch_grid.load(str(tmp_path / "gripper.json"))
+    q = robot.random_configuration(2, generator=torch.Generator().manual_seed(5))
+    assert torch.equal(loaded.crba(q), robot.crba(q))
+
+
+def test_mimic_refusals():
+    chain = URDF.replace('<mimic joint="wrist" multiplier="0.5" offset="-0.2"/>',
+                         '<mimic joint="finger_right" multiplier="0.5" offset="-0.2"/>')
+    with pytest.raises(ValueError, match="'thumb'.*master 'finger_right' is itself a mimic joint"):
+        torch_grid.load(chain, mimic=True)
+    fixed_master = URDF.replace('<mimic joint="wrist"', '<mimic joint="tool_joint"')
+    with pytest.raises(ValueError, match="'thumb'.*master 'tool_joint' is not a joint of the model"):
+        torch_grid.load(fixed_master, mimic=True)
+    bad = URDF.replace('multiplier="0.5"', 'multiplier="half"')
+    with pytest.raises(ValueError, match="multiplier='half' is not a number"):
+        torch_grid.load(bad, mimic=True)
