@@ -368,3 +368,23 @@ def test_mujoco_twins_equal_the_torch_transforms(fixture, request):
     J = pin_view.frame_jacobian(q, last)
     assert rel_err(mjx.frame_jacobian(qm, last), C.columns_pin_to_mjx(q, J, free=free)) <= TOL
     assert rel_err(mjx.jacobian_com(qm), C.columns_pin_to_mjx(q, pin_view.jacobian_com(q), free=free)) <= TOL
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+def test_zero_ball_quaternion_reads_as_identity(balls, convention):
+    """A ball quaternion of zero norm is the identity rotation, as a free joint's (and MuJoCo's
+    mj_normalizeQuat); its gradient is the one at the identity."""
+    robot, _ = balls
+    view = getattr(robot, convention)
+    q = view.random_configuration(generator=torch.Generator().manual_seed(10))
+    ident = q.clone()
+    zero = q.clone()
+    for qi in torch_grid.conventions.ball_joints(robot.model):
+        ident[qi:qi + 4] = torch.tensor([1.0, 0, 0, 0] if convention == "mujoco" else [0, 0, 0, 1.0], dtype=q.dtype)
+        zero[qi:qi + 4] = 0
+    assert torch.equal(view.crba(zero), view.crba(ident))
+    v = torch.randn(robot.nv, dtype=q.dtype, generator=torch.Generator().manual_seed(11))
+    for x in (zero, ident):
+        x.requires_grad_(True)
+        view.inverse_dynamics(x, v, v).square().sum().backward()
+    assert torch.isfinite(zero.grad).all() and torch.allclose(zero.grad, ident.grad, rtol=1e-12, atol=1e-12)
