@@ -166,7 +166,9 @@ def _reject_urdf_features(root: ET.Element) -> None:
 def _mimic_joints(root: ET.Element, couple: bool) -> tuple[Mimic, ...]:
     """The URDF's mimic joints, coupled when `couple` (mimic=True, as pinocchio.buildModelFromUrdf's
     mimic=True model); else they are independent joints, as in its default model: say so once."""
-    found = [(j.get("name"), j.find("mimic")) for j in root.iter("joint") if j.find("mimic") is not None]
+    # (a fixed joint's <mimic> moves nothing: Pinocchio ignores it, and so do we)
+    found = [(j.get("name"), j.find("mimic")) for j in root.iter("joint")
+             if j.find("mimic") is not None and j.get("type") != "fixed"]
     if not found:
         return ()
     if couple:
