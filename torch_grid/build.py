@@ -191,10 +191,10 @@ def _cxx_flags(unit: str = "") -> list[str]:
     # -O3 makes the kernels 1.4-2x faster than -O2 (bodies unrolled over the robot's constant tree);
     # the forward-mode backward units gain only 1-25% from it for twice the compile time.
     level = "-O2" if unit.endswith(("backward_f32", "backward_f64")) else "-O3"
-    # 256-bit vectors: with 512-bit ones GCC 12 -O3 ended a vectorized loop (36 doubles of a stack
-    # array) with an aligned 256-bit access at a 16-byte-aligned address, a segmentation fault
-    # (coriolis_matrix of a 5-joint arm on an AVX-512 CPU). The kernels' speed is the same within 5%.
-    return ["-std=c++17", level, "-fno-fast-math", "-fPIC", "-fvisibility=hidden", "-mprefer-vector-width=256"] + native
+    # No vectorized epilogues: GCC 12 -O3 ended a 512-bit loop (36 doubles of a stack array) with an
+    # aligned 256-bit access at a 16-byte-aligned address, a segmentation fault (coriolis_matrix of a
+    # 5-joint arm on an AVX-512 CPU). Such epilogues are a few elements; the main loops keep their width.
+    return ["-std=c++17", level, "-fno-fast-math", "-fPIC", "-fvisibility=hidden", "--param=vect-epilogues-nomask=0"] + native
 
 
 def _nvcc_flags() -> list[str]:
