@@ -207,11 +207,35 @@ def test_serialization_keeps_the_coupling(gripper, tmp_path):
     assert torch.equal(loaded.crba(q), robot.crba(q))
 
 
-def test_mimic_refusals():
+def test_chain_of_mimic_joints(gripper):
+    """thumb mimics finger_right, which mimics finger_left: thumb = 0.5 (-left + 0.01) - 0.2. (Pinocchio's
+    mimic reader refuses such a chain, so the oracle is the projection written out here.)"""
+    robot, full, _ = gripper
     chain = URDF.replace('<mimic joint="wrist" multiplier="0.5" offset="-0.2"/>',
                          '<mimic joint="finger_right" multiplier="0.5" offset="-0.2"/>')
-    with pytest.raises(ValueError, match="'thumb'.*master 'finger_right' is itself a mimic joint"):
-        torch_grid.load(chain, mimic=True)
+    coupled = torch_grid.load(chain, floating_base=robot.floating_base, mimic=True)
+    assert coupled.joint_names == [n for n in robot.joint_names]  # the same independent joints
+    base = 6 if robot.floating_base else 0
+    names = full.joint_names
+    G = torch.zeros(full.nv, coupled.nv, dtype=torch.float64)
+    G[:base, :base] = torch.eye(base, dtype=torch.float64)
+    for k, name in enumerate(names[1 if base else 0:]):
+        master, m = {"finger_right": ("finger_left", -1.0), "thumb": ("finger_left", -0.5)}.get(name, (name, 1.0))
+        G[base + k, base + coupled.joint_names[1 if base else 0:].index(master)] = m
+    q = coupled.random_configuration(3, generator=torch.Generator().manual_seed(6))
+    q_full = coupled._coupling.q(q)
+    left, thumb = (full.model.q_index[names.index(n)] for n in ("finger_left", "thumb"))
+    assert torch.allclose(q_full[:, thumb], 0.5 * (-q_full[:, left] + 0.01) - 0.2, rtol=0, atol=1e-15)
+    v = torch.randn(3, coupled.nv, dtype=torch.float64, generator=torch.Generator().manual_seed(7))
+    assert rel_err(coupled.crba(q), G.mT @ full.crba(q_full) @ G) <= TOL
+    assert rel_err(coupled.inverse_dynamics(q, v, v), full.inverse_dynamics(q_full, v @ G.mT, v @ G.mT) @ G) <= TOL
+
+
+def test_mimic_refusals():
+    cycle = URDF.replace('<mimic joint="wrist" multiplier="0.5" offset="-0.2"/>', '<mimic joint="finger_right"/>')
+    cycle = cycle.replace('<mimic joint="finger_left" multiplier="-1" offset="0.01"/>', '<mimic joint="thumb"/>')
+    with pytest.raises(ValueError, match="masters form a cycle"):
+        torch_grid.load(cycle, mimic=True)
     fixed_master = URDF.replace('<mimic joint="wrist"', '<mimic joint="tool_joint"')
     with pytest.raises(ValueError, match="'thumb'.*master 'tool_joint' is not a joint of the model"):
         torch_grid.load(fixed_master, mimic=True)

@@ -1,6 +1,7 @@
 """Mimic joints coupled in reduced coordinates (load(..., mimic=True)).
 
-A mimic joint follows its master: q_mimic = multiplier * q_master + offset. The reduced coordinates
+A mimic joint follows its master: q_mimic = multiplier * q_master + offset (a master may itself be a
+mimic joint: the chain is followed to an independent joint). The reduced coordinates
 are those of the independent joints; the full ones (every joint, what the kernels take) are
 
     q_full = expand(q),   qd_full = G qd,   qdd_full = G qdd,
@@ -21,7 +22,7 @@ from typing import Callable
 
 import torch
 
-from .model import RobotModel
+from .model import Mimic, RobotModel
 from .ops import OPS, model_sizes
 
 # How each kernel output in full coordinates becomes the coupled one: "rows" G^T X (X's nv axis of
@@ -42,7 +43,7 @@ class Coupling:
     """The map between the reduced and the full coordinates of a model with mimic joints."""
 
     def __init__(self, model: RobotModel):
-        mimic = {m.joint: m for m in model.mimics}
+        mimic = {m.joint: _resolved(m, model.mimics) for m in model.mimics}
         independent = [j for j in model.joints if j.name not in mimic]
         self.joint_names = [j.name for j in independent]
         self.nq, self.nv = sum(j.nq for j in independent), sum(j.nv for j in independent)
@@ -142,6 +143,16 @@ class Coupling:
     def inverse_inertia(self, kernel_call: Callable, q: torch.Tensor) -> torch.Tensor:
         """(G^T M_full G)^-1 (..., nv, nv), by a Cholesky factorisation."""
         return torch.cholesky_inverse(torch.linalg.cholesky(self.both(kernel_call("crba", self.q(q)))))
+
+
+def _resolved(m: Mimic, mimics: tuple[Mimic, ...]) -> Mimic:
+    """m with its master followed to an independent joint: a mimic of a mimic of q_a is affine in q_a,
+    multiplier2 (multiplier1 q_a + offset1) + offset2."""
+    by_joint = {x.joint: x for x in mimics}
+    while m.master in by_joint:
+        up = by_joint[m.master]
+        m = Mimic(m.joint, up.master, m.multiplier * up.multiplier, m.multiplier * up.offset + m.offset)
+    return m
 
 
 def _forward_dynamics(c: Coupling, call: Callable, q, qd, tau, f_ext=None):

@@ -222,7 +222,8 @@ def validate(model: RobotModel) -> None:
 
 
 def _check_mimics(model: RobotModel) -> None:
-    """Each mimic couples a one-dof joint to another, independent one-dof joint, once."""
+    """Each mimic couples a one-dof joint to another one-dof joint, once, and following the masters
+    ends at an independent joint (no cycle)."""
     kinds = {j.name: j.type for j in model.joints}
     coupled = set()
     for m in model.mimics:
@@ -237,10 +238,14 @@ def _check_mimics(model: RobotModel) -> None:
         for name in ("multiplier", "offset"):
             _check_number(f"{who}: {name}", getattr(m, name))
         coupled.add(m.joint)
+    master = {m.joint: m.master for m in model.mimics}
     for m in model.mimics:
-        if m.master in coupled:
-            raise ValueError(f"mimic joint {m.joint!r}: its master {m.master!r} is itself a mimic joint (chains of mimic "
-                             "joints are not supported)")
+        seen, name = [m.joint], m.master
+        while name in master:
+            if name in seen:
+                raise ValueError(f"mimic joint {m.joint!r}: its masters form a cycle ({' -> '.join(seen + [name])})")
+            seen.append(name)
+            name = master[name]
 
 
 def _link_names(model: RobotModel) -> dict[int, str]:
