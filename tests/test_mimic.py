@@ -242,3 +242,20 @@ def test_mimic_refusals():
     bad = URDF.replace('multiplier="0.5"', 'multiplier="half"')
     with pytest.raises(ValueError, match="multiplier='half' is not a number"):
         torch_grid.load(bad, mimic=True)
+
+
+def test_float32_and_torch_compile(gripper):
+    robot, _, _ = gripper
+    q, v, a, _ = _states(robot, "mujoco", n=4, seed=8)
+    tau = robot.mujoco.inverse_dynamics(q, v, a)
+    for fn, args in ((robot.mujoco.forward_dynamics, (q, v, tau)), (robot.mujoco.crba, (q,)), (robot.minv, (q,))):
+        assert rel_err(fn(*(x.float() for x in args)), fn(*args)) <= 1e-4
+
+    def step(q, v, tau):
+        qdd = robot.mujoco.forward_dynamics(q, v, tau)
+        return qdd, robot.frame_jacobian(q, "tool") @ qdd.unsqueeze(-1)
+
+    torch._dynamo.reset()
+    compiled = torch.compile(step, fullgraph=True, backend="aot_eager")
+    for got, ref in zip(compiled(q, v, tau), step(q, v, tau)):
+        assert torch.allclose(got, ref, rtol=1e-12, atol=1e-12)
