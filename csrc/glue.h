@@ -42,7 +42,7 @@ namespace tg {
 // kKeep bytes in all, for the life of the process) and handed to the next output of its size,
 // already mapped: a loop calling an op on the same batch pays the page faults once.
 struct LargeBlocks {
-  static constexpr size_t kMin = size_t(8) << 20, kHuge = size_t(2) << 20, kKeep = size_t(512) << 20;
+  static constexpr size_t kMin = size_t(8) << 20, kHuge = size_t(2) << 20, kKeep = size_t(1) << 30;
   static size_t rounded(size_t bytes) { return (bytes + kHuge - 1) / kHuge * kHuge; }
   static void* take(size_t size) {
     {
@@ -203,6 +203,8 @@ class Call {
     // Without a quaternion joint there is nothing to convert: both conventions share the Pinocchio kernel.
     const int c = convention_ == MJX && robot_.converts ? 1 : 0;
     TORCH_CHECK(!c || robot_.mujoco, op_, ": this build has no MuJoCo-convention kernels (enable_mujoco_kernels=False)");
+    TORCH_CHECK(!c || kernels.cpu[1][1], op_, " has no MuJoCo-convention kernel for a robot with free or ball joints "
+                "(not implemented); call it in the pin convention");
     if (device_.is_cuda()) {
 #ifdef TG_WITH_CUDA
       TORCH_CHECK(robot_.cuda && kernels.cuda[s][c], op_,

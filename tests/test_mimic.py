@@ -150,6 +150,10 @@ def test_projection_of_the_uncoupled_robot(gripper, convention):
     assert rel_err(gq, -minv @ ours[0]) <= 1e-8 and rel_err(gv, -minv @ ours[1]) <= 1e-8 and rel_err(gt, minv) <= 1e-8
     C = view.coriolis_matrix(q, v)
     assert rel_err(C, G.mT @ fview.coriolis_matrix(q_full, vf) @ G) <= TOL
+    if convention == "pin" or not robot.floating_base:
+        second = zip(view.inverse_dynamics_second_order(q, v, a, f), fview.inverse_dynamics_second_order(q_full, vf, af, f))
+        for ours, theirs in second:
+            assert rel_err(ours, torch.einsum("...abc,ai,bj,ck->...ijk", theirs, G, G, G)) <= TOL
     Y = view.inverse_dynamics_regressor(q, v, a)
     assert rel_err(Y @ robot.inertial_parameters(), view.inverse_dynamics(q, v, a)) <= TOL
     dfd = view.forward_dynamics_external_force_gradient(q)

@@ -161,7 +161,7 @@ def kernel_unit(model: RobotModel, mujoco: bool, namespace: str, family: str, sc
     ops = [op for op in OPS.values() if op.family == family]
     lines = []
     for op in ops:
-        for conv, cname in conventions(model, mujoco):
+        for conv, cname in conventions(model, mujoco and op.mujoco_twin):
             if cuda:
                 lines.append(f"int {_entry('cuda', op, suffix, cname)}(const tg::Batch& b, void* stream, int sms, "
                              f"tg::CudaAttributes* a) {{\n  return tg::cuda_launch<tg::bind::{op.kernel}, Robot, {scalar}, {conv}>"
@@ -179,10 +179,9 @@ def kernel_unit(model: RobotModel, mujoco: bool, namespace: str, family: str, sc
 
 def table_unit(model: RobotModel, mujoco: bool, cuda: bool, namespace: str) -> str:
     """The robot's tg::RobotTable: sizes and every op's kernels, exported under one C symbol."""
-    convs = conventions(model, mujoco)
     decls, entries = [], []
     for op in OPS.values():
-        slots = {}
+        slots, convs = {}, conventions(model, mujoco and op.mujoco_twin)
         for device in ("cpu", "cuda") if cuda else ("cpu",):
             for scalar, suffix in _SCALARS:
                 if device == "cpu" and scalar not in _CPU_SCALARS:

@@ -44,15 +44,16 @@ class KernelUsage:
 
 
 def report(model: RobotModel, dtypes: tuple[str, ...] = ("float64",), arch: str = "sm_90",
-           nvcc: str | None = None) -> list[KernelUsage]:
-    """Compile the robot's CUDA kernels of the given dtypes with ptxas verbose output and return the
-    resources of each (op, dtype, convention)."""
+           nvcc: str | None = None, families: tuple[str, ...] | None = None) -> list[KernelUsage]:
+    """Compile the robot's CUDA kernels of the given dtypes (and op families, all by default) with
+    ptxas verbose output and return the resources of each (op, dtype, convention)."""
     nvcc = nvcc or _find_nvcc()
     namespace = op_namespace(model, True)
     with tempfile.TemporaryDirectory(prefix="torch_grid_cuda_report_") as tmp:
         src = Path(tmp)
         units = [u for u in codegen.write_robot_sources(model, True, True, namespace, src)
-                 if u.suffix == ".cu" and any(u.stem.endswith("_" + _DTYPES[d]) for d in dtypes)]
+                 if u.suffix == ".cu" and any(u.stem.endswith("_" + _DTYPES[d]) for d in dtypes)
+                 and (families is None or u.stem.rsplit("_", 1)[0] in families)]
         flags = [f for f in _nvcc_flags() if not f.startswith("-arch")] + [f"-arch={arch}", "-Xptxas", "-v"]
 
         def compile_unit(unit: Path) -> str:

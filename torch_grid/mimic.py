@@ -26,13 +26,14 @@ from .model import Mimic, RobotModel
 from .ops import OPS, model_sizes
 
 # How each kernel output in full coordinates becomes the coupled one: "rows" G^T X (X's nv axis of
-# generalized forces), "columns" X G (its last, tangent axis), "both" G^T X G, "plain" unchanged.
+# generalized forces), "columns" X G (its last, tangent axis), "both" G^T X G, "all" G on each of the
+# three axes of an (nv, nv, nv) tensor, "plain" unchanged.
 _OUTPUTS = {
     "inverse_dynamics": ("rows",), "generalized_gravity": ("rows",), "nonlinear_effects": ("rows",),
     "crba": ("both",), "energy": ("plain",), "com": ("plain",), "jacobian_com": ("columns",),
     "ccrba": ("columns", "plain"), "forward_kinematics": ("plain", "plain"), "end_effector_pose": ("plain",),
     "frame_jacobian": ("columns",), "frame_jacobian_dot": ("columns",), "body_velocities": ("plain",),
-    "inverse_dynamics_gradient": ("both", "both"), "inverse_dynamics_external_force_gradient": ("rows",),
+    "inverse_dynamics_gradient": ("both", "both"), "inverse_dynamics_second_order": ("all",) * 4, "inverse_dynamics_external_force_gradient": ("rows",),
     "cmm_time_variation": ("columns",), "dccrba": ("columns",), "coriolis_matrix": ("both",),
     "inverse_dynamics_regressor": ("rows",), "kinetic_energy_regressor": ("plain",),
     "potential_energy_regressor": ("plain",),
@@ -138,6 +139,9 @@ class Coupling:
             return self.columns(x)
         if how == "both":
             return self.both(x)
+        if how == "all":
+            G = self._on(x)[3]
+            return torch.einsum("...abc,ai,bj,ck->...ijk", x, G, G, G)
         return x
 
     def inverse_inertia(self, kernel_call: Callable, q: torch.Tensor) -> torch.Tensor:

@@ -62,6 +62,7 @@ class OpSpec:
     forward_mode_of: str = ""  # set on the vector-Jacobian product of that op by forward-mode kernels
     jvp_of: str = ""  # set on the Jacobian-vector product of that op by forward-mode kernels
     jvp_wrt: tuple[str, ...] = ()  # the inputs whose tangents a Jacobian-vector product takes
+    mujoco_twin: bool = True  # False: no MuJoCo-convention kernel where the conventions differ (the call refuses)
 
     @property
     def derived(self) -> bool:
@@ -98,7 +99,7 @@ def model_sizes(model: RobotModel) -> dict[str, int]:
 Q, QD, QDD, TAU = Arg("q", "configuration"), Arg("qd", "velocity"), Arg("qdd", "acceleration"), Arg("tau", "force")
 FEXT = Arg("f_ext", "body_forces", True)
 FRAME, REFERENCE = Arg("frame", "frame"), Arg("reference", "reference")
-NV, NVxNV = ("nv",), ("nv", "nv")
+NV, NVxNV, NV3 = ("nv",), ("nv", "nv"), ("nv", "nv", "nv")
 _VALUE_OPS = (
         OpSpec("inverse_dynamics", "InverseDynamics", (Q, QD, QDD, FEXT), (Out("tau", "force", NV),)),
         OpSpec("forward_dynamics", "ForwardDynamics", (Q, QD, TAU, FEXT), (Out("qdd", "acceleration", NV),)),
@@ -124,6 +125,9 @@ _VALUE_OPS = (
         OpSpec("frames_vjp", "FramesVjp", (Q, Arg("weights", "frame_weights")), (Out("tau", "force", NV),), "kinematics"),
         OpSpec("inverse_dynamics_gradient", "InverseDynamicsGradient", (Q, QD, QDD, FEXT),
                (Out("dtau_dq", "twin", NVxNV), Out("dtau_dqd", "twin", NVxNV)), "derivatives"),
+        OpSpec("inverse_dynamics_second_order", "InverseDynamicsSecondOrder", (Q, QD, QDD, FEXT),
+               (Out("d2tau_dq2", "plain", NV3), Out("d2tau_dqd2", "plain", NV3), Out("d2tau_dqdqd", "plain", NV3),
+                Out("dM_dq", "plain", NV3)), "second_order", mujoco_twin=False),
         OpSpec("forward_dynamics_gradient", "ForwardDynamicsGradient", (Q, QD, TAU, FEXT),
                (Out("dqdd_dq", "twin", NVxNV), Out("dqdd_dqd", "twin", NVxNV), Out("dqdd_dtau", "twin", NVxNV)),
                "derivatives"),
@@ -149,7 +153,7 @@ _VALUE_OPS = (
 # external-force one of inverse dynamics and osc_inertia compose the backwards of their parts, in
 # autograd.py.)
 FORWARD_MODE_BACKWARD = (
-    "jacobian_com", "ccrba", "frame_jacobian", "frame_jacobian_dot", "body_velocities",
+    "jacobian_com", "ccrba", "frame_jacobian", "frame_jacobian_dot", "body_velocities", "frames_vjp",
     "cmm_time_variation", "dccrba", "coriolis_matrix", "inverse_dynamics_regressor", "kinetic_energy_regressor", "potential_energy_regressor",
 )
 

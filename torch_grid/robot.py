@@ -137,6 +137,51 @@ class _Functions:
         damping, stiffness, _ = self._robot._passive.coefficients(minv)
         return dq - minv * stiffness, dqd - minv * damping, minv
 
+    def inverse_dynamics_second_order(self, q, qd, qdd, f_ext=None) -> tuple[torch.Tensor, ...]:
+        """Analytic second derivatives of inverse_dynamics, each (..., nv, nv, nv), tau's index first:
+
+            d2tau_dq2[i, j, k]   = d/dq_k  (d tau / dq)[i, j]
+            d2tau_dqd2[i, j, k]  = d/dqd_k (d tau / dqd)[i, j]
+            d2tau_dqdqd[i, j, k] = d/dqd_k (d tau / dq)[i, j]
+            dM_dq[i, j, k]       = d/dq_k M[i, j]
+
+        Pinocchio's ComputeRNEASecondOrderDerivatives layout (d2tau_dqdq, d2tau_dvdv, dtau_dqdv,
+        dtau_dadq), with f_ext; tangent derivatives as in inverse_dynamics_gradient, so on a floating
+        base d2tau_dq2 is not symmetric in j, k. Passive forces are linear in q and qd: no term here.
+        In the MuJoCo convention only for a robot without free or ball joints (where the conventions agree).
+        """
+        self._pin_only("inverse_dynamics_second_order")
+        return self._call("inverse_dynamics_second_order", q, qd, qdd, f_ext)
+
+    def forward_dynamics_second_order(self, q, qd, tau, f_ext=None) -> tuple[torch.Tensor, ...]:
+        """Second derivatives of forward_dynamics, each (..., nv, nv, nv), in the layout of
+        inverse_dynamics_second_order: (d2qdd_dq2, d2qdd_dqd2, d2qdd_dqdqd, d2qdd_dtaudq) with
+        d2qdd_dtaudq[i, j, k] = d/dq_k (M^-1)[i, j].
+
+        Closed form at qdd = forward_dynamics(q, qd, tau): differentiating ID(q, qd, qdd(x)) = tau
+        twice, with Z = d qdd / dx,
+            d2qdd/dx_j dx_k = -M^-1 (d2tau/dx_j dx_k + dM/dx_j Z_k + dM/dx_k Z_j)
+        (dM/dx only along q), from inverse_dynamics_second_order and forward_dynamics_gradient.
+        """
+        self._pin_only("forward_dynamics_second_order")
+        qdd = self.forward_dynamics(q, qd, tau, f_ext)
+        z_q, z_qd, minv = self.forward_dynamics_gradient(q, qd, tau, f_ext)
+        d2q, d2qd, dqdqd, dM = self.inverse_dynamics_second_order(q, qd, qdd, f_ext)
+        along_j = torch.einsum("...imj,...mk->...ijk", dM, z_q)
+        d2qdd_dq2 = d2q + along_j + along_j.transpose(-1, -2)
+        d2qdd_dqdqd = dqdqd + torch.einsum("...imj,...mk->...ijk", dM, z_qd)
+
+        def solve(x):
+            return -torch.einsum("...ia,...ajk->...ijk", minv, x)
+
+        d2qdd_dtaudq = torch.einsum("...abk,...bj->...ajk", solve(dM), minv)
+        return solve(d2qdd_dq2), solve(d2qd), solve(d2qdd_dqdqd), d2qdd_dtaudq
+
+    def _pin_only(self, name: str) -> None:
+        if self._convention == 1 and self._robot.model.conventions_differ:
+            raise NotImplementedError(f"torch_grid: {name} in the MuJoCo convention is not implemented for a robot with "
+                                      "free or ball joints; call it in the pin convention (robot.pin)")
+
     def passive_forces(self, q, qd) -> torch.Tensor:
         """MuJoCo's qfrc_passive of the joints' damping and stiffness (..., nv):
         -damping qd - stiffness (q - springref) on hinge and slide joints, whether or not the other

@@ -16,6 +16,7 @@
 #include "regressors.h"
 #include "rnea.h"
 #include "rnea_derivatives.h"
+#include "rnea_second_order.h"
 
 namespace tg {
 
@@ -189,6 +190,17 @@ template <class M, class S> struct InverseDynamicsGradient {
   template <int C> TG_HD static void run(const InverseDynamicsGradientArgs<S>& a, const Conv<M, S, C>& cv) {
     const Placements<M, S> K(a.q);
     inverse_dynamics_derivatives<M, S>(K, a.qd, a.qdd, a.f_ext, cv, a.dtau_dq, a.dtau_dqd);
+  }
+};
+
+// The second derivatives of tau in Pinocchio's convention (its only kernel: the op table gives it no
+// MuJoCo twin).
+template <class M, class S> struct InverseDynamicsSecondOrder {
+  TG_HD static void run(const InverseDynamicsSecondOrderArgs<S>& a) {
+    const Placements<M, S> K(a.q);
+    RneaDerivativesWork<M, S> W;
+    rnea_derivatives_setup<M, S>(K, a.qd, a.qdd, a.f_ext, W);
+    rnea_second_order<M, S>(W, a.d2tau_dq2, a.d2tau_dqd2, a.d2tau_dqdqd, a.dM_dq);
   }
 };
 

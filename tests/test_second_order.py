@@ -1,0 +1,163 @@
+"""Second-order derivatives of the dynamics against their oracles.
+
+inverse_dynamics_second_order: Pinocchio's C++ ComputeRNEASecondOrderDerivatives (compiled once per
+machine by pinocchio_cpp_oracle.py; float64 <= 1e-9 relative), and central differences of the
+analytic inverse_dynamics_gradient along pinocchio.integrate (with f_ext, which Pinocchio's has not).
+forward_dynamics_second_order: central differences of forward_dynamics_gradient.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+import torch
+
+import torch_grid
+from oracles import rel_err, to_pin_q
+from pinocchio_cpp_oracle import rnea_second_order
+from mjcf_models import TREES
+from test_mjcf import MODEL as ZOO
+from test_quaternion_joints import pin_ball_model
+
+
+@pytest.fixture(scope="module")
+def pinocchio_balls(tmp_path_factory):
+    model = pin_ball_model()
+    return torch_grid.load(model, cache_dir=tmp_path_factory.mktemp("cache")), model
+
+
+def _robot_and_model(name, robots, pin_models, pinocchio_balls):
+    return pinocchio_balls if name == "balls" else (robots[name], pin_models[name])
+
+
+def _states(robot, batch, seed):
+    g = torch.Generator().manual_seed(seed)
+    q = robot.pin.random_configuration(batch, generator=g)
+    qd, qdd = (torch.randn(batch, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
+    f = 5 * torch.randn(batch, robot.nbodies, 6, dtype=torch.float64, generator=g)
+    return q, qd, qdd, f
+
+
+@pytest.mark.parametrize("name", ["iiwa14", "go2", "g1", "tiago", "balls"])
+def test_inverse_dynamics_second_order_vs_pinocchio(robots, pin_models, pinocchio_balls, name):
+    robot, model = _robot_and_model(name, robots, pin_models, pinocchio_balls)
+    q, qd, qdd, _ = _states(robot, 2, seed=3)
+    ours = robot.pin.inverse_dynamics_second_order(q, qd, qdd)
+    refs = rnea_second_order(model, to_pin_q(robot, q), qd.numpy(), qdd.numpy())
+    for label, x, ref in zip(("d2tau_dq2", "d2tau_dqd2", "d2tau_dqdqd", "dM_dq"), ours, refs):
+        assert x.shape == (2, robot.nv, robot.nv, robot.nv)
+        assert rel_err(x, ref) <= 1e-9, label
+
+
+def _integrate(robot, q: np.ndarray, dv: np.ndarray) -> np.ndarray:
+    """Pinocchio's q (+) dv, joint by joint, for torch_grid's pin layout: a free joint moves by the
+    local SE3 exponential, a ball joint by the local SO3 one."""
+    q = q.copy()
+    for joint, iq, iv in zip(robot.model.joints, robot.model.q_index, robot.model.v_index):
+        if joint.type == "free":
+            M = pin.XYZQUATToSE3(q[iq:iq + 7]) * pin.exp6(pin.Motion(dv[iv:iv + 6]))
+            q[iq:iq + 7] = pin.SE3ToXYZQUAT(M)
+        elif joint.type == "ball":
+            R = pin.Quaternion(q[iq + 3], *q[iq:iq + 3]).matrix() @ pin.exp3(dv[iv:iv + 3])
+            q[iq:iq + 4] = pin.Quaternion(R).coeffs()
+        else:
+            q[iq] += dv[iv]
+    return q
+
+
+def _tangent_steps(robot, q, h):
+    """q (+) h e_k and q (+) -h e_k for every tangent direction k."""
+    steps = [[_integrate(robot, q.numpy(), s * h * e) for e in np.eye(robot.nv)] for s in (1, -1)]
+    return tuple(torch.tensor(np.array(x)) for x in steps)
+
+
+@pytest.fixture(scope="module")
+def mjcf_robots(tmp_path_factory):
+    import warnings
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "the MJCF model has contacts")
+        return {name: torch_grid.load(text, cache_dir=tmp_path_factory.mktemp(name)) for name, text in
+                (("zoo", ZOO), ("trees", TREES))}
+
+
+def _any_robot(name, robots, pin_models, pinocchio_balls, mjcf_robots):
+    return mjcf_robots[name] if name in mjcf_robots else _robot_and_model(name, robots, pin_models, pinocchio_balls)[0]
+
+
+@pytest.mark.parametrize("name", ["iiwa14", "go2", "balls", "zoo", "trees"])
+def test_inverse_dynamics_second_order_vs_differences(robots, pin_models, pinocchio_balls, mjcf_robots, name):
+    """Each tensor is the derivative of the analytic first-order one, with f_ext too; "zoo" has a
+    planar root and a two-hinge body, "trees" two free roots and a ball (MJCF models)."""
+    robot = _any_robot(name, robots, pin_models, pinocchio_balls, mjcf_robots)
+    q, qd, qdd, f = (x[0] for x in _states(robot, 1, seed=4))
+    h = 1e-5
+    d2q, d2v, dqdv, dadq = robot.pin.inverse_dynamics_second_order(q, qd, qdd, f)
+    qp, qm = _tangent_steps(robot, q, h)
+    gp, gm = (robot.pin.inverse_dynamics_gradient(x, qd.expand(robot.nv, -1), qdd.expand(robot.nv, -1), f.expand(robot.nv, -1, -1))
+              for x in (qp, qm))
+    # (k, i, j) -> (i, j, k)
+    assert rel_err(d2q, ((gp[0] - gm[0]) / (2 * h)).permute(1, 2, 0)) <= 1e-6
+    dM = (robot.pin.crba(qp) - robot.pin.crba(qm)) / (2 * h)
+    assert rel_err(dadq, dM.permute(1, 2, 0)) <= 1e-6
+    eye = h * torch.eye(robot.nv, dtype=torch.float64)
+    vp, vm = (robot.pin.inverse_dynamics_gradient(q.expand(robot.nv, -1), qd + s * eye, qdd.expand(robot.nv, -1),
+                                                  f.expand(robot.nv, -1, -1)) for s in (1, -1))
+    assert rel_err(dqdv, ((vp[0] - vm[0]) / (2 * h)).permute(1, 2, 0)) <= 1e-6
+    assert rel_err(d2v, ((vp[1] - vm[1]) / (2 * h)).permute(1, 2, 0)) <= 1e-6
+
+
+@pytest.mark.parametrize("name", ["iiwa14", "go2", "balls", "zoo"])
+def test_forward_dynamics_second_order_vs_differences(robots, pin_models, pinocchio_balls, mjcf_robots, name):
+    robot = _any_robot(name, robots, pin_models, pinocchio_balls, mjcf_robots)
+    q, qd, tau, f = (x[0] for x in _states(robot, 1, seed=5))
+    h, n = 1e-5, robot.nv
+    d2q, d2v, dqdv, dtdq = robot.pin.forward_dynamics_second_order(q, qd, tau, f)
+    qp, qm = _tangent_steps(robot, q, h)
+    gp, gm = (robot.pin.forward_dynamics_gradient(x, qd.expand(n, -1), tau.expand(n, -1), f.expand(n, -1, -1))
+              for x in (qp, qm))
+    assert rel_err(d2q, ((gp[0] - gm[0]) / (2 * h)).permute(1, 2, 0)) <= 1e-6
+    assert rel_err(dtdq, ((gp[2] - gm[2]) / (2 * h)).permute(1, 2, 0)) <= 1e-6
+    eye = h * torch.eye(n, dtype=torch.float64)
+    vp, vm = (robot.pin.forward_dynamics_gradient(q.expand(n, -1), qd + s * eye, tau.expand(n, -1), f.expand(n, -1, -1))
+              for s in (1, -1))
+    assert rel_err(dqdv, ((vp[0] - vm[0]) / (2 * h)).permute(1, 2, 0)) <= 1e-6
+    assert rel_err(d2v, ((vp[1] - vm[1]) / (2 * h)).permute(1, 2, 0)) <= 1e-6
+
+
+def test_batch_shapes_and_float32(robots):
+    robot = robots["go2"]
+    q, qd, qdd, _ = _states(robot, 6, seed=6)
+    ref = robot.pin.inverse_dynamics_second_order(q, qd, qdd)
+    shaped = robot.pin.inverse_dynamics_second_order(q.view(2, 3, -1), qd.view(2, 3, -1), qdd[0])
+    single = robot.pin.inverse_dynamics_second_order(q, qd, qdd[0].expand_as(qdd))
+    for x, y in zip(shaped, single):
+        assert x.shape == (2, 3, robot.nv, robot.nv, robot.nv)
+        assert torch.equal(x.reshape(y.shape), y)
+    low = robot.pin.inverse_dynamics_second_order(q.float(), qd.float(), qdd.float())
+    for x, y in zip(low, ref):
+        assert x.dtype == torch.float32 and rel_err(x, y) <= 1e-4
+    fd = robot.pin.forward_dynamics_second_order(q.view(2, 3, -1), qd.view(2, 3, -1), qdd.view(2, 3, -1))
+    assert all(x.shape == (2, 3, robot.nv, robot.nv, robot.nv) for x in fd)
+
+
+def test_mujoco_convention(robots):
+    """Without a quaternion joint the conventions agree; with one, the MuJoCo twin is not written yet
+    and the call says so rather than return Pinocchio's tensors."""
+    arm = robots["iiwa14"]
+    q, qd, qdd, _ = _states(arm, 2, seed=7)
+    for x, y in zip(arm.mujoco.inverse_dynamics_second_order(q, qd, qdd), arm.pin.inverse_dynamics_second_order(q, qd, qdd)):
+        assert torch.equal(x, y)
+    go2 = robots["go2"]
+    q, qd, qdd, _ = _states(go2, 2, seed=7)
+    for fn in (go2.mujoco.inverse_dynamics_second_order, go2.mujoco.forward_dynamics_second_order):
+        with pytest.raises(NotImplementedError, match="MuJoCo convention"):
+            fn(go2.mujoco.neutral_configuration(), qd, qdd)
+
+
+def test_third_derivatives_refuse(robots):
+    robot = robots["iiwa14"]
+    q, qd, qdd, _ = _states(robot, 2, seed=8)
+    q.requires_grad_(True)
+    for out in (robot.inverse_dynamics_second_order(q, qd, qdd), robot.forward_dynamics_second_order(q, qd, qdd)):
+        with pytest.raises(NotImplementedError, match="cannot be differentiated once more"):
+            out[0].sum().backward()
