@@ -24,13 +24,18 @@ from .ops import FORWARD_MODE_BACKWARD, OPS, OpSpec
 from .tangent import bracket_term, has_brackets, tangent_directions, tangent_to_ambient
 
 
+def backward_formula(spec: OpSpec) -> Callable | None:
+    """The op's backward, formula(ops, model, needs, grads, output, *inputs), or None if it has none."""
+    if spec.name in _BACKWARDS:
+        return _BACKWARDS[spec.name]
+    return _forward_mode(spec) if spec.name in FORWARD_MODE_BACKWARD else None
+
+
 def register_autograd(namespace: str, model: RobotModel) -> None:
     """Attach a backward to every op of one robot build."""
     ops = getattr(torch.ops, namespace)
     for spec in OPS.values():
-        backward = _BACKWARDS.get(spec.name)
-        if backward is None and spec.name in FORWARD_MODE_BACKWARD:
-            backward = _forward_mode(spec)
+        backward = backward_formula(spec)
         if backward is None:
             torch.library.register_autograd(f"{namespace}::{spec.name}", _no_backward(spec.name),
                                             setup_context=_save_nothing)
@@ -44,12 +49,19 @@ def _save_nothing(ctx, inputs, output) -> None:
 
 
 def _save_inputs(ctx, inputs, output) -> None:
+    # The outputs through save_for_backward: in a double backward they are then the graph's, whose
+    # gradients reach the op's own backward (a plain attribute would hold them as constants).
     ctx.inputs = inputs
-    ctx.output = output
+    ctx.several = isinstance(output, tuple)
+    ctx.save_for_backward(*(output if ctx.several else (output,)))
 
 
 def _no_backward(name: str) -> Callable:
     def backward(ctx, *grads):
+        if OPS[name].derived or name in _INTERNAL or name == "inverse_dynamics_second_order":
+            raise NotImplementedError(
+                f"torch_grid: {name} has no derivative: the op whose derivative it computes cannot be differentiated "
+                "once more (a third derivative, or the second derivative of an op whose outputs are derivatives)")
         raise NotImplementedError(f"torch_grid: {name} has no derivative yet; its outputs cannot be back-propagated through")
 
     return backward
@@ -57,15 +69,12 @@ def _no_backward(name: str) -> Callable:
 
 def _backward(name: str, formula: Callable, ops, model: RobotModel) -> Callable:
     """formula(ops, model, needs, grads, output, *inputs) -> one gradient (or None) per input, where
-    needs[i] says whether input i's gradient is wanted (ctx.needs_input_grad)."""
+    needs[i] says whether input i's gradient is wanted (ctx.needs_input_grad). Under create_graph=True
+    the formula's ops are recorded, so it is differentiated by their own backwards."""
 
     def backward(ctx, *grads):
-        if torch.is_grad_enabled():
-            raise NotImplementedError(
-                f"torch_grid: the backward of {name} is not differentiable (no derivatives of backwards); "
-                "call backward without create_graph=True"
-            )
-        return formula(ops, model, ctx.needs_input_grad, grads, ctx.output, *ctx.inputs)
+        output = ctx.saved_tensors if ctx.several else ctx.saved_tensors[0]
+        return formula(ops, model, ctx.needs_input_grad, grads, output, *ctx.inputs)
 
     return backward
 
@@ -118,6 +127,44 @@ def _forward_dynamics(ops, model, needs, grads, output, q, qd, tau, f_ext, conve
         dqd = -g_qd if needs[1] else None
     df = ops.body_velocities(q, lam, convention) if needs[3] else None
     return dq, dqd, lam if needs[2] else None, df, None
+
+
+def _inverse_dynamics_vjp(ops, model, needs, grads, output, q, qd, qdd, f_ext, lam, convention):
+    """(g_q, g_qd) = lam^T d tau / d(q, qd), the tangent gradient of s = lam . tau. With cotangents
+    (u_q, u_qd), h = u_q . g_q + u_qd . g_qd = D_u s is the derivative of s along u, and its gradient
+    is forward over reverse: D_u of the gradient of s (one jvp kernel), plus along q the Lie bracket
+    sum_j u_j [e_k, e_j] s of the quaternion joints. d h / d qdd = D_u (M lam), d h / d f_ext =
+    -D_u (J lam), d h / d lam = d tau / dq u_q + d tau / dqd u_qd."""
+    zero = torch.zeros_like(qd)
+    u_q, u_qd = (zero if g is None else g for g in grads)
+    t_u = (u_q.unsqueeze(-2) @ tangent_directions(model, q, convention)).squeeze(-2)  # u_q in q's coordinates
+    dq = dqd = dqdd = df = dlam = None
+    if needs[0] or needs[1]:
+        d_gq, d_gqd = ops.inverse_dynamics_vjp_jvp(q, qd, qdd, f_ext, lam, t_u, u_qd, convention)
+        if needs[0]:
+            if has_brackets(model):
+                d_gq = d_gq + bracket_term(model, u_q.unsqueeze(-1) * output[0].unsqueeze(-2), convention)
+            dq = tangent_to_ambient(model, q, d_gq, convention)
+        dqd = d_gqd if needs[1] else None
+    if needs[2]:
+        dqdd = ops.inverse_dynamics_jvp(q, zero, lam, None, t_u, convention) - \
+            ops.inverse_dynamics_jvp(q, zero, zero, None, t_u, convention)
+    if needs[3]:
+        df = -ops.body_velocities_jvp(q, lam, t_u, convention)
+    if needs[4]:
+        d_q, d_qd = ops.inverse_dynamics_gradient(q, qd, qdd, f_ext, convention)
+        dlam = (d_q @ u_q.unsqueeze(-1) + d_qd @ u_qd.unsqueeze(-1)).squeeze(-1)
+    return dq, dqd, dqdd, df, dlam, None
+
+
+def _inertia_solve(ops, model, needs, grads, output, q, x, convention):
+    """y = M^-1 x: d/dx <g, y> = M^-1 g = mu; d/dq = -<mu, dM y>, a mass-matrix product gradient."""
+    mu = ops.inertia_solve(q, grads[0], convention)
+    dq = None
+    if needs[0]:
+        dq = -_mass_product_vjp(ops, q, output.unsqueeze(-2), mu.unsqueeze(-2), convention)
+        dq = tangent_to_ambient(model, q, dq, convention)
+    return dq, mu if needs[1] else None, None
 
 
 def _crba(ops, model, needs, grads, output, q, convention):
@@ -180,13 +227,12 @@ def _forward_kinematics(ops, model, needs, grads, output, q, convention):
     R moves by dR = [w]x R with w the angular rows, so <G, dR> = w . axial(R G^T - G R^T)."""
     g_pos, g_rot = grads
     rotations = output[1]
-    weights = torch.zeros(*q.shape[:-1], len(model.frames), 6, dtype=q.dtype, device=q.device)
-    if g_pos is not None:
-        weights[..., :3] = g_pos
+    zero = torch.zeros(*q.shape[:-1], len(model.frames), 3, dtype=q.dtype, device=q.device)
+    w_rot = zero
     if g_rot is not None:
         A = rotations @ g_rot.transpose(-1, -2)
-        weights[..., 3:] = torch.stack([A[..., 1, 2] - A[..., 2, 1], A[..., 2, 0] - A[..., 0, 2],
-                                        A[..., 0, 1] - A[..., 1, 0]], dim=-1)
+        w_rot = torch.stack([A[..., 1, 2] - A[..., 2, 1], A[..., 2, 0] - A[..., 0, 2], A[..., 0, 1] - A[..., 1, 0]], dim=-1)
+    weights = torch.cat([zero if g_pos is None else g_pos, w_rot], dim=-1)
     return tangent_to_ambient(model, q, ops.frames_vjp(q, weights, convention), convention), None
 
 
@@ -197,7 +243,7 @@ def _end_effector_pose(ops, model, needs, grads, output, q, frames, convention):
     weights = torch.zeros(*q.shape[:-1], len(model.frames), 6, dtype=q.dtype, device=q.device)
     index = torch.tensor(frames, device=q.device)
     w_ang = torch.linalg.solve(rpy_rate_matrix(output[..., 3:]).transpose(-1, -2), grad[..., 3:].unsqueeze(-1))
-    weights.index_add_(-2, index, torch.cat([grad[..., :3], w_ang.squeeze(-1)], dim=-1))
+    weights = weights.index_add(-2, index, torch.cat([grad[..., :3], w_ang.squeeze(-1)], dim=-1))
     return tangent_to_ambient(model, q, ops.frames_vjp(q, weights, convention), convention), None, None
 
 
@@ -322,6 +368,8 @@ def rpy_rate_matrix(rpy: torch.Tensor) -> torch.Tensor:
 
 
 _BACKWARDS = {
+    "inverse_dynamics_vjp": _inverse_dynamics_vjp,
+    "inertia_solve": _inertia_solve,
     "crba": _crba,
     "minv": _minv,
     "forward_kinematics": _forward_kinematics,
@@ -339,6 +387,9 @@ _BACKWARDS = {
     "forward_dynamics_parameter_gradient": _forward_dynamics_parameter_gradient,
     "osc_inertia": _osc_inertia,
 }
+
+# The ops that the backwards call, not meant for users.
+_INTERNAL = ("inverse_dynamics_vjp", "inertia_solve", "frames_vjp", "body_velocities")
 
 # Ops whose outputs are derivatives and whose backward is made of other ops (their backwards, or the
 # jvp kernels of a first-order gradient) rather than of a kernel of their own on dual numbers.

@@ -12,6 +12,7 @@ import torch
 from torch.autograd import forward_ad
 
 from .autograd import rpy_rate_matrix
+from .func import FuncOps
 from .mimic import Coupling
 from .model import RobotModel, inertia_about_origin
 from .ops import OPS, model_sizes
@@ -329,7 +330,9 @@ class _Functions:
         stack = torch._C._functorch.get_interpreter_stack()
         if stack or forward_ad._current_level >= 0:
             _refuse_forward_ad(name, [x for x in args if isinstance(x, torch.Tensor)], stack)
-        if stack or (torch.is_grad_enabled() and torch._C._any_requires_grad(*args)):
+        if stack:  # a torch.func transform: each op through an autograd.Function it can transform
+            return robot._func.call(name, *_checked(name, robot._tensor_args[name], args), self._convention)
+        if torch.is_grad_enabled() and torch._C._any_requires_grad(*args):
             return op(*_checked(name, robot._tensor_args[name], args), self._convention)
         # Nothing to differentiate: go straight to the CPU or CUDA kernel, past the (Python) autograd
         # kernel that is most of a small call's cost, and let the glue check the arguments and broadcast
@@ -375,6 +378,7 @@ class Robot(_Functions):
         self._include_passive = passive_forces
         self._with_passive = passive_forces and self._passive.any
         self._ops = getattr(torch.ops, namespace)
+        self._func = FuncOps(self._ops, model.kernel_model)
         self._enable_mujoco_kernels = mujoco_kernels
         self._mujoco_kernels = mujoco_kernels or not model.conventions_differ
         self._frame_index = {f.name: i for i, f in enumerate(model.frames)}

@@ -71,21 +71,27 @@ def tangent_directions(model: RobotModel, q: torch.Tensor, convention: int) -> t
     """(..., nv, nq): row j is the change of q along its tangent direction j (Pinocchio's local
     increment, or mj_integratePos's), d/de (q + e_j e) in the coordinates of q."""
     lay = layout(model)
-    t = torch.zeros(*q.shape[:-1], model.nv, q.shape[-1], dtype=q.dtype, device=q.device)
+    nq = q.shape[-1]
+    # entries (row, column) and their values, placed out of place (torch.func.vmap batches that)
+    flat, values = [], []
     if lay.scalar_q:
-        t[..., list(lay.scalar_v), list(lay.scalar_q)] = 1.0
+        flat += [r * nq + c for r, c in zip(lay.scalar_v, lay.scalar_q)]
+        values.append(torch.ones_like(q[..., :1]).expand(*q.shape[:-1], len(lay.scalar_q)))
     eye = torch.eye(3, dtype=q.dtype, device=q.device)
     for j in lay.quaternions:
         xyz, w, iw, ixyz = _xyzw(q, j, convention)
         if j.free:  # position + v (MuJoCo, world frame) or + R v (Pinocchio)
-            rows = t[..., j.vi:j.vi + 3, j.qi:j.qi + 3]
-            rows.copy_(eye if convention else quaternion_rotation(torch.cat([xyz, w], dim=-1)).mT)
+            block = eye.expand(*q.shape[:-1], 3, 3) if convention else quaternion_rotation(torch.cat([xyz, w], dim=-1)).mT
+            flat += [(j.vi + r) * nq + j.qi + c for r in range(3) for c in range(3)]
+            values.append(block.reshape(*q.shape[:-1], 9))
         # dQ = Q (x) (w_k, 0) / 2 for the unit rotation rate w_k: d xyz = (w e_k + xyz x e_k) / 2, d w = -xyz_k / 2
         for k in range(3):
             e = eye[k].expand_as(xyz)
-            t[..., j.angular + k, ixyz] = 0.5 * (w * e + torch.cross(xyz, e, dim=-1))
-            t[..., j.angular + k, iw] = -0.5 * xyz[..., k]
-    return t
+            flat += [(j.angular + k) * nq + c for c in range(ixyz.start, ixyz.stop)] + [(j.angular + k) * nq + iw]
+            values += [0.5 * (w * e + torch.cross(xyz, e, dim=-1)), -0.5 * xyz[..., k:k + 1]]
+    t = torch.zeros(*q.shape[:-1], model.nv * nq, dtype=q.dtype, device=q.device)
+    index = torch.tensor(flat, dtype=torch.long, device=q.device)
+    return t.index_copy(-1, index, torch.cat(values, dim=-1)).unflatten(-1, (model.nv, nq))
 
 
 def tangent_to_ambient(model: RobotModel, q: torch.Tensor, g: torch.Tensor, convention: int) -> torch.Tensor:
@@ -99,9 +105,12 @@ def tangent_to_ambient(model: RobotModel, q: torch.Tensor, g: torch.Tensor, conv
     lay = layout(model)
     if not lay.quaternions:
         return g
-    out = torch.zeros(*g.shape[:-1], q.shape[-1], dtype=g.dtype, device=g.device)
+    # Each coordinate of q once, as (its indices, its gradient), put in q's order at the end: out of
+    # place, so that torch.func.vmap batches it.
+    indices, parts = [], []
     if lay.scalar_q:
-        out[..., list(lay.scalar_q)] = g[..., list(lay.scalar_v)]
+        indices += list(lay.scalar_q)
+        parts.append(g[..., list(lay.scalar_v)])
     for j in lay.quaternions:
         xyz, w, iw, ixyz = _xyzw(q, j, convention)
         unit, norm = unit_quaternion(torch.cat([xyz, w], dim=-1))
@@ -109,10 +118,13 @@ def tangent_to_ambient(model: RobotModel, q: torch.Tensor, g: torch.Tensor, conv
         g_ang = g[..., j.angular:j.angular + 3]
         if j.free:
             g_lin = g[..., j.vi:j.vi + 3]
-            out[..., j.qi:j.qi + 3] = g_lin if convention else (quaternion_rotation(unit) @ g_lin.unsqueeze(-1)).squeeze(-1)
-        out[..., ixyz] = 2 / norm * (w_n * g_ang + torch.cross(xyz_n, g_ang, dim=-1))
-        out[..., iw] = (-2 / norm * (xyz_n * g_ang).sum(-1, keepdim=True)).squeeze(-1)
-    return out
+            indices += list(range(j.qi, j.qi + 3))
+            parts.append(g_lin if convention else (quaternion_rotation(unit) @ g_lin.unsqueeze(-1)).squeeze(-1))
+        indices += list(range(ixyz.start, ixyz.stop)) + [iw]
+        parts.append(2 / norm * (w_n * g_ang + torch.cross(xyz_n, g_ang, dim=-1)))
+        parts.append(-2 / norm * (xyz_n * g_ang).sum(-1, keepdim=True))
+    order = sorted(range(len(indices)), key=indices.__getitem__)
+    return torch.cat(parts, dim=-1)[..., order]
 
 
 def _cross(a: list[float], b: list[float]) -> list[float]:
@@ -151,10 +163,14 @@ def bracket_term(model: RobotModel, g_tan: torch.Tensor, convention: int) -> tor
     """(..., nv): sum_j g_j . [e_k, e_j] over each quaternion joint's directions j, k, with g_j (rows
     of g_tan, (..., nv, nv)) the tangent gradients: the second derivative along k then j less the
     one along j then k."""
-    out = torch.zeros(g_tan.shape[:-2] + g_tan.shape[-1:], dtype=g_tan.dtype, device=g_tan.device)
+    indices, parts = [], []
     for j in layout(model).quaternions:
         n = 6 if j.free else 3
         c = torch.tensor(_BRACKET[j.free, convention], dtype=g_tan.dtype, device=g_tan.device)
         block = g_tan[..., j.vi:j.vi + n, j.vi:j.vi + n]
-        out[..., j.vi:j.vi + n] = torch.einsum("...jm,kjm->...k", block, c)
-    return out
+        indices += range(j.vi, j.vi + n)
+        parts.append(torch.einsum("...jm,kjm->...k", block, c))
+    out = torch.zeros(g_tan.shape[:-2] + g_tan.shape[-1:], dtype=g_tan.dtype, device=g_tan.device)
+    if not parts:
+        return out
+    return out.index_copy(-1, torch.tensor(indices, dtype=torch.long, device=g_tan.device), torch.cat(parts, dim=-1))

@@ -1,0 +1,114 @@
+"""torch.func transforms over the functions: grad, vjp, jacrev (and jacrev of jacrev), vmap with a
+batching rule (one batched call, no per-sample fallback), vmap of grad, functional_call; forward
+mode is refused by name."""
+from __future__ import annotations
+
+import warnings
+
+import pytest
+import torch
+
+import torch_grid
+from oracles import rel_err
+from test_quaternion_joints import pin_ball_model
+
+
+@pytest.fixture(scope="module")
+def balls(tmp_path_factory):
+    return torch_grid.load(pin_ball_model(), cache_dir=tmp_path_factory.mktemp("cache"))
+
+
+def _robot(name, robots, balls):
+    return balls if name == "balls" else robots[name]
+
+
+def _state(robot, convention, batch, seed):
+    g = torch.Generator().manual_seed(seed)
+    q = getattr(robot, convention).random_configuration(batch, generator=g)
+    qd, x = (torch.randn(batch, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
+    return q, qd, x
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+@pytest.mark.parametrize("name", ["iiwa14", "balls"])
+def test_grad_vjp_jacrev_equal_autograd(robots, balls, name, convention):
+    robot = _robot(name, robots, balls)
+    view = getattr(robot, convention)
+    q, qd, tau = (x[0] for x in _state(robot, convention, 1, seed=1))
+
+    def loss(q, qd, tau):
+        return view.forward_dynamics(q, qd, tau).square().sum() + view.energy(q, qd)[2]
+
+    leaves = [x.clone().requires_grad_(True) for x in (q, qd, tau)]
+    ref = torch.autograd.grad(loss(*leaves), leaves)
+    got = torch.func.grad(loss, argnums=(0, 1, 2))(q, qd, tau)
+    for a, b in zip(got, ref):
+        assert rel_err(a, b) <= 1e-12
+    out, pullback = torch.func.vjp(lambda q: view.inverse_dynamics(q, qd, tau), q)
+    assert rel_err(out, view.inverse_dynamics(q, qd, tau)) <= 1e-15
+    w = torch.randn_like(qd)
+    leaf = q.clone().requires_grad_(True)
+    (ref_q,) = torch.autograd.grad(view.inverse_dynamics(leaf, qd, tau), leaf, w)
+    assert rel_err(pullback(w)[0], ref_q) <= 1e-12
+    # the Jacobian of M q-dependence by reverse mode, and of qd by the analytic gradient
+    J = torch.func.jacrev(lambda qd: view.inverse_dynamics(q, qd, tau))(qd)
+    assert rel_err(J, view.inverse_dynamics_gradient(q, qd, tau)[1]) <= 1e-12
+
+
+def test_hessian_by_reverse_over_reverse(robots):
+    """jacrev(jacrev(f)): the backward's own ops transformed again, against autograd's double backward."""
+    robot = robots["go2"]
+    q, qd, tau = (x[0] for x in _state(robot, "pin", 1, seed=2))
+
+    def loss(qd):
+        return robot.forward_dynamics(q, qd, tau).square().sum()
+
+    H = torch.func.jacrev(torch.func.jacrev(loss))(qd)
+    assert rel_err(H, torch.autograd.functional.hessian(loss, qd)) <= 1e-10
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+@pytest.mark.parametrize("name", ["go2", "balls"])
+def test_vmap_is_the_batched_call(robots, balls, name, convention):
+    robot = _robot(name, robots, balls)
+    view = getattr(robot, convention)
+    q, qd, x = _state(robot, convention, 5, seed=3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # torch's per-sample fallback warns
+        tau = torch.func.vmap(view.inverse_dynamics)(q, qd, x)
+        M = torch.func.vmap(view.crba)(q)
+        jac = torch.func.vmap(lambda q: view.frame_jacobian(q, robot.nframes - 1))(q)
+        shared = torch.func.vmap(view.inverse_dynamics, in_dims=(0, None, None))(q, qd[0], x[0])
+        moved = torch.func.vmap(view.inverse_dynamics, in_dims=(1, 1, 1))(q.mT, qd.mT, x.mT)
+    assert torch.equal(tau, view.inverse_dynamics(q, qd, x)) and torch.equal(moved, tau)
+    assert torch.equal(M, view.crba(q)) and torch.equal(jac, view.frame_jacobian(q, robot.nframes - 1))
+    assert torch.equal(shared, view.inverse_dynamics(q, qd[0], x[0]))
+    # per-sample gradients: vmap of grad
+    grads = torch.func.vmap(torch.func.grad(lambda q, qd, x: view.forward_dynamics(q, qd, x).square().sum()))(q, qd, x)
+    leaf = q.clone().requires_grad_(True)
+    (ref,) = torch.autograd.grad(view.forward_dynamics(leaf, qd, x).square().sum(), leaf)
+    assert rel_err(grads, ref) <= 1e-12
+
+
+def test_functional_call_and_forward_mode(robots):
+    robot = robots["iiwa14"]
+    q, qd, x = _state(robot, "pin", 2, seed=4)
+
+    class Plant(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.gain = torch.nn.Parameter(torch.ones(robot.nv, dtype=torch.float64))
+
+        def forward(self, q, qd):
+            return robot.forward_dynamics(q, qd, -self.gain * qd)
+
+    plant = Plant()
+    params = {"gain": 2 * torch.ones(robot.nv, dtype=torch.float64)}
+    g = torch.func.grad(lambda p: torch.func.functional_call(plant, p, (q, qd)).sum())(params)["gain"]
+    gain = params["gain"].clone().requires_grad_(True)
+    (ref,) = torch.autograd.grad(robot.forward_dynamics(q, qd, -gain * qd).sum(), gain)
+    assert rel_err(g, ref) <= 1e-12
+    with pytest.raises(NotImplementedError, match="forward-mode"):
+        torch.func.jvp(lambda q: robot.inverse_dynamics(q, qd, x), (q,), (torch.ones_like(q),))
+    with pytest.raises(NotImplementedError, match="forward-mode"):
+        torch.func.hessian(lambda q: robot.inverse_dynamics(q, qd, x).sum())(q[0])
