@@ -201,6 +201,59 @@ def second_order(name: str, batch: int = 256) -> list[tuple[str, float, float]]:
     return [(fn_name, *forward_and_backward_us(fn, inputs, batch, seconds=0.5)) for fn_name, fn in functions.items()]
 
 
+def second_order_kernel(name: str, cpp: dict[str, float]) -> list[str]:
+    """Rows of inverse_dynamics_second_order per sample (one thread, float64) at B = 4096 and 256,
+    and forward_dynamics_second_order at B = 256, beside Pinocchio's C++ ComputeRNEASecondOrderDerivatives
+    per call (it reuses its four tensors, in cache; a batch writes B sets of them)."""
+    src, floating, bundled = ROBOTS[name]
+    robot = torch_grid.load(bundled or src, floating_base=floating)
+    rows = []
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    for batch in (B, 256):
+        g = torch.Generator().manual_seed(0)
+        q = robot.random_configuration(batch, generator=g)
+        qd, qdd = (torch.randn(batch, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
+        ours = per_sample_us(lambda: robot.inverse_dynamics_second_order(q, qd, qdd), batch)
+        theirs = cpp["inverse_dynamics_second_order"]
+        rows.append(f"| {name} | inverse_dynamics_second_order | {batch} | {ours:.2f} | {theirs:.2f} | {ours / theirs:.2f} |")
+        print(rows[-1], flush=True)
+    fd = per_sample_us(lambda: robot.forward_dynamics_second_order(q, qd, qdd), 256)
+    rows.append(f"| {name} | forward_dynamics_second_order | 256 | {fd:.2f} | | |")
+    torch.set_num_threads(threads)
+    return rows
+
+
+def transforms(name: str) -> list[str]:
+    """Rows: a torch.func.vmap of inverse_dynamics and of crba against the batched call, and a
+    Hessian-vector product (double backward) of a scalar loss on forward_dynamics against the forward,
+    per sample, one thread, B = 4096."""
+    src, floating, bundled = ROBOTS[name]
+    robot = torch_grid.load(bundled or src, floating_base=floating)
+    g = torch.Generator().manual_seed(0)
+    q = robot.random_configuration(B, generator=g)
+    qd, x, w = (torch.randn(B, robot.nv, dtype=torch.float64, generator=g) for _ in range(3))
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    rows = []
+    for fn_name, fn, args in (("inverse_dynamics", robot.inverse_dynamics, (q, qd, x)), ("crba", robot.crba, (q,))):
+        batched, mapped = per_sample_us(lambda: fn(*args), B), per_sample_us(lambda: torch.func.vmap(fn)(*args), B)
+        rows.append(f"| {name} | vmap of {fn_name} | {batched:.3f} | {mapped:.3f} | {mapped / batched:.2f} |")
+
+    def hvp():
+        leaves = [t.detach().requires_grad_(True) for t in (q, qd, x)]
+        loss = (w * robot.forward_dynamics(*leaves)).sum()
+        grads = torch.autograd.grad(loss, leaves, create_graph=True)
+        torch.autograd.grad(sum((gr * v).sum() for gr, v in zip(grads, (q, qd, x))), leaves)
+
+    forward, both = per_sample_us(lambda: robot.forward_dynamics(q, qd, x), B), per_sample_us(hvp, B)
+    rows.append(f"| {name} | Hessian-vector product through forward_dynamics | {forward:.3f} | {both:.3f} | {both / forward:.2f} |")
+    torch.set_num_threads(threads)
+    for row in rows:
+        print(row, flush=True)
+    return rows
+
+
 def bench_robot(name: str) -> tuple[list[tuple[str, str, float, float, float, float]], float]:
     """Rows (robot, function, torch_grid µs/sample on 1 thread, on all threads, Pinocchio µs/call
     from Python, in C++), and Pinocchio's C++ crba without the lower-triangle fill, µs/call."""
@@ -216,7 +269,7 @@ def bench_robot(name: str) -> tuple[list[tuple[str, str, float, float, float, fl
         many = per_sample_us(ours, B)
         ref = per_call_us(theirs)
         rows.append((name, fn_name, one, many, ref, cpp[fn_name]))
-    return rows, cpp["crba_upper"]
+    return rows, cpp["crba_upper"], second_order_kernel(name, cpp)
 
 
 def main() -> None:
@@ -234,8 +287,12 @@ def main() -> None:
     builds = ["| robot | nq | nv | first build (s) | warm load, new process (s) |", "|---|---|---|---|---|"]
     grads = ["| robot | forward_dynamics (µs/sample) | forward + backward (µs/sample) | ratio |", "|---|---|---|---|"]
     second = ["| robot | function | forward (µs/sample) | forward + backward (µs/sample) |", "|---|---|---|---|"]
+    kernels = ["| robot | function | B | 1 thread (µs/sample) | Pinocchio C++ per call | ratio |", "|---|---|---|---|---|---|"]
+    func_rows = ["| robot | case | reference (µs/sample) | case (µs/sample) | ratio |", "|---|---|---|---|---|"]
     for name in args.robots:
-        rows, upper = bench_robot(name)
+        rows, upper, kernel_rows = bench_robot(name)
+        kernels += kernel_rows
+        func_rows += transforms(name)
         for robot, fn, one, many, ref, cpp in rows:
             lines.append(f"| {robot} | {fn} | {one:.3f} | {many:.3f} | {ref:.3f} | {cpp:.3f} | {one / cpp:.2f} | "
                          f"{'yes' if one <= ref else 'NO'} |")
@@ -274,7 +331,15 @@ def main() -> None:
         "(one thread, float64, B = 4096).\n\n" + "\n".join(grads) + \
         "\n\nSecond-order backwards (M, M^-1 from inverse-dynamics products; forward_dynamics_gradient " \
         "through -M^-1 dtau/dx and the inverse-dynamics gradient's backward; the others by the forward-mode " \
-        "dual-number kernels), with respect to every input, one thread, float64, B = 256.\n\n" + "\n".join(second) + "\n"
+        "dual-number kernels), with respect to every input, one thread, float64, B = 256.\n\n" + "\n".join(second) + \
+        "\n\nSecond-order kernels: the four (nv, nv, nv) tensors of inverse_dynamics_second_order per sample, " \
+        "one thread, float64, against Pinocchio's C++ ComputeRNEASecondOrderDerivatives per call (one Data and " \
+        "four tensors reused, so they stay in cache; a batch writes 4 nv^3 numbers per sample to fresh " \
+        "memory, kept for the next call up to 1 GiB); forward_dynamics_second_order adds M^-1 products in torch." \
+        "\n\n" + "\n".join(kernels) + "\n\nTransforms, one thread, float64, B = 4096: torch.func.vmap against " \
+        "the batched call (reference), and a Hessian-vector product of w . forward_dynamics(q, qd, tau) with " \
+        "respect to all three (forward + backward with create_graph + double backward) against the forward " \
+        "(reference).\n\n" + "\n".join(func_rows) + "\n"
     overhead = call_overhead()
     text += ("\n\nCall overhead: one small call, µs (best of 7 x 20000; iiwa14, float64, CPU).\n\n| call | µs |\n|---|---|\n"
              + "\n".join(f"| {call} | {us:.2f} |" for call, us in overhead) + "\n")

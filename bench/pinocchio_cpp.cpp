@@ -24,6 +24,7 @@
 #include <pinocchio/algorithm/frames.hpp>
 #include <pinocchio/algorithm/joint-configuration.hpp>
 #include <pinocchio/algorithm/rnea-derivatives.hpp>
+#include <pinocchio/algorithm/rnea-second-order-derivatives.hpp>
 #include <pinocchio/algorithm/rnea.hpp>
 #include <pinocchio/multibody.hpp>
 #include <pinocchio/parsers/urdf.hpp>
@@ -124,6 +125,13 @@ int main(int argc, char** argv) {
   time("forward_dynamics_gradient", [&](int i) {
     pinocchio::computeABADerivatives(model, data, q.col(i), v.col(i), a.col(i));
     sink = data.ddq_dq(0, 0) + data.ddq_dv(0, 0) + data.Minv(model.nv - 1, 0);
+  });
+  pinocchio::Data::Tensor3x d2q(model.nv, model.nv, model.nv), d2v(model.nv, model.nv, model.nv),
+      dqdv(model.nv, model.nv, model.nv), dadq(model.nv, model.nv, model.nv);
+  for (auto* T : {&d2q, &d2v, &dqdv, &dadq}) T->setZero();
+  time("inverse_dynamics_second_order", [&](int i) {
+    pinocchio::ComputeRNEASecondOrderDerivatives(model, data, q.col(i), v.col(i), a.col(i), d2q, d2v, dqdv, dadq);
+    sink = d2q(0, 0, 0) + d2v(0, 0, 0) + dqdv(0, 0, 0) + dadq(0, 0, 0);
   });
   time("nonlinear_effects", [&](int i) { sink = pinocchio::nonLinearEffects(model, data, q.col(i), v.col(i))[0]; });
   time("generalized_gravity",
