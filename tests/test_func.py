@@ -1,12 +1,13 @@
 """torch.func transforms over the functions: grad, vjp, jacrev (and jacrev of jacrev), vmap with a
-batching rule (one batched call, no per-sample fallback), vmap of grad, functional_call; forward
-mode is refused by name."""
+batching rule (one batched call, no per-sample fallback), vmap of grad, functional_call; forward mode
+(jvp, jacfwd, hessian, forward_ad) of the value ops."""
 from __future__ import annotations
 
 import warnings
 
 import pytest
 import torch
+from torch.autograd import forward_ad
 
 import torch_grid
 from oracles import rel_err
@@ -108,7 +109,41 @@ def test_functional_call_and_forward_mode(robots):
     gain = params["gain"].clone().requires_grad_(True)
     (ref,) = torch.autograd.grad(robot.forward_dynamics(q, qd, -gain * qd).sum(), gain)
     assert rel_err(g, ref) <= 1e-12
-    with pytest.raises(NotImplementedError, match="forward-mode"):
-        torch.func.jvp(lambda q: robot.inverse_dynamics(q, qd, x), (q,), (torch.ones_like(q),))
-    with pytest.raises(NotImplementedError, match="forward-mode"):
-        torch.func.hessian(lambda q: robot.inverse_dynamics(q, qd, x).sum())(q[0])
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+@pytest.mark.parametrize("name", ["iiwa14", "balls"])
+def test_forward_mode(robots, balls, name, convention):
+    """jvp, jacfwd, hessian (jacfwd of jacrev) and torch.autograd.forward_ad of the value ops against
+    reverse mode, at quaternions of norm 1.2."""
+    robot = _robot(name, robots, balls)
+    view = getattr(robot, convention)
+    q, qd, x = (t[0] for t in _state(robot, convention, 1, seed=5))
+    q = 1.2 * q
+    f = torch.randn(robot.nbodies, 6, dtype=torch.float64)
+    functions = {
+        "inverse_dynamics": lambda q, qd, x: view.inverse_dynamics(q, qd, x, f),
+        "forward_dynamics": lambda q, qd, x: view.forward_dynamics(q, qd, x, f),
+        "crba": lambda q, qd, x: view.crba(q), "minv": lambda q, qd, x: view.minv(q),
+        "generalized_gravity": lambda q, qd, x: view.generalized_gravity(q),
+        "nonlinear_effects": lambda q, qd, x: view.nonlinear_effects(q, qd),
+        "energy": lambda q, qd, x: view.energy(q, qd), "com": lambda q, qd, x: view.com(q),
+        "forward_kinematics": lambda q, qd, x: view.forward_kinematics(q)[1],
+        "end_effector_pose": lambda q, qd, x: view.end_effector_pose(q, [robot.nframes - 1]),
+    }
+    tangents = tuple(torch.randn_like(t) for t in (q, qd, x))
+    for label, fn in functions.items():
+        out, jv = torch.func.jvp(fn, (q, qd, x), tangents)
+        assert torch.equal(out, fn(q, qd, x)), label
+        J = torch.func.jacrev(fn, argnums=(0, 1, 2))(q, qd, x)
+        ref = sum((Jk.reshape(out.numel(), -1) @ t.reshape(-1)).reshape(out.shape) for Jk, t in zip(J, tangents))
+        assert rel_err(jv, ref) <= 1e-10, label
+        assert rel_err(torch.func.jacfwd(fn)(q, qd, x), J[0]) <= 1e-10, label
+        with forward_ad.dual_level():
+            dual = fn(*(forward_ad.make_dual(p, t) for p, t in zip((q, qd, x), tangents)))
+            assert rel_err(forward_ad.unpack_dual(dual).tangent, ref) <= 1e-10, label
+
+    def loss(qd):
+        return view.forward_dynamics(q, qd, x).square().sum()
+
+    assert rel_err(torch.func.hessian(loss)(qd), torch.autograd.functional.hessian(loss, qd)) <= 1e-10

@@ -1,6 +1,6 @@
 """Autograd for the ops, backed by the derivative kernels.
 
-The ops in _BACKWARDS differentiate with respect to every tensor input, mostly through the O(n)
+The ops in BACKWARDS differentiate with respect to every tensor input, mostly through the O(n)
 vector-Jacobian product of inverse dynamics. Those kernels give derivatives along the tangent
 space; the gradient with respect to q is mapped to the ambient coordinates the caller passed (a
 quaternion through its normalisation: tangent.py).
@@ -26,8 +26,8 @@ from .tangent import bracket_term, has_brackets, tangent_directions, tangent_to_
 
 def backward_formula(spec: OpSpec) -> Callable | None:
     """The op's backward, formula(ops, model, needs, grads, output, *inputs), or None if it has none."""
-    if spec.name in _BACKWARDS:
-        return _BACKWARDS[spec.name]
+    if spec.name in BACKWARDS:
+        return BACKWARDS[spec.name]
     return _forward_mode(spec) if spec.name in FORWARD_MODE_BACKWARD else None
 
 
@@ -367,7 +367,7 @@ def rpy_rate_matrix(rpy: torch.Tensor) -> torch.Tensor:
                         torch.stack([-sp, zero, one], -1)], dim=-2)
 
 
-_BACKWARDS = {
+BACKWARDS = {
     "inverse_dynamics_vjp": _inverse_dynamics_vjp,
     "inertia_solve": _inertia_solve,
     "crba": _crba,

@@ -6,22 +6,35 @@ not have. Under a transform, `Robot` calls each op through `FuncOps`: one such F
 forward calls the op one transform level down, whose backward is the op's own formula
 (autograd.py) with its inner ops called the same way (so a transform of a transform nests), and
 whose vmap rule moves the batched dimension to the front and makes one batched call, which the ops
-broadcast. Forward mode (jvp, jacfwd, hessian) is refused by `Robot` before it gets here.
+broadcast, and whose jvp (forward mode: jvp, jacfwd, hessian, torch.autograd.forward_ad) is the
+derivative of the backward with respect to its cotangents.
 """
 from __future__ import annotations
 
 from typing import Callable
 
 import torch
+from torch.autograd import forward_ad
 
-from .autograd import backward_formula
+from .autograd import BACKWARDS, COMPOSED_BACKWARD, backward_formula
 from .model import RobotModel
 from .ops import OPS
+
+
+# Ops with a forward-mode derivative: those whose backward is differentiable in its cotangents (made of
+# ops with backwards); the backward of an op whose outputs are derivatives is not.
+FORWARD_MODE = tuple(n for n in BACKWARDS if n not in COMPOSED_BACKWARD)
 
 
 def transforming() -> bool:
     """Whether a torch.func transform is active (then ops go through FuncOps)."""
     return bool(torch._C._functorch.get_interpreter_stack())
+
+
+def dual(args) -> bool:
+    """Whether an argument carries a torch.autograd.forward_ad tangent."""
+    return forward_ad._current_level >= 0 and any(
+        isinstance(x, torch.Tensor) and forward_ad.unpack_dual(x).tangent is not None for x in args)
 
 
 class FuncOps:
@@ -38,7 +51,7 @@ class FuncOps:
 
     def call(self, name: str, *args):
         """op `name` at the current transform level: through its Function while one is active."""
-        if not transforming():
+        if not transforming() and not dual(args):
             return getattr(self._ops, name)(*args)
         if name not in self._functions:
             self._functions[name] = self._function(name)
@@ -59,16 +72,45 @@ class FuncOps:
             ctx.others = [None if isinstance(x, torch.Tensor) else x for x in inputs]
             outs = output if several else (output,)
             ctx.save_for_backward(*[inputs[k] for k in tensors], *outs)
+            ctx.save_for_forward(*[inputs[k] for k in tensors], *outs)
+
+        def saved(ctx, tensors):
+            inputs = list(ctx.others)
+            for k, t in zip(ctx.tensor_positions, tensors):
+                inputs[k] = t
+            outs = tensors[len(ctx.tensor_positions):]
+            return inputs, outs if several else outs[0]
 
         def backward(ctx, *grads):
-            saved = ctx.saved_tensors
-            inputs = list(ctx.others)
-            for k, t in zip(ctx.tensor_positions, saved):
-                inputs[k] = t
-            outs = saved[len(ctx.tensor_positions):]
             if formula is None:
                 raise NotImplementedError(f"torch_grid: {name} has no derivative; it cannot be back-propagated through")
-            return formula(outer, model, ctx.needs_input_grad, grads, outs if several else outs[0], *inputs)
+            inputs, output = saved(ctx, ctx.saved_tensors)
+            return formula(outer, model, ctx.needs_input_grad, grads, output, *inputs)
+
+        def jvp(ctx, *tangents):
+            # The backward is linear in its cotangents u, <J^T u, t> = <u, J t>: the Jacobian-vector
+            # product is the gradient of <backward(u), t> with respect to u (at u = 0).
+            if formula is None:
+                raise NotImplementedError(f"torch_grid: {name} has no forward-mode derivative")
+            # The saved tensors carry this forward-mode level's tangents: their primals, so that the ops
+            # below are not differentiated by it again.
+            level = torch._C._functorch.maybe_current_level()
+            tensors = tuple(forward_ad.unpack_dual(t).primal if level is None else
+                            torch._C._functorch._unwrap_for_grad(t, level) for t in ctx.saved_tensors)
+            inputs, output = saved(ctx, tensors)
+            if name in _JVPS:
+                return _JVPS[name](outer, *inputs, *tangents)
+            outs = output if several else (output,)
+            needs = tuple(t is not None for t in tangents)
+
+            def paired(*us):
+                grads = formula(outer, model, needs, us, output, *inputs)
+                terms = [(g * t).sum() for g, t in zip(grads, tangents) if g is not None and t is not None]
+                return sum(terms[1:], terms[0]) if terms else us[0].sum() * 0
+
+            # torch.func.grad, not autograd: this runs inside a torch.func transform too
+            result = torch.func.grad(paired, argnums=tuple(range(len(outs))))(*(torch.zeros_like(o) for o in outs))
+            return result if several else result[0]
 
         def vmap(info, in_dims, *args):
             # Every op broadcasts leading batch dimensions: the vmapped one goes first, ahead of the
@@ -85,4 +127,38 @@ class FuncOps:
 
         return type(f"{name}_function", (torch.autograd.Function,), {
             "forward": staticmethod(forward), "setup_context": staticmethod(setup_context),
-            "backward": staticmethod(backward), "vmap": staticmethod(vmap)})
+            "backward": staticmethod(backward), "jvp": staticmethod(jvp), "vmap": staticmethod(vmap)})
+
+
+def _inverse_dynamics_vjp_jvp(ops, q, qd, qdd, f_ext, lam, convention, t_q, t_qd, t_qdd, t_f, t_lam, _):
+    """The tangent of (g_q, g_qd) = lam^T d tau / d(q, qd): along q and qd by the dual-number kernel;
+    it is linear in lam; along qdd and f_ext, the q-gradient of lam . (M t_qdd) and of lam . (-J^T t_f),
+    inverse dynamics at rest less gravity (they do not depend on qd)."""
+    zero = torch.zeros_like(qd)
+    d_q, d_qd = ops.inverse_dynamics_vjp_jvp(q, qd, qdd, f_ext, lam, t_q, t_qd, convention)
+    if t_lam is not None:
+        g_q, g_qd = ops.inverse_dynamics_vjp(q, qd, qdd, f_ext, t_lam, convention)
+        d_q, d_qd = d_q + g_q, d_qd + g_qd
+    if t_qdd is not None or t_f is not None:
+        rest = ops.inverse_dynamics_vjp(q, zero, zero, None, lam, convention)[0]
+        if t_qdd is not None:
+            d_q = d_q + ops.inverse_dynamics_vjp(q, zero, t_qdd, None, lam, convention)[0] - rest
+        if t_f is not None:
+            d_q = d_q + ops.inverse_dynamics_vjp(q, zero, zero, t_f, lam, convention)[0] - rest
+    return d_q, d_qd
+
+
+def _inertia_solve_jvp(ops, q, x, convention, t_q, t_x, _):
+    """y = M^-1 x: dy = M^-1 (t_x - D_t(M) y), with D_t(M y) the derivative of ID(q, 0, y) - ID(q, 0, 0)."""
+    y = ops.inertia_solve(q, x, convention)
+    rhs = torch.zeros_like(x) if t_x is None else t_x
+    if t_q is not None:
+        zero = torch.zeros_like(x)
+        rhs = rhs - (ops.inverse_dynamics_jvp(q, zero, y, None, t_q, convention) -
+                     ops.inverse_dynamics_jvp(q, zero, zero, None, t_q, convention))
+    return ops.inertia_solve(q, rhs, convention)
+
+
+# Ops whose forward-mode derivative is its own formula (their backwards are made of kernels without
+# derivatives, so the generic rule above does not apply).
+_JVPS = {"inverse_dynamics_vjp": _inverse_dynamics_vjp_jvp, "inertia_solve": _inertia_solve_jvp}

@@ -9,10 +9,9 @@ from pathlib import Path
 from typing import Sequence
 
 import torch
-from torch.autograd import forward_ad
 
 from .autograd import rpy_rate_matrix
-from .func import FuncOps
+from .func import FORWARD_MODE, FuncOps, dual
 from .mimic import Coupling
 from .model import RobotModel, inertia_about_origin
 from .ops import OPS, model_sizes
@@ -328,9 +327,12 @@ class _Functions:
         if torch.compiler.is_compiling():
             return op(*_checked(name, robot._tensor_args[name], args), self._convention)
         stack = torch._C._functorch.get_interpreter_stack()
-        if stack or forward_ad._current_level >= 0:
-            _refuse_forward_ad(name, [x for x in args if isinstance(x, torch.Tensor)], stack)
-        if stack:  # a torch.func transform: each op through an autograd.Function it can transform
+        forward = (bool(stack) and any(i.key() == torch._C._functorch.TransformType.Jvp for i in stack)) or dual(args)
+        if forward and name not in FORWARD_MODE:
+            # without this check forward mode would return zero tangents
+            raise NotImplementedError(f"torch_grid: {name} has no forward-mode derivative (torch.func.jvp, jacfwd, "
+                                      "hessian, torch.autograd.forward_ad); use reverse mode (backward, torch.func.jacrev)")
+        if stack or forward:  # each op through an autograd.Function that torch.func and forward AD transform
             return robot._func.call(name, *_checked(name, robot._tensor_args[name], args), self._convention)
         if torch.is_grad_enabled() and torch._C._any_requires_grad(*args):
             return op(*_checked(name, robot._tensor_args[name], args), self._convention)
@@ -485,17 +487,6 @@ def _check_tensor(op: str, name: str, x, trailing: tuple[int, ...], q) -> None:
     if x.dim() < len(trailing) or tuple(x.shape[x.dim() - len(trailing):]) != trailing:
         want = ", ".join(["..."] + [str(t) for t in trailing])
         raise ValueError(f"{op}: {name} must have shape ({want}), got {tuple(x.shape)}")
-
-
-def _refuse_forward_ad(op: str, tensors: list[torch.Tensor], stack) -> None:
-    """Forward-mode AD (torch.func.jvp / jacfwd, torch.autograd.forward_ad) has no formula yet: without
-    this check it would silently return zero tangents."""
-    jvp = bool(stack) and any(i.key() == torch._C._functorch.TransformType.Jvp for i in stack)
-    if not jvp and forward_ad._current_level >= 0:
-        jvp = any(forward_ad.unpack_dual(x).tangent is not None for x in tensors)
-    if jvp:
-        raise NotImplementedError(f"torch_grid: {op} has no forward-mode derivative yet (torch.func.jvp, jacfwd, "
-                                  "torch.autograd.forward_ad); use reverse mode (backward, torch.autograd.grad)")
 
 
 def _reference(reference) -> int:
