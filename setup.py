@@ -35,7 +35,8 @@ setup(
     extras_require={
         "pin": ["pin>=3.4"],
         "mujoco": ["mujoco>=3.2"],
-        "test": ["pytest>=8", "pin==4.1.0", "mujoco==4.0.0", "example-robot-data==6.0.0"],
+        # cmeel-eigen: tests/pinocchio_cpp_oracle.py compiles Pinocchio's C++ second-order derivatives
+        "test": ["pytest>=8", "pin==4.1.0", "mujoco==4.0.0", "example-robot-data==6.0.0", "cmeel-eigen==3.4.1"],
         # bench/pinocchio_cpp.py compiles against Pinocchio's headers, which need these two too
         "bench": ["pin==4.1.0", "example-robot-data==6.0.0", "cmeel-eigen==3.4.1", "cmeel-urdfdom-headers==3.0.0"],
     },
