@@ -10,6 +10,7 @@ import torch
 from test_derivatives import _states as random_states
 from torch_grid.autograd import COMPOSED_BACKWARD
 from torch_grid.ops import FORWARD_MODE_BACKWARD
+from torch_grid.tangent import tangent_to_ambient
 
 
 def _states(robot, batch, seed, convention):
@@ -229,3 +230,20 @@ def test_cuda_graph_replays_forward_and_backward(robots, function):
     torch.cuda.synchronize()
     for got, ref in zip(captured, eager):
         assert torch.allclose(got, ref, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("reference", ["world", "local", "local_world_aligned"])
+@pytest.mark.parametrize("name", ["iiwa14", "go2", "g1"])
+def test_frame_jacobian_backward_kernel_matches_dual_numbers(robots, name, reference):
+    """frame_jacobian's O(n) backward kernel against its own kernel run on dual numbers (the
+    frame_jacobian_backward op), for every frame of the robot, at a random weight."""
+    robot = robots[name]
+    ops, ref = robot._ops, {"world": 0, "local": 1, "local_world_aligned": 2}[reference]
+    q, _, _, _ = _states(robot, 2, 12, "pin")
+    g = torch.Generator().manual_seed(13)
+    for frame in range(robot.nframes):
+        G = torch.randn(2, 6, robot.nv, dtype=torch.float64, generator=g)
+        ours = ops.frame_jacobian_vjp(q, G, frame, ref, 0)
+        # the dual-number backward is in q's coordinates: compare along the tangent directions
+        dual = ops.frame_jacobian_backward(q, frame, ref, G, 1, 0)
+        assert torch.allclose(tangent_to_ambient(robot.model, q, ours, 0), dual, rtol=1e-10, atol=1e-10), frame

@@ -157,6 +157,16 @@ def _inverse_dynamics_vjp(ops, model, needs, grads, output, q, qd, qdd, f_ext, l
     return dq, dqd, dqdd, df, dlam, None
 
 
+def _frame_jacobian(ops, model, needs, grads, output, q, frame, reference, convention):
+    """<G, J(q)> differentiated by an O(n) kernel along the chain (csrc/kernels/frames.h), in
+    Pinocchio's convention, or where the conventions agree; MuJoCo's twin reframes J with G(q), so
+    there the op's kernel runs on dual numbers."""
+    if convention and model.conventions_differ:
+        return _forward_mode(OPS["frame_jacobian"])(ops, model, needs, grads, output, q, frame, reference, convention)
+    g = ops.frame_jacobian_vjp(q, grads[0], frame, reference, convention)
+    return tangent_to_ambient(model, q, g, convention), None, None, None
+
+
 def _inertia_solve(ops, model, needs, grads, output, q, x, convention):
     """y = M^-1 x: d/dx <g, y> = M^-1 g = mu; d/dq = -<mu, dM y>, a mass-matrix product gradient."""
     mu = ops.inertia_solve(q, grads[0], convention)
@@ -347,7 +357,7 @@ def _osc_inertia(ops, model, needs, grads, output, q, frame, reference, conventi
     minv = ops.minv(q, convention)
     g_a = -output.mT @ grads[0] @ output.mT
     g_j = g_a @ j @ minv + g_a.mT @ j @ minv
-    dq = _forward_mode(OPS["frame_jacobian"])(ops, model, needs, (g_j,), None, q, frame, reference, convention)[0]
+    dq = _frame_jacobian(ops, model, needs, (g_j,), None, q, frame, reference, convention)[0]
     dq_m = _minv(ops, model, needs, (j.mT @ g_a @ j,), minv, q, convention)[0]
     return dq + dq_m, None, None, None
 
@@ -368,6 +378,7 @@ def rpy_rate_matrix(rpy: torch.Tensor) -> torch.Tensor:
 
 
 BACKWARDS = {
+    "frame_jacobian": _frame_jacobian,
     "inverse_dynamics_vjp": _inverse_dynamics_vjp,
     "inertia_solve": _inertia_solve,
     "crba": _crba,
@@ -389,7 +400,7 @@ BACKWARDS = {
 }
 
 # The ops that the backwards call, not meant for users.
-_INTERNAL = ("inverse_dynamics_vjp", "inertia_solve", "frames_vjp", "body_velocities")
+_INTERNAL = ("inverse_dynamics_vjp", "inertia_solve", "frames_vjp", "body_velocities", "frame_jacobian_vjp")
 
 # Ops whose outputs are derivatives and whose backward is made of other ops (their backwards, or the
 # jvp kernels of a first-order gradient) rather than of a kernel of their own on dual numbers.

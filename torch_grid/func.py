@@ -18,12 +18,12 @@ from torch.autograd import forward_ad
 
 from .autograd import BACKWARDS, COMPOSED_BACKWARD, backward_formula
 from .model import RobotModel
-from .ops import OPS
+from .ops import FORWARD_MODE_BACKWARD, OPS
 
 
 # Ops with a forward-mode derivative: those whose backward is differentiable in its cotangents (made of
 # ops with backwards); the backward of an op whose outputs are derivatives is not.
-FORWARD_MODE = tuple(n for n in BACKWARDS if n not in COMPOSED_BACKWARD)
+FORWARD_MODE = tuple(n for n in BACKWARDS if n not in COMPOSED_BACKWARD and n not in FORWARD_MODE_BACKWARD)
 
 
 def transforming() -> bool:

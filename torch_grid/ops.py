@@ -116,6 +116,8 @@ _VALUE_OPS = (
         OpSpec("end_effector_pose", "EndEffectorPose", (Q, Arg("frames", "frames")), (Out("pose", "plain", ("nsel", 6)),),
                "kinematics"),
         OpSpec("frame_jacobian", "FrameJacobian", (Q, FRAME, REFERENCE), (Out("J", "columns", (6, "nv")),), "kinematics"),
+        OpSpec("frame_jacobian_vjp", "FrameJacobianVjp", (Q, Arg("weight", "plain", shape=(6, "nv")), FRAME, REFERENCE),
+               (Out("grad_q", "plain", NV),), "kinematics", mujoco_twin=False),
         OpSpec("frame_jacobian_dot", "FrameJacobianDot", (Q, QD, FRAME, REFERENCE), (Out("Jdot", "twin", (6, "nv")),),
                "kinematics"),
         OpSpec("inverse_dynamics_vjp", "InverseDynamicsVjp", (Q, QD, QDD, FEXT, Arg("cotangent", "force")),

@@ -71,6 +71,54 @@ template <class M, class S> TG_HD void frame_jacobian(const S* q, int f, int ref
   frame_jacobian<M, S>(oMi, f, reference, J);
 }
 
+// The gradient along the tangent of <G, J(q)> for frame f's Jacobian J in the given reference and a
+// weight G (6 x NV, as J). A world axis S_j turns with every joint above it and with the other axes of
+// its own joint: dS_j/dq_k = S_k x S_j, and G_j . (S_k x S_j) = (S_j x* G_j) . S_k. So with F_j the
+// weight as a world force (WORLD: G_j; LOCAL_WORLD_ALIGNED: G_j moved from the frame origin p; LOCAL:
+// also turned by the frame's rotation) and P_k the sum of S_j x* F_j over the columns at or below
+// k's joint, T that over the whole chain:
+//   WORLD                  grad_k = S_k . P_k
+//   LOCAL_WORLD_ALIGNED    grad_k = S_k . P_k + c . (linear velocity of p under S_k), c = sum_j G_lin,j x w_j
+//   LOCAL                  grad_k = S_k . (P_k - T)   (a local column moves with the joints below it only)
+template <class M, class S> TG_HD void frame_jacobian_vjp(const S* q, int f, int reference, const S* G, S* out) {
+  const auto& d = data<M, S>();
+  for (int k = 0; k < M::NV; ++k) out[k] = S(0);
+  int chain[M::NB], n = 0;  // support chain, frame's body first
+  for (int j = d.fparent[f]; j >= 0; j = d.parent[j]) chain[n++] = j;
+  SE3<S> oMi[M::NB];
+  chain_placements<M, S>(q, chain, n, oMi);
+  const SE3<S> oMf = frame_placement<M, S>(f, oMi);
+  // column col's weight as a world force, and its axis's term S x* F
+  auto term = [&](int j, int k) {
+    const int col = d.vi[j] + k;
+    const Vec3<S> gl = v3(G[col], G[M::NV + col], G[2 * M::NV + col]);
+    const Vec3<S> ga = v3(G[3 * M::NV + col], G[4 * M::NV + col], G[5 * M::NV + col]);
+    const Sv<S> F = reference == WORLD ? sv(gl, ga) : reference == LOCAL ? act_force(oMf, sv(gl, ga))
+                                                                           : sv(gl, ga + cross(oMf.p, gl));
+    return cross_force(placed_axis<M, S>(oMi[j], j, k), F);
+  };
+  Sv<S> T = sv_zero<S>();
+  Vec3<S> c = v3(S(0), S(0), S(0));
+  if (reference != WORLD)
+    for (int m = 0; m < n; ++m)
+      for (int k = 0; k < d.nvj[chain[m]]; ++k) {
+        const int j = chain[m], col = d.vi[j] + k;
+        if (reference == LOCAL) T = T + term(j, k);
+        else c = c + cross(v3(G[col], G[M::NV + col], G[2 * M::NV + col]), ang(placed_axis<M, S>(oMi[j], j, k)));
+      }
+  // from the frame's body up: P sums the columns of this joint and of the joints below it
+  Sv<S> P = sv_zero<S>();
+  for (int m = 0; m < n; ++m) {
+    const int j = chain[m];
+    for (int k = 0; k < d.nvj[j]; ++k) P = P + term(j, k);
+    for (int k = 0; k < d.nvj[j]; ++k) {
+      const Sv<S> s = placed_axis<M, S>(oMi[j], j, k);
+      out[d.vi[j] + k] = reference == LOCAL ? dot(s, P - T)
+                         : reference == WORLD ? dot(s, P) : dot(s, P) + dot(c, lin(s) + cross(ang(s), oMf.p));
+    }
+  }
+}
+
 // sum_f J_f^T w_f over every frame f (NV), J_f the LOCAL_WORLD_ALIGNED Jacobian and w (NF x 6)
 // [linear; angular] weights: the gradient of sum_f w_f . (frame velocity) with respect to qd.
 // Each weight acts as the spatial force [w_lin; p_f x w_lin + w_ang] at the world origin; a

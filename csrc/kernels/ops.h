@@ -122,6 +122,12 @@ template <class M, class S> struct FrameJacobian {
   TG_HD static void run(const FrameJacobianArgs<S>& a) { frame_jacobian<M, S>(a.q, a.frame, a.reference, a.J); }
 };
 
+template <class M, class S> struct FrameJacobianVjp {
+  TG_HD static void run(const FrameJacobianVjpArgs<S>& a) {
+    frame_jacobian_vjp<M, S>(a.q, a.frame, a.reference, a.weight, a.grad_q);
+  }
+};
+
 template <class M, class S> struct FrameJacobianDot {
   template <int C> TG_HD static void run(const FrameJacobianDotArgs<S>& a, const Conv<M, S, C>& cv) {
     if constexpr (Conv<M, S, C>::active) {
