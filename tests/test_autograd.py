@@ -66,7 +66,8 @@ def test_every_differentiable_function_is_checked(robots):
     public = {n for n in dir(robots["iiwa14"].pin) if not n.startswith("_") and callable(getattr(robots["iiwa14"].pin, n))}
     not_differentiable = {"inertial_parameters", "neutral_configuration", "random_configuration", "frame_index",
                           "rnea", "aba",  # constants and samplers; rnea/aba alias two functions in the table
-                          "inverse_dynamics_second_order", "forward_dynamics_second_order"}  # a third derivative
+                          "inverse_dynamics_second_order", "forward_dynamics_second_order",  # a third derivative
+                          "frame_kinematic_hessian", "end_effector_pose_hessian"}
     assert public - not_differentiable == set(FUNCTIONS)
     assert set(FORWARD_MODE_BACKWARD + COMPOSED_BACKWARD) - {"frames_vjp"} <= set(FUNCTIONS)  # internal: kinematics backwards
 

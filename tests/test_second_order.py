@@ -161,3 +161,61 @@ def test_third_derivatives_refuse(robots):
     for out in (robot.inverse_dynamics_second_order(q, qd, qdd), robot.forward_dynamics_second_order(q, qd, qdd)):
         with pytest.raises(NotImplementedError, match="cannot be differentiated once more"):
             out[0].sum().backward()
+
+
+@pytest.mark.parametrize("name", ["iiwa14", "go2", "balls"])
+def test_frame_kinematic_hessian_vs_pinocchio(robots, pin_models, pinocchio_balls, name):
+    """Against Pinocchio's getFrameKinematicHessian in its three reference frames, for every frame
+    whose name Pinocchio's model has too."""
+    robot, model = _robot_and_model(name, robots, pin_models, pinocchio_balls)
+    data = model.createData()
+    q = robot.pin.random_configuration(generator=torch.Generator().manual_seed(9))
+    qp = to_pin_q(robot, q)
+    pin.computeJointKinematicHessians(model, data, qp)
+    pin.framesForwardKinematics(model, data, qp)
+    checked = 0
+    for f, fname in enumerate(robot.frame_names):
+        if not model.existFrame(fname):
+            continue
+        fid = model.getFrameId(fname)
+        for reference, rf in (("world", pin.WORLD), ("local", pin.LOCAL), ("local_world_aligned", pin.LOCAL_WORLD_ALIGNED)):
+            ours = robot.pin.frame_kinematic_hessian(q, f, reference)
+            # the binding hands out the column-major Eigen::Tensor's buffer as a C-ordered (6, nv, nv) array
+            raw = pin.getFrameKinematicHessian(model, data, fid, rf)
+            ref = torch.tensor(raw.reshape(-1).reshape(model.nv, model.nv, 6).transpose(2, 1, 0).copy())
+            if reference == "local":
+                # A LOCAL column of a spherical joint is constant under that joint's own motion (the
+                # central differences below confirm zero); Pinocchio's tensor has entries there.
+                for j in range(1, model.njoints):
+                    if model.joints[j].shortname() == "JointModelSpherical":
+                        block = slice(model.joints[j].idx_v, model.joints[j].idx_v + 3)
+                        assert torch.equal(ours[:, block, block], torch.zeros_like(ours[:, block, block]))
+                        ref[:, block, block] = 0
+            assert rel_err(ours, ref) <= 1e-9, (fname, reference)
+        checked += 1
+    assert checked >= min(3, robot.nframes)
+
+
+def test_frame_kinematic_hessian_vs_differences(robots, pinocchio_balls, mjcf_robots):
+    """Against central differences of frame_jacobian along the tangent, batched, on the MJCF zoo too."""
+    for robot in (robots["go2"], pinocchio_balls[0], mjcf_robots["zoo"]):
+        q = robot.pin.random_configuration(generator=torch.Generator().manual_seed(10))
+        qp, qm = _tangent_steps(robot, q, 1e-6)
+        # a frame on the last body (the end of a chain, so that every reference has non-zero terms)
+        frame = max(range(robot.nframes), key=lambda f: robot.model.frames[f].parent)
+        for reference in ("world", "local", "local_world_aligned"):
+            H = robot.pin.frame_kinematic_hessian(q.expand(2, -1), frame, reference)[0]
+            J = [robot.pin.frame_jacobian(x, frame, reference) for x in (qp, qm)]
+            assert rel_err(H, ((J[0] - J[1]) / 2e-6).permute(1, 2, 0)) <= 1e-6, reference
+
+
+def test_end_effector_pose_hessian_vs_differences(robots, pinocchio_balls):
+    """Against central differences of end_effector_pose_gradient along the tangent."""
+    for robot in (robots["iiwa14"], robots["go2"], pinocchio_balls[0]):
+        q = robot.pin.random_configuration(generator=torch.Generator().manual_seed(11))
+        frames = [robot.nframes - 1, max(range(robot.nframes), key=lambda f: robot.model.frames[f].parent)]
+        H = robot.pin.end_effector_pose_hessian(q, frames)
+        assert H.shape == (2, 6, robot.nv, robot.nv)
+        qp, qm = _tangent_steps(robot, q, 1e-6)
+        gp, gm = (robot.pin.end_effector_pose_gradient(x, frames) for x in (qp, qm))
+        assert rel_err(H, ((gp - gm) / 2e-6).permute(1, 2, 3, 0)) <= 1e-6

@@ -58,7 +58,7 @@ def _save_inputs(ctx, inputs, output) -> None:
 
 def _no_backward(name: str) -> Callable:
     def backward(ctx, *grads):
-        if OPS[name].derived or name in _INTERNAL or name == "inverse_dynamics_second_order":
+        if OPS[name].derived or name in _INTERNAL or name in ("inverse_dynamics_second_order", "frame_kinematic_hessian"):
             raise NotImplementedError(
                 f"torch_grid: {name} has no derivative: the op whose derivative it computes cannot be differentiated "
                 "once more (a third derivative, or the second derivative of an op whose outputs are derivatives)")

@@ -27,13 +27,14 @@ from .ops import OPS, model_sizes
 
 # How each kernel output in full coordinates becomes the coupled one: "rows" G^T X (X's nv axis of
 # generalized forces), "columns" X G (its last, tangent axis), "both" G^T X G, "all" G on each of the
-# three axes of an (nv, nv, nv) tensor, "plain" unchanged.
+# three axes of an (nv, nv, nv) tensor, "last2" on the last two (a Hessian's), "plain" unchanged.
 _OUTPUTS = {
     "inverse_dynamics": ("rows",), "generalized_gravity": ("rows",), "nonlinear_effects": ("rows",),
     "crba": ("both",), "energy": ("plain",), "com": ("plain",), "jacobian_com": ("columns",),
     "ccrba": ("columns", "plain"), "forward_kinematics": ("plain", "plain"), "end_effector_pose": ("plain",),
     "frame_jacobian": ("columns",), "frame_jacobian_dot": ("columns",), "body_velocities": ("plain",),
-    "inverse_dynamics_gradient": ("both", "both"), "inverse_dynamics_second_order": ("all",) * 4, "inverse_dynamics_external_force_gradient": ("rows",),
+    "inverse_dynamics_gradient": ("both", "both"), "inverse_dynamics_second_order": ("all",) * 4,
+    "frame_kinematic_hessian": ("last2",), "inverse_dynamics_external_force_gradient": ("rows",),
     "cmm_time_variation": ("columns",), "dccrba": ("columns",), "coriolis_matrix": ("both",),
     "inverse_dynamics_regressor": ("rows",), "kinetic_energy_regressor": ("plain",),
     "potential_energy_regressor": ("plain",),
@@ -139,6 +140,9 @@ class Coupling:
             return self.columns(x)
         if how == "both":
             return self.both(x)
+        if how == "last2":
+            G = self._on(x)[3]
+            return torch.einsum("...bc,bj,ck->...jk", x, G, G)
         if how == "all":
             G = self._on(x)[3]
             return torch.einsum("...abc,ai,bj,ck->...ijk", x, G, G, G)

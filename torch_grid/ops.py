@@ -118,6 +118,8 @@ _VALUE_OPS = (
         OpSpec("frame_jacobian", "FrameJacobian", (Q, FRAME, REFERENCE), (Out("J", "columns", (6, "nv")),), "kinematics"),
         OpSpec("frame_jacobian_vjp", "FrameJacobianVjp", (Q, Arg("weight", "plain", shape=(6, "nv")), FRAME, REFERENCE),
                (Out("grad_q", "plain", NV),), "kinematics", mujoco_twin=False),
+        OpSpec("frame_kinematic_hessian", "FrameKinematicHessian", (Q, FRAME, REFERENCE), (Out("H", "plain", (6, "nv", "nv")),),
+               "kinematics", mujoco_twin=False),
         OpSpec("frame_jacobian_dot", "FrameJacobianDot", (Q, QD, FRAME, REFERENCE), (Out("Jdot", "twin", (6, "nv")),),
                "kinematics"),
         OpSpec("inverse_dynamics_vjp", "InverseDynamicsVjp", (Q, QD, QDD, FEXT, Arg("cotangent", "force")),

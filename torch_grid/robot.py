@@ -102,6 +102,13 @@ class _Functions:
         """
         return self._call("frame_jacobian", q, self._robot.frame_index(frame, "frame"), _reference(reference))
 
+    def frame_kinematic_hessian(self, q, frame: str | int, reference: str = "local_world_aligned") -> torch.Tensor:
+        """Kinematic Hessian (..., 6, nv, nv) of a frame: H[..., :, j, k] = d J[..., :, j] / dq_k along the
+        tangent, J = frame_jacobian(q, frame, reference) (Pinocchio's getFrameKinematicHessian).
+        In the MuJoCo convention only for a robot without free or ball joints."""
+        self._pin_only("frame_kinematic_hessian")
+        return self._call("frame_kinematic_hessian", q, self._robot.frame_index(frame, "frame"), _reference(reference))
+
     def frame_jacobian_dot(self, q, qd, frame: str | int, reference: str = "local_world_aligned") -> torch.Tensor:
         """Time derivative (..., 6, nv) of frame_jacobian at velocity qd (Pinocchio's
         getFrameJacobianTimeVariation); in MuJoCo's convention, of its Jacobian with qvel fixed."""
@@ -202,6 +209,32 @@ class _Functions:
         rpy = self.end_effector_pose(q, frames)[..., 3:]
         J = torch.stack([self.frame_jacobian(q, f, "local_world_aligned") for f in frames], dim=-3)
         return torch.cat([J[..., :3, :], torch.linalg.solve(rpy_rate_matrix(rpy), J[..., 3:, :])], dim=-2)
+
+    def end_effector_pose_hessian(self, q, frames: Sequence[str | int]) -> torch.Tensor:
+        """Second derivative of end_effector_pose along the tangent, (..., len(frames), 6, nv, nv):
+        [..., r, j, k] = d/dq_k (end_effector_pose_gradient)[..., r, j]. xyz rows are the linear rows of
+        the LOCAL_WORLD_ALIGNED kinematic Hessian; rpy rows differentiate E^-1 J_angular, with E the
+        rpy rate matrix: E^-1 (dJ_angular/dq_k - dE/dq_k E^-1 J_angular)."""
+        if isinstance(frames, (str, int)):
+            raise TypeError(f"end_effector_pose_hessian: frames must be a list of frame names or indices, got {frames!r}")
+        rpy = self.end_effector_pose(q, frames)[..., 3:]
+        J = torch.stack([self.frame_jacobian(q, f, "local_world_aligned") for f in frames], dim=-3)
+        H = torch.stack([self.frame_kinematic_hessian(q, f, "local_world_aligned") for f in frames], dim=-4)
+        E = rpy_rate_matrix(rpy)
+        G = torch.linalg.solve(E, J[..., 3:, :])  # the rpy rows of the gradient
+        p, y = rpy[..., 1], rpy[..., 2]
+        cp, sp, cy, sy = torch.cos(p), torch.sin(p), torch.cos(y), torch.sin(y)
+        zero = torch.zeros_like(p)
+        dE_dp = torch.stack([torch.stack([-cy * sp, zero, zero], -1), torch.stack([-sy * sp, zero, zero], -1),
+                             torch.stack([-cp, zero, zero], -1)], dim=-2)
+        dE_dy = torch.stack([torch.stack([-sy * cp, -cy, zero], -1), torch.stack([cy * cp, -sy, zero], -1),
+                             torch.stack([zero, zero, zero], -1)], dim=-2)
+        # dE/dq_k = dE/dp dp/dq_k + dE/dy dy/dq_k, (..., 3, 3, nv)
+        dE = dE_dp.unsqueeze(-1) * G[..., 1:2, :].unsqueeze(-2) + dE_dy.unsqueeze(-1) * G[..., 2:3, :].unsqueeze(-2)
+        inner = H[..., 3:, :, :] - torch.einsum("...abk,...bj->...ajk", dE, G)
+        nv = J.shape[-1]
+        rot = torch.linalg.solve(E, inner.flatten(-2)).unflatten(-1, (nv, nv))
+        return torch.cat([H[..., :3, :, :], rot], dim=-3)
 
     def inverse_dynamics_external_force_gradient(self, q) -> torch.Tensor:
         """d inverse_dynamics / d f_ext (..., nv, nbodies, 6) = -J_k^T, J_k body k's Jacobian in its joint frame."""

@@ -119,6 +119,55 @@ template <class M, class S> TG_HD void frame_jacobian_vjp(const S* q, int f, int
   }
 }
 
+// Kinematic Hessian H (6 x NV x NV, [r][j][k] at NV (NV r + j) + k) of frame f: H[:, j, k] = d J[:, j] / dq_k
+// along the tangent, J = frame_jacobian in the given reference. A world axis S_j turns with the joints
+// above it and with the other axes of its own joint, dS_j/dq_k = S_k x S_j; the frame origin p moves
+// with column k of the local-world-aligned Jacobian; a local column turns with the frame, so only the
+// joints below j move it.
+template <class M, class S> TG_HD void frame_kinematic_hessian(const S* q, int f, int reference, S* H) {
+  const auto& d = data<M, S>();
+  constexpr int NV = M::NV;
+  for (int k = 0; k < 6 * NV * NV; ++k) H[k] = S(0);
+  int chain[M::NB], n = 0;  // support chain, frame's body first
+  for (int j = d.fparent[f]; j >= 0; j = d.parent[j]) chain[n++] = j;
+  SE3<S> oMi[M::NB];
+  chain_placements<M, S>(q, chain, n, oMi);
+  const SE3<S> oMf = frame_placement<M, S>(f, oMi);
+  auto put = [&](int j, int k, const Sv<S>& x) {
+    for (int r = 0; r < 6; ++r) H[NV * (NV * r + j) + k] = x.v[r];
+  };
+  for (int mj = 0; mj < n; ++mj)
+    for (int lj = 0; lj < d.nvj[chain[mj]]; ++lj) {
+      const int bj = chain[mj], j = d.vi[bj] + lj;
+      const Sv<S> Sj = placed_axis<M, S>(oMi[bj], bj, lj);
+      for (int mk = 0; mk < n; ++mk)
+        for (int lk = 0; lk < d.nvj[chain[mk]]; ++lk) {
+          const int bk = chain[mk], k = d.vi[bk] + lk;
+          const Sv<S> Sk = placed_axis<M, S>(oMi[bk], bk, lk);
+          const bool turns = mk >= mj;  // k's joint is j's or above it
+          const Sv<S> dS = cross_motion(Sk, Sj);
+          if (reference == WORLD) {
+            if (turns) put(j, k, dS);
+          } else if (reference == LOCAL) {
+            // Ad(oMf^-1) (dS_j - S_k x S_j): zero unless k's joint is below j's
+            if (!turns) {
+              const Vec3<S> l = mulT(oMf.R, S(-1) * (lin(dS) + cross(ang(dS), oMf.p))), a = mulT(oMf.R, S(-1) * ang(dS));
+              put(j, k, sv(l, a));
+            }
+          } else {
+            // [dS_lin + dS_ang x p + w_j x pdot_k; dS_ang], pdot_k the origin's velocity under column k
+            const Vec3<S> pdot = lin(Sk) + cross(ang(Sk), oMf.p);
+            Vec3<S> l = cross(ang(Sj), pdot), a = v3(S(0), S(0), S(0));
+            if (turns) {
+              l = l + lin(dS) + cross(ang(dS), oMf.p);
+              a = ang(dS);
+            }
+            put(j, k, sv(l, a));
+          }
+        }
+    }
+}
+
 // sum_f J_f^T w_f over every frame f (NV), J_f the LOCAL_WORLD_ALIGNED Jacobian and w (NF x 6)
 // [linear; angular] weights: the gradient of sum_f w_f . (frame velocity) with respect to qd.
 // Each weight acts as the spatial force [w_lin; p_f x w_lin + w_ang] at the world origin; a

@@ -128,6 +128,12 @@ template <class M, class S> struct FrameJacobianVjp {
   }
 };
 
+template <class M, class S> struct FrameKinematicHessian {
+  TG_HD static void run(const FrameKinematicHessianArgs<S>& a) {
+    frame_kinematic_hessian<M, S>(a.q, a.frame, a.reference, a.H);
+  }
+};
+
 template <class M, class S> struct FrameJacobianDot {
   template <int C> TG_HD static void run(const FrameJacobianDotArgs<S>& a, const Conv<M, S, C>& cv) {
     if constexpr (Conv<M, S, C>::active) {
