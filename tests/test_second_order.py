@@ -219,3 +219,15 @@ def test_end_effector_pose_hessian_vs_differences(robots, pinocchio_balls):
         qp, qm = _tangent_steps(robot, q, 1e-6)
         gp, gm = (robot.pin.end_effector_pose_gradient(x, frames) for x in (qp, qm))
         assert rel_err(H, ((gp - gm) / 2e-6).permute(1, 2, 3, 0)) <= 1e-6
+
+
+def test_forward_dynamics_second_order_chunks_equal_the_whole_batch(robots):
+    """Without autograd the batch goes in chunks of samples (written over the inverse-dynamics
+    tensors); with it, in one piece: the same numbers."""
+    robot = robots["go2"]
+    q, qd, tau, _ = _states(robot, 50, seed=12)
+    chunked = robot.pin.forward_dynamics_second_order(q.view(5, 10, -1), qd.view(5, 10, -1), tau[0])
+    whole = robot.pin.forward_dynamics_second_order(q.clone().requires_grad_(True), qd, tau[0].expand_as(tau))
+    for a, b in zip(chunked, whole):
+        assert a.shape == (5, 10, robot.nv, robot.nv, robot.nv)
+        assert torch.allclose(a.reshape(b.shape), b.detach(), rtol=1e-12, atol=1e-12)

@@ -173,16 +173,22 @@ class _Functions:
         self._pin_only("forward_dynamics_second_order")
         qdd = self.forward_dynamics(q, qd, tau, f_ext)
         z_q, z_qd, minv = self.forward_dynamics_gradient(q, qd, tau, f_ext)
-        d2q, d2qd, dqdqd, dM = self.inverse_dynamics_second_order(q, qd, qdd, f_ext)
-        along_j = torch.einsum("...imj,...mk->...ijk", dM, z_q)
-        d2qdd_dq2 = d2q + along_j + along_j.transpose(-1, -2)
-        d2qdd_dqdqd = dqdqd + torch.einsum("...imj,...mk->...ijk", dM, z_qd)
-
-        def solve(x):
-            return -torch.einsum("...ia,...ajk->...ijk", minv, x)
-
-        d2qdd_dtaudq = torch.einsum("...abk,...bj->...ajk", solve(dM), minv)
-        return solve(d2qdd_dq2), solve(d2qd), solve(d2qdd_dqdqd), d2qdd_dtaudq
+        second = self.inverse_dynamics_second_order(q, qd, qdd, f_ext)
+        traced = torch.compiler.is_compiling() or bool(torch._C._functorch.get_interpreter_stack())
+        if traced or (torch.is_grad_enabled() and any(t.requires_grad for t in second)):
+            return _fd_second_order(*second, z_q, z_qd, minv)
+        # Chunks of samples, written over the inverse-dynamics tensors (kept blocks, already mapped):
+        # whole-batch temporaries of nv^3 per sample would each be mapped and zeroed afresh.
+        nv = minv.shape[-1]
+        flat = [t.reshape(-1, nv, nv, nv) for t in second]
+        z_q, z_qd, minv = (t.expand(*second[0].shape[:-3], nv, nv).reshape(-1, nv, nv) for t in (z_q, z_qd, minv))
+        step = max(1, (1 << 20) // (8 * nv ** 3))
+        for s in range(0, flat[0].shape[0], step):
+            rows = slice(s, s + step)
+            results = _fd_second_order(*(t[rows] for t in flat), z_q[rows], z_qd[rows], minv[rows])
+            for t, r in zip(flat, results):
+                t[rows] = r
+        return second
 
     def _pin_only(self, name: str) -> None:
         if self._convention == 1 and self._robot.model.conventions_differ:
@@ -520,6 +526,26 @@ def _check_tensor(op: str, name: str, x, trailing: tuple[int, ...], q) -> None:
     if x.dim() < len(trailing) or tuple(x.shape[x.dim() - len(trailing):]) != trailing:
         want = ", ".join(["..."] + [str(t) for t in trailing])
         raise ValueError(f"{op}: {name} must have shape ({want}), got {tuple(x.shape)}")
+
+
+def _fd_second_order(d2q, d2qd, dqdqd, dM, z_q, z_qd, minv):
+    """forward_dynamics_second_order's closed form from the inverse-dynamics tensors at qdd = FD and
+    forward_dynamics_gradient: one large matrix product per sample for each O(nv^4) term."""
+    nv, neg_minv = minv.shape[-1], -minv
+    dMt = dM.transpose(-1, -2).contiguous()  # [i, j, m] = dM[i, m, j]
+
+    def right(x, z):  # sum_m x[i, j, m] z[m, k]
+        return (x.flatten(-3, -2) @ z).unflatten(-2, (nv, nv))
+
+    def solve(x):  # -M^-1 along the first axis
+        return (neg_minv @ x.flatten(-2)).unflatten(-1, (nv, nv))
+
+    along_j = right(dMt, z_q)  # sum_m dM[i, m, j] Z[m, k]
+    d2qdd_dq2 = d2q + along_j + along_j.transpose(-1, -2)
+    d2qdd_dqdqd = dqdqd + right(dMt, z_qd)
+    # [i, j, k] = sum_b (-M^-1 dM)[i, b, k] M^-1[b, j], M^-1 symmetric
+    d2qdd_dtaudq = right(solve(dM).transpose(-1, -2), minv).transpose(-1, -2)
+    return solve(d2qdd_dq2), solve(d2qd), solve(d2qdd_dqdqd), d2qdd_dtaudq
 
 
 def _reference(reference) -> int:
