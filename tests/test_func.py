@@ -147,3 +147,19 @@ def test_forward_mode(robots, balls, name, convention):
         return view.forward_dynamics(q, qd, x).square().sum()
 
     assert rel_err(torch.func.hessian(loss)(qd), torch.autograd.functional.hessian(loss, qd)) <= 1e-10
+
+
+@pytest.mark.parametrize("name, convention", [("go2", "pin"), ("balls", "pin"), ("iiwa14", "mujoco")])
+def test_frame_jacobian_forward_mode(robots, balls, name, convention):
+    """jvp and jacfwd of frame_jacobian (the kinematic Hessian along the tangent) against jacrev."""
+    robot = _robot(name, robots, balls)
+    view = getattr(robot, convention)
+    q = 1.2 * _state(robot, convention, 1, seed=6)[0][0]
+    t = torch.randn_like(q)
+    for reference in ("world", "local", "local_world_aligned"):
+        def fn(q):
+            return view.frame_jacobian(q, robot.nframes - 1, reference)
+
+        J = torch.func.jacrev(fn)(q)
+        assert rel_err(torch.func.jvp(fn, (q,), (t,))[1], J @ t) <= 1e-10, reference
+        assert rel_err(torch.func.jacfwd(fn)(q), J) <= 1e-10, reference

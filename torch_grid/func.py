@@ -17,13 +17,15 @@ import torch
 from torch.autograd import forward_ad
 
 from .autograd import BACKWARDS, COMPOSED_BACKWARD, backward_formula
+from .tangent import tangent_to_ambient
 from .model import RobotModel
 from .ops import FORWARD_MODE_BACKWARD, OPS
 
 
 # Ops with a forward-mode derivative: those whose backward is differentiable in its cotangents (made of
 # ops with backwards); the backward of an op whose outputs are derivatives is not.
-FORWARD_MODE = tuple(n for n in BACKWARDS if n not in COMPOSED_BACKWARD and n not in FORWARD_MODE_BACKWARD)
+FORWARD_MODE = tuple(n for n in BACKWARDS if n not in COMPOSED_BACKWARD and n not in FORWARD_MODE_BACKWARD) + \
+    ("frame_jacobian",)
 
 
 def transforming() -> bool:
@@ -159,6 +161,21 @@ def _inertia_solve_jvp(ops, q, x, convention, t_q, t_x, _):
     return ops.inertia_solve(q, rhs, convention)
 
 
+def _frame_jacobian_jvp(ops, q, frame, reference, convention, t_q, _f, _r, _c):
+    """dJ = H t, H the frame's kinematic Hessian and t the tangent of q along the tangent space (the
+    transpose of tangent_to_ambient's map, by its gradient: it is linear)."""
+    model = ops._model
+    if t_q is None:
+        return torch.zeros_like(ops.frame_jacobian(q, frame, reference, convention))
+    if convention and model.conventions_differ:
+        raise NotImplementedError("torch_grid: frame_jacobian has no forward-mode derivative in the MuJoCo convention "
+                                  "of a robot with free or ball joints; use reverse mode")
+    g0 = torch.zeros(*q.shape[:-1], model.nv, dtype=q.dtype, device=q.device)
+    t = torch.func.grad(lambda g: (tangent_to_ambient(model, q, g, convention) * t_q).sum())(g0)
+    return (ops.frame_kinematic_hessian(q, frame, reference, convention) @ t.unsqueeze(-1).unsqueeze(-3)).squeeze(-1)
+
+
 # Ops whose forward-mode derivative is its own formula (their backwards are made of kernels without
 # derivatives, so the generic rule above does not apply).
-_JVPS = {"inverse_dynamics_vjp": _inverse_dynamics_vjp_jvp, "inertia_solve": _inertia_solve_jvp}
+_JVPS = {"inverse_dynamics_vjp": _inverse_dynamics_vjp_jvp, "inertia_solve": _inertia_solve_jvp,
+         "frame_jacobian": _frame_jacobian_jvp}
