@@ -88,35 +88,31 @@ template <class M, class S> TG_HD void frame_jacobian_vjp(const S* q, int f, int
   SE3<S> oMi[M::NB];
   chain_placements<M, S>(q, chain, n, oMi);
   const SE3<S> oMf = frame_placement<M, S>(f, oMi);
-  // column col's weight as a world force, and its axis's term S x* F
-  auto term = [&](int j, int k) {
-    const int col = d.vi[j] + k;
-    const Vec3<S> gl = v3(G[col], G[M::NV + col], G[2 * M::NV + col]);
-    const Vec3<S> ga = v3(G[3 * M::NV + col], G[4 * M::NV + col], G[5 * M::NV + col]);
-    const Sv<S> F = reference == WORLD ? sv(gl, ga) : reference == LOCAL ? act_force(oMf, sv(gl, ga))
-                                                                           : sv(gl, ga + cross(oMf.p, gl));
-    return cross_force(placed_axis<M, S>(oMi[j], j, k), F);
-  };
-  Sv<S> T = sv_zero<S>();
+  // from the frame's body up: P sums S x* F over the columns of this joint and of the joints below
+  // it; c sums G_lin x w over the chain (LOCAL_WORLD_ALIGNED)
+  Sv<S> P = sv_zero<S>();
   Vec3<S> c = v3(S(0), S(0), S(0));
+  for (int m = 0; m < n; ++m) {
+    const int j = chain[m];
+    for (int k = 0; k < d.nvj[j]; ++k) {
+      const int col = d.vi[j] + k;
+      const Sv<S> s = placed_axis<M, S>(oMi[j], j, k);
+      const Vec3<S> gl = v3(G[col], G[M::NV + col], G[2 * M::NV + col]);
+      const Vec3<S> ga = v3(G[3 * M::NV + col], G[4 * M::NV + col], G[5 * M::NV + col]);
+      const Sv<S> F = reference == WORLD ? sv(gl, ga) : reference == LOCAL ? act_force(oMf, sv(gl, ga))
+                                                                             : sv(gl, ga + cross(oMf.p, gl));
+      P = P + cross_force(s, F);
+      c = c + cross(gl, ang(s));
+    }
+    for (int k = 0; k < d.nvj[j]; ++k) out[d.vi[j] + k] = dot(placed_axis<M, S>(oMi[j], j, k), P);
+  }
+  // the whole chain's terms: T = P at the root (LOCAL), c (LOCAL_WORLD_ALIGNED)
   if (reference != WORLD)
     for (int m = 0; m < n; ++m)
       for (int k = 0; k < d.nvj[chain[m]]; ++k) {
-        const int j = chain[m], col = d.vi[j] + k;
-        if (reference == LOCAL) T = T + term(j, k);
-        else c = c + cross(v3(G[col], G[M::NV + col], G[2 * M::NV + col]), ang(placed_axis<M, S>(oMi[j], j, k)));
+        const Sv<S> s = placed_axis<M, S>(oMi[chain[m]], chain[m], k);
+        out[d.vi[chain[m]] + k] += reference == LOCAL ? -dot(s, P) : dot(c, lin(s) + cross(ang(s), oMf.p));
       }
-  // from the frame's body up: P sums the columns of this joint and of the joints below it
-  Sv<S> P = sv_zero<S>();
-  for (int m = 0; m < n; ++m) {
-    const int j = chain[m];
-    for (int k = 0; k < d.nvj[j]; ++k) P = P + term(j, k);
-    for (int k = 0; k < d.nvj[j]; ++k) {
-      const Sv<S> s = placed_axis<M, S>(oMi[j], j, k);
-      out[d.vi[j] + k] = reference == LOCAL ? dot(s, P - T)
-                         : reference == WORLD ? dot(s, P) : dot(s, P) + dot(c, lin(s) + cross(ang(s), oMf.p));
-    }
-  }
 }
 
 // Kinematic Hessian H (6 x NV x NV, [r][j][k] at NV (NV r + j) + k) of frame f: H[:, j, k] = d J[:, j] / dq_k
