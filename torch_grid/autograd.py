@@ -147,8 +147,7 @@ def _inverse_dynamics_vjp(ops, model, needs, grads, output, q, qd, qdd, f_ext, l
             dq = tangent_to_ambient(model, q, d_gq, convention)
         dqd = d_gqd if needs[1] else None
     if needs[2]:
-        dqdd = ops.inverse_dynamics_jvp(q, zero, lam, None, t_u, convention) - \
-            ops.inverse_dynamics_jvp(q, zero, zero, None, t_u, convention)
+        dqdd = mass_product_jvp(ops, q, lam, t_u, convention)
     if needs[3]:
         df = -ops.body_velocities_jvp(q, lam, t_u, convention)
     if needs[4]:
@@ -200,6 +199,14 @@ def _mass_product_vjp(ops, q, a, lam, convention):
     products, _ = ops.inverse_dynamics_vjp(_repeat(q, m, 1), zero, a, None, lam, convention)
     gravity, _ = ops.inverse_dynamics_vjp(q, zero[..., 0, :], zero[..., 0, :], None, lam.sum(-2), convention)
     return products.sum(-2) - gravity
+
+
+def mass_product_jvp(ops, q, x, t, convention):
+    """The derivative of M(q) x along the direction t of q's coordinates, (..., nv): ID(q, 0, x) =
+    M x + g(q) in either convention, so the dual-number ID product at (0, x) less the one at (0, 0)."""
+    zero = torch.zeros_like(x)
+    return ops.inverse_dynamics_jvp(q, zero, x, None, t, convention) - ops.inverse_dynamics_jvp(q, zero, zero, None, t,
+                                                                                               convention)
 
 
 def _generalized_gravity(ops, model, needs, grads, output, q, convention):
@@ -302,9 +309,7 @@ def _inverse_dynamics_gradient(ops, model, needs, grads, output, q, qd, qdd, f_e
     # d/dqdd (lam . tau) = M lam = ID(q, 0, lam) - ID(q, 0, 0) and d/df_ext = -J lam do not depend on qd
     Qn, lam_q = Q[..., :nv, :], g_q.mT
     if needs[2]:
-        still = torch.zeros_like(lam_q)
-        dqdd = (ops.inverse_dynamics_jvp(Qn, still, lam_q, None, t, convention) -
-                ops.inverse_dynamics_jvp(Qn, still, still, None, t, convention)).sum(-2)
+        dqdd = mass_product_jvp(ops, Qn, lam_q, t, convention).sum(-2)
     if needs[3]:
         df = -ops.body_velocities_jvp(Qn, lam_q, t, convention).sum(-3)
     return dq, dqd, dqdd, df, None

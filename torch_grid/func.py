@@ -16,16 +16,10 @@ from typing import Callable
 import torch
 from torch.autograd import forward_ad
 
-from .autograd import BACKWARDS, COMPOSED_BACKWARD, backward_formula
-from .tangent import tangent_to_ambient
+from .autograd import BACKWARDS, COMPOSED_BACKWARD, backward_formula, mass_product_jvp
 from .model import RobotModel
 from .ops import FORWARD_MODE_BACKWARD, OPS
-
-
-# Ops with a forward-mode derivative: those whose backward is differentiable in its cotangents (made of
-# ops with backwards); the backward of an op whose outputs are derivatives is not.
-FORWARD_MODE = tuple(n for n in BACKWARDS if n not in COMPOSED_BACKWARD and n not in FORWARD_MODE_BACKWARD) + \
-    ("frame_jacobian",)
+from .tangent import tangent_to_ambient
 
 
 def transforming() -> bool:
@@ -101,7 +95,7 @@ class FuncOps:
                             torch._C._functorch._unwrap_for_grad(t, level) for t in ctx.saved_tensors)
             inputs, output = saved(ctx, tensors)
             if name in _JVPS:
-                return _JVPS[name](outer, *inputs, *tangents)
+                return _JVPS[name](outer, output, *inputs, *tangents)
             outs = output if several else (output,)
             needs = tuple(t is not None for t in tangents)
 
@@ -132,7 +126,7 @@ class FuncOps:
             "backward": staticmethod(backward), "jvp": staticmethod(jvp), "vmap": staticmethod(vmap)})
 
 
-def _inverse_dynamics_vjp_jvp(ops, q, qd, qdd, f_ext, lam, convention, t_q, t_qd, t_qdd, t_f, t_lam, _):
+def _inverse_dynamics_vjp_jvp(ops, _out, q, qd, qdd, f_ext, lam, convention, t_q, t_qd, t_qdd, t_f, t_lam, _):
     """The tangent of (g_q, g_qd) = lam^T d tau / d(q, qd): along q and qd by the dual-number kernel;
     it is linear in lam; along qdd and f_ext, the q-gradient of lam . (M t_qdd) and of lam . (-J^T t_f),
     inverse dynamics at rest less gravity (they do not depend on qd)."""
@@ -150,23 +144,20 @@ def _inverse_dynamics_vjp_jvp(ops, q, qd, qdd, f_ext, lam, convention, t_q, t_qd
     return d_q, d_qd
 
 
-def _inertia_solve_jvp(ops, q, x, convention, t_q, t_x, _):
-    """y = M^-1 x: dy = M^-1 (t_x - D_t(M) y), with D_t(M y) the derivative of ID(q, 0, y) - ID(q, 0, 0)."""
-    y = ops.inertia_solve(q, x, convention)
+def _inertia_solve_jvp(ops, y, q, x, convention, t_q, t_x, _):
+    """y = M^-1 x: dy = M^-1 (t_x - D_t(M) y)."""
     rhs = torch.zeros_like(x) if t_x is None else t_x
     if t_q is not None:
-        zero = torch.zeros_like(x)
-        rhs = rhs - (ops.inverse_dynamics_jvp(q, zero, y, None, t_q, convention) -
-                     ops.inverse_dynamics_jvp(q, zero, zero, None, t_q, convention))
+        rhs = rhs - mass_product_jvp(ops, q, y, t_q, convention)
     return ops.inertia_solve(q, rhs, convention)
 
 
-def _frame_jacobian_jvp(ops, q, frame, reference, convention, t_q, _f, _r, _c):
+def _frame_jacobian_jvp(ops, J, q, frame, reference, convention, t_q, _f, _r, _c):
     """dJ = H t, H the frame's kinematic Hessian and t the tangent of q along the tangent space (the
     transpose of tangent_to_ambient's map, by its gradient: it is linear)."""
     model = ops._model
     if t_q is None:
-        return torch.zeros_like(ops.frame_jacobian(q, frame, reference, convention))
+        return torch.zeros_like(J)
     if convention and model.conventions_differ:
         raise NotImplementedError("torch_grid: frame_jacobian has no forward-mode derivative in the MuJoCo convention "
                                   "of a robot with free or ball joints; use reverse mode")
@@ -179,3 +170,8 @@ def _frame_jacobian_jvp(ops, q, frame, reference, convention, t_q, _f, _r, _c):
 # derivatives, so the generic rule above does not apply).
 _JVPS = {"inverse_dynamics_vjp": _inverse_dynamics_vjp_jvp, "inertia_solve": _inertia_solve_jvp,
          "frame_jacobian": _frame_jacobian_jvp}
+
+# Ops with a forward-mode derivative: those whose backward is differentiable in its cotangents (made of
+# ops with backwards; the backward of an op whose outputs are derivatives is not), and those with a rule.
+FORWARD_MODE = tuple(dict.fromkeys(
+    [n for n in BACKWARDS if n not in COMPOSED_BACKWARD and n not in FORWARD_MODE_BACKWARD] + list(_JVPS)))
