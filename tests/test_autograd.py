@@ -248,3 +248,14 @@ def test_frame_jacobian_backward_kernel_matches_dual_numbers(robots, name, refer
         # the dual-number backward is in q's coordinates: compare along the tangent directions
         dual = ops.frame_jacobian_backward(q, frame, ref, G, 1, 0)
         assert torch.allclose(tangent_to_ambient(robot.model, q, ours, 0), dual, rtol=1e-10, atol=1e-10), frame
+
+
+def test_ops_without_a_backward_compute_derivatives():
+    """The refusal's wording assumes that every op without a backward outputs derivatives: the dual-number
+    kernels, frame_jacobian's backward kernel and the second-order tensors. A new value op must get a
+    backward (or this list, and that wording, must change)."""
+    from torch_grid.autograd import backward_formula
+    from torch_grid.ops import OPS
+
+    missing = {n for n, s in OPS.items() if backward_formula(s) is None and not s.derived}
+    assert missing == {"frame_jacobian_vjp", "frame_kinematic_hessian", "inverse_dynamics_second_order"}

@@ -57,12 +57,12 @@ def _save_inputs(ctx, inputs, output) -> None:
 
 
 def _no_backward(name: str) -> Callable:
+    # Every op without a backward computes derivatives (a backward's kernels, the second-order tensors):
+    # differentiating it is a third derivative, or the second of an op whose outputs are derivatives.
     def backward(ctx, *grads):
-        if OPS[name].derived or name in _INTERNAL or name in ("inverse_dynamics_second_order", "frame_kinematic_hessian"):
-            raise NotImplementedError(
-                f"torch_grid: {name} has no derivative: the op whose derivative it computes cannot be differentiated "
-                "once more (a third derivative, or the second derivative of an op whose outputs are derivatives)")
-        raise NotImplementedError(f"torch_grid: {name} has no derivative yet; its outputs cannot be back-propagated through")
+        raise NotImplementedError(
+            f"torch_grid: {name} has no derivative: the op whose derivative it computes cannot be differentiated "
+            "once more (a third derivative, or the second derivative of an op whose outputs are derivatives)")
 
     return backward
 
@@ -403,9 +403,6 @@ BACKWARDS = {
     "forward_dynamics_parameter_gradient": _forward_dynamics_parameter_gradient,
     "osc_inertia": _osc_inertia,
 }
-
-# The ops that the backwards call, not meant for users.
-_INTERNAL = ("inverse_dynamics_vjp", "inertia_solve", "frames_vjp", "body_velocities", "frame_jacobian_vjp")
 
 # Ops whose outputs are derivatives and whose backward is made of other ops (their backwards, or the
 # jvp kernels of a first-order gradient) rather than of a kernel of their own on dual numbers.

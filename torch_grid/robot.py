@@ -11,7 +11,7 @@ from typing import Sequence
 import torch
 
 from .autograd import rpy_rate_matrix
-from .func import FORWARD_MODE, FuncOps, dual
+from .func import FORWARD_MODE, FuncOps, dual, transforming
 from .mimic import Coupling
 from .model import RobotModel, inertia_about_origin
 from .ops import OPS, model_sizes
@@ -174,7 +174,7 @@ class _Functions:
         qdd = self.forward_dynamics(q, qd, tau, f_ext)
         z_q, z_qd, minv = self.forward_dynamics_gradient(q, qd, tau, f_ext)
         second = self.inverse_dynamics_second_order(q, qd, qdd, f_ext)
-        traced = torch.compiler.is_compiling() or bool(torch._C._functorch.get_interpreter_stack())
+        traced = torch.compiler.is_compiling() or transforming()
         if traced or (torch.is_grad_enabled() and any(t.requires_grad for t in second)):
             return _fd_second_order(*second, z_q, z_qd, minv)
         # Chunks of samples, written over the inverse-dynamics tensors (kept blocks, already mapped):
