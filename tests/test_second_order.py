@@ -18,6 +18,7 @@ from pinocchio_cpp_oracle import rnea_second_order
 from mjcf_models import TREES
 from test_mjcf import MODEL as ZOO
 from test_quaternion_joints import pin_ball_model
+from torch_grid.tangent import tangent_to_ambient
 
 
 @pytest.fixture(scope="module")
@@ -104,6 +105,22 @@ def test_inverse_dynamics_second_order_vs_differences(robots, pin_models, pinocc
                                                   f.expand(robot.nv, -1, -1)) for s in (1, -1))
     assert rel_err(dqdv, ((vp[0] - vm[0]) / (2 * h)).permute(1, 2, 0)) <= 1e-6
     assert rel_err(d2v, ((vp[1] - vm[1]) / (2 * h)).permute(1, 2, 0)) <= 1e-6
+
+
+@pytest.mark.parametrize("name", ["iiwa14", "g1", "balls", "zoo", "trees"])
+def test_crba_backward_is_the_contracted_mass_matrix_derivative(robots, pin_models, pinocchio_balls, mjcf_robots, name):
+    """crba's backward kernel (O(n d), not second-order tensors) gives sum_ij W_ij dM_ij/dq_k, dM_dq of
+    inverse_dynamics_second_order (checked against Pinocchio above); through autograd, in ambient
+    coordinates, the same mapped by tangent_to_ambient."""
+    robot = _any_robot(name, robots, pin_models, pinocchio_balls, mjcf_robots)
+    q, qd, qdd, _ = _states(robot, 3, seed=9)
+    W = torch.randn(3, robot.nv, robot.nv, dtype=torch.float64, generator=torch.Generator().manual_seed(2))
+    dM = robot.pin.inverse_dynamics_second_order(q, qd, qdd)[3]
+    expected = torch.einsum("bij,bijk->bk", W, dM)
+    assert rel_err(robot._ops.crba_vjp(q, W, 0), expected) <= 1e-12
+    leaf = q.clone().requires_grad_(True)
+    grad, = torch.autograd.grad(robot.pin.crba(leaf), leaf, W)
+    assert rel_err(grad, tangent_to_ambient(robot.model.kernel_model, q, expected, 0)) <= 1e-12
 
 
 @pytest.mark.parametrize("name", ["iiwa14", "go2", "balls", "zoo"])

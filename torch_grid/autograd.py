@@ -177,11 +177,38 @@ def _inertia_solve(ops, model, needs, grads, output, q, x, convention):
 
 
 def _crba(ops, model, needs, grads, output, q, convention):
-    """<G, M(q)> = sum_j G[:, j]^T M e_j: nv + 1 of the O(n) ID products, O(n^2), instead of a
-    second-order kernel."""
-    unit = torch.eye(model.nv, dtype=q.dtype, device=q.device).expand(grads[0].shape)
-    dq = _mass_product_vjp(ops, q, unit, grads[0].transpose(-1, -2), convention)
+    """<G, M(q)> differentiated by an O(n d) kernel (csrc/kernels/crba.h) in Pinocchio's convention, or
+    where the conventions agree. MuJoCo's twin reframes M with G(q): there it is sum_j G[:, j]^T M e_j,
+    nv + 1 of the O(n) ID products, O(n^2)."""
+    if convention and model.conventions_differ:
+        unit = torch.eye(model.nv, dtype=q.dtype, device=q.device).expand(grads[0].shape)
+        dq = _mass_product_vjp(ops, q, unit, grads[0].transpose(-1, -2), convention)
+    else:
+        dq = ops.crba_vjp(q, grads[0], convention)
     return tangent_to_ambient(model, q, dq, convention), None
+
+
+def _crba_vjp(ops, model, needs, grads, output, q, weight, convention):
+    """g = the tangent gradient of <W, M(q)>, so <u, g> = D_u <W, M>: d/dW = D_u M, and d/dq is forward
+    over reverse through M e_m = ID(q, 0, e_m) - g(q) (the backward of those ID products)."""
+    nv, u = model.nv, grads[0]
+    unit = torch.eye(nv, dtype=q.dtype, device=q.device).expand(*q.shape[:-1], nv, nv)
+    zero = torch.zeros_like(unit)
+    Q, lam = _repeat(q, nv, 1), weight.mT  # product m: at qdd = e_m, cotangent W[:, m]
+    dq = dw = None
+    if needs[0]:
+        rest = (zero[..., 0, :], zero[..., 0, :], lam.sum(-2))
+        products = ((Q, zero, unit, lam, _repeat(u, nv, 1)), (q, *rest, u))
+        terms = []
+        for x, v, a, c, cot in products:
+            g = (ops.inverse_dynamics_vjp(x, v, a, None, c, convention)[0], None) if has_brackets(model) else None
+            terms.append(_inverse_dynamics_vjp(ops, model, (True,) + (False,) * 5, (cot, None), g, x, v, a, None, c,
+                                               convention)[0])
+        dq = terms[0].sum(-2) - terms[1]
+    if needs[1]:
+        t_u = (u.unsqueeze(-2) @ tangent_directions(model, q, convention)).squeeze(-2)
+        dw = mass_product_jvp(ops, Q, unit, _repeat(t_u, nv, 1), convention)  # rows: D_u M e_m (symmetric)
+    return dq, dw, None
 
 
 def _minv(ops, model, needs, grads, output, q, convention):
@@ -387,6 +414,7 @@ BACKWARDS = {
     "inverse_dynamics_vjp": _inverse_dynamics_vjp,
     "inertia_solve": _inertia_solve,
     "crba": _crba,
+    "crba_vjp": _crba_vjp,
     "minv": _minv,
     "forward_kinematics": _forward_kinematics,
     "end_effector_pose": _end_effector_pose,

@@ -144,6 +144,24 @@ def _inverse_dynamics_vjp_jvp(ops, _out, q, qd, qdd, f_ext, lam, convention, t_q
     return d_q, d_qd
 
 
+def _crba_vjp_jvp(ops, _out, q, weight, convention, t_q, t_w, _):
+    """The tangent of g = the tangent gradient of <W, M(q)>: linear in W; along q, that of the ID
+    products M e_m = ID(q, 0, e_m) - g(q) with cotangents W[:, m] (the dual-number kernel)."""
+    nv = weight.shape[-1]
+    batch = torch.broadcast_shapes(q.shape[:-1], weight.shape[:-2])
+    d = q.new_zeros(*batch, nv) if t_w is None else ops.crba_vjp(q, t_w, convention)
+    if t_q is not None:
+        unit = torch.eye(nv, dtype=q.dtype, device=q.device).expand(*q.shape[:-1], nv, nv)
+        zero = torch.zeros_like(unit)
+        lam = weight.mT
+        rep = lambda x: x.unsqueeze(-2).expand(*x.shape[:-1], nv, x.shape[-1])
+        products = ops.inverse_dynamics_vjp_jvp(rep(q), zero, unit, None, lam, rep(t_q), None, convention)[0]
+        rest = ops.inverse_dynamics_vjp_jvp(q, zero[..., 0, :], zero[..., 0, :], None, lam.sum(-2), t_q, None,
+                                            convention)[0]
+        d = d + products.sum(-2) - rest
+    return d
+
+
 def _inertia_solve_jvp(ops, y, q, x, convention, t_q, t_x, _):
     """y = M^-1 x: dy = M^-1 (t_x - D_t(M) y)."""
     rhs = torch.zeros_like(x) if t_x is None else t_x
@@ -168,7 +186,7 @@ def _frame_jacobian_jvp(ops, J, q, frame, reference, convention, t_q, _f, _r, _c
 
 # Ops whose forward-mode derivative is its own formula (their backwards are made of kernels without
 # derivatives, so the generic rule above does not apply).
-_JVPS = {"inverse_dynamics_vjp": _inverse_dynamics_vjp_jvp, "inertia_solve": _inertia_solve_jvp,
+_JVPS = {"inverse_dynamics_vjp": _inverse_dynamics_vjp_jvp, "inertia_solve": _inertia_solve_jvp, "crba_vjp": _crba_vjp_jvp,
          "frame_jacobian": _frame_jacobian_jvp}
 
 # Ops with a forward-mode derivative: those whose backward is differentiable in its cotangents (made of

@@ -104,6 +104,8 @@ _VALUE_OPS = (
         OpSpec("inverse_dynamics", "InverseDynamics", (Q, QD, QDD, FEXT), (Out("tau", "force", NV),)),
         OpSpec("forward_dynamics", "ForwardDynamics", (Q, QD, TAU, FEXT), (Out("qdd", "acceleration", NV),)),
         OpSpec("crba", "Crba", (Q,), (Out("M", "congruence", NVxNV),)),
+        OpSpec("crba_vjp", "CrbaVjp", (Q, Arg("weight", "plain", shape=NVxNV)), (Out("grad_q", "plain", NV),),
+               mujoco_twin=False),
         OpSpec("minv", "Minv", (Q,), (Out("Minv", "congruence", NVxNV),)),
         OpSpec("generalized_gravity", "GeneralizedGravity", (Q,), (Out("g", "force", NV),)),
         OpSpec("nonlinear_effects", "NonlinearEffects", (Q, QD), (Out("nle", "twin", NV),)),

@@ -69,4 +69,79 @@ template <class M, class S> TG_HD void crba(const S* q, S* Mout) {
   }
 }
 
+// The gradient along the tangent of <G, M(q)> for a weight G (NV x NV), O(n d) for a tree of depth d.
+// With world axes S and composite inertias Ic about one point (the root's origin), a block of M is
+// M[r, s] = S_r . Ic_b S_s for the dof r of joint b and s of a joint a at or above b. A tangent step of
+// dof k turns what is below k's joint c, dS/dq_k = S_k x S and dI/dq_k = S_k x* I - I S_k x; a pair
+// (r, s) turned as a whole is unchanged, which leaves, with H = (G + G^T)/2, w_rs = 2 H_rs across
+// joints (each unordered pair once) and H_rs within one, F_r = Ic_b S_r:
+//   a above c, c at or above b:   -w_rs F_r . (S_k x S_s) = -S_k . (w_rs S_s x* F_r)
+//   a and b above c:               w_rs S_r . (S_k x* Ic_c - Ic_c S_k x) S_s
+// The first, summed over the pairs, is -S_k . Z_c: the subtree sum of A_r x* F_r (A_r = sum of w_rs S_s
+// over the joints above b) less that of S_s x* R_s (R_s = sum of w_rs F_r over the joints below a),
+// which removes the pairs with a also below c. The second is -tr((P_c + P_c^T) Ic_c [S_k x]), with P_c
+// the sum of S_r u_r^T over the joints above c, u_r = A_r + the sum of H_rs S_s within r's joint.
+template <class M, class S> TG_HD void crba_vjp(const S* q, const S* G, S* out) {
+  const auto& d = data<M, S>();
+  constexpr int NV = M::NV, NB = M::NB;
+  const Placements<M, S> K(q);
+  Sv<S> Sw[NV], A[NV], R[NV];  // world axes about the root's origin; A_r; R_s
+  M6<S> P[NB];                 // P_c + P_c^T
+  Inertia<S> Ic[NB];           // about the root's origin, world axes
+  Sv<S> Z[NB];
+  const auto w = [&](int r, int s) { return G[NV * r + s] + G[NV * s + r]; };  // 2 H_rs
+  // Forward pass: axes, A_r, and P_c from the parent's.
+  for (int i = 0; i < NB; ++i) {
+    const SE3<S> X{K.oMi[i].R, K.oMi[i].p - K.oMi[0].p};
+    for (int k = 0; k < d.nvj[i]; ++k) Sw[d.vi[i] + k] = placed_axis<M, S>(X, i, k);
+    for (int r = d.vi[i]; r < d.vi[i] + d.nvj[i]; ++r) {
+      A[r] = sv_zero<S>();
+      R[r] = sv_zero<S>();
+      for (int j = d.parent[i]; j >= 0; j = d.parent[j])
+        for (int s = d.vi[j]; s < d.vi[j] + d.nvj[j]; ++s) A[r] = A[r] + w(r, s) * Sw[s];
+    }
+    const int p = d.parent[i];
+    for (int k = 0; k < 36; ++k) P[i].m[k] = p >= 0 ? P[p].m[k] : S(0);
+    if (p >= 0)
+      for (int r = d.vi[p]; r < d.vi[p] + d.nvj[p]; ++r) {
+        Sv<S> u = A[r];
+        for (int s = d.vi[p]; s < d.vi[p] + d.nvj[p]; ++s) u = u + (S(0.5) * w(r, s)) * Sw[s];
+        for (int x = 0; x < 6; ++x)
+          for (int y = 0; y < 6; ++y) P[i].m[6 * x + y] += Sw[r].v[x] * u.v[y] + u.v[x] * Sw[r].v[y];
+      }
+    Ic[i] = shift(rotate(K.oMi[i].R, body_inertia<M, S>(i)), X.p);
+    Z[i] = sv_zero<S>();
+  }
+  // Backward pass: F_r into the R_s above, the subtree sums Z_c and Ic_c, then both terms for c's dofs.
+  for (int i = NB - 1; i >= 0; --i) {
+    Sv<S> z = Z[i];
+    for (int r = d.vi[i]; r < d.vi[i] + d.nvj[i]; ++r) {
+      const Sv<S> F = mul(Ic[i], Sw[r]);
+      for (int j = d.parent[i]; j >= 0; j = d.parent[j])
+        for (int s = d.vi[j]; s < d.vi[j] + d.nvj[j]; ++s) R[s] = R[s] + w(r, s) * F;
+      z = z + cross_force(A[r], F) - cross_force(Sw[r], R[r]);
+    }
+    // Q = (P + P^T) Ic; tr(Q [v x]) = v . ([t(Q21); t(Q11) + t(Q22)]), t(B) = (B23 - B32, B31 - B13, B12 - B21)
+    const M6<S> Y = to_matrix(Ic[i]);
+    S Q[36];
+    for (int x = 0; x < 6; ++x)
+      for (int y = 0; y < 6; ++y) {
+        S acc = S(0);
+        for (int k = 0; k < 6; ++k) acc += P[i].m[6 * x + k] * Y.m[6 * k + y];
+        Q[6 * x + y] = acc;
+      }
+    const auto t = [&](int r0, int c0) {
+      const S* B = Q + 6 * r0 + c0;
+      return v3(B[6 * 1 + 2] - B[6 * 2 + 1], B[6 * 2 + 0] - B[6 * 0 + 2], B[6 * 0 + 1] - B[6 * 1 + 0]);
+    };
+    const Sv<S> phi = sv(t(3, 0), t(0, 0) + t(3, 3));
+    for (int r = d.vi[i]; r < d.vi[i] + d.nvj[i]; ++r) out[r] = -dot(Sw[r], z + phi);
+    const int p = d.parent[i];
+    if (p >= 0) {
+      Ic[p] = Ic[p] + Ic[i];
+      Z[p] = Z[p] + z;
+    }
+  }
+}
+
 }  // namespace tg

@@ -71,6 +71,10 @@ template <class M, class S> struct Crba {
   TG_HD static void run(const CrbaArgs<S>& a) { crba<M, S>(a.q, a.M); }
 };
 
+template <class M, class S> struct CrbaVjp {
+  TG_HD static void run(const CrbaVjpArgs<S>& a) { crba_vjp<M, S>(a.q, a.weight, a.grad_q); }
+};
+
 template <class M, class S> struct Minv {
   TG_HD static void run(const MinvArgs<S>& a) { minv<M, S>(a.q, a.Minv); }
 };
