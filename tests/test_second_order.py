@@ -123,6 +123,23 @@ def test_crba_backward_is_the_contracted_mass_matrix_derivative(robots, pin_mode
     assert rel_err(grad, tangent_to_ambient(robot.model.kernel_model, q, expected, 0)) <= 1e-12
 
 
+@pytest.mark.parametrize("name", ["iiwa14", "go2", "g1", "balls", "zoo", "trees"])
+def test_inverse_dynamics_gradient_backward_contracts_the_second_order_tensors(robots, pin_models, pinocchio_balls,
+                                                                              mjcf_robots, name):
+    """The contracted kernel behind inverse_dynamics_gradient's backward against the stored tensors
+    (checked against Pinocchio above): d/dq_k <Gq, dtau/dq> + <Gv, dtau/dqd> = Gq . d2q[..k] + Gv . dqdv[.k.],
+    d/dqd_k = Gq . dqdv[..k] + Gv . d2v[..k], d/dqdd_m = Gq . dM_dq[.m.], with f_ext."""
+    robot = _any_robot(name, robots, pin_models, pinocchio_balls, mjcf_robots)
+    q, qd, qdd, f = _states(robot, 3, seed=10)
+    g = torch.Generator().manual_seed(3)
+    Gq, Gv = (torch.randn(3, robot.nv, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
+    d2q, d2v, dqdv, dadq = robot.pin.inverse_dynamics_second_order(q, qd, qdd, f)
+    gq, gqd, gqdd = robot._ops.inverse_dynamics_gradient_vjp(q, qd, qdd, f, Gq, Gv, 0)
+    assert rel_err(gq, torch.einsum("bij,bijk->bk", Gq, d2q) + torch.einsum("bij,bikj->bk", Gv, dqdv)) <= 1e-12
+    assert rel_err(gqd, torch.einsum("bij,bijk->bk", Gq, dqdv) + torch.einsum("bij,bijk->bk", Gv, d2v)) <= 1e-12
+    assert rel_err(gqdd, torch.einsum("bij,bimj->bm", Gq, dadq)) <= 1e-12
+
+
 @pytest.mark.parametrize("name", ["iiwa14", "go2", "balls", "zoo"])
 def test_forward_dynamics_second_order_vs_differences(robots, pin_models, pinocchio_balls, mjcf_robots, name):
     robot = _any_robot(name, robots, pin_models, pinocchio_balls, mjcf_robots)

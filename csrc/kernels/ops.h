@@ -220,6 +220,17 @@ template <class M, class S> struct InverseDynamicsSecondOrder {
   }
 };
 
+// The backward of inverse_dynamics_gradient: the second-order tensors contracted with its cotangents
+// as they are produced (Pinocchio's convention only).
+template <class M, class S> struct InverseDynamicsGradientVjp {
+  TG_HD static void run(const InverseDynamicsGradientVjpArgs<S>& a) {
+    const Placements<M, S> K(a.q);
+    RneaDerivativesWork<M, S> W;
+    rnea_derivatives_setup<M, S>(K, a.qd, a.qdd, a.f_ext, W);
+    rnea_second_order_contract<M, S>(W, a.grad_dtau_dq, a.grad_dtau_dqd, a.grad_q, a.grad_qd, a.grad_qdd);
+  }
+};
+
 // Since ID(q, qd, FD(q, qd, tau)) = tau, dqdd/dx = -M^-1 dtau/dx at qdd = FD(q, qd, tau), and
 // dqdd/dtau = M^-1, in either convention. Minv, RNEA (for qdd) and the RNEA derivatives share the
 // Placements pass.

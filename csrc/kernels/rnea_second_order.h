@@ -32,14 +32,13 @@ template <class S> struct SubtreeRate {
   }
 };
 
-// The four NV x NV x NV tensors (row-major, [i][j][k] at NV (NV i + j) + k) at the (q, qd, qdd, fext)
-// W was set up at. Entries of columns on different branches are zero.
-template <class M, class S>
-TG_HD void rnea_second_order(const RneaDerivativesWork<M, S>& W, S* d2q, S* d2v, S* dqdv, S* dadq) {
+// The tensors an entry belongs to.
+enum SecondOrderTensor : int { D2Q = 0, D2V = 1, DQDV = 2, DADQ = 3 };
+
+// Visits every non-zero entry of the four tensors at the (q, qd, qdd, fext) W was set up at, once
+// each: put(tensor, i, j, k, value). Entries of columns on different branches are zero.
+template <class M, class S, class Put> TG_HD void rnea_second_order_visit(const RneaDerivativesWork<M, S>& W, Put&& put) {
   const auto& d = data<M, S>();
-  constexpr int NV = M::NV;
-  for (int n = 0; n < NV * NV * NV; ++n) d2q[n] = d2v[n] = dqdv[n] = dadq[n] = S(0);
-  auto at = [](S* T, int i, int j, int k) -> S& { return T[NV * (NV * i + j) + k]; };
   for (int i = 0; i < M::NB; ++i) {
     const Inertia<S>& IC = W.Yc[i];
     const M6<S>& BC = W.B[i];
@@ -74,36 +73,77 @@ TG_HD void rnea_second_order(const RneaDerivativesWork<M, S>& W, S* d2q, S* d2v,
               const Sv<S>& wc = W.w[c];
               const S p1 = dot(BsT_Sb, wc);
               const S p2 = dot(Sb_ICs, W.u[c]) + dot(wb_part, wc);
-              at(d2q, a, b, c) = p2;
-              at(dqdv, a, c, b) = -p1;
+              put(D2Q, a, b, c, p2);
+              put(DQDV, a, c, b, -p1);
               if (j != i) {
-                at(d2q, b, c, a) = at(d2q, b, a, c) = dot(dBT_Sb, wc) + dot(DT_Sb, W.u[c]);
-                at(dqdv, b, c, a) = p1;
-                at(dqdv, b, a, c) = dot(dBT_Sb, Sc) + dot(DT_Sb, W.alpha[c]);
-                at(d2v, b, c, a) = at(d2v, b, a, c) = dot(BsT_Sb, Sc);
-                at(dadq, c, b, a) = at(dadq, b, c, a) = dot(Sc, D_Sb);
+                const S q2 = dot(dBT_Sb, wc) + dot(DT_Sb, W.u[c]), v2 = dot(BsT_Sb, Sc), m = dot(Sc, D_Sb);
+                put(D2Q, b, c, a, q2);
+                put(D2Q, b, a, c, q2);
+                put(DQDV, b, c, a, p1);
+                put(DQDV, b, a, c, dot(dBT_Sb, Sc) + dot(DT_Sb, W.alpha[c]));
+                put(D2V, b, c, a, v2);
+                put(D2V, b, a, c, v2);
+                put(DADQ, b, c, a, m);
+                if (k != j) put(DADQ, c, b, a, m);  // within one body, (c, b) is another visit's (b, c)
               }
               if (k != j) {
-                at(d2q, a, c, b) = p2;
-                at(d2q, c, a, b) = dot(Sc, rate_q);
-                at(d2v, a, b, c) = at(d2v, a, c, b) = -dot(BsT_Sb, Sc);
-                at(dqdv, a, b, c) = dot(Sc, rate_qv) + dot(Sb_ICs, W.alpha[c]);
-                at(dqdv, c, b, a) = dot(Sc, rate_vq);
-                at(dadq, c, a, b) = at(dadq, a, c, b) = dot(Sc, Sb_ICs);
+                const S q3 = dot(Sc, rate_q), m = dot(Sc, Sb_ICs);
+                put(D2Q, a, c, b, p2);
+                put(D2Q, c, a, b, q3);
+                put(D2V, a, b, c, -dot(BsT_Sb, Sc));
+                put(D2V, a, c, b, -dot(BsT_Sb, Sc));
+                put(DQDV, a, b, c, dot(Sc, rate_qv) + dot(Sb_ICs, W.alpha[c]));
+                put(DQDV, c, b, a, dot(Sc, rate_vq));
+                put(DADQ, c, a, b, m);
+                put(DADQ, a, c, b, m);
                 if (j != i) {
-                  at(d2q, c, b, a) = at(d2q, c, a, b);
-                  at(d2v, c, a, b) = at(d2v, c, b, a) = dot(Sc, Bs_Sb);
-                  at(dqdv, c, a, b) = dot(Sc, rate_qv_above);
+                  const S v3 = dot(Sc, Bs_Sb);
+                  put(D2Q, c, b, a, q3);
+                  put(D2V, c, a, b, v3);
+                  put(D2V, c, b, a, v3);
+                  put(DQDV, c, a, b, dot(Sc, rate_qv_above));
                 } else {
-                  at(d2v, c, b, a) = dot(Sc, same_body_vv);
+                  put(D2V, c, b, a, dot(Sc, same_body_vv));
                 }
               } else {
-                at(d2v, a, b, c) = -dot(DT_Sb, Sc);
+                put(D2V, a, b, c, -dot(DT_Sb, Sc));
               }
             }
         }
     }
   }
+}
+
+// The four NV x NV x NV tensors (row-major, [i][j][k] at NV (NV i + j) + k).
+template <class M, class S>
+TG_HD void rnea_second_order(const RneaDerivativesWork<M, S>& W, S* d2q, S* d2v, S* dqdv, S* dadq) {
+  constexpr int NV = M::NV;
+  for (int n = 0; n < NV * NV * NV; ++n) d2q[n] = d2v[n] = dqdv[n] = dadq[n] = S(0);
+  S* const T[4] = {d2q, d2v, dqdv, dadq};
+  rnea_second_order_visit<M, S>(W, [&](int t, int i, int j, int k, S v) { T[t][NV * (NV * i + j) + k] = v; });
+}
+
+// The gradient of <Gq, dtau/dq> + <Gv, dtau/dqd> (Gq, Gv: NV x NV) with respect to q (along the
+// tangent), qd and qdd, each entry of the tensors contracted as it is produced (no NV^3 storage).
+// Mixed partials commute (qd and qdd are not on the manifold): d/dq_k (dtau_i/dqd_j) = dqdv[i][k][j]
+// and d/dqdd_m (dtau_i/dq_j) = dM_dq[i][m][j].
+template <class M, class S>
+TG_HD void rnea_second_order_contract(const RneaDerivativesWork<M, S>& W, const S* Gq, const S* Gv, S* gq, S* gqd,
+                                      S* gqdd) {
+  constexpr int NV = M::NV;
+  for (int n = 0; n < NV; ++n) gq[n] = gqd[n] = gqdd[n] = S(0);
+  rnea_second_order_visit<M, S>(W, [&](int t, int i, int j, int k, S v) {
+    if (t == D2Q) {
+      gq[k] += Gq[NV * i + j] * v;
+    } else if (t == D2V) {
+      gqd[k] += Gv[NV * i + j] * v;
+    } else if (t == DQDV) {
+      gqd[k] += Gq[NV * i + j] * v;
+      gq[j] += Gv[NV * i + k] * v;
+    } else {
+      gqdd[j] += Gq[NV * i + k] * v;
+    }
+  });
 }
 
 }  // namespace tg
