@@ -174,18 +174,12 @@ def test_batch_shapes_and_float32(robots):
     assert all(x.shape == (2, 3, robot.nv, robot.nv, robot.nv) for x in fd)
 
 
-def test_mujoco_convention(robots):
-    """Without a quaternion joint the conventions agree; with one, the MuJoCo twin is not written yet
-    and the call says so rather than return Pinocchio's tensors."""
+def test_mujoco_convention_without_quaternions_is_pinocchios(robots):
+    """Without a quaternion joint the conventions agree (a fixed arm): the same tensors."""
     arm = robots["iiwa14"]
     q, qd, qdd, _ = _states(arm, 2, seed=7)
     for x, y in zip(arm.mujoco.inverse_dynamics_second_order(q, qd, qdd), arm.pin.inverse_dynamics_second_order(q, qd, qdd)):
         assert torch.equal(x, y)
-    go2 = robots["go2"]
-    q, qd, qdd, _ = _states(go2, 2, seed=7)
-    for fn in (go2.mujoco.inverse_dynamics_second_order, go2.mujoco.forward_dynamics_second_order):
-        with pytest.raises(NotImplementedError, match="MuJoCo convention"):
-            fn(go2.mujoco.neutral_configuration(), qd, qdd)
 
 
 def test_third_derivatives_refuse(robots):

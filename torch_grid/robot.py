@@ -10,6 +10,7 @@ from typing import Sequence
 
 import torch
 
+from . import mujoco_second_order
 from .autograd import rpy_rate_matrix
 from .func import FORWARD_MODE, FuncOps, dual, transforming
 from .mimic import Coupling
@@ -105,9 +106,11 @@ class _Functions:
     def frame_kinematic_hessian(self, q, frame: str | int, reference: str = "local_world_aligned") -> torch.Tensor:
         """Kinematic Hessian (..., 6, nv, nv) of a frame: H[..., :, j, k] = d J[..., :, j] / dq_k along the
         tangent, J = frame_jacobian(q, frame, reference) (Pinocchio's getFrameKinematicHessian).
-        In the MuJoCo convention only for a robot without free or ball joints."""
-        self._pin_only("frame_kinematic_hessian")
-        return self._call("frame_kinematic_hessian", q, self._robot.frame_index(frame, "frame"), _reference(reference))
+        In the MuJoCo convention, d/dq_k of its Jacobian (qvel's frame) along mj_integratePos's tangent."""
+        index = self._robot.frame_index(frame, "frame")
+        if self._differs():
+            return mujoco_second_order.frame_kinematic_hessian(self._robot, q, index, reference)
+        return self._call("frame_kinematic_hessian", q, index, _reference(reference))
 
     def frame_jacobian_dot(self, q, qd, frame: str | int, reference: str = "local_world_aligned") -> torch.Tensor:
         """Time derivative (..., 6, nv) of frame_jacobian at velocity qd (Pinocchio's
@@ -155,9 +158,12 @@ class _Functions:
         Pinocchio's ComputeRNEASecondOrderDerivatives layout (d2tau_dqdq, d2tau_dvdv, dtau_dqdv,
         dtau_dadq), with f_ext; tangent derivatives as in inverse_dynamics_gradient, so on a floating
         base d2tau_dq2 is not symmetric in j, k. Passive forces are linear in q and qd: no term here.
-        In the MuJoCo convention only for a robot without free or ball joints (where the conventions agree).
+        In the MuJoCo convention, the derivatives of its first derivatives along mj_integratePos's tangent,
+        qvel and qacc held fixed in MuJoCo's frame; with free joints, composed in torch from Pinocchio's
+        tensors (torch_grid/mujoco_second_order.py).
         """
-        self._pin_only("inverse_dynamics_second_order")
+        if self._differs():
+            return mujoco_second_order.inverse_dynamics_second_order_mujoco(self._robot, q, qd, qdd, f_ext)
         return self._call("inverse_dynamics_second_order", q, qd, qdd, f_ext)
 
     def forward_dynamics_second_order(self, q, qd, tau, f_ext=None) -> tuple[torch.Tensor, ...]:
@@ -168,9 +174,9 @@ class _Functions:
         Closed form at qdd = forward_dynamics(q, qd, tau): differentiating ID(q, qd, qdd(x)) = tau
         twice, with Z = d qdd / dx,
             d2qdd/dx_j dx_k = -M^-1 (d2tau/dx_j dx_k + dM/dx_j Z_k + dM/dx_k Z_j)
-        (dM/dx only along q), from inverse_dynamics_second_order and forward_dynamics_gradient.
+        (dM/dx only along q), from inverse_dynamics_second_order and forward_dynamics_gradient, in
+        either convention.
         """
-        self._pin_only("forward_dynamics_second_order")
         qdd = self.forward_dynamics(q, qd, tau, f_ext)
         z_q, z_qd, minv = self.forward_dynamics_gradient(q, qd, tau, f_ext)
         second = self.inverse_dynamics_second_order(q, qd, qdd, f_ext)
@@ -190,10 +196,9 @@ class _Functions:
                 t[rows] = r
         return second
 
-    def _pin_only(self, name: str) -> None:
-        if self._convention == 1 and self._robot.model.conventions_differ:
-            raise NotImplementedError(f"torch_grid: {name} in the MuJoCo convention is not implemented for a robot with "
-                                      "free or ball joints; call it in the pin convention (robot.pin)")
+    def _differs(self) -> bool:
+        """Whether this view is MuJoCo's convention of a robot on which it differs from Pinocchio's."""
+        return self._convention == 1 and self._robot.model.conventions_differ
 
     def passive_forces(self, q, qd) -> torch.Tensor:
         """MuJoCo's qfrc_passive of the joints' damping and stiffness (..., nv):

@@ -1,0 +1,106 @@
+"""Second derivatives in MuJoCo's convention on robots with free and ball joints, against central
+differences of the MuJoCo-convention first-order functions (themselves checked against MuJoCo) along
+MuJoCo's own mj_integratePos, qvel and qacc held fixed: go2 (a free root), "trees" (two free roots and
+a ball joint) and "zoo" (a planar root, a ball joint; MJCF models)."""
+from __future__ import annotations
+
+import warnings
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+
+import torch_grid
+from oracles import rel_err
+from mjcf_models import TREES
+from test_mjcf import MODEL as ZOO
+
+H = 1e-5
+
+
+@pytest.fixture(scope="module")
+def models(tmp_path_factory, robots, mj_sims):
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "the MJCF model has contacts")
+        out = {name: (torch_grid.load(text, cache_dir=tmp_path_factory.mktemp(name)), mujoco.MjModel.from_xml_string(text))
+               for name, text in (("zoo", ZOO), ("trees", TREES))}
+    out["go2"] = (robots["go2"], mj_sims["go2"].m)
+    return out
+
+
+def _state(robot, seed):
+    g = torch.Generator().manual_seed(seed)
+    q = robot.mujoco.random_configuration(1, generator=g)[0]
+    qd, x = (torch.randn(robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
+    f = 3 * torch.randn(robot.nbodies, 6, dtype=torch.float64, generator=g)
+    return q, qd, x, f
+
+
+def _steps(m, q):
+    """mj_integratePos(q, +-H e_k) for every k: (2, nv, nq)."""
+    out = np.zeros((2, m.nv, m.nq))
+    for s, sign in enumerate((1, -1)):
+        for k in range(m.nv):
+            out[s, k] = q.numpy()
+            dv = np.zeros(m.nv)
+            dv[k] = sign * H
+            mujoco.mj_integratePos(m, out[s, k], dv, 1.0)
+    return torch.from_numpy(out)
+
+
+def _along(fn, plus, minus):
+    """Central differences of fn's outputs, the direction last: (..., nv)."""
+    hi, lo = fn(plus), fn(minus)
+    hi, lo = (hi, lo) if isinstance(hi, tuple) else ((hi,), (lo,))
+    return [((a - b) / (2 * H)).movedim(0, -1) for a, b in zip(hi, lo)]
+
+
+@pytest.mark.parametrize("name", ["go2", "trees", "zoo"])
+def test_inverse_dynamics_second_order(models, name):
+    robot, m = models[name]
+    view, nv = robot.mujoco, robot.nv
+    q, qd, qdd, f = _state(robot, seed=11)
+    d2q, d2v, dqdv, dM = view.inverse_dynamics_second_order(q, qd, qdd, f)
+    plus, minus = _steps(m, q)
+    rep = lambda x: x.expand(nv, *x.shape)  # noqa: E731
+    gq = _along(lambda p: view.inverse_dynamics_gradient(p, rep(qd), rep(qdd), rep(f)), plus, minus)
+    eye = H * torch.eye(nv, dtype=torch.float64)
+    gv = _along(lambda s: view.inverse_dynamics_gradient(rep(q), qd + s, rep(qdd), rep(f)), eye, -eye)
+    ga = _along(lambda s: view.inverse_dynamics_gradient(rep(q), rep(qd), qdd + s, rep(f))[0], eye, -eye)
+    assert rel_err(d2q, gq[0]) <= 1e-6
+    assert rel_err(dqdv, gv[0]) <= 1e-6
+    assert rel_err(d2v, gv[1]) <= 1e-6
+    assert rel_err(dM, _along(view.crba, plus, minus)[0]) <= 1e-6
+    assert rel_err(dM, ga[0].transpose(-1, -2)) <= 1e-6  # d/dq_k M[i, j] = d/dqdd_j (d tau / dq)[i, k]
+
+
+@pytest.mark.parametrize("name", ["go2", "trees"])
+def test_forward_dynamics_second_order(models, name):
+    robot, m = models[name]
+    view, nv = robot.mujoco, robot.nv
+    q, qd, tau, f = _state(robot, seed=12)
+    d2q, d2v, dqdv, dminv = view.forward_dynamics_second_order(q, qd, tau, f)
+    plus, minus = _steps(m, q)
+    rep = lambda x: x.expand(nv, *x.shape)  # noqa: E731
+    gq = _along(lambda p: view.forward_dynamics_gradient(p, rep(qd), rep(tau), rep(f)), plus, minus)
+    eye = H * torch.eye(nv, dtype=torch.float64)
+    gv = _along(lambda s: view.forward_dynamics_gradient(rep(q), qd + s, rep(tau), rep(f)), eye, -eye)
+    assert rel_err(d2q, gq[0]) <= 1e-6
+    assert rel_err(dminv, gq[2]) <= 1e-6
+    assert rel_err(dqdv, gv[0]) <= 1e-6
+    assert rel_err(d2v, gv[1]) <= 1e-6
+
+
+@pytest.mark.parametrize("reference", ["world", "local", "local_world_aligned"])
+@pytest.mark.parametrize("name", ["go2", "trees"])
+def test_frame_kinematic_hessian_and_pose_hessian(models, name, reference):
+    robot, m = models[name]
+    view = robot.mujoco
+    q = _state(robot, seed=13)[0]
+    plus, minus = _steps(m, q)
+    frame = robot.nframes - 1
+    H_ = view.frame_kinematic_hessian(q, frame, reference)
+    assert rel_err(H_, _along(lambda p: view.frame_jacobian(p, frame, reference), plus, minus)[0]) <= 1e-6
+    pose = view.end_effector_pose_hessian(q, [frame])
+    assert rel_err(pose, _along(lambda p: view.end_effector_pose_gradient(p, [frame]), plus, minus)[0]) <= 1e-6

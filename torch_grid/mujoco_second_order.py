@@ -1,0 +1,219 @@
+"""Second derivatives in MuJoCo's convention, from Pinocchio's.
+
+The conventions differ on free joints only (a ball joint's quaternion order aside): G = blockdiag(R_f on
+each free joint's linear dofs, I elsewhere) maps Pinocchio's velocity to MuJoCo's, and a direction k of
+MuJoCo's tangent is Pinocchio's direction Gi e_k (Gi = G^T). Holding qvel and qacc fixed in MuJoCo's
+frame, a step of q along k also changes Pinocchio's inputs: with t the MuJoCo direction,
+
+    tau_mjx(q, v, a) = G(q) tau(q, V(q, v), A(q, v, a)),   V = G^T v,   A_lin = R^T a_lin - w x V_lin,
+
+so a direction k of q moves Pinocchio's (q, v, a) by (Dq, Dv, Da) e_k = (Gi, Jv, Ja) e_k, Jv and Ja
+non-zero in each free joint's (linear rows, angular columns) block only (conventions.md). A direction
+of qvel moves (v, a) by (Gi, Jav) e_k, one of qacc moves a by Gi e_k. Every second derivative is then
+the derivative of MuJoCo's first derivative (the last index the direction, as Pinocchio's), by the
+product rule: Pinocchio's second-order tensors contracted with those maps, plus the terms where the
+maps themselves (and G) turn with the base. The maps are identities or 3 x 3 blocks, so each
+contraction costs O(nv^3).
+"""
+from __future__ import annotations
+
+import torch
+
+from .conventions import a_mjx_to_pin, ball_joints, free_joints, q_mjx_to_pin, quaternion_rotation, v_mjx_to_pin
+
+
+class _Free:
+    """One free joint at a configuration: its v index, R, and Pinocchio's v_lin, w, R^T a_lin_mjx."""
+
+    def __init__(self, q_pin, qi: int, vi: int, v_pin=None, a_mjx=None):
+        self.vi = vi
+        self.R = quaternion_rotation(q_pin[..., qi + 3:qi + 7])
+        if v_pin is not None:
+            self.v, self.w = v_pin[..., vi:vi + 3], v_pin[..., vi + 3:vi + 6]
+            self.aR = (self.R.mT @ a_mjx[..., vi:vi + 3].unsqueeze(-1)).squeeze(-1)
+
+    @property
+    def lin(self) -> slice:
+        return slice(self.vi, self.vi + 3)
+
+    @property
+    def ang(self) -> slice:
+        return slice(self.vi + 3, self.vi + 6)
+
+
+def _skew(x: torch.Tensor) -> torch.Tensor:
+    zero = torch.zeros_like(x[..., 0])
+    return torch.stack([torch.stack([zero, -x[..., 2], x[..., 1]], -1), torch.stack([x[..., 2], zero, -x[..., 0]], -1),
+                        torch.stack([-x[..., 1], x[..., 0], zero], -1)], dim=-2)
+
+
+def _unit_skews(like: torch.Tensor) -> torch.Tensor:
+    """(3, 3, 3) [e_c]x for c = 0, 1, 2."""
+    return _skew(torch.eye(3, dtype=like.dtype, device=like.device))
+
+
+def _rotate(X: torch.Tensor, dim: int, frees: list[_Free]) -> torch.Tensor:
+    """X with each free joint's linear slice along `dim` (counted from the end) turned by R: G X along
+    a row index, X Gi along a column index (the same map, G^T = Gi)."""
+    X = X.movedim(dim, -1)
+    parts, k = [], 0
+    for f in frees:
+        parts += [X[..., k:f.vi], (X[..., f.lin].unsqueeze(-2) @ _expand(f.R.mT, X.dim() + 1)).squeeze(-2)]
+        k = f.vi + 3
+    return torch.cat(parts + [X[..., k:]], dim=-1).movedim(-1, dim)
+
+
+def _block(X: torch.Tensor, dim: int, rows: slice, cols: slice, D: torch.Tensor) -> torch.Tensor:
+    """X contracted along `dim` with an nv x nv map that is the 3 x 3 block D (..., 3, 3) at (rows, cols)."""
+    X = X.movedim(dim, -1)
+    out = torch.zeros_like(X)
+    out[..., cols] = (X[..., rows].unsqueeze(-2) @ _expand(D, X.dim() + 1)).squeeze(-2)
+    return out.movedim(-1, dim)
+
+
+def _expand(D: torch.Tensor, dims: int) -> torch.Tensor:
+    """A per-sample (batch..., 3, 3) block with singleton dimensions before its last two, up to `dims`:
+    it then multiplies (batch..., other dims..., 1, 3) rows."""
+    while D.dim() < dims:
+        D = D.unsqueeze(-3)
+    return D
+
+
+def _mix(X: torch.Tensor, dim: int, frees: list[_Free], blocks) -> torch.Tensor:
+    """X contracted along `dim` with the sum over free joints of the blocks(f) -> [(rows, cols, D)]."""
+    out = torch.zeros_like(X)
+    for f in frees:
+        for rows, cols, D in blocks(f):
+            out = out + _block(X, dim, rows, cols, D)
+    return out
+
+
+def _dv(f: _Free):
+    """Jv: Pinocchio's v_lin under a base rotation e_a, -(e_a x v_lin) = [v_lin]x e_a."""
+    return [(f.lin, f.ang, _skew(f.v))]
+
+
+def _da(f: _Free):
+    """Ja: Pinocchio's a_lin under a base rotation e_a, -e_a x aR + w x (e_a x v_lin)."""
+    return [(f.lin, f.ang, _skew(f.aR) - _skew(f.w) @ _skew(f.v))]
+
+
+def _dav(f: _Free):
+    """Jav: Pinocchio's a_lin under qvel: -w x R^T e_a (linear), -(e_a x v_lin) (angular)."""
+    return [(f.lin, f.lin, -_skew(f.w) @ f.R.mT), (f.lin, f.ang, _skew(f.v))]
+
+
+def _put(out: torch.Tensor, rows: slice, j: slice, k: slice, value: torch.Tensor) -> torch.Tensor:
+    """out[..., rows, j, k] += value (..., len(rows), 3, 3) (out of place)."""
+    pad = torch.zeros_like(out)
+    pad[..., rows, j, k] = value
+    return out + pad
+
+
+def _lin_times(X: torch.Tensor, f: _Free, E: torch.Tensor) -> torch.Tensor:
+    """sum_m X[..., :, lin m] E[..., m, j, k] for a (..., 3, 3, 3) block E: (..., nv, 3, 3)."""
+    return torch.einsum("...im,...mjk->...ijk", X[..., :, f.lin], E)
+
+
+def _gdot(f: _Free, x: torch.Tensor, e: torch.Tensor) -> torch.Tensor:
+    """Gdot_c x = R (e_c x x_lin) on the linear rows, for each c: (..., 3, c, n) for x (..., nv, n)."""
+    return torch.einsum("...ab,cbd,...dn->...acn", f.R, e, x[..., f.lin, :])
+
+
+def inverse_dynamics_second_order(model, q_pin, v_pin, a_mjx, tau, A, B, M, second):
+    """MuJoCo's (d2tau_dq2, d2tau_dqd2, d2tau_dqdqd, dM_dq) from Pinocchio's at the converted state:
+    tau, A = dtau/dq, B = dtau/dqd, M and `second` (Pinocchio's four tensors), a_mjx MuJoCo's qacc."""
+    T_qq, T_vv, T_qv, T_M = second
+    frees = [_Free(q_pin, qi, vi, v_pin, a_mjx) for qi, vi in free_joints(model)]
+    e = _unit_skews(q_pin)
+    P = T_M.transpose(-1, -2)   # P[i, j, m] = d/da_m A[i, j]
+    Q = T_qv.transpose(-1, -2)  # Q[i, j, n] = d/dq_n B[i, j]
+    rot = lambda X, dim: _rotate(X, dim, frees)  # noqa: E731
+    mix = lambda X, dim, blocks: _mix(X, dim, frees, blocks)  # noqa: E731
+
+    # d/dq_k of (A Dq + B Dv + M Da) e_j, Pinocchio's tensors through the maps
+    dA_q = rot(T_qq, -1) + mix(T_qv, -1, _dv) + mix(P, -1, _da)
+    d2q = rot(dA_q, -2) + mix(rot(Q, -1) + mix(T_vv, -1, _dv), -2, _dv) + mix(rot(T_M, -1), -2, _da)
+    # d/dqd_k: (v, a) move by (Gi, Jav) e_k
+    dA_v = rot(T_qv, -1) + mix(P, -1, _dav)
+    dB_v = rot(T_vv, -1)
+    dqdv = rot(dA_v, -2) + mix(dB_v, -2, _dv)
+    d2v = rot(dB_v, -2)
+    dM = rot(rot(T_M, -1), -2)
+    t_q = rot(A, -1) + mix(B, -1, _dv) + mix(M, -1, _da)  # Pinocchio's tau per MuJoCo q direction
+    t_v = rot(B, -1) + mix(M, -1, _dav)
+    for f in frees:
+        lin, ang = f.lin, f.ang
+        Rt = f.R.mT
+        # the maps turn with the base: d/dq_d of Gi e_b, Jv e_c, Ja e_c (d, c angular, b linear)
+        E_q = -torch.einsum("cab,...bd->...adc", e, Rt)  # [m, j=b, k=c] = -(e_c x R^T e_b)
+        ev = torch.einsum("cab,dbe,...e->...acd", e, e, f.v)  # e_c x (e_d x v), [m, c, d]
+        ea = torch.einsum("cab,dbe,...e->...acd", e, e, f.aR)
+        E_a = ea - torch.einsum("...ab,...bcd->...acd", _skew(f.w), ev)
+        d2q = _put(d2q, slice(None), lin, ang, _lin_times(A, f, E_q))
+        d2q = _put(d2q, slice(None), ang, ang, _lin_times(B, f, ev) + _lin_times(M, f, E_a))
+        dM = _put(dM, slice(None), lin, ang, _lin_times(M, f, E_q))
+        # d/dqd_k of Jv e_c, Ja e_c: k linear b: -(e_c x R^T e_b), w x (e_c x R^T e_b); k angular d: e_d x (e_c x v)
+        Ev = -torch.einsum("cab,...bd->...acd", e, Rt)  # [m, c, b]
+        Ea_lin = torch.einsum("...ab,...bcd->...acd", _skew(f.w), Ev).neg()
+        Ea_ang = torch.einsum("dab,cbe,...e->...acd", e, e, f.v)  # e_d x (e_c x v)
+        dqdv = _put(dqdv, slice(None), ang, lin, _lin_times(B, f, Ev) + _lin_times(M, f, Ea_lin))
+        dqdv = _put(dqdv, slice(None), ang, ang, _lin_times(M, f, Ea_ang))
+        # d/dqd_k of Jav e_j: j linear a, k angular d: -(e_d x R^T e_a); j angular a, k linear b: -(e_a x R^T e_b)
+        E3_la = -torch.einsum("dab,...bc->...acd", e, Rt)  # [m, a, d]
+        E3_al = -torch.einsum("aeb,...bc->...eac", e, Rt)  # [m, a, b]: -(e_a x R^T e_b)
+        d2v = _put(d2v, slice(None), lin, ang, _lin_times(M, f, E3_la))
+        d2v = _put(d2v, slice(None), ang, lin, _lin_times(M, f, E3_al))
+    # G on tau's index, then the terms of G's own turning: Gdot_c = R [e_c]x on the linear rows
+    d2q, d2v, dqdv, dM = (rot(T, -3) for T in (d2q, d2v, dqdv, dM))
+    MG = rot(M, -1)
+    for f in frees:
+        lin, ang, every = f.lin, f.ang, slice(None)
+        # (d/dq_d Gdot_c) tau = R (e_d x (e_c x tau_lin)), [a, c, d]
+        d2q = _put(d2q, lin, ang, ang, torch.einsum("...ab,dbe,cef,...f->...acd", f.R, e, e, tau[..., lin]))
+        d2q = _put(d2q, lin, ang, every, _gdot(f, t_q, e))  # Gdot_j (d tau / dq_k)
+        d2q = _put(d2q, lin, every, ang, _gdot(f, t_q, e).transpose(-1, -2))  # Gdot_k (d tau / dq_j)
+        dqdv = _put(dqdv, lin, ang, every, _gdot(f, t_v, e))
+        dM = _put(dM, lin, every, ang, _gdot(f, MG, e).transpose(-1, -2))  # Gdot_k M Gi
+    return d2q, d2v, dqdv, dM
+
+
+def kinematic_hessian(model, q_pin, J, H):
+    """MuJoCo's kinematic Hessian of a frame, d/dq_k of J Gi (J = frame_jacobian) from Pinocchio's J and
+    H: H with both tangent indices through Gi, plus J d(Gi e_j)/dq_k on a free joint's rotations."""
+    frees = [_Free(q_pin, qi, vi) for qi, vi in free_joints(model)]
+    e = _unit_skews(q_pin)
+    out = _rotate(_rotate(H, -1, frees), -2, frees)
+    for f in frees:
+        E_q = -torch.einsum("cab,...bd->...adc", e, f.R.mT)
+        out = _put(out, slice(None), f.lin, f.ang, _lin_times(J, f, E_q))
+    return out
+
+
+def inverse_dynamics_second_order_mujoco(robot, q, qd, qdd, f_ext):
+    """Robot.mujoco.inverse_dynamics_second_order of a robot with quaternion joints, from robot.pin."""
+    model = _model(robot, "inverse_dynamics_second_order")
+    free = free_joints(model)
+    q_pin = q_mjx_to_pin(q, balls=ball_joints(model), free=free)
+    v_pin = v_mjx_to_pin(q_pin, qd, free=free)
+    a_pin = a_mjx_to_pin(q_pin, v_pin, qdd, free=free)
+    pin = robot.pin
+    tau = pin.inverse_dynamics(q_pin, v_pin, a_pin, f_ext)
+    A, B = pin.inverse_dynamics_gradient(q_pin, v_pin, a_pin, f_ext)
+    second = pin.inverse_dynamics_second_order(q_pin, v_pin, a_pin, f_ext)
+    return inverse_dynamics_second_order(model, q_pin, v_pin, qdd, tau, A, B, pin.crba(q_pin), second)
+
+
+def frame_kinematic_hessian(robot, q, frame: int, reference: str):
+    """Robot.mujoco.frame_kinematic_hessian of a robot with quaternion joints, from robot.pin."""
+    model = _model(robot, "frame_kinematic_hessian")
+    q_pin = q_mjx_to_pin(q, balls=ball_joints(model), free=free_joints(model))
+    J = robot.pin.frame_jacobian(q_pin, frame, reference)
+    return kinematic_hessian(model, q_pin, J, robot.pin.frame_kinematic_hessian(q_pin, frame, reference))
+
+
+def _model(robot, name: str):
+    if robot._coupling is not None:
+        raise NotImplementedError(f"torch_grid: {name} in the MuJoCo convention is not implemented for a robot with "
+                                  "mimic joints and free or ball joints; call it in the pin convention (robot.pin)")
+    return robot.model
