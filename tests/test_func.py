@@ -149,7 +149,8 @@ def test_forward_mode(robots, balls, name, convention):
     assert rel_err(torch.func.hessian(loss)(qd), torch.autograd.functional.hessian(loss, qd)) <= 1e-10
 
 
-@pytest.mark.parametrize("name, convention", [("go2", "pin"), ("balls", "pin"), ("iiwa14", "mujoco")])
+@pytest.mark.parametrize("name, convention", [("go2", "pin"), ("balls", "pin"), ("iiwa14", "mujoco"), ("go2", "mujoco"),
+                                              ("balls", "mujoco")])
 def test_frame_jacobian_forward_mode(robots, balls, name, convention):
     """jvp and jacfwd of frame_jacobian (the kinematic Hessian along the tangent) against jacrev."""
     robot = _robot(name, robots, balls)

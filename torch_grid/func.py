@@ -17,7 +17,9 @@ import torch
 from torch.autograd import forward_ad
 
 from .autograd import BACKWARDS, COMPOSED_BACKWARD, backward_formula, mass_product_jvp
+from .conventions import ball_joints, free_joints, q_mjx_to_pin
 from .model import RobotModel
+from .mujoco_second_order import kinematic_hessian
 from .ops import FORWARD_MODE_BACKWARD, OPS
 from .tangent import tangent_to_ambient
 
@@ -176,12 +178,16 @@ def _frame_jacobian_jvp(ops, J, q, frame, reference, convention, t_q, _f, _r, _c
     model = ops._model
     if t_q is None:
         return torch.zeros_like(J)
-    if convention and model.conventions_differ:
-        raise NotImplementedError("torch_grid: frame_jacobian has no forward-mode derivative in the MuJoCo convention "
-                                  "of a robot with free or ball joints; use reverse mode")
     g0 = torch.zeros(*q.shape[:-1], model.nv, dtype=q.dtype, device=q.device)
     t = torch.func.grad(lambda g: (tangent_to_ambient(model, q, g, convention) * t_q).sum())(g0)
-    return (ops.frame_kinematic_hessian(q, frame, reference, convention) @ t.unsqueeze(-1).unsqueeze(-3)).squeeze(-1)
+    if convention and model.conventions_differ:
+        # MuJoCo's Hessian from Pinocchio's (torch_grid/mujoco_second_order.py)
+        q_pin = q_mjx_to_pin(q, balls=ball_joints(model), free=free_joints(model))
+        H = kinematic_hessian(model, q_pin, ops.frame_jacobian(q_pin, frame, reference, 0),
+                              ops.frame_kinematic_hessian(q_pin, frame, reference, 0))
+    else:
+        H = ops.frame_kinematic_hessian(q, frame, reference, convention)
+    return (H @ t.unsqueeze(-1).unsqueeze(-3)).squeeze(-1)
 
 
 # Ops whose forward-mode derivative is its own formula (their backwards are made of kernels without
