@@ -188,7 +188,7 @@ def test_jvp_kernels_match_central_differences(robots, name, convention):
     dq, dqd = torch.randn_like(q), torch.randn_like(qd)
     cases = {
         "inverse_dynamics_vjp": ((q, qd, qdd, f, lam), (dq, dqd, None, None, None)),
-        "inverse_dynamics": ((q, qd, qdd, f), (dq, None, None, None)),
+        "inverse_dynamics": ((q, qd, qdd, f), (dq, dqd, None, None)),
         "body_velocities": ((q, qd), (dq, None)),
     }
     h = 1e-6

@@ -151,8 +151,7 @@ def _inverse_dynamics_vjp(ops, model, needs, grads, output, q, qd, qdd, f_ext, l
     if needs[3]:
         df = -ops.body_velocities_jvp(q, lam, t_u, convention)
     if needs[4]:
-        d_q, d_qd = ops.inverse_dynamics_gradient(q, qd, qdd, f_ext, convention)
-        dlam = (d_q @ u_q.unsqueeze(-1) + d_qd @ u_qd.unsqueeze(-1)).squeeze(-1)
+        dlam = ops.inverse_dynamics_jvp(q, qd, qdd, f_ext, t_u, u_qd, convention)  # O(n), not the nv x nv gradients
     return dq, dqd, dqdd, df, dlam, None
 
 
@@ -232,8 +231,8 @@ def mass_product_jvp(ops, q, x, t, convention):
     """The derivative of M(q) x along the direction t of q's coordinates, (..., nv): ID(q, 0, x) =
     M x + g(q) in either convention, so the dual-number ID product at (0, x) less the one at (0, 0)."""
     zero = torch.zeros_like(x)
-    return ops.inverse_dynamics_jvp(q, zero, x, None, t, convention) - ops.inverse_dynamics_jvp(q, zero, zero, None, t,
-                                                                                               convention)
+    return (ops.inverse_dynamics_jvp(q, zero, x, None, t, None, convention) -
+            ops.inverse_dynamics_jvp(q, zero, zero, None, t, None, convention))
 
 
 def _generalized_gravity(ops, model, needs, grads, output, q, convention):

@@ -192,9 +192,11 @@ def forward_mode_jvp(op: OpSpec, wrt: tuple[str, ...]) -> OpSpec:
                   jvp_of=op.name, jvp_wrt=wrt)
 
 
-# Jacobian-vector products on dual numbers: the second-order backward of inverse_dynamics_gradient
-# differentiates, along q and qd, the gradient of lam . tau (autograd.py).
-FORWARD_MODE_JVP = (("inverse_dynamics_vjp", ("q", "qd")), ("inverse_dynamics", ("q",)), ("body_velocities", ("q",)))
+# Jacobian-vector products on dual numbers (autograd.py): along q and qd, the gradient of lam . tau (the
+# backwards of inverse_dynamics_vjp, and of inverse_dynamics_gradient in MuJoCo's convention with
+# quaternions), tau itself (d(M x) along q, and the cotangent's gradient in inverse_dynamics_vjp's
+# backward) and the body velocities (-J lam along q).
+FORWARD_MODE_JVP = (("inverse_dynamics_vjp", ("q", "qd")), ("inverse_dynamics", ("q", "qd")), ("body_velocities", ("q",)))
 
 OPS: dict[str, OpSpec] = {op.name: op for op in _VALUE_OPS}
 OPS.update({f"{name}_backward": forward_mode_backward(OPS[name]) for name in FORWARD_MODE_BACKWARD})
