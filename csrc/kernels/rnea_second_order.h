@@ -21,16 +21,56 @@
 
 namespace tg {
 
-// dB x and dB^T x for dB = Bw + [S x*] BC - BC [S x], Bw = dI(IC, psid) + [IC psid]f.
-template <class S> struct SubtreeRate {
-  const M6<S>& Bw;
-  const M6<S>& BC;
-  const Sv<S>& s;
-  TG_HD Sv<S> operator()(const Sv<S>& x) const { return mul(Bw, x) + cross_force(s, mul(BC, x)) - mul(BC, cross_motion(s, x)); }
-  TG_HD Sv<S> transposed(const Sv<S>& x) const {
-    return mul_transpose(Bw, x) - mul_transpose(BC, cross_motion(s, x)) + cross_force(s, mul_transpose(BC, x));
-  }
+// Column a's terms against the subtree of its body i, dB assembled once per column (each pair then
+// takes one 6x6 product with it): dB = Bw + [S_a x*] BC - BC [S_a x], Bw = dI(IC, psid_a) + [IC psid_a]f.
+template <class S> struct ColumnTerms {
+  M6<S> D, Bs, dB;
+  Sv<S> ICs, BCTs, f2, f3;
 };
+
+template <class M, class S> TG_HD ColumnTerms<S> column_terms(const RneaDerivativesWork<M, S>& W, int i, int a) {
+  const Inertia<S>& IC = W.Yc[i];
+  const M6<S>& BC = W.B[i];
+  const Sv<S>& Sa = W.s[a];
+  ColumnTerms<S> t{inertia_rate_matrix(IC, Sa), momentum_rate_matrix(IC, Sa), momentum_rate_matrix(IC, W.w[a]),
+                   mul(IC, Sa), mul_transpose(BC, Sa), mul(BC, W.w[a]) + mul(IC, W.u[a]) + cross_force(Sa, W.F[i]),
+                   mul(BC, Sa) + mul(IC, W.alpha[a])};
+  for (int c = 0; c < 6; ++c) {
+    Sv<S> e = sv_zero<S>();
+    e.v[c] = S(1);
+    const Sv<S> col = cross_force(Sa, mul(BC, e)) - mul(BC, cross_motion(Sa, e));
+    for (int r = 0; r < 6; ++r) t.dB.m[6 * r + c] += col.v[r];
+  }
+  return t;
+}
+
+// Column b's terms (b in body i or above it) against the subtree of a's body i, named after what
+// they pair with below.
+template <class S> struct PairTerms {
+  Sv<S> dBT_Sb, DT_Sb, BsT_Sb, Sb_ICs, rate_q, rate_qv, rate_vq, rate_qv_above, Bs_Sb, D_Sb, same_body_vv, wb_part;
+};
+
+template <class M, class S>
+TG_HD PairTerms<S> pair_terms(const RneaDerivativesWork<M, S>& W, const ColumnTerms<S>& A, int i, int a, int b) {
+  const Sv<S>& Sa = W.s[a];
+  const Sv<S>& Sb = W.s[b];
+  const Sv<S>& wb = W.w[b];
+  PairTerms<S> p;
+  p.dBT_Sb = mul_transpose(A.dB, Sb);
+  p.DT_Sb = mul_transpose(A.D, Sb);
+  p.BsT_Sb = mul_transpose(A.Bs, Sb);
+  p.Sb_ICs = cross_force(Sb, A.ICs);
+  const Sv<S> Sb_BCTs = cross_force(Sb, A.BCTs);
+  p.rate_q = mul(A.dB, wb) + mul(A.D, W.u[b]) + cross_force(Sb, A.f2);
+  p.rate_qv = cross_force(wb, A.ICs) - mul(A.D, wb) + Sb_BCTs;
+  p.rate_vq = mul(A.Bs, wb) + cross_force(Sb, A.f3);
+  p.rate_qv_above = mul(A.dB, Sb) + mul(A.D, W.alpha[b]);
+  p.Bs_Sb = mul(A.Bs, Sb);
+  p.D_Sb = mul(A.D, Sb);
+  p.same_body_vv = p.Sb_ICs + cross_force(Sa, mul(W.Yc[i], Sb));
+  p.wb_part = Sb_BCTs - mul_transpose(A.Bs, wb);
+  return p;
+}
 
 // The tensors an entry belongs to.
 enum SecondOrderTensor : int { D2Q = 0, D2V = 1, DQDV = 2, DADQ = 3 };
@@ -39,79 +79,56 @@ enum SecondOrderTensor : int { D2Q = 0, D2V = 1, DQDV = 2, DADQ = 3 };
 // each: put(tensor, i, j, k, value). Entries of columns on different branches are zero.
 template <class M, class S, class Put> TG_HD void rnea_second_order_visit(const RneaDerivativesWork<M, S>& W, Put&& put) {
   const auto& d = data<M, S>();
-  for (int i = 0; i < M::NB; ++i) {
-    const Inertia<S>& IC = W.Yc[i];
-    const M6<S>& BC = W.B[i];
-    for (int la = 0; la < d.nvj[i]; ++la) {
-      const int a = d.vi[i] + la;
-      const Sv<S>& Sa = W.s[a];
-      const M6<S> D = inertia_rate_matrix(IC, Sa), Bs = momentum_rate_matrix(IC, Sa);
-      const M6<S> Bw = momentum_rate_matrix(IC, W.w[a]);
-      const SubtreeRate<S> dB{Bw, BC, Sa};
-      const Sv<S> ICs = mul(IC, Sa), BCTs = mul_transpose(BC, Sa);
-      const Sv<S> f2 = mul(BC, W.w[a]) + mul(IC, W.u[a]) + cross_force(Sa, W.F[i]);
-      const Sv<S> f3 = mul(BC, Sa) + mul(IC, W.alpha[a]);
+  for (int i = 0; i < M::NB; ++i)
+    for (int a = d.vi[i]; a < d.vi[i] + d.nvj[i]; ++a) {
+      const ColumnTerms<S> A = column_terms<M, S>(W, i, a);
       for (int j = i; j >= 0; j = d.parent[j])
-        for (int lb = 0; lb < d.nvj[j]; ++lb) {
-          const int b = d.vi[j] + lb;
-          const Sv<S>& Sb = W.s[b];
-          const Sv<S>& wb = W.w[b];
-          // column b's terms against the subtree of i (names after what they pair with below)
-          const Sv<S> dBT_Sb = dB.transposed(Sb), DT_Sb = mul_transpose(D, Sb), BsT_Sb = mul_transpose(Bs, Sb);
-          const Sv<S> Sb_ICs = cross_force(Sb, ICs), Sb_BCTs = cross_force(Sb, BCTs);
-          const Sv<S> rate_q = dB(wb) + mul(D, W.u[b]) + cross_force(Sb, f2);
-          const Sv<S> rate_qv = cross_force(wb, ICs) - mul(D, wb) + Sb_BCTs;
-          const Sv<S> rate_vq = mul(Bs, wb) + cross_force(Sb, f3);
-          const Sv<S> rate_qv_above = dB(Sb) + mul(D, W.alpha[b]);
-          const Sv<S> Bs_Sb = mul(Bs, Sb), D_Sb = mul(D, Sb);
-          const Sv<S> same_body_vv = Sb_ICs + cross_force(Sa, mul(IC, Sb));
-          const Sv<S> wb_part = Sb_BCTs - mul_transpose(Bs, wb);
+        for (int b = d.vi[j]; b < d.vi[j] + d.nvj[j]; ++b) {
+          const PairTerms<S> P = pair_terms<M, S>(W, A, i, a, b);
           for (int k = j; k >= 0; k = d.parent[k])
-            for (int lc = 0; lc < d.nvj[k]; ++lc) {
-              const int c = d.vi[k] + lc;
+            for (int c = d.vi[k]; c < d.vi[k] + d.nvj[k]; ++c) {
               const Sv<S>& Sc = W.s[c];
               const Sv<S>& wc = W.w[c];
-              const S p1 = dot(BsT_Sb, wc);
-              const S p2 = dot(Sb_ICs, W.u[c]) + dot(wb_part, wc);
+              const S p1 = dot(P.BsT_Sb, wc);
+              const S p2 = dot(P.Sb_ICs, W.u[c]) + dot(P.wb_part, wc);
               put(D2Q, a, b, c, p2);
               put(DQDV, a, c, b, -p1);
               if (j != i) {
-                const S q2 = dot(dBT_Sb, wc) + dot(DT_Sb, W.u[c]), v2 = dot(BsT_Sb, Sc), m = dot(Sc, D_Sb);
+                const S q2 = dot(P.dBT_Sb, wc) + dot(P.DT_Sb, W.u[c]), v2 = dot(P.BsT_Sb, Sc), m = dot(Sc, P.D_Sb);
                 put(D2Q, b, c, a, q2);
                 put(D2Q, b, a, c, q2);
                 put(DQDV, b, c, a, p1);
-                put(DQDV, b, a, c, dot(dBT_Sb, Sc) + dot(DT_Sb, W.alpha[c]));
+                put(DQDV, b, a, c, dot(P.dBT_Sb, Sc) + dot(P.DT_Sb, W.alpha[c]));
                 put(D2V, b, c, a, v2);
                 put(D2V, b, a, c, v2);
                 put(DADQ, b, c, a, m);
                 if (k != j) put(DADQ, c, b, a, m);  // within one body, (c, b) is another visit's (b, c)
               }
               if (k != j) {
-                const S q3 = dot(Sc, rate_q), m = dot(Sc, Sb_ICs);
+                const S q3 = dot(Sc, P.rate_q), m = dot(Sc, P.Sb_ICs);
                 put(D2Q, a, c, b, p2);
                 put(D2Q, c, a, b, q3);
-                put(D2V, a, b, c, -dot(BsT_Sb, Sc));
-                put(D2V, a, c, b, -dot(BsT_Sb, Sc));
-                put(DQDV, a, b, c, dot(Sc, rate_qv) + dot(Sb_ICs, W.alpha[c]));
-                put(DQDV, c, b, a, dot(Sc, rate_vq));
+                put(D2V, a, b, c, -dot(P.BsT_Sb, Sc));
+                put(D2V, a, c, b, -dot(P.BsT_Sb, Sc));
+                put(DQDV, a, b, c, dot(Sc, P.rate_qv) + dot(P.Sb_ICs, W.alpha[c]));
+                put(DQDV, c, b, a, dot(Sc, P.rate_vq));
                 put(DADQ, c, a, b, m);
                 put(DADQ, a, c, b, m);
                 if (j != i) {
-                  const S v3 = dot(Sc, Bs_Sb);
+                  const S v3 = dot(Sc, P.Bs_Sb);
                   put(D2Q, c, b, a, q3);
                   put(D2V, c, a, b, v3);
                   put(D2V, c, b, a, v3);
-                  put(DQDV, c, a, b, dot(Sc, rate_qv_above));
+                  put(DQDV, c, a, b, dot(Sc, P.rate_qv_above));
                 } else {
-                  put(D2V, c, b, a, dot(Sc, same_body_vv));
+                  put(D2V, c, b, a, dot(Sc, P.same_body_vv));
                 }
               } else {
-                put(D2V, a, b, c, -dot(DT_Sb, Sc));
+                put(D2V, a, b, c, -dot(P.DT_Sb, Sc));
               }
             }
         }
     }
-  }
 }
 
 // The four NV x NV x NV tensors (row-major, [i][j][k] at NV (NV i + j) + k).
@@ -124,26 +141,135 @@ TG_HD void rnea_second_order(const RneaDerivativesWork<M, S>& W, S* d2q, S* d2v,
 }
 
 // The gradient of <Gq, dtau/dq> + <Gv, dtau/dqd> (Gq, Gv: NV x NV) with respect to q (along the
-// tangent), qd and qdd, each entry of the tensors contracted as it is produced (no NV^3 storage).
-// Mixed partials commute (qd and qdd are not on the manifold): d/dq_k (dtau_i/dqd_j) = dqdv[i][k][j]
-// and d/dqdd_m (dtau_i/dq_j) = dM_dq[i][m][j].
+// tangent), qd and qdd: every entry of the visit above weighted by its cotangent, in O(n d) for a tree
+// of depth d rather than one term per triple. Mixed partials commute (qd and qdd are not on the
+// manifold): d/dq_k (dtau_i/dqd_j) = dqdv[i][k][j] and d/dqdd_m (dtau_i/dq_j) = dM_dq[i][m][j]. For a
+// pair (a, b), an entry's third column c runs up the chain from b's body j, and its value is a dot
+// product of c's S, psid, psidd or alpha with a vector of the pair. Where the gradient's index is a or
+// b, the cotangents against c's vectors are summed up the chain first (per b: over the columns at or
+// above j, "all", or strictly above it, "above"; per a, as j climbs); where it is c, the pair's vectors
+// weighted by its cotangents are summed per body j, then over the bodies below each column.
 template <class M, class S>
 TG_HD void rnea_second_order_contract(const RneaDerivativesWork<M, S>& W, const S* Gq, const S* Gv, S* gq, S* gqd,
                                       S* gqdd) {
-  constexpr int NV = M::NV;
+  const auto& d = data<M, S>();
+  constexpr int NV = M::NV, NB = M::NB;
+  const auto gq_ = [&](int r, int c) { return Gq[NV * r + c]; };
+  const auto gv_ = [&](int r, int c) { return Gv[NV * r + c]; };
   for (int n = 0; n < NV; ++n) gq[n] = gqd[n] = gqdd[n] = S(0);
-  rnea_second_order_visit<M, S>(W, [&](int t, int i, int j, int k, S v) {
-    if (t == D2Q) {
-      gq[k] += Gq[NV * i + j] * v;
-    } else if (t == D2V) {
-      gqd[k] += Gv[NV * i + j] * v;
-    } else if (t == DQDV) {
-      gqd[k] += Gq[NV * i + j] * v;
-      gq[j] += Gv[NV * i + k] * v;
-    } else {
-      gqdd[j] += Gq[NV * i + k] * v;
+  // Per column b: Gq[b][c] psid_c, Gq[b][c] psidd_c, Gv[b][c] S_c, Gv[b][c] alpha_c over c at or above
+  // b's body; Gq[c][b] S_c, Gv[c][b] S_c over c strictly above it.
+  Sv<S> bw[NV], bu[NV], bS[NV], bal[NV], cqS[NV], cvS[NV];
+  for (int j = 0; j < NB; ++j)
+    for (int b = d.vi[j]; b < d.vi[j] + d.nvj[j]; ++b) {
+      bw[b] = bu[b] = bS[b] = bal[b] = cqS[b] = cvS[b] = sv_zero<S>();
+      for (int k = j; k >= 0; k = d.parent[k])
+        for (int c = d.vi[k]; c < d.vi[k] + d.nvj[k]; ++c) {
+          bw[b] = bw[b] + gq_(b, c) * W.w[c];
+          bu[b] = bu[b] + gq_(b, c) * W.u[c];
+          bS[b] = bS[b] + gv_(b, c) * W.s[c];
+          bal[b] = bal[b] + gv_(b, c) * W.alpha[c];
+          if (k != j) {
+            cqS[b] = cqS[b] + gq_(c, b) * W.s[c];
+            cvS[b] = cvS[b] + gv_(c, b) * W.s[c];
+          }
+        }
     }
-  });
+  // Per body j, the vectors that c's psidd, psid (into gq[c]), S, alpha (into gqd[c]) and S (into
+  // gqdd[c]) meet, for c at or above j ("all"), strictly above ("above") or in j ("same").
+  Sv<S> Pu[NB], Pw[NB], PS[NB], Pal[NB], PSa[NB], Pala[NB], PSs[NB], QS[NB], QSa[NB];
+  for (int j = 0; j < NB; ++j) Pu[j] = Pw[j] = PS[j] = Pal[j] = PSa[j] = Pala[j] = PSs[j] = QS[j] = QSa[j] = sv_zero<S>();
+  for (int i = 0; i < NB; ++i)
+    for (int a = d.vi[i]; a < d.vi[i] + d.nvj[i]; ++a) {
+      const ColumnTerms<S> A = column_terms<M, S>(W, i, a);
+      // a's sums over the columns at or above j, as j climbs from i: Gq[a][c] psid_c, Gq[a][c] psidd_c,
+      // Gv[a][c] S_c, Gv[a][c] alpha_c, Gq[c][a] S_c, Gv[c][a] S_c
+      Sv<S> aw = sv_zero<S>(), au = aw, avS = aw, aval = aw, aqS = aw, acvS = aw;
+      for (int k = i; k >= 0; k = d.parent[k])
+        for (int c = d.vi[k]; c < d.vi[k] + d.nvj[k]; ++c) {
+          aw = aw + gq_(a, c) * W.w[c];
+          au = au + gq_(a, c) * W.u[c];
+          avS = avS + gv_(a, c) * W.s[c];
+          aval = aval + gv_(a, c) * W.alpha[c];
+          aqS = aqS + gq_(c, a) * W.s[c];
+          acvS = acvS + gv_(c, a) * W.s[c];
+        }
+      for (int j = i; j >= 0; j = d.parent[j]) {
+        // the same strictly above j
+        Sv<S> sw = aw, su = au, svS = avS, sval = aval, sqS = aqS, scvS = acvS;
+        for (int c = d.vi[j]; c < d.vi[j] + d.nvj[j]; ++c) {
+          sw = sw - gq_(a, c) * W.w[c];
+          su = su - gq_(a, c) * W.u[c];
+          svS = svS - gv_(a, c) * W.s[c];
+          sval = sval - gv_(a, c) * W.alpha[c];
+          sqS = sqS - gq_(c, a) * W.s[c];
+          scvS = scvS - gv_(c, a) * W.s[c];
+        }
+        const bool below = j != i;
+        for (int b = d.vi[j]; b < d.vi[j] + d.nvj[j]; ++b) {
+          const PairTerms<S> P = pair_terms<M, S>(W, A, i, a, b);
+          const S qab = gq_(a, b), qba = gq_(b, a), vab = gv_(a, b), vba = gv_(b, a);
+          // entries whose gradient index is a or b
+          gqd[b] += -dot(P.BsT_Sb, aw);
+          gq[b] += dot(P.Sb_ICs, su) + dot(P.wb_part, sw) + dot(P.rate_q, sqS) + dot(P.rate_qv, svS) +
+                   dot(P.Sb_ICs, sval) + dot(P.rate_vq, scvS);
+          gqd[b] += -dot(P.BsT_Sb, svS);
+          gqd[a] += dot(P.rate_vq, cqS[b]);
+          gqdd[a] += dot(P.Sb_ICs, cqS[b]);
+          if (below) {
+            gq[a] += dot(P.dBT_Sb, bw[b]) + dot(P.DT_Sb, bu[b]) + dot(P.dBT_Sb, bS[b]) + dot(P.DT_Sb, bal[b]) +
+                     dot(P.rate_q, cqS[b]) + dot(P.rate_qv_above, cvS[b]);
+            gqd[a] += dot(P.BsT_Sb, bw[b]) + dot(P.BsT_Sb, bS[b]) + dot(P.Bs_Sb, cvS[b]);
+            gqdd[b] += dot(P.D_Sb, sqS);
+            gqd[b] += dot(P.Bs_Sb, scvS) + dot(P.rate_qv_above, sqS);
+          } else {
+            gqd[a] += dot(P.same_body_vv, cvS[b]);
+          }
+          // entries whose gradient index is c
+          Pu[j] = Pu[j] + qab * P.Sb_ICs;
+          Pw[j] = Pw[j] + qab * P.wb_part - vab * P.BsT_Sb;
+          PSa[j] = PSa[j] + qab * P.rate_qv - vab * P.BsT_Sb;
+          Pala[j] = Pala[j] + qab * P.Sb_ICs;
+          PSs[j] = PSs[j] - vab * P.DT_Sb;
+          QSa[j] = QSa[j] + qab * P.Sb_ICs;
+          if (below) {
+            Pu[j] = Pu[j] + qba * P.DT_Sb;
+            Pw[j] = Pw[j] + qba * P.dBT_Sb + vba * P.BsT_Sb;
+            PS[j] = PS[j] + qba * P.dBT_Sb + vba * P.BsT_Sb;
+            Pal[j] = Pal[j] + qba * P.DT_Sb;
+            QS[j] = QS[j] + qba * P.D_Sb;
+          }
+        }
+        aw = sw;
+        au = su;
+        avS = svS;
+        aval = sval;
+        aqS = sqS;
+        acvS = scvS;
+      }
+    }
+  // Up from the leaves: "all" vectors summed over the bodies at or below each body, "above" ones over
+  // those strictly below; then each column meets its body's sums.
+  Sv<S> Ba[NB], Bb[NB], Bq[NB];  // strictly below: PSa, Pala, QSa
+  for (int k = 0; k < NB; ++k) Ba[k] = Bb[k] = Bq[k] = sv_zero<S>();
+  for (int k = NB - 1; k >= 0; --k) {
+    for (int c = d.vi[k]; c < d.vi[k] + d.nvj[k]; ++c) {
+      gq[c] += dot(Pu[k], W.u[c]) + dot(Pw[k], W.w[c]);
+      gqd[c] += dot(PS[k] + Ba[k] + PSs[k], W.s[c]) + dot(Pal[k] + Bb[k], W.alpha[c]);
+      gqdd[c] += dot(QS[k] + Bq[k], W.s[c]);
+    }
+    const int p = d.parent[k];
+    if (p >= 0) {
+      Pu[p] = Pu[p] + Pu[k];
+      Pw[p] = Pw[p] + Pw[k];
+      PS[p] = PS[p] + PS[k];
+      Pal[p] = Pal[p] + Pal[k];
+      QS[p] = QS[p] + QS[k];
+      Ba[p] = Ba[p] + Ba[k] + PSa[k];
+      Bb[p] = Bb[p] + Bb[k] + Pala[k];
+      Bq[p] = Bq[p] + Bq[k] + QSa[k];
+    }
+  }
 }
 
 }  // namespace tg
