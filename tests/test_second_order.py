@@ -128,16 +128,23 @@ def test_inverse_dynamics_gradient_backward_contracts_the_second_order_tensors(r
                                                                               mjcf_robots, name):
     """The contracted kernel behind inverse_dynamics_gradient's backward against the stored tensors
     (checked against Pinocchio above): d/dq_k <Gq, dtau/dq> + <Gv, dtau/dqd> = Gq . d2q[..k] + Gv . dqdv[.k.],
-    d/dqd_k = Gq . dqdv[..k] + Gv . d2v[..k], d/dqdd_m = Gq . dM_dq[.m.], with f_ext."""
+    d/dqd_k = Gq . dqdv[..k] + Gv . d2v[..k], d/dqdd_m = Gq . dM_dq[.m.], with f_ext; and d/df_ext (dtau/dq
+    is affine in f_ext) by central differences."""
     robot = _any_robot(name, robots, pin_models, pinocchio_balls, mjcf_robots)
     q, qd, qdd, f = _states(robot, 3, seed=10)
     g = torch.Generator().manual_seed(3)
     Gq, Gv = (torch.randn(3, robot.nv, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
     d2q, d2v, dqdv, dadq = robot.pin.inverse_dynamics_second_order(q, qd, qdd, f)
-    gq, gqd, gqdd = robot._ops.inverse_dynamics_gradient_vjp(q, qd, qdd, f, Gq, Gv, 0)
+    gq, gqd, gqdd, gf = robot._ops.inverse_dynamics_gradient_vjp(q, qd, qdd, f, Gq, Gv, 0)
     assert rel_err(gq, torch.einsum("bij,bijk->bk", Gq, d2q) + torch.einsum("bij,bikj->bk", Gv, dqdv)) <= 1e-12
     assert rel_err(gqd, torch.einsum("bij,bijk->bk", Gq, dqdv) + torch.einsum("bij,bijk->bk", Gv, d2v)) <= 1e-12
     assert rel_err(gqdd, torch.einsum("bij,bimj->bm", Gq, dadq)) <= 1e-12
+    # f_ext: d/df <Gq, dtau/dq> by central differences (dtau/dq is affine in f_ext)
+    h = 1e-3
+    eye = torch.eye(robot.nbodies * 6, dtype=torch.float64).view(-1, robot.nbodies, 6)
+    plus, minus = (robot.pin.inverse_dynamics_gradient(q[:, None], qd[:, None], qdd[:, None], f[:, None] + s * h * eye)[0]
+                   for s in (1, -1))
+    assert rel_err(gf, torch.einsum("bij,bfij->bf", Gq, (plus - minus) / (2 * h)).view_as(f)) <= 1e-9
 
 
 @pytest.mark.parametrize("name", ["iiwa14", "go2", "balls", "zoo"])

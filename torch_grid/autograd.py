@@ -307,24 +307,18 @@ def _forward_dynamics_gradient(ops, model, needs, grads, output, q, qd, tau, f_e
 
 
 def _inverse_dynamics_gradient(ops, model, needs, grads, output, q, qd, qdd, f_ext, convention):
-    """<Gq, dtau/dq> + <Gqd, dtau/dqd> differentiated with respect to q, qd and qdd by the second-order
-    kernel, each entry of the second-order tensors contracted with G as it is produced (per-sample
-    workspace O(nv^2)), in Pinocchio's convention or where the conventions agree; with respect to f_ext,
-    and in MuJoCo's convention of a robot with quaternion joints, forward over reverse
-    (_inverse_dynamics_gradient_jvps)."""
+    """<Gq, dtau/dq> + <Gqd, dtau/dqd> differentiated with respect to every input by one O(n d) kernel,
+    the second-order recursion contracted with G (csrc/kernels/rnea_second_order.h), in Pinocchio's
+    convention or where the conventions agree; in MuJoCo's convention of a robot with quaternion joints,
+    forward over reverse (_inverse_dynamics_gradient_jvps)."""
     if convention and model.conventions_differ:
         return _inverse_dynamics_gradient_jvps(ops, model, needs, grads, output, q, qd, qdd, f_ext, convention)
     nv, batch = model.nv, q.shape[:-1]
     zero = torch.zeros(*batch, nv, nv, dtype=q.dtype, device=q.device)
     g_q, g_qd = (zero if g is None else g for g in grads)
-    dq = dqd = dqdd = df = None
-    if needs[0] or needs[1] or needs[2]:
-        dq, dqd, dqdd = ops.inverse_dynamics_gradient_vjp(q, qd, qdd, f_ext, g_q, g_qd, convention)
-        dq = tangent_to_ambient(model, q, dq, convention) if needs[0] else None
-    if needs[3]:
-        t = tangent_directions(model, q, convention)
-        df = -ops.body_velocities_jvp(_repeat(q, nv, 1), g_q.mT, t, convention).sum(-3)
-    return dq, dqd if needs[1] else None, dqdd if needs[2] else None, df, None
+    dq, dqd, dqdd, df = ops.inverse_dynamics_gradient_vjp(q, qd, qdd, f_ext, g_q, g_qd, convention)
+    dq = tangent_to_ambient(model, q, dq, convention) if needs[0] else None
+    return dq, dqd if needs[1] else None, dqdd if needs[2] else None, df if needs[3] else None, None
 
 
 def _inverse_dynamics_gradient_jvps(ops, model, needs, grads, output, q, qd, qdd, f_ext, convention):

@@ -227,7 +227,8 @@ template <class M, class S> struct InverseDynamicsGradientVjp {
     const Placements<M, S> K(a.q);
     RneaDerivativesWork<M, S> W;
     rnea_derivatives_setup<M, S>(K, a.qd, a.qdd, a.f_ext, W);
-    rnea_second_order_contract<M, S>(W, a.grad_dtau_dq, a.grad_dtau_dqd, a.grad_q, a.grad_qd, a.grad_qdd);
+    rnea_second_order_contract<M, S>(W, a.grad_dtau_dq, a.grad_dtau_dqd, a.grad_q, a.grad_qd, a.grad_qdd,
+                                     a.grad_f_ext);
   }
 };
 

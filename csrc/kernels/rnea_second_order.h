@@ -149,9 +149,13 @@ TG_HD void rnea_second_order(const RneaDerivativesWork<M, S>& W, S* d2q, S* d2v,
 // b, the cotangents against c's vectors are summed up the chain first (per b: over the columns at or
 // above j, "all", or strictly above it, "above"; per a, as j climbs); where it is c, the pair's vectors
 // weighted by its cotangents are summed per body j, then over the bodies below each column.
+// f_ext enters dtau/dq only, through -J_b^T f_b: with lam_j = Gq[:, j], the gradient for f_b is minus
+// the sum over j of d/dq_j of body b's velocity J_b lam_j, which turns only with the columns of lam_j
+// above j's joint: X_b^-1 sum over the columns j at or above b of S_j x Y_j, Y_j = sum of Gq[c][j] S_c
+// over the columns c strictly above j's joint (gf: NB x 6, in each body's frame, as f_ext).
 template <class M, class S>
 TG_HD void rnea_second_order_contract(const RneaDerivativesWork<M, S>& W, const S* Gq, const S* Gv, S* gq, S* gqd,
-                                      S* gqdd) {
+                                      S* gqdd, S* gf) {
   const auto& d = data<M, S>();
   constexpr int NV = M::NV, NB = M::NB;
   const auto gq_ = [&](int r, int c) { return Gq[NV * r + c]; };
@@ -269,6 +273,19 @@ TG_HD void rnea_second_order_contract(const RneaDerivativesWork<M, S>& W, const 
       Bb[p] = Bb[p] + Bb[k] + Pala[k];
       Bq[p] = Bq[p] + Bq[k] + QSa[k];
     }
+  }
+  // f_ext: Z_b = sum of S_j x Y_j over the columns at or above b, down the tree
+  Sv<S> Z[NB];
+  for (int i = 0; i < NB; ++i) {
+    Z[i] = d.parent[i] >= 0 ? Z[d.parent[i]] : sv_zero<S>();
+    for (int j = d.vi[i]; j < d.vi[i] + d.nvj[i]; ++j) {
+      Sv<S> Y = sv_zero<S>();
+      for (int k = d.parent[i]; k >= 0; k = d.parent[k])
+        for (int c = d.vi[k]; c < d.vi[k] + d.nvj[k]; ++c) Y = Y + gq_(c, j) * W.s[c];
+      Z[i] = Z[i] + cross_motion(W.s[j], Y);
+    }
+    const Sv<S> z = actinv_motion(W.oMi[i], Z[i]);
+    for (int r = 0; r < 6; ++r) gf[6 * i + r] = z.v[r];
   }
 }
 
