@@ -259,4 +259,4 @@ def test_ops_without_a_backward_compute_derivatives():
 
     missing = {n for n, s in OPS.items() if backward_formula(s) is None and not s.derived}
     assert missing == {"frame_jacobian_vjp", "frame_kinematic_hessian", "inverse_dynamics_second_order",
-                       "inverse_dynamics_gradient_vjp"}
+                       "inverse_dynamics_gradient_vjp", "inverse_dynamics_gradient_tangent"}

@@ -164,3 +164,25 @@ def test_frame_jacobian_forward_mode(robots, balls, name, convention):
         J = torch.func.jacrev(fn)(q)
         assert rel_err(torch.func.jvp(fn, (q,), (t,))[1], J @ t) <= 1e-10, reference
         assert rel_err(torch.func.jacfwd(fn)(q), J) <= 1e-10, reference
+
+
+@pytest.mark.parametrize("name, convention", [("iiwa14", "pin"), ("balls", "pin"), ("go2", "pin"), ("balls", "mujoco"),
+                                              ("go2", "mujoco")])
+def test_dynamics_gradients_forward_mode(robots, balls, name, convention):
+    """jvp and jacfwd of inverse_dynamics_gradient and forward_dynamics_gradient (the second-order
+    kernel contracted with the tangents; MuJoCo's tensors with quaternions) against jacrev, with f_ext,
+    at quaternions of norm 1.2."""
+    robot = _robot(name, robots, balls)
+    view = getattr(robot, convention)
+    q, qd, x = (t[0] for t in _state(robot, convention, 1, seed=8))
+    q = 1.2 * q
+    f = torch.randn(robot.nbodies, 6, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
+    tangents = tuple(torch.randn_like(t) for t in (q, qd, x, f))
+    for fn in (view.inverse_dynamics_gradient, view.forward_dynamics_gradient):
+        out, jv = torch.func.jvp(fn, (q, qd, x, f), tangents)
+        J = torch.func.jacrev(fn, argnums=(0, 1, 2, 3))(q, qd, x, f)
+        for o, d, Js in zip(out, jv, J):
+            ref = sum((Jk.reshape(o.numel(), -1) @ t.reshape(-1)).reshape(o.shape) for Jk, t in zip(Js, tangents))
+            assert rel_err(d, ref) <= 1e-9, fn.__name__
+        fwd = torch.func.jacfwd(fn, argnums=1)(q, qd, x, f)
+        assert all(rel_err(a, b[1]) <= 1e-9 for a, b in zip(fwd, J)), fn.__name__

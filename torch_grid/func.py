@@ -19,7 +19,7 @@ from torch.autograd import forward_ad
 from .autograd import BACKWARDS, COMPOSED_BACKWARD, backward_formula, mass_product_jvp
 from .conventions import ball_joints, free_joints, q_mjx_to_pin
 from .model import RobotModel
-from .mujoco_second_order import kinematic_hessian
+from .mujoco_second_order import kinematic_hessian, second_order_from_ops
 from .ops import FORWARD_MODE_BACKWARD, OPS
 from .tangent import tangent_to_ambient
 
@@ -172,14 +172,21 @@ def _inertia_solve_jvp(ops, y, q, x, convention, t_q, t_x, _):
     return ops.inertia_solve(q, rhs, convention)
 
 
+def _tangent_space(model, q, t_q, convention):
+    """A tangent t_q of q's coordinates as a direction of the tangent space (..., nv): the transpose of
+    tangent_to_ambient's map (it is linear, so by its gradient); zero for None."""
+    g0 = torch.zeros(*q.shape[:-1], model.nv, dtype=q.dtype, device=q.device)
+    if t_q is None:
+        return g0
+    return torch.func.grad(lambda g: (tangent_to_ambient(model, q, g, convention) * t_q).sum())(g0)
+
+
 def _frame_jacobian_jvp(ops, J, q, frame, reference, convention, t_q, _f, _r, _c):
-    """dJ = H t, H the frame's kinematic Hessian and t the tangent of q along the tangent space (the
-    transpose of tangent_to_ambient's map, by its gradient: it is linear)."""
+    """dJ = H t, H the frame's kinematic Hessian and t the tangent of q along the tangent space."""
     model = ops._model
     if t_q is None:
         return torch.zeros_like(J)
-    g0 = torch.zeros(*q.shape[:-1], model.nv, dtype=q.dtype, device=q.device)
-    t = torch.func.grad(lambda g: (tangent_to_ambient(model, q, g, convention) * t_q).sum())(g0)
+    t = _tangent_space(model, q, t_q, convention)
     if convention and model.conventions_differ:
         # MuJoCo's Hessian from Pinocchio's (torch_grid/mujoco_second_order.py)
         q_pin = q_mjx_to_pin(q, balls=ball_joints(model), free=free_joints(model))
@@ -190,9 +197,61 @@ def _frame_jacobian_jvp(ops, J, q, frame, reference, convention, t_q, _f, _r, _c
     return (H @ t.unsqueeze(-1).unsqueeze(-3)).squeeze(-1)
 
 
+def _gradient_tangents(ops, q, qd, qdd, f_ext, convention, u, t_qd, t_qdd):
+    """The derivatives of (dtau/dq, dtau/dqd, M) along (u in the tangent space, t_qd, t_qdd): the
+    second-order kernel contracted with them; in MuJoCo's convention of a robot with quaternion
+    joints, its tensors (torch_grid/mujoco_second_order.py) contracted in torch."""
+    model = ops._model
+    if not (convention and model.conventions_differ):
+        return ops.inverse_dynamics_gradient_tangent(q, qd, qdd, f_ext, u, t_qd, t_qdd, convention)
+    d2q, d2v, dqdv, dM = second_order_from_ops(ops, model, q, qd, qdd, f_ext)
+    dA = (torch.einsum("...ijk,...k->...ij", d2q, u) + torch.einsum("...ijk,...k->...ij", dqdv, t_qd) +
+          torch.einsum("...imj,...m->...ij", dM, t_qdd))
+    dB = torch.einsum("...ijk,...k->...ij", d2v, t_qd) + torch.einsum("...ikj,...k->...ij", dqdv, u)
+    return dA, dB, torch.einsum("...ijk,...k->...ij", dM, u)
+
+
+def _affine_in_force(op, q, qd, x, f_ext, t_f, convention):
+    """The tangent along f_ext of an op affine in it: op(..., t_f) - op(..., None)."""
+    with_t, without = op(q, qd, x, t_f, convention), op(q, qd, x, None, convention)
+    return tuple(a - b for a, b in zip(with_t, without)) if isinstance(with_t, tuple) else with_t - without
+
+
+def _inverse_dynamics_gradient_jvp(ops, _out, q, qd, qdd, f_ext, convention, t_q, t_qd, t_qdd, t_f, _):
+    """The tangent of (dtau/dq, dtau/dqd): the second-order tensors along (q, qd, qdd), contracted in
+    the kernel; along f_ext, dtau/dq is affine in it."""
+    zero = torch.zeros_like(qd)
+    u = _tangent_space(ops._model, q, t_q, convention)
+    dA, dB, _ = _gradient_tangents(ops, q, qd, qdd, f_ext, convention, u, zero if t_qd is None else t_qd,
+                                   zero if t_qdd is None else t_qdd)
+    if t_f is not None:
+        dA = dA + _affine_in_force(ops.inverse_dynamics_gradient, q, qd, qdd, f_ext, t_f, convention)[0]
+    return dA, dB
+
+
+def _forward_dynamics_gradient_jvp(ops, out, q, qd, tau, f_ext, convention, t_q, t_qd, t_tau, t_f, _):
+    """(Z_q, Z_qd, M^-1) = (-M^-1 dtau/dq, -M^-1 dtau/dqd, M^-1) at qdd = FD: with dqdd the tangent of
+    qdd and (dA, dB, dM) those of dtau/dq, dtau/dqd, M along (q, qd, dqdd), dZ = -M^-1 (dA + dM Z) and
+    d(M^-1) = -M^-1 dM M^-1."""
+    z_q, z_qd, minv = out
+    zero = torch.zeros_like(qd)
+    u = _tangent_space(ops._model, q, t_q, convention)
+    mv = lambda m, x: (m @ x.unsqueeze(-1)).squeeze(-1)  # noqa: E731
+    dqdd = mv(z_q, u) + (zero if t_qd is None else mv(z_qd, t_qd)) + (zero if t_tau is None else mv(minv, t_tau))
+    if t_f is not None:
+        dqdd = dqdd + _affine_in_force(ops.forward_dynamics, q, qd, tau, f_ext, t_f, convention)
+    qdd = ops.forward_dynamics(q, qd, tau, f_ext, convention)
+    dA, dB, dM = _gradient_tangents(ops, q, qd, qdd, f_ext, convention, u, zero if t_qd is None else t_qd, dqdd)
+    if t_f is not None:
+        dA = dA + _affine_in_force(ops.inverse_dynamics_gradient, q, qd, qdd, f_ext, t_f, convention)[0]
+    return -minv @ (dA + dM @ z_q), -minv @ (dB + dM @ z_qd), -minv @ dM @ minv
+
+
 # Ops whose forward-mode derivative is its own formula (their backwards are made of kernels without
 # derivatives, so the generic rule above does not apply).
 _JVPS = {"inverse_dynamics_vjp": _inverse_dynamics_vjp_jvp, "inertia_solve": _inertia_solve_jvp, "crba_vjp": _crba_vjp_jvp,
+         "inverse_dynamics_gradient": _inverse_dynamics_gradient_jvp,
+         "forward_dynamics_gradient": _forward_dynamics_gradient_jvp,
          "frame_jacobian": _frame_jacobian_jvp}
 
 # Ops with a forward-mode derivative: those whose backward is differentiable in its cotangents (made of

@@ -191,17 +191,22 @@ def kinematic_hessian(model, q_pin, J, H):
 
 
 def inverse_dynamics_second_order_mujoco(robot, q, qd, qdd, f_ext):
-    """Robot.mujoco.inverse_dynamics_second_order of a robot with quaternion joints, from robot.pin."""
-    model = _model(robot, "inverse_dynamics_second_order")
+    """Robot.mujoco.inverse_dynamics_second_order of a robot with quaternion joints."""
+    return second_order_from_ops(robot._ops, _model(robot, "inverse_dynamics_second_order"), q, qd, qdd, f_ext)
+
+
+def second_order_from_ops(ops, model, q, qd, qdd, f_ext):
+    """MuJoCo's four tensors at MuJoCo's (q, qd, qdd), from Pinocchio's ops (convention 0) at the
+    converted state. Passive joint forces (hinge and slide) do not reach them: they are linear, and
+    no term here reads their rows."""
     free = free_joints(model)
     q_pin = q_mjx_to_pin(q, balls=ball_joints(model), free=free)
     v_pin = v_mjx_to_pin(q_pin, qd, free=free)
     a_pin = a_mjx_to_pin(q_pin, v_pin, qdd, free=free)
-    pin = robot.pin
-    tau = pin.inverse_dynamics(q_pin, v_pin, a_pin, f_ext)
-    A, B = pin.inverse_dynamics_gradient(q_pin, v_pin, a_pin, f_ext)
-    second = pin.inverse_dynamics_second_order(q_pin, v_pin, a_pin, f_ext)
-    return inverse_dynamics_second_order(model, q_pin, v_pin, qdd, tau, A, B, pin.crba(q_pin), second)
+    tau = ops.inverse_dynamics(q_pin, v_pin, a_pin, f_ext, 0)
+    A, B = ops.inverse_dynamics_gradient(q_pin, v_pin, a_pin, f_ext, 0)
+    second = ops.inverse_dynamics_second_order(q_pin, v_pin, a_pin, f_ext, 0)
+    return inverse_dynamics_second_order(model, q_pin, v_pin, qdd, tau, A, B, ops.crba(q_pin, 0), second)
 
 
 def frame_kinematic_hessian(robot, q, frame: int, reference: str):

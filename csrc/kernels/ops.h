@@ -232,6 +232,17 @@ template <class M, class S> struct InverseDynamicsGradientVjp {
   }
 };
 
+// The forward mode of inverse_dynamics_gradient (and M along q): the second-order tensors contracted
+// with the tangents as they are produced (Pinocchio's convention only).
+template <class M, class S> struct InverseDynamicsGradientTangent {
+  TG_HD static void run(const InverseDynamicsGradientTangentArgs<S>& a) {
+    const Placements<M, S> K(a.q);
+    RneaDerivativesWork<M, S> W;
+    rnea_derivatives_setup<M, S>(K, a.qd, a.qdd, a.f_ext, W);
+    rnea_second_order_tangent<M, S>(W, a.t_q, a.t_qd, a.t_qdd, a.dtau_dq_dot, a.dtau_dqd_dot, a.M_dot);
+  }
+};
+
 // Since ID(q, qd, FD(q, qd, tau)) = tau, dqdd/dx = -M^-1 dtau/dx at qdd = FD(q, qd, tau), and
 // dqdd/dtau = M^-1, in either convention. Minv, RNEA (for qdd) and the RNEA derivatives share the
 // Placements pass.

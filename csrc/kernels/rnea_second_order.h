@@ -140,6 +140,29 @@ TG_HD void rnea_second_order(const RneaDerivativesWork<M, S>& W, S* d2q, S* d2v,
   rnea_second_order_visit<M, S>(W, [&](int t, int i, int j, int k, S v) { T[t][NV * (NV * i + j) + k] = v; });
 }
 
+// The derivatives of dtau/dq, dtau/dqd and M (NV x NV each) along tangents tq (of q, along its
+// tangent space), tqd and tqdd: each entry of the visit above times its direction's tangent. Mixed
+// partials commute: d/dq_j (dtau_i/dqd_k) = dqdv[i][j][k], d/dqdd_j (dtau_i/dq_k) = dM_dq[i][j][k].
+template <class M, class S>
+TG_HD void rnea_second_order_tangent(const RneaDerivativesWork<M, S>& W, const S* tq, const S* tqd, const S* tqdd, S* dA,
+                                     S* dB, S* dM) {
+  constexpr int NV = M::NV;
+  for (int n = 0; n < NV * NV; ++n) dA[n] = dB[n] = dM[n] = S(0);
+  rnea_second_order_visit<M, S>(W, [&](int t, int i, int j, int k, S v) {
+    if (t == D2Q) {
+      dA[NV * i + j] += tq[k] * v;
+    } else if (t == D2V) {
+      dB[NV * i + j] += tqd[k] * v;
+    } else if (t == DQDV) {
+      dA[NV * i + j] += tqd[k] * v;
+      dB[NV * i + k] += tq[j] * v;
+    } else {
+      dM[NV * i + j] += tq[k] * v;
+      dA[NV * i + k] += tqdd[j] * v;
+    }
+  });
+}
+
 // The gradient of <Gq, dtau/dq> + <Gv, dtau/dqd> (Gq, Gv: NV x NV) with respect to q (along the
 // tangent), qd and qdd: every entry of the visit above weighted by its cotangent, in O(n d) for a tree
 // of depth d rather than one term per triple. Mixed partials commute (qd and qdd are not on the
