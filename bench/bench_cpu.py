@@ -181,7 +181,7 @@ def backward_ratio(name: str) -> tuple[float, float]:
     return forward_and_backward_us(robot.forward_dynamics, inputs, B)
 
 
-def second_order(name: str, batch: int = 256) -> list[tuple[str, float, float]]:
+def second_order(name: str, batch: int = B) -> list[tuple[str, float, float]]:
     """(function, forward, forward + backward) per sample, 1 thread, for functions whose backward is
     second order (q, qd and qdd all requiring grad)."""
     src, floating, bundled = ROBOTS[name]
@@ -329,9 +329,10 @@ def main() -> None:
         "`torch_grid.load` in a new process after `import torch`.\n\n" + "\n".join(builds) + \
         "\n\nAutograd: forward_dynamics alone against forward + backward with respect to q, qd and tau " \
         "(one thread, float64, B = 4096).\n\n" + "\n".join(grads) + \
-        "\n\nSecond-order backwards (M, M^-1 from inverse-dynamics products; forward_dynamics_gradient " \
-        "through -M^-1 dtau/dx and the inverse-dynamics gradient's backward; the others by the forward-mode " \
-        "dual-number kernels), with respect to every input, one thread, float64, B = 256.\n\n" + "\n".join(second) + \
+        "\n\nSecond-order backwards (crba, frame_jacobian and inverse_dynamics_gradient by their O(n d) kernels, " \
+        "minv through crba's; forward_dynamics_gradient through -M^-1 dtau/dx, the inverse-dynamics gradient's " \
+        "backward and minv's; coriolis_matrix by its forward-mode dual-number kernel), with respect to every " \
+        f"input, one thread, float64, B = {B}.\n\n" + "\n".join(second) + \
         "\n\nSecond-order kernels: the four (nv, nv, nv) tensors of inverse_dynamics_second_order per sample, " \
         "one thread, float64, against Pinocchio's C++ ComputeRNEASecondOrderDerivatives per call (one Data and " \
         "four tensors reused, so they stay in cache; a batch writes 4 nv^3 numbers per sample to fresh " \

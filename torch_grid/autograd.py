@@ -20,6 +20,7 @@ from typing import Callable
 import torch
 
 from .model import RobotModel
+from .mujoco_second_order import crba_vjp as mujoco_crba_vjp
 from .ops import FORWARD_MODE_BACKWARD, OPS, OpSpec
 from .tangent import bracket_term, has_brackets, tangent_directions, tangent_to_ambient
 
@@ -176,12 +177,12 @@ def _inertia_solve(ops, model, needs, grads, output, q, x, convention):
 
 
 def _crba(ops, model, needs, grads, output, q, convention):
-    """<G, M(q)> differentiated by an O(n d) kernel (csrc/kernels/crba.h) in Pinocchio's convention, or
-    where the conventions agree. MuJoCo's twin reframes M with G(q): there it is sum_j G[:, j]^T M e_j,
-    nv + 1 of the O(n) ID products, O(n^2)."""
+    """<G, M(q)> differentiated by an O(n d) kernel (csrc/kernels/crba.h); MuJoCo's twin with quaternion
+    joints reframes M with G(q), whose own turn adds a term (mujoco_second_order.crba_vjp)."""
     if convention and model.conventions_differ:
-        unit = torch.eye(model.nv, dtype=q.dtype, device=q.device).expand(grads[0].shape)
-        dq = _mass_product_vjp(ops, q, unit, grads[0].transpose(-1, -2), convention)
+        if output is None:  # minv's backward passes no M
+            output = ops.crba(q, convention)
+        dq = mujoco_crba_vjp(ops, model, q, grads[0], output)
     else:
         dq = ops.crba_vjp(q, grads[0], convention)
     return tangent_to_ambient(model, q, dq, convention), None

@@ -52,13 +52,14 @@ def _unit_skews(like: torch.Tensor) -> torch.Tensor:
     return _skew(torch.eye(3, dtype=like.dtype, device=like.device))
 
 
-def _rotate(X: torch.Tensor, dim: int, frees: list[_Free]) -> torch.Tensor:
+def _rotate(X: torch.Tensor, dim: int, frees: list[_Free], back: bool = False) -> torch.Tensor:
     """X with each free joint's linear slice along `dim` (counted from the end) turned by R: G X along
-    a row index, X Gi along a column index (the same map, G^T = Gi)."""
+    a row index, X Gi along a column index (the same map, G^T = Gi); by R^T if `back`."""
     X = X.movedim(dim, -1)
     parts, k = [], 0
     for f in frees:
-        parts += [X[..., k:f.vi], (X[..., f.lin].unsqueeze(-2) @ _expand(f.R.mT, X.dim() + 1)).squeeze(-2)]
+        R = f.R if back else f.R.mT
+        parts += [X[..., k:f.vi], (X[..., f.lin].unsqueeze(-2) @ _expand(R, X.dim() + 1)).squeeze(-2)]
         k = f.vi + 3
     return torch.cat(parts + [X[..., k:]], dim=-1).movedim(-1, dim)
 
@@ -222,3 +223,30 @@ def _model(robot, name: str):
         raise NotImplementedError(f"torch_grid: {name} in the MuJoCo convention is not implemented for a robot with "
                                   "mimic joints and free or ball joints; call it in the pin convention (robot.pin)")
     return robot.model
+
+
+def crba_vjp(ops, model, q, W, M):
+    """The gradient along MuJoCo's tangent of <W, M_mjx(q)>, M_mjx = G M G^T the op's output: Pinocchio's
+    kernel for <G^T W G, M> mapped by G (a MuJoCo direction k is Pinocchio's G^T e_k), plus, for a free
+    joint's rotation c, G's own turn: 2 <sym(W), Gdot_c M G^T> = 2 tr([e_c]x C), C = (M G^T)_lin sym(W)_lin^T R.
+    Beyond G^T W G, only 3 x nv products."""
+    free = free_joints(model)
+    q_pin = q_mjx_to_pin(q, balls=ball_joints(model), free=free)
+    frees = [_Free(q_pin, qi, vi) for qi, vi in free]
+    # G^T W G: the free joints' rows, then their columns (each stage reads the one before)
+    rows = W.clone()
+    for f in frees:
+        rows[..., f.lin, :] = f.R.mT @ W[..., f.lin, :]
+    inner = rows.clone()
+    for f in frees:
+        inner[..., :, f.lin] = rows[..., :, f.lin] @ f.R
+    g = ops.crba_vjp(q_pin, inner, 0)
+    parts, k = [], 0
+    for f in frees:
+        MGt = f.R.mT @ M[..., f.lin, :]  # rows of G^T M_mjx = M G^T
+        C = MGt @ (W[..., f.lin, :] + W[..., :, f.lin].mT).mT @ f.R  # 2 (M G^T)_lin sym(W)_lin^T R
+        turn = torch.stack([C[..., 1, 2] - C[..., 2, 1], C[..., 2, 0] - C[..., 0, 2], C[..., 0, 1] - C[..., 1, 0]], -1)
+        lin = (f.R @ g[..., f.lin].unsqueeze(-1)).squeeze(-1)
+        parts += [g[..., k:f.vi], lin, g[..., f.vi + 3:f.vi + 6] + turn]
+        k = f.vi + 6
+    return torch.cat(parts + [g[..., k:]], dim=-1)
