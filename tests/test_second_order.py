@@ -121,6 +121,9 @@ def test_crba_backward_is_the_contracted_mass_matrix_derivative(robots, pin_mode
     leaf = q.clone().requires_grad_(True)
     grad, = torch.autograd.grad(robot.pin.crba(leaf), leaf, W)
     assert rel_err(grad, tangent_to_ambient(robot.model.kernel_model, q, expected, 0)) <= 1e-12
+    # the gradient of a sum arrives expanded (stride 0) and is passed on uncopied, broadcast
+    grad, = torch.autograd.grad(robot.pin.crba(leaf).sum(), leaf)
+    assert rel_err(grad, tangent_to_ambient(robot.model.kernel_model, q, dM.sum((1, 2)), 0)) <= 1e-12
 
 
 @pytest.mark.parametrize("name", ["iiwa14", "go2", "g1", "balls", "zoo", "trees"])

@@ -162,7 +162,7 @@ def _frame_jacobian(ops, model, needs, grads, output, q, frame, reference, conve
     there the op's kernel runs on dual numbers."""
     if convention and model.conventions_differ:
         return _forward_mode(OPS["frame_jacobian"])(ops, model, needs, grads, output, q, frame, reference, convention)
-    g = ops.frame_jacobian_vjp(q, grads[0], frame, reference, convention)
+    g = ops.frame_jacobian_vjp(q, _unexpanded(grads[0], 2), frame, reference, convention)
     return tangent_to_ambient(model, q, g, convention), None, None, None
 
 
@@ -184,8 +184,17 @@ def _crba(ops, model, needs, grads, output, q, convention):
             output = ops.crba(q, convention)
         dq = mujoco_crba_vjp(ops, model, q, grads[0], output)
     else:
-        dq = ops.crba_vjp(q, grads[0], convention)
+        dq = ops.crba_vjp(q, _unexpanded(grads[0], 2), convention)
     return tangent_to_ambient(model, q, dq, convention), None
+
+
+def _unexpanded(x: torch.Tensor, trailing: int) -> torch.Tensor:
+    """x with each broadcast (stride-0) batch dimension cut to one entry: the ops broadcast batches, so a
+    gradient such as that of out.sum() is not copied sample by sample."""
+    for d in range(x.dim() - trailing):
+        if x.stride(d) == 0 and x.shape[d] > 1:
+            x = x.narrow(d, 0, 1)
+    return x
 
 
 def _crba_vjp(ops, model, needs, grads, output, q, weight, convention):
