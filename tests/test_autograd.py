@@ -248,6 +248,12 @@ def test_frame_jacobian_backward_kernel_matches_dual_numbers(robots, name, refer
         # the dual-number backward is in q's coordinates: compare along the tangent directions
         dual = ops.frame_jacobian_backward(q, frame, ref, G, 1, 0)
         assert torch.allclose(tangent_to_ambient(robot.model, q, ours, 0), dual, rtol=1e-10, atol=1e-10), frame
+    # through autograd, a sum's broadcast cotangent (passed on uncopied) against a dense one
+    leaf = q.clone().requires_grad_(True)
+    expanded, = torch.autograd.grad(robot.pin.frame_jacobian(leaf, frame, reference).sum(), leaf)
+    dense, = torch.autograd.grad(robot.pin.frame_jacobian(leaf, frame, reference), leaf, torch.ones(2, 6, robot.nv,
+                                                                                                    dtype=torch.float64))
+    assert torch.allclose(expanded, dense, rtol=1e-12, atol=1e-12)
 
 
 def test_ops_without_a_backward_compute_derivatives():
