@@ -148,6 +148,12 @@ def test_inverse_dynamics_gradient_backward_contracts_the_second_order_tensors(r
     plus, minus = (robot.pin.inverse_dynamics_gradient(q[:, None], qd[:, None], qdd[:, None], f[:, None] + s * h * eye)[0]
                    for s in (1, -1))
     assert rel_err(gf, torch.einsum("bij,bfij->bf", Gq, (plus - minus) / (2 * h)).view_as(f)) <= 1e-9
+    # through autograd with a sum's broadcast cotangents (passed on uncopied): all-ones weights
+    leaves = [x.clone().requires_grad_(True) for x in (q, qd, qdd)]
+    dq, dqd, dqdd = torch.autograd.grad(sum(t.sum() for t in robot.pin.inverse_dynamics_gradient(*leaves, f)), leaves)
+    ones = torch.ones_like(Gq)
+    assert rel_err(dqd, torch.einsum("bij,bijk->bk", ones, dqdv + d2v)) <= 1e-12
+    assert rel_err(dqdd, torch.einsum("bij,bimj->bm", ones, dadq)) <= 1e-12
 
 
 @pytest.mark.parametrize("name", ["iiwa14", "go2", "balls", "zoo"])

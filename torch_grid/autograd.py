@@ -325,7 +325,7 @@ def _inverse_dynamics_gradient(ops, model, needs, grads, output, q, qd, qdd, f_e
         return _inverse_dynamics_gradient_jvps(ops, model, needs, grads, output, q, qd, qdd, f_ext, convention)
     nv, batch = model.nv, q.shape[:-1]
     zero = torch.zeros(*batch, nv, nv, dtype=q.dtype, device=q.device)
-    g_q, g_qd = (zero if g is None else g for g in grads)
+    g_q, g_qd = (zero if g is None else _unexpanded(g, 2) for g in grads)
     dq, dqd, dqdd, df = ops.inverse_dynamics_gradient_vjp(q, qd, qdd, f_ext, g_q, g_qd, convention)
     dq = tangent_to_ambient(model, q, dq, convention) if needs[0] else None
     return dq, dqd if needs[1] else None, dqdd if needs[2] else None, df if needs[3] else None, None
