@@ -248,6 +248,22 @@ def test_mimic_refusals():
         torch_grid.load(bad, mimic=True)
 
 
+def test_mujoco_second_order_with_a_free_joint_refuses(gripper):
+    """MuJoCo's second derivatives of a floating robot are composed from the uncoupled ops, which a
+    coupled robot's reduced coordinates do not reach: a clear refusal, not Pinocchio's tensors (without
+    a free joint the conventions agree)."""
+    robot, _, _ = gripper
+    q, qd, qdd, _ = _states(robot, "mujoco", n=1)
+    if not robot.floating_base:  # the conventions agree: Pinocchio's tensors, coupled
+        mujoco, pin_ = (v.inverse_dynamics_second_order(q, qd, qdd) for v in (robot.mujoco, robot.pin))
+        assert all(torch.equal(x, y) for x, y in zip(mujoco, pin_))
+        return
+    with pytest.raises(NotImplementedError, match="mimic joints and free or ball joints"):
+        robot.mujoco.inverse_dynamics_second_order(q, qd, qdd)
+    with pytest.raises(NotImplementedError, match="mimic joints and free or ball joints"):
+        robot.mujoco.frame_kinematic_hessian(q, robot.nframes - 1)
+
+
 def test_float32_and_torch_compile(gripper):
     robot, _, _ = gripper
     q, v, a, _ = _states(robot, "mujoco", n=4, seed=8)

@@ -56,36 +56,38 @@ def _along(fn, plus, minus):
     return [((a - b) / (2 * H)).movedim(0, -1) for a, b in zip(hi, lo)]
 
 
+def _differences(fn, m, q, qd, x, f, along_x=False):
+    """Central differences of fn(q, qd, x, f)'s outputs along mj_integratePos (q), then along qd, then
+    (if asked) along x."""
+    nv = qd.shape[-1]
+    rep = lambda t: t.expand(nv, *t.shape)  # noqa: E731
+    eye = H * torch.eye(nv, dtype=torch.float64)
+    out = (_along(lambda p: fn(p, rep(qd), rep(x), rep(f)), *_steps(m, q)),
+           _along(lambda s: fn(rep(q), qd + s, rep(x), rep(f)), eye, -eye))
+    return out + (_along(lambda s: fn(rep(q), rep(qd), x + s, rep(f)), eye, -eye),) if along_x else out
+
+
 @pytest.mark.parametrize("name", ["go2", "trees", "zoo"])
 def test_inverse_dynamics_second_order(models, name):
     robot, m = models[name]
-    view, nv = robot.mujoco, robot.nv
+    view = robot.mujoco
     q, qd, qdd, f = _state(robot, seed=11)
     d2q, d2v, dqdv, dM = view.inverse_dynamics_second_order(q, qd, qdd, f)
-    plus, minus = _steps(m, q)
-    rep = lambda x: x.expand(nv, *x.shape)  # noqa: E731
-    gq = _along(lambda p: view.inverse_dynamics_gradient(p, rep(qd), rep(qdd), rep(f)), plus, minus)
-    eye = H * torch.eye(nv, dtype=torch.float64)
-    gv = _along(lambda s: view.inverse_dynamics_gradient(rep(q), qd + s, rep(qdd), rep(f)), eye, -eye)
-    ga = _along(lambda s: view.inverse_dynamics_gradient(rep(q), rep(qd), qdd + s, rep(f))[0], eye, -eye)
+    gq, gv, ga = _differences(view.inverse_dynamics_gradient, m, q, qd, qdd, f, along_x=True)
     assert rel_err(d2q, gq[0]) <= 1e-6
     assert rel_err(dqdv, gv[0]) <= 1e-6
     assert rel_err(d2v, gv[1]) <= 1e-6
-    assert rel_err(dM, _along(view.crba, plus, minus)[0]) <= 1e-6
+    assert rel_err(dM, _along(view.crba, *_steps(m, q))[0]) <= 1e-6
     assert rel_err(dM, ga[0].transpose(-1, -2)) <= 1e-6  # d/dq_k M[i, j] = d/dqdd_j (d tau / dq)[i, k]
 
 
 @pytest.mark.parametrize("name", ["go2", "trees"])
 def test_forward_dynamics_second_order(models, name):
     robot, m = models[name]
-    view, nv = robot.mujoco, robot.nv
+    view = robot.mujoco
     q, qd, tau, f = _state(robot, seed=12)
     d2q, d2v, dqdv, dminv = view.forward_dynamics_second_order(q, qd, tau, f)
-    plus, minus = _steps(m, q)
-    rep = lambda x: x.expand(nv, *x.shape)  # noqa: E731
-    gq = _along(lambda p: view.forward_dynamics_gradient(p, rep(qd), rep(tau), rep(f)), plus, minus)
-    eye = H * torch.eye(nv, dtype=torch.float64)
-    gv = _along(lambda s: view.forward_dynamics_gradient(rep(q), qd + s, rep(tau), rep(f)), eye, -eye)
+    gq, gv = _differences(view.forward_dynamics_gradient, m, q, qd, tau, f)
     assert rel_err(d2q, gq[0]) <= 1e-6
     assert rel_err(dminv, gq[2]) <= 1e-6
     assert rel_err(dqdv, gv[0]) <= 1e-6

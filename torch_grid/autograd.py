@@ -203,11 +203,11 @@ def _crba_vjp(ops, model, needs, grads, output, q, weight, convention):
     nv, u = model.nv, grads[0]
     unit = torch.eye(nv, dtype=q.dtype, device=q.device).expand(*q.shape[:-1], nv, nv)
     zero = torch.zeros_like(unit)
-    Q, lam = _repeat(q, nv, 1), weight.mT  # product m: at qdd = e_m, cotangent W[:, m]
+    Q, lam = repeat(q, nv, 1), weight.mT  # product m: at qdd = e_m, cotangent W[:, m]
     dq = dw = None
     if needs[0]:
         rest = (zero[..., 0, :], zero[..., 0, :], lam.sum(-2))
-        products = ((Q, zero, unit, lam, _repeat(u, nv, 1)), (q, *rest, u))
+        products = ((Q, zero, unit, lam, repeat(u, nv, 1)), (q, *rest, u))
         terms = []
         for x, v, a, c, cot in products:
             g = (ops.inverse_dynamics_vjp(x, v, a, None, c, convention)[0], None) if has_brackets(model) else None
@@ -216,7 +216,7 @@ def _crba_vjp(ops, model, needs, grads, output, q, weight, convention):
         dq = terms[0].sum(-2) - terms[1]
     if needs[1]:
         t_u = (u.unsqueeze(-2) @ tangent_directions(model, q, convention)).squeeze(-2)
-        dw = mass_product_jvp(ops, Q, unit, _repeat(t_u, nv, 1), convention)  # rows: D_u M e_m (symmetric)
+        dw = mass_product_jvp(ops, Q, unit, repeat(t_u, nv, 1), convention)  # rows: D_u M e_m (symmetric)
     return dq, dw, None
 
 
@@ -232,7 +232,7 @@ def _mass_product_vjp(ops, q, a, lam, convention):
     cotangents lam_m, less one gravity product at (0, 0) with cotangent sum_m lam_m."""
     m = a.shape[-2]
     zero = torch.zeros_like(a)
-    products, _ = ops.inverse_dynamics_vjp(_repeat(q, m, 1), zero, a, None, lam, convention)
+    products, _ = ops.inverse_dynamics_vjp(repeat(q, m, 1), zero, a, None, lam, convention)
     gravity, _ = ops.inverse_dynamics_vjp(q, zero[..., 0, :], zero[..., 0, :], None, lam.sum(-2), convention)
     return products.sum(-2) - gravity
 
@@ -344,8 +344,8 @@ def _inverse_dynamics_gradient_jvps(ops, model, needs, grads, output, q, qd, qdd
     lam = torch.cat([g_q.mT, g_qd.mT], dim=-2)  # (..., 2 nv, nv): one cotangent per direction
     t_q = torch.cat([t, torch.zeros_like(t)], dim=-2)
     t_qd = torch.cat([zero, torch.eye(nv, dtype=q.dtype, device=q.device).expand_as(zero)], dim=-2)
-    Q, QD, QDD = (_repeat(x, 2 * nv, 1) for x in (q, qd, qdd))
-    F = None if f_ext is None else _repeat(f_ext, 2 * nv, 2)
+    Q, QD, QDD = (repeat(x, 2 * nv, 1) for x in (q, qd, qdd))
+    F = None if f_ext is None else repeat(f_ext, 2 * nv, 2)
     dq = dqd = dqdd = df = None
     if needs[0] or needs[1]:
         d_gq, d_gqd = ops.inverse_dynamics_vjp_jvp(Q, QD, QDD, F, lam, t_q, t_qd, convention)
@@ -366,7 +366,7 @@ def _inverse_dynamics_gradient_jvps(ops, model, needs, grads, output, q, qd, qdd
     return dq, dqd, dqdd, df, None
 
 
-def _repeat(x: torch.Tensor, n: int, trailing: int) -> torch.Tensor:
+def repeat(x: torch.Tensor, n: int, trailing: int) -> torch.Tensor:
     """x (..., *tail) with `trailing` tail dimensions, as (..., n, *tail) without a copy."""
     return x.unsqueeze(-trailing - 1).expand(*x.shape[:-trailing], n, *x.shape[-trailing:])
 
@@ -377,7 +377,7 @@ def _inverse_dynamics_external_force_gradient(ops, model, needs, grads, output, 
     nv, batch = model.nv, q.shape[:-1]
     unit = torch.eye(nv, dtype=q.dtype, device=q.device).expand(*batch, nv, nv)
     dq = _forward_mode(OPS["body_velocities"])(ops, model, (True, False, False), (-grads[0],), None,
-                                               _repeat(q, nv, 1), unit, convention)[0]
+                                               repeat(q, nv, 1), unit, convention)[0]
     return dq.sum(-2), None
 
 

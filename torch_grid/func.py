@@ -16,10 +16,9 @@ from typing import Callable
 import torch
 from torch.autograd import forward_ad
 
-from .autograd import BACKWARDS, COMPOSED_BACKWARD, backward_formula, mass_product_jvp
-from .conventions import ball_joints, free_joints, q_mjx_to_pin
+from .autograd import BACKWARDS, COMPOSED_BACKWARD, backward_formula, mass_product_jvp, repeat
 from .model import RobotModel
-from .mujoco_second_order import kinematic_hessian, second_order_from_ops
+from .mujoco_second_order import kinematic_hessian_from_ops, second_order_from_ops
 from .ops import FORWARD_MODE_BACKWARD, OPS
 from .tangent import tangent_to_ambient
 
@@ -156,8 +155,8 @@ def _crba_vjp_jvp(ops, _out, q, weight, convention, t_q, t_w, _):
         unit = torch.eye(nv, dtype=q.dtype, device=q.device).expand(*q.shape[:-1], nv, nv)
         zero = torch.zeros_like(unit)
         lam = weight.mT
-        rep = lambda x: x.unsqueeze(-2).expand(*x.shape[:-1], nv, x.shape[-1])
-        products = ops.inverse_dynamics_vjp_jvp(rep(q), zero, unit, None, lam, rep(t_q), None, convention)[0]
+        products = ops.inverse_dynamics_vjp_jvp(repeat(q, nv, 1), zero, unit, None, lam, repeat(t_q, nv, 1), None,
+                                                convention)[0]
         rest = ops.inverse_dynamics_vjp_jvp(q, zero[..., 0, :], zero[..., 0, :], None, lam.sum(-2), t_q, None,
                                             convention)[0]
         d = d + products.sum(-2) - rest
@@ -187,11 +186,8 @@ def _frame_jacobian_jvp(ops, J, q, frame, reference, convention, t_q, _f, _r, _c
     if t_q is None:
         return torch.zeros_like(J)
     t = _tangent_space(model, q, t_q, convention)
-    if convention and model.conventions_differ:
-        # MuJoCo's Hessian from Pinocchio's (torch_grid/mujoco_second_order.py)
-        q_pin = q_mjx_to_pin(q, balls=ball_joints(model), free=free_joints(model))
-        H = kinematic_hessian(model, q_pin, ops.frame_jacobian(q_pin, frame, reference, 0),
-                              ops.frame_kinematic_hessian(q_pin, frame, reference, 0))
+    if convention and model.conventions_differ:  # MuJoCo's Hessian from Pinocchio's
+        H = kinematic_hessian_from_ops(ops, model, q, frame, reference)
     else:
         H = ops.frame_kinematic_hessian(q, frame, reference, convention)
     return (H @ t.unsqueeze(-1).unsqueeze(-3)).squeeze(-1)

@@ -52,14 +52,13 @@ def _unit_skews(like: torch.Tensor) -> torch.Tensor:
     return _skew(torch.eye(3, dtype=like.dtype, device=like.device))
 
 
-def _rotate(X: torch.Tensor, dim: int, frees: list[_Free], back: bool = False) -> torch.Tensor:
+def _rotate(X: torch.Tensor, dim: int, frees: list[_Free]) -> torch.Tensor:
     """X with each free joint's linear slice along `dim` (counted from the end) turned by R: G X along
-    a row index, X Gi along a column index (the same map, G^T = Gi); by R^T if `back`."""
+    a row index, X Gi along a column index (the same map, G^T = Gi)."""
     X = X.movedim(dim, -1)
     parts, k = [], 0
     for f in frees:
-        R = f.R if back else f.R.mT
-        parts += [X[..., k:f.vi], (X[..., f.lin].unsqueeze(-2) @ _expand(R, X.dim() + 1)).squeeze(-2)]
+        parts += [X[..., k:f.vi], (X[..., f.lin].unsqueeze(-2) @ _expand(f.R.mT, X.dim() + 1)).squeeze(-2)]
         k = f.vi + 3
     return torch.cat(parts + [X[..., k:]], dim=-1).movedim(-1, dim)
 
@@ -116,6 +115,12 @@ def _lin_times(X: torch.Tensor, f: _Free, E: torch.Tensor) -> torch.Tensor:
     return torch.einsum("...im,...mjk->...ijk", X[..., :, f.lin], E)
 
 
+def _turn(f: _Free, e: torch.Tensor) -> torch.Tensor:
+    """d(Gi e_b)/dq_c on a free joint's linear rows, [m, b, c] = -(e_c x R^T e_b) (b linear, c angular):
+    Gi's change under a base rotation, and the same block of the qvel-to-qacc map's change under qvel."""
+    return -torch.einsum("cab,...bd->...adc", e, f.R.mT)
+
+
 def _gdot(f: _Free, x: torch.Tensor, e: torch.Tensor) -> torch.Tensor:
     """Gdot_c x = R (e_c x x_lin) on the linear rows, for each c: (..., 3, c, n) for x (..., nv, n)."""
     return torch.einsum("...ab,cbd,...dn->...acn", f.R, e, x[..., f.lin, :])
@@ -145,9 +150,8 @@ def inverse_dynamics_second_order(model, q_pin, v_pin, a_mjx, tau, A, B, M, seco
     t_v = rot(B, -1) + mix(M, -1, _dav)
     for f in frees:
         lin, ang = f.lin, f.ang
-        Rt = f.R.mT
         # the maps turn with the base: d/dq_d of Gi e_b, Jv e_c, Ja e_c (d, c angular, b linear)
-        E_q = -torch.einsum("cab,...bd->...adc", e, Rt)  # [m, j=b, k=c] = -(e_c x R^T e_b)
+        E_q = _turn(f, e)  # [m, j=b, k=c]
         ev = torch.einsum("cab,dbe,...e->...acd", e, e, f.v)  # e_c x (e_d x v), [m, c, d]
         ea = torch.einsum("cab,dbe,...e->...acd", e, e, f.aR)
         E_a = ea - torch.einsum("...ab,...bcd->...acd", _skew(f.w), ev)
@@ -155,16 +159,13 @@ def inverse_dynamics_second_order(model, q_pin, v_pin, a_mjx, tau, A, B, M, seco
         d2q = _put(d2q, slice(None), ang, ang, _lin_times(B, f, ev) + _lin_times(M, f, E_a))
         dM = _put(dM, slice(None), lin, ang, _lin_times(M, f, E_q))
         # d/dqd_k of Jv e_c, Ja e_c: k linear b: -(e_c x R^T e_b), w x (e_c x R^T e_b); k angular d: e_d x (e_c x v)
-        Ev = -torch.einsum("cab,...bd->...acd", e, Rt)  # [m, c, b]
+        Ev = E_q.transpose(-1, -2)  # [m, c, b]
         Ea_lin = torch.einsum("...ab,...bcd->...acd", _skew(f.w), Ev).neg()
-        Ea_ang = torch.einsum("dab,cbe,...e->...acd", e, e, f.v)  # e_d x (e_c x v)
         dqdv = _put(dqdv, slice(None), ang, lin, _lin_times(B, f, Ev) + _lin_times(M, f, Ea_lin))
-        dqdv = _put(dqdv, slice(None), ang, ang, _lin_times(M, f, Ea_ang))
+        dqdv = _put(dqdv, slice(None), ang, ang, _lin_times(M, f, ev.transpose(-1, -2)))  # e_d x (e_c x v)
         # d/dqd_k of Jav e_j: j linear a, k angular d: -(e_d x R^T e_a); j angular a, k linear b: -(e_a x R^T e_b)
-        E3_la = -torch.einsum("dab,...bc->...acd", e, Rt)  # [m, a, d]
-        E3_al = -torch.einsum("aeb,...bc->...eac", e, Rt)  # [m, a, b]: -(e_a x R^T e_b)
-        d2v = _put(d2v, slice(None), lin, ang, _lin_times(M, f, E3_la))
-        d2v = _put(d2v, slice(None), ang, lin, _lin_times(M, f, E3_al))
+        d2v = _put(d2v, slice(None), lin, ang, _lin_times(M, f, E_q))
+        d2v = _put(d2v, slice(None), ang, lin, _lin_times(M, f, Ev))
     # G on tau's index, then the terms of G's own turning: Gdot_c = R [e_c]x on the linear rows
     d2q, d2v, dqdv, dM = (rot(T, -3) for T in (d2q, d2v, dqdv, dM))
     MG = rot(M, -1)
@@ -186,8 +187,7 @@ def kinematic_hessian(model, q_pin, J, H):
     e = _unit_skews(q_pin)
     out = _rotate(_rotate(H, -1, frees), -2, frees)
     for f in frees:
-        E_q = -torch.einsum("cab,...bd->...adc", e, f.R.mT)
-        out = _put(out, slice(None), f.lin, f.ang, _lin_times(J, f, E_q))
+        out = _put(out, slice(None), f.lin, f.ang, _lin_times(J, f, _turn(f, e)))
     return out
 
 
@@ -210,12 +210,16 @@ def second_order_from_ops(ops, model, q, qd, qdd, f_ext):
     return inverse_dynamics_second_order(model, q_pin, v_pin, qdd, tau, A, B, ops.crba(q_pin, 0), second)
 
 
-def frame_kinematic_hessian(robot, q, frame: int, reference: str):
-    """Robot.mujoco.frame_kinematic_hessian of a robot with quaternion joints, from robot.pin."""
-    model = _model(robot, "frame_kinematic_hessian")
+def frame_kinematic_hessian(robot, q, frame: int, reference: int):
+    """Robot.mujoco.frame_kinematic_hessian of a robot with quaternion joints."""
+    return kinematic_hessian_from_ops(robot._ops, _model(robot, "frame_kinematic_hessian"), q, frame, reference)
+
+
+def kinematic_hessian_from_ops(ops, model, q, frame: int, reference: int):
+    """MuJoCo's kinematic Hessian of a frame at MuJoCo's q, from Pinocchio's ops (convention 0)."""
     q_pin = q_mjx_to_pin(q, balls=ball_joints(model), free=free_joints(model))
-    J = robot.pin.frame_jacobian(q_pin, frame, reference)
-    return kinematic_hessian(model, q_pin, J, robot.pin.frame_kinematic_hessian(q_pin, frame, reference))
+    J = ops.frame_jacobian(q_pin, frame, reference, 0)
+    return kinematic_hessian(model, q_pin, J, ops.frame_kinematic_hessian(q_pin, frame, reference, 0))
 
 
 def _model(robot, name: str):

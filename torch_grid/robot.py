@@ -107,10 +107,10 @@ class _Functions:
         """Kinematic Hessian (..., 6, nv, nv) of a frame: H[..., :, j, k] = d J[..., :, j] / dq_k along the
         tangent, J = frame_jacobian(q, frame, reference) (Pinocchio's getFrameKinematicHessian).
         In the MuJoCo convention, d/dq_k of its Jacobian (qvel's frame) along mj_integratePos's tangent."""
-        index = self._robot.frame_index(frame, "frame")
+        index, ref = self._robot.frame_index(frame, "frame"), _reference(reference)
         if self._differs():
-            return mujoco_second_order.frame_kinematic_hessian(self._robot, q, index, reference)
-        return self._call("frame_kinematic_hessian", q, index, _reference(reference))
+            return mujoco_second_order.frame_kinematic_hessian(self._robot, q, index, ref)
+        return self._call("frame_kinematic_hessian", q, index, ref)
 
     def frame_jacobian_dot(self, q, qd, frame: str | int, reference: str = "local_world_aligned") -> torch.Tensor:
         """Time derivative (..., 6, nv) of frame_jacobian at velocity qd (Pinocchio's
