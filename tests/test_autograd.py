@@ -171,9 +171,25 @@ def test_internal_ops_refuse_to_back_propagate(robots):
     robot = robots["iiwa14"]
     q, qd, x, _ = _states(robot, 2, 10, "pin")
     q.requires_grad_(True)
-    out = robot._ops.inverse_dynamics_vjp_jvp(q, qd, x, None, x, torch.ones_like(q), None, 0)[0]
-    with pytest.raises(NotImplementedError, match="inverse_dynamics_vjp_jvp has no derivative"):
+    out = robot._ops.inverse_dynamics_vjp_full_jvp(q, qd, x, None, x, torch.ones_like(q), None, 0)[0]
+    with pytest.raises(NotImplementedError, match="inverse_dynamics_vjp_full_jvp has no derivative"):
         out.sum().backward()
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+@pytest.mark.parametrize("name", ["iiwa14", "go2"])
+def test_full_vjp_outputs(robots, name, convention):
+    """inverse_dynamics_vjp_full: the vjp's two gradients, M lam (the qdd gradient of lam . tau) and tau,
+    against the vjp op, crba and inverse_dynamics, in either convention."""
+    robot = robots[name]
+    ops, c = robot._ops, int(convention == "mujoco")
+    q, qd, qdd, f = _states(robot, 3, 14, convention)
+    lam = torch.randn_like(qd)
+    g_q, g_qd, m_lam, tau = ops.inverse_dynamics_vjp_full(q, qd, qdd, f, lam, c)
+    ref_q, ref_qd = ops.inverse_dynamics_vjp(q, qd, qdd, f, lam, c)
+    assert torch.allclose(g_q, ref_q, rtol=1e-12, atol=1e-12) and torch.allclose(g_qd, ref_qd, rtol=1e-12, atol=1e-12)
+    assert torch.allclose(m_lam, (ops.crba(q, c) @ lam.unsqueeze(-1)).squeeze(-1), rtol=1e-12, atol=1e-12)
+    assert torch.allclose(tau, ops.inverse_dynamics(q, qd, qdd, f, c), rtol=1e-12, atol=1e-12)
 
 
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
@@ -187,7 +203,7 @@ def test_jvp_kernels_match_central_differences(robots, name, convention):
     lam = torch.randn_like(qd)
     dq, dqd = torch.randn_like(q), torch.randn_like(qd)
     cases = {
-        "inverse_dynamics_vjp": ((q, qd, qdd, f, lam), (dq, dqd, None, None, None)),
+        "inverse_dynamics_vjp_full": ((q, qd, qdd, f, lam), (dq, dqd, None, None, None)),
         "inverse_dynamics": ((q, qd, qdd, f), (dq, dqd, None, None)),
         "body_velocities": ((q, qd), (dq, None)),
     }
@@ -258,11 +274,12 @@ def test_frame_jacobian_backward_kernel_matches_dual_numbers(robots, name, refer
 
 def test_ops_without_a_backward_compute_derivatives():
     """The refusal's wording assumes that every op without a backward outputs derivatives: the dual-number
-    kernels, frame_jacobian's backward kernel and the second-order tensors. A new value op must get a
-    backward (or this list, and that wording, must change)."""
+    kernels, the backward kernels (inverse_dynamics_vjp_full: the gradients of lam . tau, and tau they
+    are taken at, for its jvp) and the second-order tensors. A new value op must get a backward (or this
+    list, and that wording, must change)."""
     from torch_grid.autograd import backward_formula
     from torch_grid.ops import OPS
 
     missing = {n for n, s in OPS.items() if backward_formula(s) is None and not s.derived}
-    assert missing == {"frame_jacobian_vjp", "frame_kinematic_hessian", "inverse_dynamics_second_order",
+    assert missing == {"frame_jacobian_vjp", "inverse_dynamics_vjp_full", "frame_kinematic_hessian", "inverse_dynamics_second_order",
                        "inverse_dynamics_gradient_vjp", "inverse_dynamics_gradient_tangent"}

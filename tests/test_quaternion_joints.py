@@ -142,6 +142,20 @@ def test_layout(balls):
     assert (shoulder.armature, shoulder.damping) == (0.01, 0.2)
 
 
+@pytest.mark.parametrize("convention", [0, 1])
+def test_ambient_direction_is_the_tangent_matrix_product(balls, convention):
+    """tangent.ambient_direction (a tangent vector pushed to q's coordinates) against the product with the
+    explicit nv x nq matrix of tangent_directions, at non-unit quaternions, with u's batch broadcast."""
+    from torch_grid.tangent import ambient_direction, tangent_directions
+
+    robot, _ = balls
+    view = robot.mujoco if convention else robot.pin
+    q = 1.3 * view.random_configuration(4, generator=torch.Generator().manual_seed(5))
+    u = torch.randn(2, 4, robot.nv, dtype=torch.float64, generator=torch.Generator().manual_seed(6))
+    ref = (u.unsqueeze(-2) @ tangent_directions(robot.model, q, convention)).squeeze(-2)
+    assert torch.allclose(ambient_direction(robot.model, q, u, convention), ref, rtol=1e-14, atol=1e-14)
+
+
 def test_free_joints_at_every_root(trees):
     robot, m = trees
     assert [j.type for j in robot.model.joints] == ["free", "revolute", "revolute", "free", "ball", "prismatic"]

@@ -22,7 +22,7 @@ import torch
 from .model import RobotModel
 from .mujoco_second_order import crba_vjp as mujoco_crba_vjp
 from .ops import FORWARD_MODE_BACKWARD, OPS, OpSpec
-from .tangent import bracket_term, has_brackets, tangent_directions, tangent_to_ambient
+from .tangent import ambient_direction, bracket_term, has_brackets, tangent_directions, tangent_to_ambient
 
 
 def backward_formula(spec: OpSpec) -> Callable | None:
@@ -133,26 +133,24 @@ def _forward_dynamics(ops, model, needs, grads, output, q, qd, tau, f_ext, conve
 def _inverse_dynamics_vjp(ops, model, needs, grads, output, q, qd, qdd, f_ext, lam, convention):
     """(g_q, g_qd) = lam^T d tau / d(q, qd), the tangent gradient of s = lam . tau. With cotangents
     (u_q, u_qd), h = u_q . g_q + u_qd . g_qd = D_u s is the derivative of s along u, and its gradient
-    is forward over reverse: D_u of the gradient of s (one jvp kernel), plus along q the Lie bracket
-    sum_j u_j [e_k, e_j] s of the quaternion joints. d h / d qdd = D_u (M lam), d h / d f_ext =
-    -D_u (J lam), d h / d lam = d tau / dq u_q + d tau / dqd u_qd."""
+    is forward over reverse: D_u of the gradient of s, plus along q the Lie bracket sum_j u_j
+    [e_k, e_j] s of the quaternion joints. d h / d qdd = D_u (M lam), d h / d f_ext = -D_u (J lam),
+    d h / d lam = d tau / dq u_q + d tau / dqd u_qd = D_u tau: all but f_ext's from one jvp kernel."""
     zero = torch.zeros_like(qd)
     u_q, u_qd = (zero if g is None else g for g in grads)
-    t_u = (u_q.unsqueeze(-2) @ tangent_directions(model, q, convention)).squeeze(-2)  # u_q in q's coordinates
+    t_u = ambient_direction(model, q, u_q, convention)
     dq = dqd = dqdd = df = dlam = None
-    if needs[0] or needs[1]:
-        d_gq, d_gqd = ops.inverse_dynamics_vjp_jvp(q, qd, qdd, f_ext, lam, t_u, u_qd, convention)
+    if needs[0] or needs[1] or needs[2] or needs[4]:
+        d_gq, d_gqd, d_mlam, d_tau = ops.inverse_dynamics_vjp_full_jvp(q, qd, qdd, f_ext, lam, t_u, u_qd, convention)
         if needs[0]:
             if has_brackets(model):
                 d_gq = d_gq + bracket_term(model, u_q.unsqueeze(-1) * output[0].unsqueeze(-2), convention)
             dq = tangent_to_ambient(model, q, d_gq, convention)
         dqd = d_gqd if needs[1] else None
-    if needs[2]:
-        dqdd = mass_product_jvp(ops, q, lam, t_u, convention)
+        dqdd = d_mlam if needs[2] else None
+        dlam = d_tau if needs[4] else None
     if needs[3]:
         df = -ops.body_velocities_jvp(q, lam, t_u, convention)
-    if needs[4]:
-        dlam = ops.inverse_dynamics_jvp(q, qd, qdd, f_ext, t_u, u_qd, convention)  # O(n), not the nv x nv gradients
     return dq, dqd, dqdd, df, dlam, None
 
 
@@ -215,7 +213,7 @@ def _crba_vjp(ops, model, needs, grads, output, q, weight, convention):
                                                convention)[0])
         dq = terms[0].sum(-2) - terms[1]
     if needs[1]:
-        t_u = (u.unsqueeze(-2) @ tangent_directions(model, q, convention)).squeeze(-2)
+        t_u = ambient_direction(model, q, u, convention)
         dw = mass_product_jvp(ops, Q, unit, repeat(t_u, nv, 1), convention)  # rows: D_u M e_m (symmetric)
     return dq, dw, None
 
@@ -335,7 +333,7 @@ def _inverse_dynamics_gradient_jvps(ops, model, needs, grads, output, q, qd, qdd
     """<Gq, dtau/dq> + <Gqd, dtau/dqd> = sum_j D_j (lam_j . tau) + D'_j (mu_j . tau), with lam_j, mu_j
     the columns of Gq, Gqd, D_j the derivative along q's tangent j and D'_j along qd_j. Its gradient
     is forward over reverse: the derivatives along those 2 nv directions of the gradient of
-    lam . tau (O(n) each: inverse_dynamics_vjp, M lam, -J lam), by the dual-number jvp kernels; for
+    lam . tau (O(n) each: inverse_dynamics_vjp_full, -J lam), by the dual-number jvp kernels; for
     q, plus the Lie-bracket term of each quaternion joint, whose tangent derivatives do not commute."""
     nv, batch = model.nv, q.shape[:-1]
     zero = torch.zeros(*batch, nv, nv, dtype=q.dtype, device=q.device)
@@ -347,8 +345,8 @@ def _inverse_dynamics_gradient_jvps(ops, model, needs, grads, output, q, qd, qdd
     Q, QD, QDD = (repeat(x, 2 * nv, 1) for x in (q, qd, qdd))
     F = None if f_ext is None else repeat(f_ext, 2 * nv, 2)
     dq = dqd = dqdd = df = None
-    if needs[0] or needs[1]:
-        d_gq, d_gqd = ops.inverse_dynamics_vjp_jvp(Q, QD, QDD, F, lam, t_q, t_qd, convention)
+    if needs[0] or needs[1] or needs[2]:
+        d_gq, d_gqd, d_mlam, _ = ops.inverse_dynamics_vjp_full_jvp(Q, QD, QDD, F, lam, t_q, t_qd, convention)
         if needs[0]:
             tangent = d_gq.sum(-2)
             if has_brackets(model):
@@ -357,12 +355,9 @@ def _inverse_dynamics_gradient_jvps(ops, model, needs, grads, output, q, qd, qdd
                 tangent = tangent + bracket_term(model, g_tan, convention)
             dq = tangent_to_ambient(model, q, tangent, convention)
         dqd = d_gqd.sum(-2) if needs[1] else None
-    # d/dqdd (lam . tau) = M lam = ID(q, 0, lam) - ID(q, 0, 0) and d/df_ext = -J lam do not depend on qd
-    Qn, lam_q = Q[..., :nv, :], g_q.mT
-    if needs[2]:
-        dqdd = mass_product_jvp(ops, Qn, lam_q, t, convention).sum(-2)
-    if needs[3]:
-        df = -ops.body_velocities_jvp(Qn, lam_q, t, convention).sum(-3)
+        dqdd = d_mlam.sum(-2) if needs[2] else None  # M lam does not depend on qd: its last nv rows are 0
+    if needs[3]:  # d/df_ext (lam . tau) = -J lam does not depend on qd
+        df = -ops.body_velocities_jvp(Q[..., :nv, :], g_q.mT, t, convention).sum(-3)
     return dq, dqd, dqdd, df, None
 
 

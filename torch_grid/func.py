@@ -132,7 +132,7 @@ def _inverse_dynamics_vjp_jvp(ops, _out, q, qd, qdd, f_ext, lam, convention, t_q
     it is linear in lam; along qdd and f_ext, the q-gradient of lam . (M t_qdd) and of lam . (-J^T t_f),
     inverse dynamics at rest less gravity (they do not depend on qd)."""
     zero = torch.zeros_like(qd)
-    d_q, d_qd = ops.inverse_dynamics_vjp_jvp(q, qd, qdd, f_ext, lam, t_q, t_qd, convention)
+    d_q, d_qd = ops.inverse_dynamics_vjp_full_jvp(q, qd, qdd, f_ext, lam, t_q, t_qd, convention)[:2]
     if t_lam is not None:
         g_q, g_qd = ops.inverse_dynamics_vjp(q, qd, qdd, f_ext, t_lam, convention)
         d_q, d_qd = d_q + g_q, d_qd + g_qd
@@ -155,10 +155,10 @@ def _crba_vjp_jvp(ops, _out, q, weight, convention, t_q, t_w, _):
         unit = torch.eye(nv, dtype=q.dtype, device=q.device).expand(*q.shape[:-1], nv, nv)
         zero = torch.zeros_like(unit)
         lam = weight.mT
-        products = ops.inverse_dynamics_vjp_jvp(repeat(q, nv, 1), zero, unit, None, lam, repeat(t_q, nv, 1), None,
-                                                convention)[0]
-        rest = ops.inverse_dynamics_vjp_jvp(q, zero[..., 0, :], zero[..., 0, :], None, lam.sum(-2), t_q, None,
-                                            convention)[0]
+        products = ops.inverse_dynamics_vjp_full_jvp(repeat(q, nv, 1), zero, unit, None, lam, repeat(t_q, nv, 1),
+                                                     None, convention)[0]
+        rest = ops.inverse_dynamics_vjp_full_jvp(q, zero[..., 0, :], zero[..., 0, :], None, lam.sum(-2), t_q,
+                                                 None, convention)[0]
         d = d + products.sum(-2) - rest
     return d
 

@@ -126,6 +126,9 @@ _VALUE_OPS = (
                "kinematics"),
         OpSpec("inverse_dynamics_vjp", "InverseDynamicsVjp", (Q, QD, QDD, FEXT, Arg("cotangent", "force")),
                (Out("grad_q", "twin", NV), Out("grad_qd", "twin", NV))),
+        OpSpec("inverse_dynamics_vjp_full", "InverseDynamicsVjpFull", (Q, QD, QDD, FEXT, Arg("cotangent", "force")),
+               (Out("grad_q", "twin", NV), Out("grad_qd", "twin", NV), Out("grad_qdd", "force", NV),
+                Out("tau", "force", NV)), "derivatives"),
         OpSpec("inertia_solve", "InertiaSolve", (Q, Arg("x", "force")), (Out("y", "force", NV),)),
         OpSpec("body_velocities", "BodyVelocities", (Q, QD), (Out("v", "plain", ("nbodies", 6)),), "kinematics"),
         OpSpec("frames_vjp", "FramesVjp", (Q, Arg("weights", "frame_weights")), (Out("tau", "force", NV),), "kinematics"),
@@ -196,11 +199,12 @@ def forward_mode_jvp(op: OpSpec, wrt: tuple[str, ...]) -> OpSpec:
                   jvp_of=op.name, jvp_wrt=wrt)
 
 
-# Jacobian-vector products on dual numbers (autograd.py): along q and qd, the gradient of lam . tau (the
-# backwards of inverse_dynamics_vjp, and of inverse_dynamics_gradient in MuJoCo's convention with
-# quaternions), tau itself (d(M x) along q, and the cotangent's gradient in inverse_dynamics_vjp's
-# backward) and the body velocities (-J lam along q).
-FORWARD_MODE_JVP = (("inverse_dynamics_vjp", ("q", "qd")), ("inverse_dynamics", ("q", "qd")), ("body_velocities", ("q",)))
+# Jacobian-vector products on dual numbers (autograd.py): along q and qd, the gradient of lam . tau with
+# respect to q, qd and qdd (M lam) and tau, in one pass (the backwards of inverse_dynamics_vjp, and of
+# inverse_dynamics_gradient in MuJoCo's convention with quaternions), tau alone (d(M x) along q) and
+# the body velocities (-J lam along q).
+FORWARD_MODE_JVP = (("inverse_dynamics_vjp_full", ("q", "qd")), ("inverse_dynamics", ("q", "qd")),
+                    ("body_velocities", ("q",)))
 
 OPS: dict[str, OpSpec] = {op.name: op for op in _VALUE_OPS}
 OPS.update({f"{name}_backward": forward_mode_backward(OPS[name]) for name in FORWARD_MODE_BACKWARD})

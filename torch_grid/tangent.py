@@ -94,6 +94,33 @@ def tangent_directions(model: RobotModel, q: torch.Tensor, convention: int) -> t
     return t.index_copy(-1, index, torch.cat(values, dim=-1)).unflatten(-1, (model.nv, nq))
 
 
+def ambient_direction(model: RobotModel, q: torch.Tensor, u: torch.Tensor, convention: int) -> torch.Tensor:
+    """(..., nq): the change of q along the tangent vector u (..., nv), u^T tangent_directions(q)
+    without the nv x nq matrix."""
+    lay = layout(model)
+    if not lay.quaternions:
+        return u
+    batch = torch.broadcast_shapes(q.shape[:-1], u.shape[:-1])
+    q, u = q.expand(*batch, q.shape[-1]), u.expand(*batch, u.shape[-1])
+    indices, parts = [], []
+    if lay.scalar_q:
+        indices += list(lay.scalar_q)
+        parts.append(u[..., list(lay.scalar_v)])
+    for j in lay.quaternions:
+        xyz, w, iw, ixyz = _xyzw(q, j, convention)
+        w_ang = u[..., j.angular:j.angular + 3]
+        if j.free:
+            u_lin = u[..., j.vi:j.vi + 3]
+            indices += list(range(j.qi, j.qi + 3))
+            parts.append(u_lin if convention else
+                         (quaternion_rotation(torch.cat([xyz, w], dim=-1)) @ u_lin.unsqueeze(-1)).squeeze(-1))
+        indices += list(range(ixyz.start, ixyz.stop)) + [iw]
+        parts.append(0.5 * (w * w_ang + torch.cross(xyz, w_ang, dim=-1)))
+        parts.append(-0.5 * (xyz * w_ang).sum(-1, keepdim=True))
+    order = sorted(range(len(indices)), key=indices.__getitem__)
+    return torch.cat(parts, dim=-1)[..., order]
+
+
 def tangent_to_ambient(model: RobotModel, q: torch.Tensor, g: torch.Tensor, convention: int) -> torch.Tensor:
     """Gradient along the tangent space (..., nv) -> gradient in the coordinates of q (..., nq).
 

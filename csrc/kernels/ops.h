@@ -157,14 +157,21 @@ template <class M, class S> struct InverseDynamicsVjp {
     const Placements<M, S> K(a.q);
     RneaDerivativesWork<M, S> W;
     rnea_derivatives_setup<M, S>(K, a.qd, a.qdd, a.f_ext, W);
-    S tau[M::NV];
-    rnea_vjp<M, S>(W, a.cotangent, tau, a.grad_q, a.grad_qd);
-    if constexpr (Conv<M, S, C>::active) {
-      S zero[M::NV], Mmu[M::NV];
-      for (int k = 0; k < M::NV; ++k) zero[k] = S(0);
-      rnea<M, S, false>(K, zero, a.cotangent, nullptr, Mmu);
-      cv.inverse_dynamics_vjp_out(a.qd, a.qdd, tau, Mmu, a.cotangent, a.grad_q, a.grad_qd);
-    }
+    S tau[M::NV], Mmu[Conv<M, S, C>::active ? M::NV : 1];
+    rnea_vjp<M, S>(W, a.cotangent, tau, a.grad_q, a.grad_qd, Conv<M, S, C>::active ? Mmu : nullptr);
+    if constexpr (Conv<M, S, C>::active) cv.inverse_dynamics_vjp_out(a.qd, a.qdd, tau, Mmu, a.cotangent, a.grad_q, a.grad_qd);
+  }
+};
+
+// The same with M lambda (the qdd gradient of lambda . tau) and tau: on dual numbers, one pass gives
+// every tangent a double backward through inverse_dynamics_vjp reads.
+template <class M, class S> struct InverseDynamicsVjpFull {
+  template <int C> TG_HD static void run(const InverseDynamicsVjpFullArgs<S>& a, const Conv<M, S, C>& cv) {
+    const Placements<M, S> K(a.q);
+    RneaDerivativesWork<M, S> W;
+    rnea_derivatives_setup<M, S>(K, a.qd, a.qdd, a.f_ext, W);
+    rnea_vjp<M, S>(W, a.cotangent, a.tau, a.grad_q, a.grad_qd, a.grad_qdd);
+    cv.inverse_dynamics_vjp_out(a.qd, a.qdd, a.tau, a.grad_qdd, a.cotangent, a.grad_q, a.grad_qd);
   }
 };
 

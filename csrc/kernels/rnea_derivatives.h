@@ -164,9 +164,10 @@ TG_HD void rnea_derivatives(const RneaDerivativesWork<M, S>& W, S* tau, S* dtau_
 // over the pairs above, with P_j, Q_j the subtree sums of lambda_m Yc_m S_m and lambda_m B_m^T S_m
 // and L_j the sum of lambda_m S_m over j's strict ancestors,
 //   (lambda^T d tau/dq)_j = u_j . P_j + w_j . Q_j + L_j . (Yc_j u_j + B_j w_j + s_j x* F_j)
-// and alike for qd with alpha and s. tau is written too.
+// and alike for qd with alpha and s. tau is written too, and M lambda where Mlam is not null:
+//   (M lambda)_j = S_j . (Yc_j L_j + P_j)   (the columns above j's body, then those at or below it).
 template <class M, class S>
-TG_HD void rnea_vjp(const RneaDerivativesWork<M, S>& W, const S* lambda, S* tau, S* g_q, S* g_qd) {
+TG_HD void rnea_vjp(const RneaDerivativesWork<M, S>& W, const S* lambda, S* tau, S* g_q, S* g_qd, S* Mlam = nullptr) {
   const auto& d = data<M, S>();
   using Lv = Levels<M>;
   Sv<S> P[M::NB], Q[M::NB], L[Lv::N];  // L per tree level: only a body's ancestors' are needed
@@ -193,9 +194,11 @@ TG_HD void rnea_vjp(const RneaDerivativesWork<M, S>& W, const S* lambda, S* tau,
     } else {
       Li = sv_zero<S>();
     }
+    const Sv<S> ML = Mlam ? mul(W.Yc[i], Li) + P[i] : sv_zero<S>();
     for (int c = 0; c < d.nvj[i]; ++c) {
       const int col = d.vi[i] + c;
       const Sv<S>& s = W.s[col];
+      if (Mlam) Mlam[col] = dot(s, ML);
       const Sv<S> dFq = mul(W.Yc[i], W.u[col]) + mul(W.B[i], W.w[col]) + cross_force(s, W.F[i]);
       const Sv<S> dFv = mul(W.Yc[i], W.alpha[col]) + mul(W.B[i], s);
       g_q[col] = dot(W.u[col], P[i]) + dot(W.w[col], Q[i]) + dot(Li, dFq);
