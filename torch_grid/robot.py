@@ -12,6 +12,7 @@ import torch
 
 from . import mujoco_second_order
 from .autograd import rpy_rate_matrix
+from .configuration import ConfigurationFunctions, Space
 from .func import FORWARD_MODE, FuncOps, dual, transforming
 from .mimic import Coupling
 from .model import RobotModel, inertia_about_origin
@@ -23,7 +24,7 @@ CONVENTIONS = {"pin": 0, "pinocchio": 0, "mujoco": 1, "mjx": 1}
 REFERENCES = {"world": 0, "local": 1, "local_world_aligned": 2}
 
 
-class _Functions:
+class _Functions(ConfigurationFunctions):
     """The rigid-body functions, evaluated in one convention (`_convention`, 0 pin or 1 mujoco).
 
     Tensors may have any leading batch shape; batch shapes of the arguments broadcast. All tensor
@@ -417,6 +418,8 @@ class Robot(_Functions):
                  passive_forces: bool = True):
         self.model = model
         self._coupling = Coupling(model) if model.mimics else None
+        types = {j.name: j.type for j in model.joints}
+        self._space = Space.of([types[name] for name in self.joint_names])
         self._passive = PassiveForces(model)
         if self._coupling is not None and self._passive.any:
             raise ValueError(f"robot {model.name!r}: mimic joints together with joint damping or stiffness are not "

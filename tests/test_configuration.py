@@ -1,0 +1,195 @@
+"""integrate, difference and their Jacobians (torch_grid/configuration.py) against Pinocchio's Lie
+groups (pin.integrate, difference, dIntegrate, dDifference) and MuJoCo's mj_integratePos,
+mj_differentiatePos, mjd_quatIntegrate and mjd_subQuat; autograd through them to second order.
+The functions need no kernels: most tests run them on a Space; one goes through a built robot."""
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pinocchio as pin
+import pytest
+import torch
+
+from test_quaternion_joints import BALLS, pin_ball_model, random_qpos
+from torch_grid.configuration import Space, d_difference, d_integrate, difference, integrate
+
+TOL = 1e-10  # Pinocchio and MuJoCo evaluate the same formulas in another order (log near pi)
+# rotation scales: generic, beyond pi (the short way back), tiny and zero (the Taylor branches)
+SCALES = (1.0, 4.0, 1e-9, 0.0)
+
+
+def _pin_space(model) -> Space:
+    kinds = []
+    for j in model.joints[1:]:
+        name = j.shortname()
+        kinds.append("free" if "FreeFlyer" in name else "ball" if "Spherical" in name else "scalar")
+    return Space.of(kinds)
+
+
+def _mj_space(m) -> Space:
+    names = {int(mujoco.mjtJoint.mjJNT_FREE): "free", int(mujoco.mjtJoint.mjJNT_BALL): "ball"}
+    return Space.of([names.get(int(t), "scalar") for t in m.jnt_type])
+
+
+def _pin_configuration(model, rng) -> np.ndarray:
+    lo, hi = np.maximum(model.lowerPositionLimit, -3.0), np.minimum(model.upperPositionLimit, 3.0)
+    lo[:3], hi[:3] = -1.0, 1.0
+    q = pin.randomConfiguration(model, lo, hi)
+    return q
+
+
+def _t(x) -> torch.Tensor:
+    return torch.tensor(np.asarray(x), dtype=torch.float64)
+
+
+@pytest.fixture(scope="module")
+def pin_model():
+    """A free root, three ball joints and a revolute one (test_quaternion_joints)."""
+    return pin_ball_model()
+
+
+@pytest.fixture(scope="module")
+def mj_model():
+    return mujoco.MjModel.from_xml_string(BALLS)
+
+
+@pytest.mark.parametrize("scale", SCALES)
+def test_pin_convention_matches_pinocchio(pin_model, scale):
+    model, space, rng = pin_model, _pin_space(pin_model), np.random.default_rng(int(scale * 10) + 1)
+    for _ in range(3):
+        q, q1 = _pin_configuration(model, rng), _pin_configuration(model, rng)
+        v, dt = rng.normal(size=model.nv) * scale, 0.3
+        assert np.abs(integrate(space, _t(q), _t(v), dt, 0).numpy() - pin.integrate(model, q, v * dt)).max() <= TOL
+        j_q, j_v = d_integrate(space, _t(q), _t(v), dt, 0)
+        assert np.abs(j_q.numpy() - pin.dIntegrate(model, q, v * dt, pin.ARG0)).max() <= TOL
+        assert np.abs(j_v.numpy() - dt * pin.dIntegrate(model, q, v * dt, pin.ARG1)).max() <= TOL
+        # a far point, and one at the scale's distance (tiny and zero differences)
+        for q_end in (q1, pin.integrate(model, q, v)):
+            assert np.abs(difference(space, _t(q), _t(q_end), 0).numpy() - pin.difference(model, q, q_end)).max() <= TOL
+            j0, j1 = d_difference(space, _t(q), _t(q_end), 0)
+            assert np.abs(j0.numpy() - pin.dDifference(model, q, q_end, pin.ARG0)).max() <= TOL
+            assert np.abs(j1.numpy() - pin.dDifference(model, q, q_end, pin.ARG1)).max() <= TOL
+
+
+def _quaternion_blocks(m):
+    """(qpos address, dof address of the rotation) of each free and ball joint."""
+    out = []
+    for j in range(m.njnt):
+        if m.jnt_type[j] in (mujoco.mjtJoint.mjJNT_FREE, mujoco.mjtJoint.mjJNT_BALL):
+            free = m.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE
+            out.append((m.jnt_qposadr[j] + 3 * free, m.jnt_dofadr[j] + 3 * free))
+    return out
+
+
+@pytest.mark.parametrize("scale", SCALES)
+def test_mujoco_convention_matches_mujoco(mj_model, scale):
+    """Values against mj_integratePos / mj_differentiatePos; each quaternion's Jacobian blocks against
+    mjd_quatIntegrate / mjd_subQuat; the whole Jacobians against central differences of MuJoCo's own
+    functions along mj_integratePos."""
+    m, space, rng = mj_model, _mj_space(mj_model), np.random.default_rng(int(scale * 10) + 2)
+    dt = 0.3
+    for _ in range(3):
+        q, q1, v = random_qpos(m, rng), random_qpos(m, rng), rng.normal(size=m.nv) * scale
+        ref = q.copy()
+        mujoco.mj_integratePos(m, ref, v, dt)
+        assert np.abs(integrate(space, _t(q), _t(v), dt, 1).numpy() - ref).max() <= TOL
+        ref_d = np.zeros(m.nv)
+        mujoco.mj_differentiatePos(m, ref_d, 1.0, q, q1)
+        assert np.abs(difference(space, _t(q), _t(q1), 1).numpy() - ref_d).max() <= TOL
+
+        j_q, j_v = (j.numpy() for j in d_integrate(space, _t(q), _t(v), dt, 1))
+        j0, j1 = (j.numpy() for j in d_difference(space, _t(q), _t(q1), 1))
+        for qa, va in _quaternion_blocks(m):
+            block = slice(va, va + 3)
+            Dquat, Dvel, Dscale = np.zeros(9), np.zeros(9), np.zeros(3)
+            mujoco.mjd_quatIntegrate(v[block], dt, Dquat, Dvel, Dscale)
+            assert np.abs(j_q[block, block] - Dquat.reshape(3, 3)).max() <= TOL
+            assert np.abs(j_v[block, block] - dt * Dvel.reshape(3, 3)).max() <= TOL
+            Da, Db = np.zeros((3, 3)), np.zeros((3, 3))
+            mujoco.mjd_subQuat(q1[qa:qa + 4], q[qa:qa + 4], Da, Db)  # log(q^-1 q1) = subQuat(q1, q)
+            assert np.abs(j1[block, block] - Da).max() <= 1e-10 and np.abs(j0[block, block] - Db).max() <= 1e-10
+
+        def moved(x, e, direction):
+            out = x.copy()
+            mujoco.mj_integratePos(m, out, e * direction, 1.0)
+            return out
+
+        def diff(a, b):
+            out = np.zeros(m.nv)
+            mujoco.mj_differentiatePos(m, out, 1.0, a, b)
+            return out
+
+        def after(x):
+            out = x.copy()
+            mujoco.mj_integratePos(m, out, v, dt)
+            return out
+
+        h = 1e-6
+        for k in range(m.nv):
+            e = np.eye(m.nv)[k]
+            col = (diff(after(q), after(moved(q, h, e))) - diff(after(q), after(moved(q, -h, e)))) / (2 * h)
+            assert np.abs(j_q[:, k] - col).max() <= 1e-8, k
+            col = (diff(q, moved(q1, h, e)) - diff(q, moved(q1, -h, e))) / (2 * h)
+            assert np.abs(j1[:, k] - col).max() <= 1e-8, k
+            col = (diff(moved(q, h, e), q1) - diff(moved(q, -h, e), q1)) / (2 * h)
+            assert np.abs(j0[:, k] - col).max() <= 1e-8, k
+
+
+@pytest.mark.parametrize("convention", [0, 1])
+def test_quaternions_are_read_normalised(mj_model, convention):
+    """A scaled quaternion reads as its unit one, as the kernels (and MuJoCo) read it."""
+    space, rng = _mj_space(mj_model), np.random.default_rng(3)
+    q, q1, v = (_t(x) for x in (random_qpos(mj_model, rng), random_qpos(mj_model, rng), rng.normal(size=mj_model.nv)))
+    scaled = q.clone()
+    for qa, _ in _quaternion_blocks(mj_model):
+        scaled[qa:qa + 4] *= 2.5
+    assert torch.allclose(integrate(space, scaled, v, 1.0, convention), integrate(space, q, v, 1.0, convention),
+                          rtol=0, atol=TOL)
+    assert torch.allclose(difference(space, scaled, q1, convention), difference(space, q, q1, convention), rtol=0, atol=TOL)
+
+
+@pytest.mark.parametrize("convention", [0, 1])
+@pytest.mark.parametrize("scale", [1.0, 0.0])
+def test_gradgradcheck(mj_model, convention, scale):
+    """Autograd through the functions and their Jacobians, to second order, at a generic point and at
+    zero rotation (the series branches)."""
+    space, rng = _mj_space(mj_model), np.random.default_rng(4)
+    q, q1 = (_t(random_qpos(mj_model, rng)).requires_grad_(True) for _ in range(2))
+    v = (_t(rng.normal(size=mj_model.nv)) * scale).requires_grad_(True)
+    for fn, args in ((lambda q, v: integrate(space, q, v, 0.7, convention), (q, v)),
+                     (lambda q, v: d_integrate(space, q, v, 0.7, convention), (q, v)),
+                     (lambda a, b: difference(space, a, b, convention), (q, q1)),
+                     (lambda a, b: d_difference(space, a, b, convention), (q, q1))):
+        assert torch.autograd.gradcheck(fn, args)
+        assert torch.autograd.gradgradcheck(fn, args)
+    same = q.detach().clone().requires_grad_(True)
+    assert torch.autograd.gradgradcheck(lambda a, b: difference(space, a, b, convention), (q, same))  # zero angle
+
+
+def test_robot_methods(robots):
+    """Through a robot's views: batches broadcast, float32 follows float64, dt per sample, the argument
+    errors name the argument."""
+    robot = robots["go2"]
+    g = torch.Generator().manual_seed(5)
+    for view in (robot.pin, robot.mujoco):
+        q, q1 = view.random_configuration(4, generator=g), view.random_configuration(4, generator=g)
+        v, dt = torch.randn(3, 1, robot.nv, dtype=torch.float64, generator=g), torch.rand(3, 4, dtype=torch.float64)
+        q_next = view.integrate(q, v, dt)
+        assert q_next.shape == (3, 4, robot.nq)
+        assert torch.allclose(view.difference(q, q_next), v * dt.unsqueeze(-1), rtol=1e-10, atol=1e-10)
+        j_q, j_v = view.d_integrate(q, v, dt)
+        assert j_q.shape == j_v.shape == (3, 4, robot.nv, robot.nv)
+        single = view.d_difference(q[1], q1[1])[1]
+        assert torch.allclose(view.d_difference(q, q1)[1][1], single, rtol=1e-14, atol=1e-14)
+        assert torch.allclose(view.integrate(q.float(), v.float(), 0.1).double(), view.integrate(q, v, 0.1), atol=1e-5)
+        w = v[0].expand(4, -1)
+        assert torch.equal(torch.func.vmap(view.d_integrate)(q, w)[1], view.d_integrate(q, w)[1])
+        torch._dynamo.reset()
+        compiled = torch.compile(view.d_difference, fullgraph=True, backend="aot_eager")
+        assert torch.allclose(compiled(q, q1)[0], view.d_difference(q, q1)[0], rtol=1e-14, atol=1e-14)
+    with pytest.raises(ValueError, match=r"integrate: v must have shape \(\.\.\., 18\)"):
+        robot.integrate(q, q)
+    with pytest.raises(TypeError, match="difference: q1 has dtype torch.float32"):
+        robot.difference(q, q1.float())
+    with pytest.raises(TypeError, match="dt must be a number or a tensor"):
+        robot.integrate(q, v, "0.1")

@@ -1,0 +1,356 @@
+"""The configuration space: integrate, difference and their tangent-space Jacobians, in torch.
+
+pin convention, Pinocchio's Lie groups (pin.integrate, difference, dIntegrate, dDifference): a free
+joint is SE(3), q (+) v = M exp6(v) (the linear velocity in the body frame); a ball joint is SO(3),
+Q exp3(w); the others add. mujoco convention, mj_integratePos / mj_differentiatePos: a free joint's
+position adds in the world frame; its quaternion and a ball joint's turn by the local rotation.
+Quaternions are read normalised, as the kernels read them (MuJoCo normalises them too).
+
+The Jacobians are (..., nv, nv) along the tangent spaces: a configuration moves by q (+) dq, the
+result is compared by difference, as Pinocchio's. Per quaternion joint, with Jr the right Jacobian of
+SO(3), R(w) = exp3(w) and (in Pinocchio's convention) Ad the adjoint of SE(3):
+  d(q (+) v)/dq = R(v)^T (Ad(exp6(v)^-1)),   d(q (+) v)/dv = Jr(v) (Jexp6(v)),
+  d diff(q0, q1)/dq1 = Jr(d)^-1 (Jexp6(d)^-1),   d diff/dq0 = -Jr(d)^-1 R(d)^T (-Jexp6(d)^-1 Ad(exp6(d)^-1)),
+with a free joint's position block the identity in MuJoCo's convention. Everything is torch, so
+autograd, torch.compile and torch.func see through it; near a zero angle the coefficients are their
+Taylor series (smooth to second order).
+"""
+from __future__ import annotations
+
+import numbers
+from dataclasses import dataclass
+
+import torch
+
+from .conventions import quaternion_rotation, unit_quaternion
+
+
+@dataclass(frozen=True)
+class Space:
+    """Joint kinds ("free", "ball" or "scalar") in q's order, with each one's first q and v index."""
+    kinds: tuple[str, ...]
+    qi: tuple[int, ...]
+    vi: tuple[int, ...]
+    nq: int
+    nv: int
+
+    @classmethod
+    def of(cls, joint_types: list[str]) -> "Space":
+        kinds = tuple(t if t in ("free", "ball") else "scalar" for t in joint_types)
+        qi, vi, nq, nv = [], [], 0, 0
+        for k in kinds:
+            qi.append(nq)
+            vi.append(nv)
+            nq += {"free": 7, "ball": 4}.get(k, 1)
+            nv += {"free": 6, "ball": 3}.get(k, 1)
+        return cls(kinds, tuple(qi), tuple(vi), nq, nv)
+
+
+def integrate(space: Space, q: torch.Tensor, v: torch.Tensor, dt, convention: int) -> torch.Tensor:
+    """(..., nq): q (+) v dt, for q (..., nq), v (..., nv) and dt a number or a (...,) tensor."""
+    q, v = _broadcast(q, v)
+    v = v * _dt(dt, v)
+    parts = []
+    for kind, qi, vi in zip(space.kinds, space.qi, space.vi):
+        if kind == "scalar":
+            parts.append(q[..., qi:qi + 1] + v[..., vi:vi + 1])
+            continue
+        quat = _quaternion(q, kind, qi, convention)
+        w = v[..., _angular(kind, vi):_angular(kind, vi) + 3]
+        e = _exp3(w)
+        turned = _mul(quat, e)
+        if kind == "free":
+            p, v_lin = q[..., qi:qi + 3], v[..., vi:vi + 3]
+            if convention:
+                parts.append(p + v_lin)
+            else:  # M exp6(v): p + R V(w) v_lin; the quaternion in the input's hemisphere, as Pinocchio's
+                parts.append(p + _apply(quaternion_rotation(quat), _apply(_left_jacobian(w), v_lin)))
+                turned = torch.where(e[..., 3:] < 0, -turned, turned)
+        parts.append(turned[..., [3, 0, 1, 2]] if convention else turned)
+    return torch.cat(parts, dim=-1)
+
+
+def difference(space: Space, q0: torch.Tensor, q1: torch.Tensor, convention: int) -> torch.Tensor:
+    """(..., nv): the tangent v with q0 (+) v = q1 (the shortest rotation)."""
+    q0, q1 = _broadcast(q0, q1)
+    parts = []
+    for kind, qi in zip(space.kinds, space.qi):
+        if kind == "scalar":
+            parts.append(q1[..., qi:qi + 1] - q0[..., qi:qi + 1])
+            continue
+        a, b = _quaternion(q0, kind, qi, convention), _quaternion(q1, kind, qi, convention)
+        w = _log3(_mul(_conjugate(a), b))
+        if kind == "free":
+            dp = q1[..., qi:qi + 3] - q0[..., qi:qi + 3]
+            # log6(M0^-1 M1) = (V(w)^-1 R0^T dp, w)
+            parts.append(dp if convention else _apply(_left_jacobian_inverse(w), _apply(quaternion_rotation(a).mT, dp)))
+        parts.append(w)
+    return torch.cat(parts, dim=-1)
+
+
+def d_integrate(space: Space, q: torch.Tensor, v: torch.Tensor, dt, convention: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """(J_q, J_v), each (..., nv, nv): the tangent Jacobians of q (+) v dt."""
+    q, v = _broadcast(q, v)
+    scale = _dt(dt, v)
+    v = v * scale
+    blocks_q, blocks_v = [], []
+    for kind, vi in zip(space.kinds, space.vi):
+        if kind == "scalar":
+            one = torch.ones_like(v[..., :1]).unsqueeze(-1)
+            blocks_q.append(one)
+            blocks_v.append(one)
+            continue
+        w = v[..., _angular(kind, vi):_angular(kind, vi) + 3]
+        rot_t, jr = _rotation(w).mT, _right_jacobian(w)
+        if kind == "ball":
+            blocks_q.append(rot_t)
+            blocks_v.append(jr)
+        elif convention:
+            eye = torch.eye(3, dtype=v.dtype, device=v.device).expand_as(jr)
+            blocks_q.append(_block_diagonal(eye, rot_t))
+            blocks_v.append(_block_diagonal(eye, jr))
+        else:
+            p = _apply(_left_jacobian(w), v[..., vi:vi + 3])  # exp6(v) = (R(w), V(w) v_lin)
+            blocks_q.append(_upper(rot_t, -rot_t @ _skew(p), rot_t))
+            blocks_v.append(_upper(jr, _q_right(v[..., vi:vi + 3], w), jr))
+    j_q = _assemble(blocks_q, space.nv)
+    return j_q, _assemble(blocks_v, space.nv) * scale.unsqueeze(-1)
+
+
+def d_difference(space: Space, q0: torch.Tensor, q1: torch.Tensor, convention: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """(J_q0, J_q1), each (..., nv, nv): the tangent Jacobians of difference(q0, q1)."""
+    q0, q1 = _broadcast(q0, q1)
+    d = difference(space, q0, q1, convention)
+    blocks0, blocks1 = [], []
+    for kind, vi in zip(space.kinds, space.vi):
+        if kind == "scalar":
+            one = torch.ones_like(d[..., :1]).unsqueeze(-1)
+            blocks0.append(-one)
+            blocks1.append(one)
+            continue
+        w = d[..., _angular(kind, vi):_angular(kind, vi) + 3]
+        jinv, rot_t = _right_jacobian_inverse(w), _rotation(w).mT
+        if kind == "ball":
+            blocks0.append(-jinv @ rot_t)
+            blocks1.append(jinv)
+        elif convention:
+            eye = torch.eye(3, dtype=d.dtype, device=d.device).expand_as(jinv)
+            blocks0.append(_block_diagonal(-eye, -jinv @ rot_t))
+            blocks1.append(_block_diagonal(eye, jinv))
+        else:
+            rho = d[..., vi:vi + 3]
+            # Jexp6(d)^-1 = [[Jr^-1, -Jr^-1 Q Jr^-1], [0, Jr^-1]]; Ad(exp6(d)^-1) as in d_integrate
+            log = _upper(jinv, -jinv @ _q_right(rho, w) @ jinv, jinv)
+            p = _apply(_left_jacobian(w), rho)
+            blocks0.append(-log @ _upper(rot_t, -rot_t @ _skew(p), rot_t))
+            blocks1.append(log)
+    return _assemble(blocks0, space.nv), _assemble(blocks1, space.nv)
+
+
+class ConfigurationFunctions:
+    """The configuration-space functions of a robot's views (mixed into robot._Functions, which
+    provides `_robot` with its `_space`, and `_convention`)."""
+
+    def integrate(self, q: torch.Tensor, v: torch.Tensor, dt=1.0) -> torch.Tensor:
+        """(..., nq): q (+) v dt, Pinocchio's integrate or MuJoCo's mj_integratePos; q (..., nq), v (..., nv),
+        dt a number or a (...,) tensor."""
+        return integrate(self._robot._space, *self._checked("integrate", q, v, dt), dt, self._convention)
+
+    def difference(self, q0: torch.Tensor, q1: torch.Tensor) -> torch.Tensor:
+        """(..., nv): v with q0 (+) v = q1, Pinocchio's difference or MuJoCo's mj_differentiatePos (dt = 1)."""
+        return difference(self._robot._space, *self._checked("difference", q0, q1), self._convention)
+
+    def d_integrate(self, q: torch.Tensor, v: torch.Tensor, dt=1.0) -> tuple[torch.Tensor, torch.Tensor]:
+        """(d/dq, d/dv) of integrate along the tangent spaces, each (..., nv, nv) (Pinocchio's dIntegrate)."""
+        return d_integrate(self._robot._space, *self._checked("d_integrate", q, v, dt), dt, self._convention)
+
+    def d_difference(self, q0: torch.Tensor, q1: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(d/dq0, d/dq1) of difference along the tangent spaces, each (..., nv, nv) (Pinocchio's dDifference)."""
+        return d_difference(self._robot._space, *self._checked("d_difference", q0, q1), self._convention)
+
+    def _checked(self, op: str, q: torch.Tensor, x: torch.Tensor, dt=1.0) -> tuple[torch.Tensor, torch.Tensor]:
+        from .robot import _check_tensor  # robot.py imports this module
+
+        space = self._robot._space
+        second = ("v", (space.nv,)) if op.endswith("integrate") else ("q1", (space.nq,))
+        _check_tensor(op, "q0" if second[0] == "q1" else "q", q, (space.nq,), q)
+        _check_tensor(op, second[0], x, second[1], q)
+        if isinstance(dt, torch.Tensor):
+            if dt.dtype != q.dtype or dt.device != q.device:
+                raise TypeError(f"{op}: dt must have q's dtype and device ({q.dtype}, {q.device}), got {dt.dtype}, "
+                                f"{dt.device}")
+            try:
+                torch.broadcast_shapes(dt.shape, q.shape[:-1], x.shape[:-1])
+            except RuntimeError:
+                raise ValueError(f"{op}: dt must be a number or a tensor of the batch shape, got shape {tuple(dt.shape)} "
+                                 f"with q {tuple(q.shape)}") from None
+        elif not isinstance(dt, numbers.Real):
+            raise TypeError(f"{op}: dt must be a number or a tensor, got {type(dt).__name__}")
+        return q, x
+
+
+# -- SO(3) and SE(3) pieces, batched over leading dimensions -------------------------------------------
+
+_SMALL = 1e-4  # below this angle squared, the Taylor series (error ~ angle^6) are exact in float64
+
+
+def _coefficients(w: torch.Tensor, exact, series) -> torch.Tensor:
+    """exact(theta) where the angle |w| is large enough, series(theta^2) near zero: both evaluated only
+    where they are safe, so that gradients through the other branch stay finite."""
+    t2 = (w * w).sum(-1, keepdim=True)
+    small = t2 < _SMALL
+    theta = torch.sqrt(torch.where(small, torch.ones_like(t2), t2))
+    return torch.where(small, series(t2), exact(theta))
+
+
+def _skew(w: torch.Tensor) -> torch.Tensor:
+    x, y, z = w.unbind(-1)
+    zero = torch.zeros_like(x)
+    return torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], dim=-1).unflatten(-1, (3, 3))
+
+
+def _exp3(w: torch.Tensor) -> torch.Tensor:
+    """The unit quaternion (xyzw) of the rotation vector w."""
+    half = _coefficients(w, lambda t: torch.sin(t / 2) / t, lambda t2: 0.5 - t2 / 48 + t2 * t2 / 3840)
+    cos = _coefficients(w, lambda t: torch.cos(t / 2), lambda t2: 1 - t2 / 8 + t2 * t2 / 384)
+    return torch.cat([half * w, cos], dim=-1)
+
+
+def _log3(quat: torch.Tensor) -> torch.Tensor:
+    """The rotation vector of the shortest rotation of a unit quaternion (xyzw)."""
+    quat = torch.where(quat[..., 3:] < 0, -quat, quat)
+    xyz, w = quat[..., :3], quat[..., 3:]
+    # |log| = 2 atan2(s, w), s = |xyz|: the factor 2 atan2(s, w) / s, near s = 0 its series in s / w
+    s2 = (xyz * xyz).sum(-1, keepdim=True)
+    small = s2 < _SMALL
+    s = torch.sqrt(torch.where(small, torch.ones_like(s2), s2))
+    r2 = s2 / (w * w)
+    factor = torch.where(small, 2 / w * (1 - r2 / 3 + r2 * r2 / 5), 2 * torch.atan2(s, w) / s)
+    return factor * xyz
+
+
+def _rotation(w: torch.Tensor) -> torch.Tensor:
+    """R(w) = exp3(w), (..., 3, 3)."""
+    return quaternion_rotation(_exp3(w))
+
+
+def _so3_terms(w: torch.Tensor, a, a_series, b, b_series) -> torch.Tensor:
+    """I + a(theta) [w] + b(theta) [w]^2."""
+    W = _skew(w)
+    ca = _coefficients(w, a, a_series).unsqueeze(-1)
+    cb = _coefficients(w, b, b_series).unsqueeze(-1)
+    return torch.eye(3, dtype=w.dtype, device=w.device) + ca * W + cb * (W @ W)
+
+
+def _one_minus_cos(t):
+    return (1 - torch.cos(t)) / (t * t)
+
+
+def _one_minus_cos_series(t2):
+    return 0.5 - t2 / 24 + t2 * t2 / 720
+
+
+def _minus_sin(t):
+    return (t - torch.sin(t)) / (t * t * t)
+
+
+def _minus_sin_series(t2):
+    return 1 / 6 - t2 / 120 + t2 * t2 / 5040
+
+
+def _cot_term(t):
+    return (1 - t / 2 / torch.tan(t / 2)) / (t * t)
+
+
+def _cot_series(t2):
+    return 1 / 12 + t2 / 720 + t2 * t2 / 30240
+
+
+def _right_jacobian(w):
+    """Jr(w) = I - (1 - cos)/t^2 [w] + (t - sin)/t^3 [w]^2: exp3(w + dw) = exp3(w) exp3(Jr dw)."""
+    return _so3_terms(w, lambda t: -_one_minus_cos(t), lambda t2: -_one_minus_cos_series(t2), _minus_sin, _minus_sin_series)
+
+
+def _left_jacobian(w):
+    """Jl(w) = Jr(-w) = V(w), the linear part of exp6."""
+    return _so3_terms(w, _one_minus_cos, _one_minus_cos_series, _minus_sin, _minus_sin_series)
+
+
+def _right_jacobian_inverse(w):
+    return _so3_terms(w, lambda t: 0.5 * torch.ones_like(t), lambda t2: 0.5 * torch.ones_like(t2), _cot_term, _cot_series)
+
+
+def _left_jacobian_inverse(w):
+    return _so3_terms(w, lambda t: -0.5 * torch.ones_like(t), lambda t2: -0.5 * torch.ones_like(t2), _cot_term, _cot_series)
+
+
+def _q_right(rho: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    """The coupling block of SE(3)'s right Jacobian [[Jr, Q], [0, Jr]] (linear first): Barfoot's left
+    Q(rho, w) at (-rho, -w)."""
+    P, W = _skew(-rho), _skew(-w)
+    c1 = _coefficients(w, _minus_sin, _minus_sin_series).unsqueeze(-1)
+    c2 = _coefficients(w, lambda t: (t * t + 2 * torch.cos(t) - 2) / (2 * t ** 4),
+                       lambda t2: 1 / 24 - t2 / 720 + t2 * t2 / 40320).unsqueeze(-1)
+    c3 = _coefficients(w, lambda t: (2 * t - 3 * torch.sin(t) + t * torch.cos(t)) / (2 * t ** 5),
+                       lambda t2: 1 / 120 - t2 / 2520 + t2 * t2 / 120960).unsqueeze(-1)
+    WP, PW, WPW = W @ P, P @ W, W @ P @ W
+    return (0.5 * P + c1 * (WP + PW + WPW) + c2 * (W @ WP + PW @ W - 3 * WPW)
+            + c3 * (WPW @ W + W @ WPW))
+
+
+# -- layout --------------------------------------------------------------------------------------------
+
+def _broadcast(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    batch = torch.broadcast_shapes(a.shape[:-1], b.shape[:-1])
+    return a.expand(*batch, a.shape[-1]), b.expand(*batch, b.shape[-1])
+
+
+def _dt(dt, v: torch.Tensor) -> torch.Tensor:
+    """dt as (..., 1) against v's batch."""
+    dt = torch.as_tensor(dt, dtype=v.dtype, device=v.device)
+    return dt.unsqueeze(-1)
+
+
+def _angular(kind: str, vi: int) -> int:
+    return vi + 3 if kind == "free" else vi
+
+
+def _quaternion(q: torch.Tensor, kind: str, qi: int, convention: int) -> torch.Tensor:
+    """A joint's unit quaternion, xyzw."""
+    a = qi + 3 if kind == "free" else qi
+    quat = q[..., a:a + 4]
+    return unit_quaternion(quat[..., [1, 2, 3, 0]] if convention else quat)[0]
+
+
+def _mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Quaternion product a b, xyzw."""
+    av, aw, bv, bw = a[..., :3], a[..., 3:], b[..., :3], b[..., 3:]
+    return torch.cat([aw * bv + bw * av + torch.cross(av, bv, dim=-1), aw * bw - (av * bv).sum(-1, keepdim=True)], dim=-1)
+
+
+def _conjugate(a: torch.Tensor) -> torch.Tensor:
+    return torch.cat([-a[..., :3], a[..., 3:]], dim=-1)
+
+
+def _apply(m: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    return (m @ x.unsqueeze(-1)).squeeze(-1)
+
+
+def _block_diagonal(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    return _upper(a, torch.zeros_like(a), b)
+
+
+def _upper(a: torch.Tensor, b: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
+    """[[a, b], [0, c]] of 3 x 3 blocks."""
+    return torch.cat([torch.cat([a, b], dim=-1), torch.cat([torch.zeros_like(c), c], dim=-1)], dim=-2)
+
+
+def _assemble(blocks: list[torch.Tensor], nv: int) -> torch.Tensor:
+    """The block-diagonal (..., nv, nv) matrix of the joints' square blocks, in order."""
+    rows, start = [], 0
+    for b in blocks:
+        n = b.shape[-1]
+        pad = [torch.zeros(*b.shape[:-1], m, dtype=b.dtype, device=b.device) for m in (start, nv - start - n)]
+        rows.append(torch.cat([pad[0], b, pad[1]], dim=-1))
+        start += n
+    return torch.cat(rows, dim=-2)
