@@ -138,13 +138,60 @@ def d_difference(space: Space, q0: torch.Tensor, q1: torch.Tensor, convention: i
             blocks0.append(_block_diagonal(-eye, -jinv @ rot_t))
             blocks1.append(_block_diagonal(eye, jinv))
         else:
-            rho = d[..., vi:vi + 3]
             # Jexp6(d)^-1 = [[Jr^-1, -Jr^-1 Q Jr^-1], [0, Jr^-1]]; Ad(exp6(d)^-1) as in d_integrate
-            log = _upper(jinv, -jinv @ _q_right(rho, w) @ jinv, jinv)
-            p = _apply(_left_jacobian(w), rho)
+            log = _dexp_inverse_block(kind, d[..., vi:vi + 6], convention)
+            p = _apply(_left_jacobian(w), d[..., vi:vi + 3])
             blocks0.append(-log @ _upper(rot_t, -rot_t @ _skew(p), rot_t))
             blocks1.append(log)
     return _assemble(blocks0, space.nv), _assemble(blocks1, space.nv)
+
+
+def dexp_inverse(space: Space, theta: torch.Tensor, v: torch.Tensor, convention: int) -> torch.Tensor:
+    """(..., nv): a tangent velocity v at q (+) theta carried to the chart at q, dexp(theta)^-1 v, with
+    dexp(theta) the J_v of d_integrate (dt = 1): the rate of theta for which q (+) theta(t) moves with v
+    (Munthe-Kaas's Runge-Kutta stages). Per quaternion joint Jr(w)^-1 on the rotation; in Pinocchio's
+    convention SE(3)'s Jexp6(theta)^-1 on a free joint; the other coordinates unchanged."""
+    theta, v = _broadcast(theta, v)
+    parts = []
+    for kind, vi in zip(space.kinds, space.vi):
+        n = {"free": 6, "ball": 3}.get(kind, 1)
+        parts.append(v[..., vi:vi + n] if kind == "scalar" else
+                     _apply(_dexp_inverse_block(kind, theta[..., vi:vi + n], convention), v[..., vi:vi + n]))
+    return torch.cat(parts, dim=-1)
+
+
+def d_dexp_inverse(space: Space, theta: torch.Tensor, v: torch.Tensor, convention: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """(d/dtheta, d/dv) of dexp_inverse, each (..., nv, nv), block-diagonal over the joints: d/dv is the
+    matrix itself, d/dtheta (zero but at quaternion joints) forward-mode AD of its closed form."""
+    theta, v = _broadcast(theta, v)
+    batch = theta.shape[:-1]
+    blocks_t, blocks_v = [], []
+    for kind, vi in zip(space.kinds, space.vi):
+        if kind == "scalar":
+            one = torch.ones_like(v[..., :1]).unsqueeze(-1)
+            blocks_t.append(torch.zeros_like(one))
+            blocks_v.append(one)
+            continue
+        n = 6 if kind == "free" else 3
+        t_b, v_b = theta[..., vi:vi + n], v[..., vi:vi + n]
+        blocks_v.append(_dexp_inverse_block(kind, t_b, convention))
+
+        def carried(t, x, kind=kind):
+            return _apply(_dexp_inverse_block(kind, t, convention), x)
+
+        jac = torch.func.vmap(torch.func.jacfwd(carried))(t_b.reshape(-1, n), v_b.reshape(-1, n))
+        blocks_t.append(jac.reshape(*batch, n, n))
+    return _assemble(blocks_t, space.nv), _assemble(blocks_v, space.nv)
+
+
+def _dexp_inverse_block(kind: str, theta: torch.Tensor, convention: int) -> torch.Tensor:
+    """dexp(theta)^-1 of one quaternion joint, (..., n, n)."""
+    if kind == "ball":
+        return _right_jacobian_inverse(theta)
+    jinv = _right_jacobian_inverse(theta[..., 3:])
+    if convention:
+        return _block_diagonal(torch.eye(3, dtype=theta.dtype, device=theta.device).expand_as(jinv), jinv)
+    return _upper(jinv, -jinv @ _q_right(theta[..., :3], theta[..., 3:]) @ jinv, jinv)
 
 
 class ConfigurationFunctions:

@@ -1,0 +1,219 @@
+"""The plant step and its Jacobians (torch_grid/integrators.py): against MuJoCo's mj_step (Euler and
+RK4), the same schemes written with Pinocchio's aba and integrate, Crocoddyl's semi-implicit Euler
+derivatives written with Pinocchio, and central differences; autograd through step to second order."""
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pinocchio as pin
+import pytest
+import torch
+
+from oracles import rel_err
+from torch_grid.integrators import INTEGRATORS, TABLEAUS
+
+MJ_INTEGRATORS = {"semi_implicit_euler": mujoco.mjtIntegrator.mjINT_EULER, "rk4": mujoco.mjtIntegrator.mjINT_RK4}
+
+
+def _state(view, robot, batch, seed):
+    g = torch.Generator().manual_seed(seed)
+    q = view.random_configuration(batch, generator=g)
+    qd, tau = (torch.randn(batch, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
+    return q, qd, tau
+
+
+@pytest.mark.parametrize("integrator", list(MJ_INTEGRATORS))
+@pytest.mark.parametrize("name", ["iiwa14", "go2", "trees"])
+def test_mujoco_convention_is_mj_step(robots, mj_sims, name, integrator):
+    """mj_step with qfrc_applied = tau (contacts, limits off; damping, where the model has it, explicit
+    in both), float64 <= 1e-9, at dt = 0.01 and 0.05: MuJoCo 4's RK4 carries each stage's velocity to
+    the chart at q by dexp^-1 (Munthe-Kaas), which a plain sum of stage velocities misses by 1e-6 on a
+    free body."""
+    robot, sim = robots[name], mj_sims[name]
+    m, d = sim.m, sim.d  # the session's harness: mj_forward, which the others call, ignores what is set here
+    m.opt.integrator = MJ_INTEGRATORS[integrator]
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
+    q, qd, tau = _state(robot.mujoco, robot, 3, 1)
+    for dt in (0.01, 0.05):
+        m.opt.timestep = dt
+        q_next, qd_next = robot.mujoco.step(q, qd, tau, dt, integrator)
+        for k in range(3):
+            mujoco.mj_resetData(m, d)
+            d.qpos[:], d.qvel[:], d.qfrc_applied[:] = q[k].numpy(), qd[k].numpy(), tau[k].numpy()
+            mujoco.mj_step(m, d)
+            assert np.abs(q_next[k].numpy() - d.qpos).max() <= 1e-9
+            assert np.abs(qd_next[k].numpy() - d.qvel).max() <= 1e-9 * max(1.0, np.abs(d.qvel).max())
+
+
+def _actuated_go2():
+    """go2 in MuJoCo (as the mj_sims harness builds it) with a motor of gear 1 on each hinge, so that
+    mjd_transitionFD's B is d/dtau of the hinges' torques."""
+    import oracles
+    from pathlib import Path
+
+    spec = mujoco.MjSpec.from_string(oracles._urdf_for_mujoco(Path(oracles.urdf_path_for("go2")).read_text()))
+    spec.worldbody.first_body().add_freejoint()
+    for joint in spec.joints:
+        if joint.type == mujoco.mjtJoint.mjJNT_HINGE:
+            motor = spec.add_actuator()
+            motor.trntype, motor.target, motor.gear[0] = mujoco.mjtTrn.mjTRN_JOINT, joint.name, 1.0
+    m = spec.compile()
+    m.opt.gravity[:] = (0.0, 0.0, -9.81)
+    m.opt.disableflags |= (int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT) | int(mujoco.mjtDisableBit.mjDSBL_DAMPER)
+                           | int(mujoco.mjtDisableBit.mjDSBL_SPRING) | int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP))
+    return m
+
+
+def _mj_step_differences(m, d, qpos, qvel, qfrc, ctrl, eps):
+    """Centred differences of mj_step in the tangent spaces, as mjd_transitionFD (which refuses RK4)."""
+    def step(dx, du):
+        d.qpos[:], d.qvel[:], d.qfrc_applied[:], d.ctrl[:] = qpos, qvel + dx[m.nv:], qfrc, ctrl + du
+        mujoco.mj_integratePos(m, d.qpos, dx[:m.nv], 1.0)
+        mujoco.mj_step(m, d)
+        return d.qpos.copy(), d.qvel.copy()
+
+    base_q, base_v = step(np.zeros(2 * m.nv), np.zeros(m.nu))
+    cols = []
+    for k in range(2 * m.nv + m.nu):
+        outs = []
+        for sign in (1, -1):
+            z = np.zeros(2 * m.nv + m.nu)
+            z[k] = sign * eps
+            q1, v1 = step(z[:2 * m.nv], z[2 * m.nv:])
+            dq = np.zeros(m.nv)
+            mujoco.mj_differentiatePos(m, dq, 1.0, base_q, q1)
+            outs.append(np.concatenate([dq, v1 - base_v]))
+        cols.append((outs[0] - outs[1]) / (2 * eps))
+    jac = np.stack(cols, axis=-1)
+    return jac[:, :2 * m.nv], jac[:, 2 * m.nv:]
+
+
+@pytest.mark.parametrize("integrator", list(MJ_INTEGRATORS))
+def test_mujoco_convention_derivatives_are_mujocos(robots, integrator):
+    """A, B against MuJoCo's mjd_transitionFD (centred differences of mj_step; for RK4, which it refuses,
+    the same differences written here) on a floating quadruped: the base's generalized force through
+    qfrc_applied, the hinges' through motors."""
+    robot, m = robots["go2"], _actuated_go2()
+    d, dt, nv = mujoco.MjData(m), 0.01, robot.nv
+    m.opt.integrator, m.opt.timestep = MJ_INTEGRATORS[integrator], dt
+    q, qd, tau = _state(robot.mujoco, robot, 2, 7)
+    A, B = robot.mujoco.step_derivatives(q, qd, tau, dt, integrator)
+    for k in range(2):
+        mujoco.mj_resetData(m, d)
+        d.qpos[:], d.qvel[:] = q[k].numpy(), qd[k].numpy()
+        d.qfrc_applied[:6], d.ctrl[:] = tau[k, :6].numpy(), tau[k, 6:].numpy()
+        if integrator == "rk4":
+            fd_a, fd_b = _mj_step_differences(m, d, q[k].numpy(), qd[k].numpy(), d.qfrc_applied.copy(),
+                                              d.ctrl.copy(), 1e-7)
+        else:
+            fd_a, fd_b = np.zeros((2 * nv, 2 * nv)), np.zeros((2 * nv, m.nu))
+            mujoco.mjd_transitionFD(m, d, 1e-7, True, fd_a, fd_b, None, None)
+        assert np.abs(A[k].numpy() - fd_a).max() <= 1e-6 * max(1.0, np.abs(fd_a).max())
+        assert np.abs(B[k, :, 6:].numpy() - fd_b).max() <= 1e-6 * max(1.0, np.abs(fd_b).max())
+
+
+def _pinocchio_step(model, q, v, tau, dt, integrator):
+    """The schemes of integrators.py written with Pinocchio: aba, integrate, and dIntegrate's ARG1
+    (dexp) inverted for the Runge-Kutta stages."""
+    data = model.createData()
+
+    def acc(q, v):
+        return pin.aba(model, data, q, v, tau)
+
+    a0 = acc(q, v)
+    if integrator == "semi_implicit_euler":
+        v_next = v + dt * a0
+        return pin.integrate(model, q, v_next * dt), v_next
+    rows, weights = TABLEAUS[integrator]
+    carried, accs = [v], [a0]
+    for row in rows:
+        theta = sum(c * w for c, w in zip(row, carried))
+        vi = v + dt * sum(c * a for c, a in zip(row, accs))
+        accs.append(acc(pin.integrate(model, q, theta * dt), vi))
+        carried.append(np.linalg.solve(pin.dIntegrate(model, q, theta * dt, pin.ARG1), vi))
+    theta = sum(c * w for c, w in zip(weights, carried))
+    return pin.integrate(model, q, theta * dt), v + dt * sum(c * a for c, a in zip(weights, accs))
+
+
+@pytest.mark.parametrize("name", ["iiwa14", "go2"])
+def test_pin_convention_is_the_pinocchio_scheme(robots, pin_models, name):
+    robot, model = robots[name], pin_models[name]
+    q, qd, tau = _state(robot.pin, robot, 2, 2)
+    for integrator in INTEGRATORS:
+        q_next, qd_next = robot.pin.step(q, qd, tau, 0.03, integrator)
+        for k in range(2):
+            ref_q, ref_v = _pinocchio_step(model, q[k].numpy(), qd[k].numpy(), tau[k].numpy(), 0.03, integrator)
+            assert np.abs(q_next[k].numpy() - ref_q).max() <= 1e-10, integrator
+            assert rel_err(qd_next[k], torch.from_numpy(ref_v)) <= 1e-10, integrator
+
+
+def test_semi_implicit_euler_derivatives_are_crocoddyls(robots, pin_models):
+    """Crocoddyl's IntegratedActionModelEuler (semi-implicit: dx = [v dt + a dt^2; a dt], x' = x (+) dx),
+    its Fx, Fu written with Pinocchio's computeABADerivatives and dIntegrate, on a floating base."""
+    robot, model = robots["go2"], pin_models["go2"]
+    data, nv, dt = model.createData(), model.nv, 0.02
+    q, qd, tau = _state(robot.pin, robot, 2, 3)
+    A, B = robot.pin.step_derivatives(q, qd, tau, dt, "semi_implicit_euler")
+    for k in range(2):
+        qk, vk, uk = q[k].numpy(), qd[k].numpy(), tau[k].numpy()
+        pin.computeABADerivatives(model, data, qk, vk, uk)
+        da_dx = np.hstack([data.ddq_dq, data.ddq_dv])
+        minv = np.triu(data.Minv) + np.triu(data.Minv, 1).T
+        a = pin.aba(model, data, qk, vk, uk)
+        dq = vk * dt + a * dt * dt
+        j0, j1 = pin.dIntegrate(model, qk, dq, pin.ARG0), pin.dIntegrate(model, qk, dq, pin.ARG1)
+        ddx_dx = np.vstack([da_dx * dt * dt, da_dx * dt])
+        ddx_dx[:nv, nv:] += dt * np.eye(nv)
+        fx = np.vstack([j1 @ ddx_dx[:nv] + np.hstack([j0, np.zeros((nv, nv))]), ddx_dx[nv:] + np.hstack([np.zeros((nv, nv)), np.eye(nv)])])
+        fu = np.vstack([j1 @ minv * dt * dt, minv * dt])
+        assert rel_err(A[k], torch.from_numpy(fx)) <= 1e-10 and rel_err(B[k], torch.from_numpy(fu)) <= 1e-10
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+@pytest.mark.parametrize("name", ["go2", "trees"])
+def test_step_derivatives_match_central_differences(robots, name, convention):
+    """A, B against central differences of step along [dq; dqd; dtau] (q moved by integrate, q' compared
+    by difference), every integrator, a per-sample dt."""
+    robot = robots[name]
+    view = getattr(robot, convention)
+    q, qd, tau = _state(view, robot, 2, 4)
+    dt, nv, h = torch.tensor([0.02, 0.05], dtype=torch.float64), robot.nv, 1e-6
+    for integrator in INTEGRATORS:
+        A, B = view.step_derivatives(q, qd, tau, dt, integrator)
+        base = view.step(q, qd, tau, dt, integrator)
+
+        def moved(z):
+            out = view.step(view.integrate(q, z[:, :nv]), qd + z[:, nv:2 * nv], tau + z[:, 2 * nv:], dt, integrator)
+            return torch.cat([view.difference(base[0], out[0]), out[1] - base[1]], dim=-1)
+
+        cols = []
+        for k in range(3 * nv):
+            z = torch.zeros(2, 3 * nv, dtype=torch.float64)
+            z[:, k] = h
+            cols.append((moved(z) - moved(-z)) / (2 * h))
+        ref = torch.stack(cols, dim=-1)
+        assert rel_err(torch.cat([A, B], dim=-1), ref) <= 1e-7, integrator
+
+
+@pytest.mark.parametrize("integrator", ["semi_implicit_euler", "rk4"])
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+def test_step_gradgradcheck(robots, convention, integrator):
+    """Autograd through step to second order (a floating base, a non-unit quaternion)."""
+    robot = robots["go2"]
+    view = getattr(robot, convention)
+    q, qd, tau = _state(view, robot, 1, 5)
+    q = (q * 1.2).requires_grad_(True)
+    qd, tau = qd.requires_grad_(True), tau.requires_grad_(True)
+
+    def fn(q, qd, tau):
+        return view.step(q, qd, tau, 0.05, integrator)
+
+    assert torch.autograd.gradcheck(fn, (q, qd, tau))
+    assert torch.autograd.gradgradcheck(fn, (q, qd, tau))
+
+
+def test_unknown_integrator_is_refused(robots):
+    robot = robots["iiwa14"]
+    q, qd, tau = _state(robot.pin, robot, 1, 6)
+    with pytest.raises(ValueError, match="integrator must be one of .* got 'rk5'"):
+        robot.step(q, qd, tau, 0.01, "rk5")

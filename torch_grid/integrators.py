@@ -1,0 +1,121 @@
+"""The plant step: x = (q, qd) advanced by dt under a torque held over the step, and its Jacobians.
+
+Integrators, with a = forward_dynamics(q, qd, tau, f_ext) and (+) the configuration space's integrate:
+  euler                qd' = qd + dt a(q, qd),   q' = q (+) dt qd
+  semi_implicit_euler  qd' = qd + dt a(q, qd),   q' = q (+) dt qd'        (MuJoCo's mjINT_EULER)
+  midpoint, rk3, rk4   explicit Runge-Kutta in Munthe-Kaas's form, as MuJoCo 4's mj_RungeKutta
+                       (mjINT_RK4): stage i sits at q_i = q (+) theta_i, theta_i = dt sum_j A_ij w_j,
+                       qd_i = qd + dt sum_j A_ij a_j, where w_j = dexp(theta_j)^-1 qd_j is stage j's
+                       velocity carried to the chart at q (configuration.dexp_inverse: the identity but
+                       at quaternion joints); the step is q' = q (+) dt sum_j B_j w_j,
+                       qd' = qd + dt sum_j B_j a_j (euler is the one-stage case).
+The Jacobians are along the tangent spaces (the state deviation [dq; dqd], as Crocoddyl's Fx, Fu and
+MuJoCo's mjd_transitionFD A, B), by the chain rule through the stages: forward_dynamics_gradient at
+each stage, the configuration space's d_integrate and the derivatives of dexp^-1. Everything is torch
+over the robot's ops, so autograd differentiates step itself to second order.
+"""
+from __future__ import annotations
+
+import torch
+
+from .configuration import d_dexp_inverse, dexp_inverse
+
+# (A rows below the diagonal, B) of each Runge-Kutta scheme
+TABLEAUS = {
+    "euler": ((), (1.0,)),
+    "midpoint": (((0.5,),), (0.0, 1.0)),
+    "rk3": (((0.5,), (-1.0, 2.0)), (1 / 6, 2 / 3, 1 / 6)),
+    "rk4": (((0.5,), (0.0, 0.5), (0.0, 0.0, 1.0)), (1 / 6, 1 / 3, 1 / 3, 1 / 6)),
+}
+INTEGRATORS = ("euler", "semi_implicit_euler", "midpoint", "rk3", "rk4")
+
+
+class StepFunctions:
+    """The plant step of a robot's views (mixed into robot._Functions with ConfigurationFunctions)."""
+
+    def step(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dt, integrator: str = "semi_implicit_euler",
+             f_ext: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """(q', qd') `(..., nq)`, `(..., nv)`: one step of dt (a number or a (...,) tensor) with tau (and
+        f_ext) held over it; integrator one of INTEGRATORS."""
+        _check(integrator)
+        h = _dt(dt, qd)
+        if integrator == "semi_implicit_euler":
+            qd_next = qd + h * self.forward_dynamics(q, qd, tau, f_ext)
+            return self.integrate(q, qd_next, dt), qd_next
+        rows, weights = TABLEAUS[integrator]
+        space, convention = self._robot._space, self._convention
+        carried, acc = [qd], [self.forward_dynamics(q, qd, tau, f_ext)]
+        for row in rows:
+            theta = _combine(row, carried)
+            v = qd + h * _combine(row, acc)
+            acc.append(self.forward_dynamics(self.integrate(q, theta, dt), v, tau, f_ext))
+            carried.append(dexp_inverse(space, h * theta, v, convention))
+        return self.integrate(q, _combine(weights, carried), dt), qd + h * _combine(weights, acc)
+
+    def step_derivatives(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dt,
+                         integrator: str = "semi_implicit_euler",
+                         f_ext: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """(A `(..., 2 nv, 2 nv)`, B `(..., 2 nv, nv)`): the derivatives of step's [q'; qd'] with respect to
+        [q; qd] and tau, along the tangent spaces (q' compared by difference, q moved by integrate)."""
+        _check(integrator)
+        h, nv = _dt(dt, qd), qd.shape[-1]
+        hh = h.unsqueeze(-1)
+        space, convention = self._robot._space, self._convention
+        eye = torch.eye(nv, dtype=qd.dtype, device=qd.device)
+        zero = torch.zeros_like(eye)
+        # d(q)/dz and d(qd)/dz at the start, z = [dq; dqd; dtau]: (nv, 3 nv) each
+        dq0, dv0 = torch.cat([eye, zero, zero], dim=-1), torch.cat([zero, eye, zero], dim=-1)
+
+        def stage(qi, vi, dqi, dvi):
+            """a at a stage and its derivative along z, from the stage's own (dq, dqd)."""
+            a = self.forward_dynamics(qi, vi, tau, f_ext)
+            da_dq, da_dv, da_dtau = self.forward_dynamics_gradient(qi, vi, tau, f_ext)
+            return a, da_dq @ dqi + da_dv @ dvi + torch.cat([torch.zeros_like(da_dq), torch.zeros_like(da_dq), da_dtau],
+                                                            dim=-1)
+
+        def advance(theta, dtheta):
+            """q (+) dt theta with its derivative along z."""
+            j_q, j_v = self.d_integrate(q, theta, dt)
+            return self.integrate(q, theta, dt), j_q @ dq0 + j_v @ dtheta
+
+        a0, da0 = stage(q, qd, dq0, dv0)
+        dv0 = dv0.expand_as(da0)
+        if integrator == "semi_implicit_euler":
+            dv_next = dv0 + hh * da0
+            return _split(advance(qd + h * a0, dv_next)[1], dv_next, nv)
+        rows, weights = TABLEAUS[integrator]
+        carried, dcarried, acc, dacc = [qd], [dv0], [a0], [da0]
+        for row in rows:
+            theta, dtheta = _combine(row, carried), _combine(row, dcarried)
+            qi, dqi = advance(theta, dtheta)
+            v, dv = qd + h * _combine(row, acc), dv0 + hh * _combine(row, dacc)
+            a, da = stage(qi, v, dqi, dv)
+            acc.append(a)
+            dacc.append(da)
+            j_theta, j_v = d_dexp_inverse(space, h * theta, v, convention)
+            carried.append((j_v @ v.unsqueeze(-1)).squeeze(-1))
+            dcarried.append(j_theta @ (hh * dtheta) + j_v @ dv)
+        dq_next = advance(_combine(weights, carried), _combine(weights, dcarried))[1]
+        return _split(dq_next, dv0 + hh * _combine(weights, dacc), nv)
+
+
+def _check(integrator) -> None:
+    if integrator not in INTEGRATORS:
+        raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
+
+
+def _dt(dt, x: torch.Tensor) -> torch.Tensor:
+    """dt as (..., 1) against x's batch."""
+    return torch.as_tensor(dt, dtype=x.dtype, device=x.device).unsqueeze(-1)
+
+
+def _combine(coefficients, xs):
+    """sum_j c_j x_j over the non-zero coefficients."""
+    terms = [c * x for c, x in zip(coefficients, xs) if c]
+    return sum(terms[1:], terms[0])
+
+
+def _split(dq: torch.Tensor, dv: torch.Tensor, nv: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """(A, B) from the rows d(q')/dz, d(qd')/dz, z = [dq; dqd; dtau]."""
+    rows = torch.cat([dq, dv], dim=-2)
+    return rows[..., :2 * nv], rows[..., 2 * nv:]
