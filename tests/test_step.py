@@ -195,6 +195,35 @@ def test_step_derivatives_match_central_differences(robots, name, convention):
         assert rel_err(torch.cat([A, B], dim=-1), ref) <= 1e-7, integrator
 
 
+@pytest.mark.parametrize("name, convention", [("iiwa14", "pin"), ("go2", "pin"), ("go2", "mujoco")])
+def test_step_second_derivatives_match_differences_of_the_first(robots, name, convention):
+    """The step Hessian [o, a, c] against central differences along z_c of the gradient of
+    z -> [difference(q', q'(z)); qd'(z) - qd'], written with step_derivatives at x (+) z and the
+    configuration space's Jacobians; symmetric in a, c. Every integrator, a fixed and a floating base."""
+    robot = robots[name]
+    view, nv = getattr(robot, convention), robot.nv
+    q, qd, tau = _state(view, robot, 2, 8)
+    dt, h = torch.tensor([0.02, 0.05], dtype=torch.float64), 1e-5
+    for integrator in INTEGRATORS:
+        H = view.step_second_derivatives(q, qd, tau, dt, integrator)
+        y_q, _ = view.step(q, qd, tau, dt, integrator)
+
+        def gradient(z):
+            q_z = view.integrate(q, z[:, :nv])
+            args = (q_z, qd + z[:, nv:2 * nv], tau + z[:, 2 * nv:], dt, integrator)
+            J = torch.cat(view.step_derivatives(*args), dim=-1)
+            J = torch.cat([view.d_difference(y_q, view.step(*args)[0])[1] @ J[:, :nv], J[:, nv:]], dim=-2)
+            return torch.cat([J[..., :nv] @ view.d_integrate(q, z[:, :nv])[1], J[..., nv:]], dim=-1)
+
+        cols = []
+        for c in range(3 * nv):
+            z = torch.zeros(2, 3 * nv, dtype=torch.float64)
+            z[:, c] = h
+            cols.append((gradient(z) - gradient(-z)) / (2 * h))
+        assert rel_err(H, torch.stack(cols, dim=-1)) <= 1e-6, integrator
+        assert rel_err(H.transpose(-1, -2), H) <= 1e-10, integrator
+
+
 @pytest.mark.parametrize("integrator", ["semi_implicit_euler", "rk4"])
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
 def test_step_gradgradcheck(robots, convention, integrator):

@@ -98,6 +98,32 @@ class StepFunctions:
         dq_next = advance(_combine(weights, carried), _combine(weights, dcarried))[1]
         return _split(dq_next, dv0 + hh * _combine(weights, dacc), nv)
 
+    def step_second_derivatives(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dt,
+                                integrator: str = "semi_implicit_euler",
+                                f_ext: torch.Tensor | None = None) -> torch.Tensor:
+        """(..., 2 nv, 3 nv, 3 nv): the Hessian at z = 0 of z -> [difference(q', q'(z)); qd'(z) - qd'] with
+        (q'(z), qd'(z)) = step(q (+) z_q, qd + z_qd, tau + z_tau), symmetric in its last two indices:
+        forward over reverse through step (the kernels' backwards and their forward-mode rules, and the
+        configuration space's closed forms)."""
+        _check(integrator)
+        nv = qd.shape[-1]
+        batch = torch.broadcast_shapes(q.shape[:-1], qd.shape[:-1], tau.shape[:-1],
+                                       torch.as_tensor(dt).shape, () if f_ext is None else f_ext.shape[:-2])
+        flat = [x.expand(*batch, *x.shape[x.dim() - k:]).reshape(-1, *x.shape[x.dim() - k:]) if x is not None else None
+                for x, k in ((q, 1), (qd, 1), (tau, 1), (f_ext, 2))]
+        h = torch.as_tensor(dt, dtype=qd.dtype, device=qd.device).expand(batch).reshape(-1)
+        y_q, y_v = self.step(flat[0], flat[1], flat[2], h, integrator, flat[3])
+
+        def deviation(z, q, qd, tau, h, f, y_q, y_v):
+            out_q, out_v = self.step(self.integrate(q, z[:nv]), qd + z[nv:2 * nv], tau + z[2 * nv:], h, integrator, f)
+            return torch.cat([self.difference(y_q, out_q), out_v - y_v])
+
+        z = torch.zeros(3 * nv, dtype=qd.dtype, device=qd.device)
+        hessian = torch.func.jacfwd(torch.func.jacrev(deviation))
+        dims = (None, 0, 0, 0, 0, None if f_ext is None else 0, 0, 0)
+        out = torch.func.vmap(hessian, in_dims=dims)(z, *flat[:3], h, flat[3], y_q, y_v)
+        return out.reshape(*batch, 2 * nv, 3 * nv, 3 * nv)
+
 
 def _check(integrator) -> None:
     if integrator not in INTEGRATORS:
