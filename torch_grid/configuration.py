@@ -91,30 +91,47 @@ def difference(space: Space, q0: torch.Tensor, q1: torch.Tensor, convention: int
 def d_integrate(space: Space, q: torch.Tensor, v: torch.Tensor, dt, convention: int) -> tuple[torch.Tensor, torch.Tensor]:
     """(J_q, J_v), each (..., nv, nv): the tangent Jacobians of q (+) v dt."""
     q, v = _broadcast(q, v)
-    scale = _dt(dt, v)
-    v = v * scale
-    blocks_q, blocks_v = [], []
+    blocks = d_integrate_blocks(space, q, v, dt, convention)
+    eye = torch.eye(space.nv, dtype=v.dtype, device=v.device).expand(*v.shape[:-1], space.nv, space.nv)
+    return tangent_map(blocks, 0, eye), tangent_map(blocks, 1, eye) * _dt(dt, v).unsqueeze(-1)
+
+
+def d_integrate_blocks(space: Space, q: torch.Tensor, v: torch.Tensor, dt, convention: int) -> list:
+    """d_integrate without the nv x nv matrices: per quaternion joint (its first velocity index, J_q's
+    block, J_v's block / dt); both Jacobians are the identity on the scalar coordinates (J_v: dt)."""
+    v = v * _dt(dt, v)
+    blocks = []
     for kind, vi in zip(space.kinds, space.vi):
         if kind == "scalar":
-            one = torch.ones_like(v[..., :1]).unsqueeze(-1)
-            blocks_q.append(one)
-            blocks_v.append(one)
             continue
         w = v[..., _angular(kind, vi):_angular(kind, vi) + 3]
         rot_t, jr = _rotation(w).mT, _right_jacobian(w)
         if kind == "ball":
-            blocks_q.append(rot_t)
-            blocks_v.append(jr)
+            blocks.append((vi, rot_t, jr))
         elif convention:
             eye = torch.eye(3, dtype=v.dtype, device=v.device).expand_as(jr)
-            blocks_q.append(_block_diagonal(eye, rot_t))
-            blocks_v.append(_block_diagonal(eye, jr))
+            blocks.append((vi, _block_diagonal(eye, rot_t), _block_diagonal(eye, jr)))
         else:
             p = _apply(_left_jacobian(w), v[..., vi:vi + 3])  # exp6(v) = (R(w), V(w) v_lin)
-            blocks_q.append(_upper(rot_t, -rot_t @ _skew(p), rot_t))
-            blocks_v.append(_upper(jr, _q_right(v[..., vi:vi + 3], w), jr))
-    j_q = _assemble(blocks_q, space.nv)
-    return j_q, _assemble(blocks_v, space.nv) * scale.unsqueeze(-1)
+            blocks.append((vi, _upper(rot_t, -rot_t @ _skew(p), rot_t), _upper(jr, _q_right(v[..., vi:vi + 3], w), jr)))
+    return blocks
+
+
+def tangent_map(blocks: list, which: int, x: torch.Tensor, identity: bool = True) -> torch.Tensor:
+    """(..., nv, k): x (..., nv, k) mapped by a block-diagonal matrix given by its quaternion joints'
+    blocks (d_integrate_blocks, d_dexp_inverse_blocks; which: the first or second of each pair), the
+    identity outside them (or zero: identity=False)."""
+    if not blocks:
+        return x if identity else torch.zeros_like(x)
+    parts, start = [], 0
+    for vi, *pair in blocks:
+        block = pair[which]
+        n = block.shape[-1]
+        rest = x[..., start:vi, :]
+        parts += [rest if identity else torch.zeros_like(rest), block @ x[..., vi:vi + n, :]]
+        start = vi + n
+    rest = x[..., start:, :]
+    return torch.cat(parts + [rest if identity else torch.zeros_like(rest)], dim=-2)
 
 
 def d_difference(space: Space, q0: torch.Tensor, q1: torch.Tensor, convention: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -160,28 +177,23 @@ def dexp_inverse(space: Space, theta: torch.Tensor, v: torch.Tensor, convention:
     return torch.cat(parts, dim=-1)
 
 
-def d_dexp_inverse(space: Space, theta: torch.Tensor, v: torch.Tensor, convention: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """(d/dtheta, d/dv) of dexp_inverse, each (..., nv, nv), block-diagonal over the joints: d/dv is the
-    matrix itself, d/dtheta (zero but at quaternion joints) forward-mode AD of its closed form."""
+def d_dexp_inverse_blocks(space: Space, theta: torch.Tensor, v: torch.Tensor, convention: int) -> list:
+    """Per quaternion joint (its first velocity index, d/dtheta block, d/dv block) of dexp_inverse; d/dv
+    is the identity elsewhere, d/dtheta zero. d/dtheta by forward-mode AD of the block's closed form."""
     theta, v = _broadcast(theta, v)
-    batch = theta.shape[:-1]
-    blocks_t, blocks_v = [], []
+    blocks = []
     for kind, vi in zip(space.kinds, space.vi):
         if kind == "scalar":
-            one = torch.ones_like(v[..., :1]).unsqueeze(-1)
-            blocks_t.append(torch.zeros_like(one))
-            blocks_v.append(one)
             continue
         n = 6 if kind == "free" else 3
         t_b, v_b = theta[..., vi:vi + n], v[..., vi:vi + n]
-        blocks_v.append(_dexp_inverse_block(kind, t_b, convention))
 
         def carried(t, x, kind=kind):
             return _apply(_dexp_inverse_block(kind, t, convention), x)
 
         jac = torch.func.vmap(torch.func.jacfwd(carried))(t_b.reshape(-1, n), v_b.reshape(-1, n))
-        blocks_t.append(jac.reshape(*batch, n, n))
-    return _assemble(blocks_t, space.nv), _assemble(blocks_v, space.nv)
+        blocks.append((vi, jac.reshape(*theta.shape[:-1], n, n), _dexp_inverse_block(kind, t_b, convention)))
+    return blocks
 
 
 def _dexp_inverse_block(kind: str, theta: torch.Tensor, convention: int) -> torch.Tensor:

@@ -1,0 +1,104 @@
+"""Plant-step benchmarks: step_derivatives against forward_dynamics_gradient (B = 4096, one thread,
+float64), against MuJoCo's mjd_transitionFD per call on the same robot (a MuJoCo model built from the
+URDF as the tests build it, motors on the hinges), and step_second_derivatives on a small batch.
+
+    python bench/bench_step.py          (bench_cpu.py --write includes its table in RESULTS.md)
+"""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import torch
+
+import torch_grid
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent / "tests"))
+import oracles  # noqa: E402  (the tests' URDF -> MuJoCo harness)
+
+B = 4096
+
+
+def _per_sample_us(fn, batch: int, seconds: float = 1.0) -> float:
+    fn()
+    best, deadline, n = float("inf"), time.perf_counter() + seconds, 0
+    while time.perf_counter() < deadline or n < 3:
+        t = time.perf_counter()
+        fn()
+        best, n = min(best, time.perf_counter() - t), n + 1
+    return best / batch * 1e6
+
+
+def _mujoco_model(urdf: str, floating: bool, integrator) -> mujoco.MjModel:
+    spec = mujoco.MjSpec.from_string(oracles._urdf_for_mujoco(Path(urdf).read_text()))
+    if floating:
+        spec.worldbody.first_body().add_freejoint()
+    for joint in spec.joints:
+        if joint.type in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE):
+            motor = spec.add_actuator()
+            motor.trntype, motor.target, motor.gear[0] = mujoco.mjtTrn.mjTRN_JOINT, joint.name, 1.0
+    m = spec.compile()
+    m.opt.disableflags |= (int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT) | int(mujoco.mjtDisableBit.mjDSBL_DAMPER)
+                           | int(mujoco.mjtDisableBit.mjDSBL_SPRING) | int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP))
+    m.opt.integrator, m.opt.timestep = integrator, 0.01
+    return m
+
+
+def _transition_fd_us(m: mujoco.MjModel, q: np.ndarray, calls: int = 200) -> float:
+    """mjd_transitionFD per call (forward differences, its default), best of 5 runs."""
+    d = mujoco.MjData(m)
+    d.qpos[:] = q
+    A, Bm = np.zeros((2 * m.nv, 2 * m.nv)), np.zeros((2 * m.nv, m.nu))
+    best = float("inf")
+    for _ in range(5):
+        t = time.perf_counter()
+        for _ in range(calls):
+            mujoco.mjd_transitionFD(m, d, 1e-6, False, A, Bm, None, None)
+        best = min(best, (time.perf_counter() - t) / calls)
+    return best * 1e6
+
+
+def step_rows(robots: dict) -> list[str]:
+    """Markdown rows per robot: forward_dynamics_gradient, step_derivatives (semi-implicit Euler, rk4)
+    and their ratios, mjd_transitionFD (Euler) per call and its ratio to ours."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    rows = []
+    for name, (src, floating, bundled) in robots.items():
+        robot = torch_grid.load(bundled or src, floating_base=floating)
+        view = robot.mujoco
+        g = torch.Generator().manual_seed(0)
+        q = view.random_configuration(B, generator=g)
+        qd, tau = (torch.randn(B, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
+        fdg = _per_sample_us(lambda: view.forward_dynamics_gradient(q, qd, tau), B)
+        euler = _per_sample_us(lambda: view.step_derivatives(q, qd, tau, 0.01, "semi_implicit_euler"), B)
+        rk4 = _per_sample_us(lambda: view.step_derivatives(q, qd, tau, 0.01, "rk4"), B)
+        m = _mujoco_model(src, floating, mujoco.mjtIntegrator.mjINT_EULER)
+        ref = _transition_fd_us(m, q[0].numpy())
+        small = q[:16], qd[:16], tau[:16]
+        hessian = _per_sample_us(lambda: view.step_second_derivatives(*small, 0.01, "rk4"), 16, seconds=2.0)
+        rows.append(f"| {name} | {fdg:.2f} | {euler:.2f} ({euler / fdg:.2f}x) | {rk4:.2f} ({rk4 / fdg:.2f}x) | "
+                    f"{ref:.1f} ({ref / euler:.0f}x ours) | {hessian:.0f} |")
+        print(rows[-1], flush=True)
+    torch.set_num_threads(threads)
+    return rows
+
+
+def step_section(robots: dict) -> str:
+    header = ("Plant step, MuJoCo convention, one thread, float64, B = 4096 (µs per sample): forward_dynamics_gradient; "
+              "step_derivatives (A, B) for semi-implicit Euler and rk4 with their ratio to it; MuJoCo's "
+              "mjd_transitionFD per call on the same robot (Euler, forward differences, its default; motors on the "
+              "joints) and how many of our samples it costs; step_second_derivatives (rk4) per sample at B = 16.\n\n"
+              "| robot | forward_dynamics_gradient | step_derivatives euler | step_derivatives rk4 | mjd_transitionFD | "
+              "step_second_derivatives |\n|---|---|---|---|---|---|\n")
+    return header + "\n".join(step_rows(robots)) + "\n"
+
+
+if __name__ == "__main__":
+    from bench_cpu import ROBOTS
+
+    print(step_section({k: v for k, v in ROBOTS.items() if k in ("go2", "g1")}))
