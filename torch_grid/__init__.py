@@ -8,11 +8,14 @@ from pathlib import Path
 from . import conventions
 from .autograd import register_autograd
 from .build import build as _build
+from .costs import log_barrier, quadratic_barrier
+from .integrators import INTEGRATORS
 from .model import Frame, Joint, RobotModel, with_armature
 from .parse import BUNDLED, from_pinocchio, source_to_model
 from .robot import Robot
 
-__all__ = ["load", "Robot", "RobotModel", "Joint", "Frame", "conventions", "from_pinocchio", "BUNDLED"]
+__all__ = ["load", "Robot", "RobotModel", "Joint", "Frame", "conventions", "from_pinocchio", "BUNDLED", "INTEGRATORS",
+           "log_barrier", "quadratic_barrier"]
 __version__ = "0.1.0"
 
 _AUTOGRAD_DONE: set[str] = set()

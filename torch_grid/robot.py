@@ -13,6 +13,8 @@ import torch
 from . import mujoco_second_order
 from .autograd import rpy_rate_matrix
 from .configuration import ConfigurationFunctions, Space
+from .costs import CostFunctions
+from .horizon import HorizonFunctions
 from .integrators import StepFunctions
 from .func import FORWARD_MODE, FuncOps, dual, transforming
 from .mimic import Coupling
@@ -25,7 +27,7 @@ CONVENTIONS = {"pin": 0, "pinocchio": 0, "mujoco": 1, "mjx": 1}
 REFERENCES = {"world": 0, "local": 1, "local_world_aligned": 2}
 
 
-class _Functions(ConfigurationFunctions, StepFunctions):
+class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFunctions):
     """The rigid-body functions, evaluated in one convention (`_convention`, 0 pin or 1 mujoco).
 
     Tensors may have any leading batch shape; batch shapes of the arguments broadcast. All tensor

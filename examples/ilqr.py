@@ -1,0 +1,141 @@
+"""Batched iLQR in plain torch on torch_grid's horizon call: every knot's step Jacobians and cost
+derivatives come from one `robot.horizon` call per iteration; the Riccati recursion and the line search
+are a few lines of torch, batched over samples.
+
+Two problems, each a batch of samples with their own goals:
+  reach    iiwa14 (fixed base) brings its last frame to a per-sample target point in 1 s;
+  go2      go2's floating base and legs return to a standing pose from a perturbed one and hold it.
+           There are no contacts here: the base's generalized force is an input (heavily weighted),
+           so this is a floating-base LQR problem, not legged locomotion.
+
+    python examples/ilqr.py [--device cuda] [--iterations 10]
+"""
+from __future__ import annotations
+
+import argparse
+
+import torch
+
+import torch_grid
+
+
+def rollout(view, q0, qd0, U, dt, integrator):
+    """States (q (B, T+1, nq), qd (B, T+1, nv)) under the controls U (B, T, nv)."""
+    qs, vs = [q0], [qd0]
+    for t in range(U.shape[1]):
+        q, v = view.step(qs[-1], vs[-1], U[:, t], dt, integrator)
+        qs.append(q)
+        vs.append(v)
+    return torch.stack(qs, dim=1), torch.stack(vs, dim=1)
+
+
+def total_cost(view, Q, V, U, running, terminal):
+    """(B,) the running costs of the knots plus the terminal one."""
+    knots = sum((getattr(view, name)(U, **kw) if name == "control_cost" else
+                 getattr(view, name)(Q[:, :-1], V[:, :-1], **kw))[0] for name, kw in running(U.shape[1]))
+    return knots.sum(-1) + sum(getattr(view, name)(Q[:, -1], V[:, -1], **kw)[0] for name, kw in terminal)
+
+
+def ilqr(view, q0, qd0, U, dt, running, terminal, iterations, integrator="semi_implicit_euler", log=print):
+    """Minimise the cost over U (B, T, nv); returns the controls and the mean cost per iteration."""
+    nv, T = view._robot.nv, U.shape[1]
+    Q, V = rollout(view, q0, qd0, U, dt, integrator)
+    costs = [total_cost(view, Q, V, U, running, terminal)]
+    log(f"iteration  0   mean cost {costs[0].mean():.6g}")
+    reg = 1e-6
+    for it in range(1, iterations + 1):
+        h = view.horizon(Q[:, :-1], V[:, :-1], U, dt, integrator, costs=running(T))
+        # terminal value function
+        Vx = sum(getattr(view, n)(Q[:, -1], V[:, -1], **kw)[1] for n, kw in terminal)
+        Vxx = sum(getattr(view, n)(Q[:, -1], V[:, -1], **kw)[2] for n, kw in terminal)
+        K, k = [None] * T, [None] * T
+        eye = reg * torch.eye(nv, dtype=U.dtype, device=U.device)
+        for t in reversed(range(T)):
+            A, B = h["A"][:, t], h["B"][:, t]
+            Qx = h["lx"][:, t] + (A.mT @ Vx.unsqueeze(-1)).squeeze(-1)
+            Qu = h["lu"][:, t] + (B.mT @ Vx.unsqueeze(-1)).squeeze(-1)
+            Qxx = h["lxx"][:, t] + A.mT @ Vxx @ A
+            Quu = h["luu"][:, t] + B.mT @ Vxx @ B + eye
+            Qux = h["lxu"][:, t].mT + B.mT @ Vxx @ A
+            L = torch.linalg.cholesky(Quu)
+            K[t] = -torch.cholesky_solve(Qux, L)
+            k[t] = -torch.cholesky_solve(Qu.unsqueeze(-1), L).squeeze(-1)
+            Vx = Qx + (K[t].mT @ Qu.unsqueeze(-1)).squeeze(-1)
+            Vxx = Qxx + K[t].mT @ Qux
+            Vxx = 0.5 * (Vxx + Vxx.mT)
+        # forward pass with a line search, per sample
+        best_U, best_cost = U, costs[-1]
+        for alpha in (1.0, 0.5, 0.25, 0.1):
+            q, v, new_U = q0, qd0, []
+            for t in range(T):
+                dx = torch.cat([view.difference(Q[:, t], q), v - V[:, t]], dim=-1)
+                u = U[:, t] + alpha * k[t] + (K[t] @ dx.unsqueeze(-1)).squeeze(-1)
+                new_U.append(u)
+                q, v = view.step(q, v, u, dt, integrator)
+            trial = torch.stack(new_U, dim=1)
+            c = total_cost(view, *rollout(view, q0, qd0, trial, dt, integrator), trial, running, terminal)
+            better = c < best_cost
+            best_U = torch.where(better[:, None, None], trial, best_U)
+            best_cost = torch.where(better, c, best_cost)
+        U = best_U
+        Q, V = rollout(view, q0, qd0, U, dt, integrator)
+        costs.append(best_cost)
+        log(f"iteration {it:2d}   mean cost {best_cost.mean():.6g}")
+    return U, [c.mean().item() for c in costs]
+
+
+def reach(device="cpu", batch=16, T=50, iterations=10, log=print):
+    robot = torch_grid.load("iiwa14")
+    view, nv, dt = robot.pin, robot.nv, 0.02
+    g = torch.Generator().manual_seed(0)
+    q0 = robot.random_configuration(batch, generator=g).to(device)
+    qd0 = torch.zeros(batch, nv, dtype=torch.float64, device=device)
+    frame = robot.nframes - 1
+    target = (view.forward_kinematics(q0)[0][:, frame] + 0.2 * torch.randn(batch, 3, dtype=torch.float64,
+                                                                             generator=g).to(device))
+    ones = torch.ones(batch, 1, dtype=torch.float64, device=device)
+
+    def running(T):
+        zero = torch.zeros(nv, dtype=torch.float64, device=device)
+        return [("control_cost", {"tau_ref": view.generalized_gravity(q0).unsqueeze(1), "weights": 1e-3 * ones.unsqueeze(1).expand(batch, 1, nv)}),
+                ("state_cost", {"q_ref": q0.unsqueeze(1), "qd_ref": zero,
+                                "weights": torch.cat([zero, 1e-2 * torch.ones(nv, dtype=torch.float64, device=device)])})]
+
+    terminal = [("frame_translation_cost", {"frame": frame, "target": target, "weights": 1e3 * ones.expand(batch, 3)}),
+                ("state_cost", {"q_ref": q0, "qd_ref": qd0, "weights": torch.cat([0 * qd0, ones.expand(batch, nv)], -1)})]
+    U = view.generalized_gravity(q0).unsqueeze(1).expand(batch, T, nv).contiguous()
+    log(f"iiwa14: reach a target with {batch} arms, T = {T}, dt = {dt}")
+    return ilqr(view, q0, qd0, U, dt, running, terminal, iterations, log=log)[1]
+
+
+def balance(device="cpu", batch=16, T=50, iterations=10, log=print):
+    robot = torch_grid.load("go2")
+    view, nv, dt = robot.pin, robot.nv, 0.02
+    stand = view.neutral_configuration(device=device)
+    stand[2] = 0.3
+    g = torch.Generator().manual_seed(1)
+    perturbation = torch.cat([0.05 * torch.randn(batch, 6, dtype=torch.float64, generator=g),
+                              0.2 * torch.randn(batch, nv - 6, dtype=torch.float64, generator=g)], -1).to(device)
+    q0 = view.integrate(stand.expand(batch, -1), perturbation)
+    qd0 = torch.zeros(batch, nv, dtype=torch.float64, device=device)
+    u_weights = torch.cat([torch.full((6,), 1e-2), torch.full((nv - 6,), 1e-3)]).to(device=device, dtype=torch.float64)
+    x_weights = torch.cat([torch.full((nv,), 10.0), torch.full((nv,), 0.1)]).to(device=device, dtype=torch.float64)
+    hold = view.generalized_gravity(stand)
+
+    def running(T):
+        return [("control_cost", {"tau_ref": hold, "weights": u_weights}),
+                ("state_cost", {"q_ref": stand, "qd_ref": qd0[0], "weights": x_weights})]
+
+    terminal = [("state_cost", {"q_ref": stand, "qd_ref": qd0[0], "weights": 10 * x_weights})]
+    U = hold.expand(batch, T, nv).contiguous()
+    log(f"go2: return {batch} floating bases and legs to a standing pose, T = {T}, dt = {dt}")
+    return ilqr(view, q0, qd0, U, dt, running, terminal, iterations, log=log)[1]
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--iterations", type=int, default=10)
+    args = parser.parse_args()
+    reach(args.device, iterations=args.iterations)
+    balance(args.device, iterations=args.iterations)

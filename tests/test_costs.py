@@ -1,0 +1,124 @@
+"""Costs and barriers (torch_grid/costs.py): gradients against central differences along the tangent
+spaces, the Gauss-Newton Hessian against the exact one where the residual vanishes, the placement
+residual against Pinocchio's log6, autograd through the values, the barriers' pieces."""
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+import torch
+
+import torch_grid
+from oracles import rel_err
+from torch_grid.configuration import _rotation
+
+
+def _cases(view, robot, q, qd, at_zero: bool):
+    """name -> f(q, qd) for every state cost, at random targets or (at_zero) at the state's own values."""
+    g = torch.Generator().manual_seed(1)
+    n, nv, frame = q.shape[0], robot.nv, robot.nframes - 1
+    positions, rotations = view.forward_kinematics(q)
+    placement = torch.eye(4, dtype=torch.float64).repeat(n, 1, 1)
+    if at_zero:
+        q_ref, qd_ref, position, com, momentum = q, qd, positions[:, frame], view.com(q), view.ccrba(q, qd)[1]
+        placement[:, :3, :3], placement[:, :3, 3] = rotations[:, frame], positions[:, frame]
+    else:
+        q_ref, qd_ref = view.random_configuration(n, generator=g), torch.randn(n, nv, dtype=torch.float64, generator=g)
+        position, com, momentum = (torch.randn(n, k, dtype=torch.float64, generator=g) for k in (3, 3, 6))
+        placement[:, :3, :3] = _rotation(2 * torch.randn(n, 3, dtype=torch.float64, generator=g))
+        placement[:, :3, 3] = torch.randn(n, 3, dtype=torch.float64, generator=g)
+
+    def w(k):
+        return 0.5 + torch.rand(n, k, dtype=torch.float64, generator=torch.Generator().manual_seed(k))
+
+    return {
+        "state_cost": lambda q, qd: view.state_cost(q, qd, q_ref, qd_ref, w(2 * nv)),
+        "frame_translation_cost": lambda q, qd: view.frame_translation_cost(q, qd, frame, position, w(3)),
+        "frame_placement_cost": lambda q, qd: view.frame_placement_cost(q, qd, frame, placement, w(6)),
+        "com_cost": lambda q, qd: view.com_cost(q, qd, com, w(3)),
+        "momentum_cost": lambda q, qd: view.momentum_cost(q, qd, momentum, w(6)),
+    }
+
+
+def _tangent_differences(view, q, qd, fn, h=1e-6):
+    """Central differences of fn(q, qd) along [dq; dqd] (q moved by integrate): (..., *out, 2 nv)."""
+    nv, cols = qd.shape[-1], []
+    for k in range(2 * nv):
+        z = torch.zeros(q.shape[0], 2 * nv, dtype=torch.float64)
+        z[:, k] = h
+        plus, minus = fn(view.integrate(q, z[:, :nv]), qd + z[:, nv:]), fn(view.integrate(q, -z[:, :nv]), qd - z[:, nv:])
+        cols.append((plus - minus) / (2 * h))
+    return torch.stack(cols, dim=-1)
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+def test_gradients_and_hessians(robots, convention):
+    robot = robots["go2"]
+    view = getattr(robot, convention)
+    g = torch.Generator().manual_seed(0)
+    q, qd = view.random_configuration(3, generator=g), torch.randn(3, robot.nv, dtype=torch.float64, generator=g)
+    for name, fn in _cases(view, robot, q, qd, at_zero=False).items():
+        value, grad, hess = fn(q, qd)
+        assert value.shape == (3,) and hess.shape == (3, 2 * robot.nv, 2 * robot.nv)
+        assert rel_err(grad, _tangent_differences(view, q, qd, lambda a, b: fn(a, b)[0])) <= 1e-7, name
+        assert rel_err(hess.mT, hess) <= 1e-14, name
+    # where the residual vanishes, the Gauss-Newton Hessian is the Hessian
+    for name, fn in _cases(view, robot, q, qd, at_zero=True).items():
+        value, grad, hess = fn(q, qd)
+        assert value.abs().max() <= 1e-20 and grad.abs().max() <= 1e-10, name
+        assert rel_err(hess, _tangent_differences(view, q, qd, lambda a, b: fn(a, b)[1], h=1e-5)) <= 1e-6, name
+
+
+def test_placement_residual_is_pinocchios_log6(robots, pin_models):
+    """value = sum(w r^2) / 2 with r = pin.log6(target^-1 oMf) (Crocoddyl's placement residual)."""
+    robot, model = robots["go2"], pin_models["go2"]
+    data, frame = model.createData(), robot.nframes - 1
+    g = torch.Generator().manual_seed(2)
+    q, qd = robot.pin.random_configuration(2, generator=g), torch.zeros(2, robot.nv, dtype=torch.float64)
+    target = torch.eye(4, dtype=torch.float64).repeat(2, 1, 1)
+    target[:, :3, :3] = _rotation(torch.tensor([[0.3, -2.0, 1.0], [2.5, 1.5, 0.5]], dtype=torch.float64))
+    target[:, :3, 3] = torch.randn(2, 3, dtype=torch.float64, generator=g)
+    w = torch.tensor([1.0, 2.0, 3.0, 4.0, 5.0, 6.0], dtype=torch.float64).expand(2, 6)
+    value = robot.pin.frame_placement_cost(q, qd, frame, target, w)[0]
+    name = robot.frame_names[frame]
+    for k in range(2):
+        pin.framesForwardKinematics(model, data, q[k].numpy())
+        oMf = data.oMf[model.getFrameId(name)]
+        r = pin.log6(pin.SE3(target[k].numpy()).actInv(oMf)).vector
+        assert abs(value[k].item() - 0.5 * float((w[k].numpy() * r * r).sum())) <= 1e-10 * max(1.0, value[k].item())
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+def test_autograd_through_the_values(robots, convention):
+    robot = robots["go2"]
+    view = getattr(robot, convention)
+    g = torch.Generator().manual_seed(3)
+    q = view.random_configuration(1, generator=g).requires_grad_(True)
+    qd = torch.randn(1, robot.nv, dtype=torch.float64, generator=g).requires_grad_(True)
+    for name, fn in _cases(view, robot, q.detach(), qd.detach(), at_zero=False).items():
+        assert torch.autograd.gradcheck(lambda a, b: fn(a, b)[0], (q, qd)), name
+
+
+def test_control_cost_and_barriers():
+    g = torch.Generator().manual_seed(4)
+    x, ref, w = (torch.randn(2, 5, dtype=torch.float64, generator=g) for _ in range(3))
+    w = w.abs()
+    robot_free = torch_grid.costs.CostFunctions()
+    value, grad, hess = robot_free.control_cost(x, ref, w)
+    assert torch.allclose(value, 0.5 * (w * (x - ref) ** 2).sum(-1)) and torch.allclose(grad, w * (x - ref))
+    assert torch.equal(hess, torch.diag_embed(w))
+    lower, upper = -torch.ones(5, dtype=torch.float64), torch.ones(5, dtype=torch.float64)
+    for barrier in (torch_grid.quadratic_barrier, torch_grid.log_barrier):
+        inside = (0.9 * torch.tanh(x)).requires_grad_(True)
+        value, grad, hess = barrier(inside, lower, upper, w)
+        auto, = torch.autograd.grad(value.sum(), inside, create_graph=True)
+        assert torch.allclose(grad, auto, rtol=1e-12, atol=1e-12), barrier
+        second = torch.stack([torch.autograd.grad(auto[:, k].sum(), inside, retain_graph=True)[0] for k in range(5)], -1)
+        assert torch.allclose(hess, second, rtol=1e-12, atol=1e-12), barrier
+    outside = torch.tensor([[0.0, 2.0, 0.0, -3.0, 0.5]], dtype=torch.float64)
+    value, grad, hess = torch_grid.log_barrier(outside, lower, upper, w[:1])
+    assert torch.isinf(value).all() and torch.isinf(grad[0, [1, 3]]).all() and not torch.isnan(grad).any()
+    value, grad, _ = torch_grid.quadratic_barrier(outside, lower, upper, w[:1])
+    assert torch.allclose(value, 0.5 * (w[0, 1] * 1.0 + w[0, 3] * 4.0).unsqueeze(0))
+    with pytest.raises(ValueError, match=r"control_cost: weights must be a tensor of shape \(\.\.\., 5\)"):
+        robot_free.control_cost(x, ref, w[:, :3])

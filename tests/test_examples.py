@@ -1,0 +1,50 @@
+"""The examples run (shortened) and do what they print: iLQR lowers the cost on iiwa14 and go2, the
+policy's loss falls through back-propagation over the dynamics, and the compiled rollout equals eager."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples"))
+
+import ilqr  # noqa: E402
+import policy_rollout  # noqa: E402
+
+
+def test_horizon_is_the_per_knot_calls(robots):
+    """One horizon call over (B, T) equals step, step_derivatives and the costs at each knot."""
+    robot = robots["go2"]
+    view, nv = robot.mujoco, robot.nv
+    g = torch.Generator().manual_seed(0)
+    q = view.random_configuration(2, 3, generator=g)
+    qd, tau = (torch.randn(2, 3, nv, dtype=torch.float64, generator=g) for _ in range(2))
+    costs = [("state_cost", {"q_ref": view.neutral_configuration(), "qd_ref": torch.zeros(nv, dtype=torch.float64),
+                             "weights": torch.ones(2 * nv, dtype=torch.float64)}),
+             ("control_cost", {"tau_ref": torch.zeros(nv, dtype=torch.float64), "weights": torch.ones(nv, dtype=torch.float64)})]
+    out = view.horizon(q, qd, tau, 0.02, "rk4", costs)
+    for t in range(3):
+        A, B = view.step_derivatives(q[:, t], qd[:, t], tau[:, t], 0.02, "rk4")
+        assert torch.allclose(out["A"][:, t], A, rtol=1e-12, atol=1e-12) and torch.allclose(out["B"][:, t], B, rtol=1e-12, atol=1e-12)
+        state = view.state_cost(q[:, t], qd[:, t], **costs[0][1])
+        control = view.control_cost(tau[:, t], **costs[1][1])
+        assert torch.allclose(out["cost"][:, t], state[0] + control[0], rtol=1e-12)
+        assert torch.allclose(out["lx"][:, t], state[1], rtol=1e-12) and torch.allclose(out["luu"][:, t], control[2])
+    assert out["lxu"].shape == (2, 3, 2 * nv, nv) and not out["lxu"].any()
+    with pytest.raises(ValueError, match="horizon: costs must name one of"):
+        view.horizon(q, qd, tau, 0.02, costs=[("torque_cost", {})])
+
+
+@pytest.mark.parametrize("problem", ["reach", "balance"])
+def test_ilqr_example_lowers_the_cost(problem):
+    costs = getattr(ilqr, problem)(batch=4, T=30, iterations=4, log=lambda *_: None)
+    assert all(b <= a for a, b in zip(costs, costs[1:])) and costs[-1] < 0.5 * costs[0]
+
+
+def test_policy_example_learns_and_compiles():
+    values = policy_rollout.main(batch=16, updates=6, log=lambda *_: None)
+    losses, (eager, compiled) = values[:-2], values[-2:]
+    assert losses[-1] < losses[0]
+    assert abs(compiled - eager) <= 1e-10 * abs(eager)

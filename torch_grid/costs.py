@@ -1,0 +1,131 @@
+"""Costs and barriers for trajectory optimisation: each returns (value (...,), gradient, Gauss-Newton
+Hessian), in torch over the robot's ops, so autograd differentiates them too.
+
+State costs are functions of x = (q, qd): their gradient (..., 2 nv) and Hessian (..., 2 nv, 2 nv) are
+along the tangent [dq; dqd] (q moved by integrate), as Crocoddyl's Lx, Lxx; control costs take tau:
+(..., nv), (..., nv, nv). A residual r with Jacobian J and weights w (per sample, so a batch may hold
+different goals) costs sum(w r^2) / 2, gradient J^T (w r), Gauss-Newton Hessian J^T diag(w) J.
+"""
+from __future__ import annotations
+
+import torch
+
+from .configuration import _dexp_inverse_block, _left_jacobian_inverse, _log3
+
+
+class CostFunctions:
+    """The costs of a robot's views (mixed into robot._Functions)."""
+
+    def state_cost(self, q, qd, q_ref, qd_ref, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """r = [difference(q_ref, q); qd - qd_ref], weights (..., 2 nv)."""
+        nv = qd.shape[-1]
+        r = torch.cat([self.difference(q_ref, q), qd - qd_ref], dim=-1)
+        j_q = self.d_difference(q_ref, q)[1]
+        eye = torch.eye(nv, dtype=qd.dtype, device=qd.device).expand_as(j_q)
+        return _weighted(r, _block_diagonal(j_q, eye), _checked_weights("state_cost", weights, 2 * nv))
+
+    def control_cost(self, tau, tau_ref, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """r = tau - tau_ref, weights (..., nv)."""
+        r = tau - tau_ref
+        w = _checked_weights("control_cost", weights, r.shape[-1])
+        eye = torch.eye(r.shape[-1], dtype=r.dtype, device=r.device).expand(*r.shape, r.shape[-1])
+        return _weighted(r, eye, w)
+
+    def frame_translation_cost(self, q, qd, frame, target, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """r = the frame's world position - target (..., 3), weights (..., 3)."""
+        index = self._robot.frame_index(frame)
+        position = self.forward_kinematics(q)[0][..., index, :]
+        jacobian = self.frame_jacobian(q, index, "local_world_aligned")[..., :3, :]
+        return _weighted(position - target, _state_rows(jacobian, qd), _checked_weights("frame_translation_cost", weights, 3))
+
+    def frame_placement_cost(self, q, qd, frame, target, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """r = log6(target^-1 oMf) [linear; angular] (Crocoddyl's ResidualModelFramePlacement), target a
+        (..., 4, 4) placement, weights (..., 6); J = Jlog6(target^-1 oMf) J_frame(LOCAL)."""
+        index = self._robot.frame_index(frame)
+        positions, rotations = self.forward_kinematics(q)
+        R, p = rotations[..., index, :, :], positions[..., index, :]
+        R_ref, p_ref = target[..., :3, :3], target[..., :3, 3]
+        R_rel = R_ref.mT @ R
+        w = _log3(_quaternion_of(R_rel))
+        p_rel = R_ref.mT @ (p - p_ref).unsqueeze(-1)
+        r = torch.cat([(_left_jacobian_inverse(w) @ p_rel).squeeze(-1), w], dim=-1)
+        jacobian = _dexp_inverse_block("free", r, 0) @ self.frame_jacobian(q, index, "local")
+        return _weighted(r, _state_rows(jacobian, qd), _checked_weights("frame_placement_cost", weights, 6))
+
+    def com_cost(self, q, qd, target, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """r = center of mass - target (..., 3), weights (..., 3)."""
+        return _weighted(self.com(q) - target, _state_rows(self.jacobian_com(q), qd), _checked_weights("com_cost", weights, 3))
+
+    def momentum_cost(self, q, qd, target, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """r = centroidal momentum h(q, qd) [linear; angular] - target (..., 6), weights (..., 6): both its q
+        block (dccrba) and its qd block (A)."""
+        A, h = self.ccrba(q, qd)
+        return _weighted(h - target, torch.cat([self.dccrba(q, qd), A], dim=-1), _checked_weights("momentum_cost", weights, 6))
+
+
+def quadratic_barrier(x: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, weights: torch.Tensor):
+    """Crocoddyl's quadratic barrier: sum(w (min(x - lower, 0)^2 + max(x - upper, 0)^2)) / 2, zero inside
+    [lower, upper]; (value (...,), gradient (..., n), Hessian (..., n, n), diagonal)."""
+    r = torch.clamp(x - lower, max=0) + torch.clamp(x - upper, min=0)
+    outside = ((x < lower) | (x > upper)).to(x.dtype)
+    value = 0.5 * (weights * r * r).sum(-1)
+    return value, weights * r, torch.diag_embed(weights * outside)
+
+
+def log_barrier(x: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, weights: torch.Tensor):
+    """The logarithmic barrier of joint position, velocity or torque limits (as GRiD's):
+    -sum(w (log(x - lower) + log(upper - x))); infinite outside (lower, upper), with an infinite gradient
+    and Hessian there rather than a NaN. (value (...,), gradient (..., n), Hessian (..., n, n), diagonal,
+    exact)."""
+    a, b = x - lower, upper - x
+    inside = (a > 0) & (b > 0)
+    a_s, b_s = torch.where(inside, a, torch.ones_like(a)), torch.where(inside, b, torch.ones_like(b))
+    inf = torch.full_like(x, float("inf"))
+    value = torch.where(inside, -weights * (torch.log(a_s) + torch.log(b_s)), inf).sum(-1)
+    grad = torch.where(inside, weights * (1 / b_s - 1 / a_s), inf)
+    hess = torch.where(inside, weights * (1 / (a_s * a_s) + 1 / (b_s * b_s)), inf)
+    return value, grad, torch.diag_embed(hess)
+
+
+def _weighted(r: torch.Tensor, J: torch.Tensor, w: torch.Tensor):
+    wr = w * r
+    return 0.5 * (wr * r).sum(-1), (J.mT @ wr.unsqueeze(-1)).squeeze(-1), J.mT @ (w.unsqueeze(-1) * J)
+
+
+def _state_rows(jacobian: torch.Tensor, qd: torch.Tensor) -> torch.Tensor:
+    """A residual's Jacobian along q, (..., m, nv), as one along [dq; dqd] (zero qd block)."""
+    batch = torch.broadcast_shapes(jacobian.shape[:-2], qd.shape[:-1])
+    jacobian = jacobian.expand(*batch, *jacobian.shape[-2:])
+    return torch.cat([jacobian, torch.zeros_like(jacobian)], dim=-1)
+
+
+def _block_diagonal(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    za, zb = torch.zeros(*a.shape[:-1], b.shape[-1], dtype=a.dtype, device=a.device), \
+        torch.zeros(*b.shape[:-1], a.shape[-1], dtype=b.dtype, device=b.device)
+    return torch.cat([torch.cat([a, za], dim=-1), torch.cat([zb, b], dim=-1)], dim=-2)
+
+
+def _checked_weights(cost: str, weights, n: int) -> torch.Tensor:
+    if not isinstance(weights, torch.Tensor) or weights.shape[-1:] != (n,):
+        got = tuple(weights.shape) if isinstance(weights, torch.Tensor) else type(weights).__name__
+        raise ValueError(f"{cost}: weights must be a tensor of shape (..., {n}), got {got}")
+    return weights
+
+
+def _quaternion_of(R: torch.Tensor) -> torch.Tensor:
+    """The unit quaternion (xyzw) of rotation matrices (..., 3, 3), by the largest of w, x, y, z (each
+    branch's square root kept positive, so that gradients through the others stay finite)."""
+    m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
+    trace = m00 + m11 + m22
+    s = [torch.sqrt(torch.clamp(t, min=1e-12)) * 2 for t in
+         (1 + trace, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22)]
+    d21, d02, d10 = R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]
+    a01, a02, a12 = R[..., 0, 1] + R[..., 1, 0], R[..., 0, 2] + R[..., 2, 0], R[..., 1, 2] + R[..., 2, 1]
+    cases = [
+        torch.stack([d21 / s[0], d02 / s[0], d10 / s[0], s[0] / 4], dim=-1),
+        torch.stack([s[1] / 4, a01 / s[1], a02 / s[1], d21 / s[1]], dim=-1),
+        torch.stack([a01 / s[2], s[2] / 4, a12 / s[2], d02 / s[2]], dim=-1),
+        torch.stack([a02 / s[3], a12 / s[3], s[3] / 4, d10 / s[3]], dim=-1),
+    ]
+    pick = torch.stack([trace, m00, m11, m22], dim=-1).argmax(-1, keepdim=True).unsqueeze(-1)
+    return torch.gather(torch.stack(cases, dim=-2), -2, pick.expand(*pick.shape[:-2], 1, 4)).squeeze(-2)
