@@ -90,6 +90,7 @@ def test_placement_residual_is_pinocchios_log6(robots, pin_models):
 
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
 def test_autograd_through_the_values(robots, convention):
+    """gradcheck and gradgradcheck of every state cost's value."""
     robot = robots["go2"]
     view = getattr(robot, convention)
     g = torch.Generator().manual_seed(3)
@@ -97,6 +98,7 @@ def test_autograd_through_the_values(robots, convention):
     qd = torch.randn(1, robot.nv, dtype=torch.float64, generator=g).requires_grad_(True)
     for name, fn in _cases(view, robot, q.detach(), qd.detach(), at_zero=False).items():
         assert torch.autograd.gradcheck(lambda a, b: fn(a, b)[0], (q, qd)), name
+        assert torch.autograd.gradgradcheck(lambda a, b: fn(a, b)[0], (q, qd)), name
 
 
 def test_control_cost_and_barriers():

@@ -21,10 +21,11 @@ FUNCTIONS = {
     "nonlinear_effects": lambda v, q, qd, x, f: v.nonlinear_effects(q, qd),
     "energy": lambda v, q, qd, x, f: v.energy(q, qd),
     "com": lambda v, q, qd, x, f: v.com(q),
+    "momentum": lambda v, q, qd, x, f: v.ccrba(q, qd)[1],  # ccrba's h (its A is a derivative)
     "forward_kinematics": lambda v, q, qd, x, f: v.forward_kinematics(q),
     "end_effector_pose": lambda v, q, qd, x, f: v.end_effector_pose(q, [v._robot.nframes - 1]),
 }
-ARITY = {"inverse_dynamics": 4, "forward_dynamics": 4, "nonlinear_effects": 2, "energy": 2}
+ARITY = {"inverse_dynamics": 4, "forward_dynamics": 4, "nonlinear_effects": 2, "energy": 2, "momentum": 2}
 
 
 @pytest.fixture(scope="module")

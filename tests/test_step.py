@@ -246,3 +246,20 @@ def test_unknown_integrator_is_refused(robots):
     q, qd, tau = _state(robot.pin, robot, 1, 6)
     with pytest.raises(ValueError, match="integrator must be one of .* got 'rk5'"):
         robot.step(q, qd, tau, 0.01, "rk5")
+
+
+def test_large_batches_go_in_pieces(robots, monkeypatch):
+    """A batch above integrators.CHUNK samples is split (here at 2) and put back in its shape: the same
+    A, B as one piece, with a per-sample dt and a leading batch of two dimensions."""
+    import torch_grid.integrators as integrators
+
+    robot = robots["go2"]
+    g = torch.Generator().manual_seed(9)
+    q = robot.mujoco.random_configuration(2, 3, generator=g)
+    qd, tau = (torch.randn(2, 3, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
+    dt = torch.rand(3, dtype=torch.float64, generator=g) * 0.05
+    whole = robot.mujoco.step_derivatives(q, qd, tau, dt, "rk4")
+    monkeypatch.setattr(integrators, "CHUNK", 2)
+    pieces = robot.mujoco.step_derivatives(q, qd, tau, dt, "rk4")
+    for a, b in zip(whole, pieces):
+        assert a.shape == b.shape == (2, 3, *a.shape[2:]) and torch.allclose(a, b, rtol=1e-14, atol=1e-14)

@@ -243,6 +243,24 @@ def mass_product_jvp(ops, q, x, t, convention):
             ops.inverse_dynamics_jvp(q, zero, zero, None, t, None, convention))
 
 
+def _ccrba(ops, model, needs, grads, output, q, qd, convention):
+    """(A, h = A qd): d h/dqd = A, d h/dq = dccrba; A e_j = h(q, e_j), so <G_A, A> differentiates along q
+    as sum_j G_A[:, j] . dccrba(q, e_j). Made of ccrba and dccrba, so that h (a momentum, not a
+    derivative) has a second derivative, by dccrba's own backward."""
+    g_A, g_h = grads
+    dq = dqd = None
+    if needs[0]:
+        nv = model.nv
+        unit = torch.eye(nv, dtype=q.dtype, device=q.device).expand(*q.shape[:-1], nv, nv)
+        columns = ops.dccrba(repeat(q, nv, 1), unit, convention)  # [..., j] = d(A e_j)/dq, (..., nv, 6, nv)
+        g = torch.einsum("...rj,...jrk->...k", g_A, columns)
+        g = g + (g_h.unsqueeze(-2) @ ops.dccrba(q, qd, convention)).squeeze(-2)
+        dq = tangent_to_ambient(model, q, g, convention)
+    if needs[1]:
+        dqd = (output[0].mT @ g_h.unsqueeze(-1)).squeeze(-1)
+    return dq, dqd, None
+
+
 def _generalized_gravity(ops, model, needs, grads, output, q, convention):
     """g(q) = ID(q, 0, 0)."""
     zero = torch.zeros(*q.shape[:-1], model.nv, dtype=q.dtype, device=q.device)
@@ -442,6 +460,7 @@ BACKWARDS = {
     "generalized_gravity": _generalized_gravity,
     "nonlinear_effects": _nonlinear_effects,
     "com": _com,
+    "ccrba": _ccrba,
     "energy": _energy,
     "inverse_dynamics_gradient": _inverse_dynamics_gradient,
     "forward_dynamics_gradient": _forward_dynamics_gradient,
@@ -453,7 +472,7 @@ BACKWARDS = {
 
 # Ops whose outputs are derivatives and whose backward is made of other ops (their backwards, or the
 # jvp kernels of a first-order gradient) rather than of a kernel of their own on dual numbers.
-COMPOSED_BACKWARD = ("inverse_dynamics_gradient", "forward_dynamics_gradient",
+COMPOSED_BACKWARD = ("ccrba", "inverse_dynamics_gradient", "forward_dynamics_gradient",
                      "inverse_dynamics_external_force_gradient", "forward_dynamics_external_force_gradient",
                      "forward_dynamics_parameter_gradient", "osc_inertia")
 

@@ -58,6 +58,9 @@ class StepFunctions:
         """(A `(..., 2 nv, 2 nv)`, B `(..., 2 nv, nv)`): the derivatives of step's [q'; qd'] with respect to
         [q; qd] and tau, along the tangent spaces (q' compared by difference, q moved by integrate)."""
         _check(integrator)
+        return _in_chunks(lambda *args: self._step_derivatives(*args, integrator), q, qd, tau, dt, f_ext)
+
+    def _step_derivatives(self, q, qd, tau, dt, f_ext, integrator):
         h = _dt(dt, qd)
         hh = h.unsqueeze(-1)
         space, convention = self._robot._space, self._convention
@@ -125,6 +128,25 @@ class StepFunctions:
         dims = (None, 0, 0, 0, 0, None if f_ext is None else 0, 0, 0)
         out = torch.func.vmap(hessian, in_dims=dims)(z, *flat[:3], h, flat[3], y_q, y_v)
         return out.reshape(*batch, 2 * nv, 3 * nv, 3 * nv)
+
+
+# Samples per piece of a large batch: the chain rule's (nv, nv) temporaries of a piece stay in cache
+# (G1 at B = 4096: 6.7x forward_dynamics_gradient whole, 2.3x in pieces).
+CHUNK = 256
+
+
+def _in_chunks(fn, q, qd, tau, dt, f_ext):
+    """fn(q, qd, tau, dt, f_ext) -> (A, B) over a flattened batch, in pieces of CHUNK samples."""
+    dt = torch.as_tensor(dt, dtype=qd.dtype, device=qd.device)
+    batch = torch.broadcast_shapes(q.shape[:-1], qd.shape[:-1], tau.shape[:-1], dt.shape,
+                                   () if f_ext is None else f_ext.shape[:-2])
+    n = batch.numel()
+    if n <= CHUNK:
+        return fn(q, qd, tau, dt, f_ext)
+    flat = [None if x is None else x.expand(*batch, *x.shape[x.dim() - k:]).reshape(n, *x.shape[x.dim() - k:])
+            for x, k in ((q, 1), (qd, 1), (tau, 1), (dt, 0), (f_ext, 2))]
+    pieces = [fn(*(None if x is None else x[s:s + CHUNK] for x in flat)) for s in range(0, n, CHUNK)]
+    return tuple(torch.cat(parts).reshape(*batch, *parts[0].shape[1:]) for parts in zip(*pieces))
 
 
 def _check(integrator) -> None:

@@ -170,7 +170,7 @@ _VALUE_OPS = (
 # external-force one of inverse dynamics and osc_inertia compose the backwards of their parts, in
 # autograd.py.)
 FORWARD_MODE_BACKWARD = (
-    "jacobian_com", "ccrba", "frame_jacobian", "frame_jacobian_dot", "body_velocities", "frames_vjp",
+    "jacobian_com", "frame_jacobian", "frame_jacobian_dot", "body_velocities", "frames_vjp",
     "cmm_time_variation", "dccrba", "coriolis_matrix", "inverse_dynamics_regressor", "kinetic_energy_regressor", "potential_energy_regressor",
 )
 
