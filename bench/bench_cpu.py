@@ -25,6 +25,7 @@ import pinocchio as pin
 import torch
 
 import torch_grid
+from bench_step import step_section
 from pinocchio_cpp import pinocchio_cpp_times
 
 HERE = Path(__file__).resolve().parent
@@ -341,6 +342,7 @@ def main() -> None:
         "the batched call (reference), and a Hessian-vector product of w . forward_dynamics(q, qd, tau) with " \
         "respect to all three (forward + backward with create_graph + double backward) against the forward " \
         "(reference).\n\n" + "\n".join(func_rows) + "\n"
+    text += "\n\n" + step_section({k: v for k, v in ROBOTS.items() if k in args.robots and k != "iiwa14"})
     overhead = call_overhead()
     text += ("\n\nCall overhead: one small call, µs (best of 7 x 20000; iiwa14, float64, CPU).\n\n| call | µs |\n|---|---|\n"
              + "\n".join(f"| {call} | {us:.2f} |" for call, us in overhead) + "\n")

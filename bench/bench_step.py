@@ -88,6 +88,43 @@ def step_rows(robots: dict) -> list[str]:
     return rows
 
 
+def ilqr_iteration_ms(batch: int = 256, T: int = 50) -> tuple[float, float]:
+    """(ms for one iLQR iteration of examples/ilqr.py's go2 problem: a horizon call, the Riccati
+    recursion and a line search of up to four rollouts; ms for the horizon call alone), one thread."""
+    sys.path.insert(0, str(HERE.parent / "examples"))
+    import ilqr
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    times = {}
+
+    def timed(fn, name):
+        def wrapped(*args, **kwargs):
+            start = time.perf_counter()
+            out = fn(*args, **kwargs)
+            times.setdefault(name, []).append(time.perf_counter() - start)
+            return out
+        return wrapped
+
+    original = ilqr.ilqr
+    ilqr.ilqr = timed(original, "iteration")
+    try:
+        ilqr.balance(batch=batch, T=T, iterations=1, log=lambda *_: None)  # warm-up
+        times.clear()
+        ilqr.balance(batch=batch, T=T, iterations=1, log=lambda *_: None)
+        robot = torch_grid.load("go2")
+        q = robot.pin.random_configuration(batch, T)
+        qd, tau = torch.zeros(batch, T, robot.nv, dtype=torch.float64), torch.zeros(batch, T, robot.nv, dtype=torch.float64)
+        start = time.perf_counter()
+        robot.pin.horizon(q, qd, tau, 0.02)
+        horizon = time.perf_counter() - start
+    finally:
+        ilqr.ilqr = original
+        torch.set_num_threads(threads)
+    # the timed call runs one iteration after the initial rollout; report the whole call
+    return times["iteration"][0] * 1e3, horizon * 1e3
+
+
 def step_section(robots: dict) -> str:
     header = ("Plant step, MuJoCo convention, one thread, float64, B = 4096 (µs per sample): forward_dynamics_gradient; "
               "step_derivatives (A, B) for semi-implicit Euler and rk4 with their ratio to it; MuJoCo's "
@@ -95,7 +132,11 @@ def step_section(robots: dict) -> str:
               "joints) and how many of our samples it costs; step_second_derivatives (rk4) per sample at B = 16.\n\n"
               "| robot | forward_dynamics_gradient | step_derivatives euler | step_derivatives rk4 | mjd_transitionFD | "
               "step_second_derivatives |\n|---|---|---|---|---|---|\n")
-    return header + "\n".join(step_rows(robots)) + "\n"
+    iteration, horizon = ilqr_iteration_ms()
+    return (header + "\n".join(step_rows(robots)) + "\n\n"
+            f"One iLQR iteration (examples/ilqr.py, go2, 256 samples, horizon 50, semi-implicit Euler, one thread): "
+            f"{iteration:.0f} ms, of which the horizon call (step, A, B and costs for all 12 800 knots) takes about "
+            f"{horizon:.0f} ms.\n")
 
 
 if __name__ == "__main__":

@@ -63,24 +63,27 @@ def ilqr(view, q0, qd0, U, dt, running, terminal, iterations, integrator="semi_i
             Vx = Qx + (K[t].mT @ Qu.unsqueeze(-1)).squeeze(-1)
             Vxx = Qxx + K[t].mT @ Qux
             Vxx = 0.5 * (Vxx + Vxx.mT)
-        # forward pass with a line search, per sample
-        best_U, best_cost = U, costs[-1]
+        # forward pass under the feedback policy, backtracking per sample until every one improves
+        best = (U, Q, V, costs[-1])
+        done = torch.zeros_like(costs[-1], dtype=torch.bool)
         for alpha in (1.0, 0.5, 0.25, 0.1):
-            q, v, new_U = q0, qd0, []
+            qs, vs, new_U = [q0], [qd0], []
             for t in range(T):
-                dx = torch.cat([view.difference(Q[:, t], q), v - V[:, t]], dim=-1)
-                u = U[:, t] + alpha * k[t] + (K[t] @ dx.unsqueeze(-1)).squeeze(-1)
-                new_U.append(u)
-                q, v = view.step(q, v, u, dt, integrator)
-            trial = torch.stack(new_U, dim=1)
-            c = total_cost(view, *rollout(view, q0, qd0, trial, dt, integrator), trial, running, terminal)
-            better = c < best_cost
-            best_U = torch.where(better[:, None, None], trial, best_U)
-            best_cost = torch.where(better, c, best_cost)
-        U = best_U
-        Q, V = rollout(view, q0, qd0, U, dt, integrator)
-        costs.append(best_cost)
-        log(f"iteration {it:2d}   mean cost {best_cost.mean():.6g}")
+                dx = torch.cat([view.difference(Q[:, t], qs[-1]), vs[-1] - V[:, t]], dim=-1)
+                new_U.append(U[:, t] + alpha * k[t] + (K[t] @ dx.unsqueeze(-1)).squeeze(-1))
+                q, v = view.step(qs[-1], vs[-1], new_U[-1], dt, integrator)
+                qs.append(q)
+                vs.append(v)
+            trial = (torch.stack(new_U, dim=1), torch.stack(qs, dim=1), torch.stack(vs, dim=1))
+            c = total_cost(view, trial[1], trial[2], trial[0], running, terminal)
+            take = (c < best[3]) & ~done
+            best = tuple(torch.where(take.view(-1, *[1] * (x.dim() - 1)), x, b) for x, b in zip(trial + (c,), best))
+            done = done | take
+            if done.all():
+                break
+        U, Q, V = best[:3]
+        costs.append(best[3])
+        log(f"iteration {it:2d}   mean cost {costs[-1].mean():.6g}")
     return U, [c.mean().item() for c in costs]
 
 

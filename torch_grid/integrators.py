@@ -62,46 +62,59 @@ class StepFunctions:
 
     def _step_derivatives(self, q, qd, tau, dt, f_ext, integrator):
         h = _dt(dt, qd)
-        hh = h.unsqueeze(-1)
+        hh, nv = h.unsqueeze(-1), qd.shape[-1]
+        batch = torch.broadcast_shapes(q.shape[:-1], qd.shape[:-1], tau.shape[:-1], h.shape[:-1])
         space, convention = self._robot._space, self._convention
-        # A derivative along z = [dq; dqd; dtau] is kept as its three (..., nv, nv) blocks, None for zero
-        # and a number c for c I, so that the chain rule multiplies only what is there.
-        start_q, start_v = [1.0, None, None], [None, 1.0, None]
+        # A derivative along z = [dq; dqd; dtau] is an (..., nv, 3 nv) matrix; the integrate and dexp^-1
+        # maps are the identity but on their quaternion joints' rows, which are rewritten in place.
+        eye = torch.eye(nv, dtype=qd.dtype, device=qd.device)
+        zero = torch.zeros_like(eye)
+        start_q, start_v = torch.cat([eye, zero, zero], dim=-1), torch.cat([zero, eye, zero], dim=-1)
 
         def stage(qi, vi, dq, dv):
-            """a at a stage and its derivative, from the stage's own (dq, dqd)."""
+            """a at a stage and its derivative, from the stage's own (dq, dqd); None: the start."""
             a = self.forward_dynamics(qi, vi, tau, f_ext)
             da_dq, da_dv, da_dtau = self.forward_dynamics_gradient(qi, vi, tau, f_ext)
-            da = [_add(_mul(da_dq, x), _mul(da_dv, y)) for x, y in zip(dq, dv)]
-            return a, da[:2] + [_add(da[2], da_dtau)]
+            if dq is None:
+                return a, torch.cat([da_dq, da_dv, da_dtau], dim=-1)
+            da = da_dq @ dq + da_dv @ dv
+            da[..., 2 * nv:] += da_dtau
+            return a, da
 
         def advance(theta, dtheta):
-            """The derivative of q (+) dt theta: J_q along dq, J_v dtheta."""
-            blocks = d_integrate_blocks(space, q, theta, dt, convention)
-            out = [None if x is None else hh * tangent_map(blocks, 1, _dense(x, theta)) for x in dtheta]
-            return [_add(out[0], tangent_map(blocks, 0, _dense(1.0, theta)))] + out[1:]
+            """The derivative of q (+) dt theta: J_q along dq, plus J_v dtheta."""
+            step = hh * dtheta
+            out = step + start_q
+            if out.shape[:-2] != batch:  # a first stage's start, not yet batched
+                out = out.expand(*batch, nv, 3 * nv).clone()
+            for vi, j_q, j_v in d_integrate_blocks(space, q, theta, dt, convention):
+                n = j_q.shape[-1]
+                out[..., vi:vi + n, :] = j_v @ step[..., vi:vi + n, :]
+                out[..., vi:vi + n, vi:vi + n] += j_q
+            return out
 
-        a0, da0 = stage(q, qd, start_q, start_v)
+        a0, da0 = stage(q, qd, None, None)
         if integrator == "semi_implicit_euler":
-            dv_next = _combine((1.0, 1.0), [start_v, _scaled(hh, da0)], blockwise=True)
-            return _blocks(advance(qd + h * a0, dv_next), dv_next, qd)
+            dv_next = hh * da0 + start_v
+            return _split(advance(qd + h * a0, dv_next), dv_next, nv)
         rows, weights = TABLEAUS[integrator]
         carried, dcarried, acc, dacc = [qd], [start_v], [a0], [da0]
         for row in rows:
-            theta, dtheta = _combine(row, carried), _combine(row, dcarried, blockwise=True)
-            v = qd + h * _combine(row, acc)
-            dv = _combine((1.0, 1.0), [start_v, _scaled(hh, _combine(row, dacc, blockwise=True))], blockwise=True)
+            theta, dtheta = _combine(row, carried), _combine(row, dcarried)
+            v, dv = qd + h * _combine(row, acc), hh * _combine(row, dacc) + start_v
             a, da = stage(self.integrate(q, theta, dt), v, advance(theta, dtheta), dv)
             acc.append(a)
             dacc.append(da)
+            # stage velocity carried to q's chart: dexp(h theta)^-1 v, with its derivative
             blocks = d_dexp_inverse_blocks(space, h * theta, v, convention)
             carried.append(tangent_map(blocks, 1, v.unsqueeze(-1)).squeeze(-1))
-            dcarried.append([_add(None if t is None else tangent_map(blocks, 0, hh * _dense(t, v), identity=False),
-                                  None if x is None else tangent_map(blocks, 1, _dense(x, v)))
-                             for t, x in zip(dtheta, dv)])
-        dq_next = advance(_combine(weights, carried), _combine(weights, dcarried, blockwise=True))
-        dv_next = _combine((1.0, 1.0), [start_v, _scaled(hh, _combine(weights, dacc, blockwise=True))], blockwise=True)
-        return _blocks(dq_next, dv_next, qd)
+            dc = dv.clone()
+            for vi, j_theta, j_v in blocks:
+                n = j_v.shape[-1]
+                dc[..., vi:vi + n, :] = j_v @ dv[..., vi:vi + n, :] + j_theta @ (hh * dtheta[..., vi:vi + n, :])
+            dcarried.append(dc)
+        dq_next = advance(_combine(weights, carried), _combine(weights, dcarried))
+        return _split(dq_next, hh * _combine(weights, dacc) + start_v, nv)
 
     def step_second_derivatives(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dt,
                                 integrator: str = "semi_implicit_euler",
@@ -159,55 +172,13 @@ def _dt(dt, x: torch.Tensor) -> torch.Tensor:
     return torch.as_tensor(dt, dtype=x.dtype, device=x.device).unsqueeze(-1)
 
 
-def _combine(coefficients, xs, blockwise: bool = False):
-    """sum_j c_j x_j over the non-zero coefficients; blockwise: of lists of derivative blocks."""
-    terms = [(c, x) for c, x in zip(coefficients, xs) if c]
-    if not blockwise:
-        return sum((c * x for c, x in terms[1:]), terms[0][0] * terms[0][1])
-    return [_sum_blocks([(c, x[k]) for c, x in terms]) for k in range(3)]
+def _combine(coefficients, xs):
+    """sum_j c_j x_j over the non-zero coefficients."""
+    terms = [c * x for c, x in zip(coefficients, xs) if c]
+    return sum(terms[1:], terms[0])
 
 
-def _dense(x, like: torch.Tensor) -> torch.Tensor:
-    """A block as a (..., nv, nv) tensor (a number c is c I)."""
-    if isinstance(x, float):
-        nv = like.shape[-1]
-        return x * torch.eye(nv, dtype=like.dtype, device=like.device).expand(*like.shape[:-1], nv, nv)
-    return x
-
-
-def _mul(a: torch.Tensor, x):
-    return None if x is None else a * x if isinstance(x, float) else a @ x
-
-
-def _add(x, y):
-    if x is None or y is None:
-        return y if x is None else x
-    if isinstance(x, float) and isinstance(y, float):
-        return x + y
-    if isinstance(x, float) or isinstance(y, float):
-        c, m = (x, y) if isinstance(x, float) else (y, x)
-        return m + c * torch.eye(m.shape[-1], dtype=m.dtype, device=m.device)
-    return x + y
-
-
-def _sum_blocks(terms):
-    """sum c x over (c, block) pairs, skipping zero blocks."""
-    out = None
-    for c, x in terms:
-        if x is not None:
-            out = _add(out, x if c == 1.0 else c * x)
-    return out
-
-
-def _scaled(hh: torch.Tensor, blocks):
-    return [None if x is None else hh * x for x in blocks]
-
-
-def _blocks(dq, dv, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(A, B) from the blocks of d(q')/dz and d(qd')/dz, z = [dq; dqd; dtau]."""
-    nv = like.shape[-1]
-    batch = torch.broadcast_shapes(*(x.shape[:-2] for x in dq + dv if isinstance(x, torch.Tensor)))
-    full = [[torch.zeros(*batch, nv, nv, dtype=like.dtype, device=like.device) if x is None else
-             _dense(x, like).expand(*batch, nv, nv) for x in row] for row in (dq, dv)]
-    rows = torch.cat([torch.cat(row, dim=-1) for row in full], dim=-2)
+def _split(dq: torch.Tensor, dv: torch.Tensor, nv: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """(A, B) from the rows d(q')/dz, d(qd')/dz, z = [dq; dqd; dtau]."""
+    rows = torch.cat([dq, dv], dim=-2)
     return rows[..., :2 * nv], rows[..., 2 * nv:]
