@@ -263,3 +263,23 @@ def test_large_batches_go_in_pieces(robots, monkeypatch):
     pieces = robot.mujoco.step_derivatives(q, qd, tau, dt, "rk4")
     for a, b in zip(whole, pieces):
         assert a.shape == b.shape == (2, 3, *a.shape[2:]) and torch.allclose(a, b, rtol=1e-14, atol=1e-14)
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+def test_float32_follows_float64(robots, convention):
+    """step, step_derivatives and a cost in float32 against float64 (a floating base)."""
+    robot = robots["go2"]
+    view = getattr(robot, convention)
+    q, qd, tau = _state(view, robot, 3, 10)
+    for integrator in ("semi_implicit_euler", "rk4"):
+        ours = view.step(q.float(), qd.float(), tau.float(), 0.01, integrator)
+        ref = view.step(q, qd, tau, 0.01, integrator)
+        assert all(a.dtype == torch.float32 for a in ours)
+        assert all(torch.allclose(a.double(), b, rtol=1e-4, atol=1e-4) for a, b in zip(ours, ref)), integrator
+        ours = view.step_derivatives(q.float(), qd.float(), tau.float(), 0.01, integrator)
+        ref = view.step_derivatives(q, qd, tau, 0.01, integrator)
+        assert all(rel_err(a, b) <= 1e-4 for a, b in zip(ours, ref)), integrator
+    weights = torch.ones(2 * robot.nv, dtype=torch.float64)
+    ours = view.state_cost(q.float(), qd.float(), q[0].float(), qd[0].float(), weights.float())
+    ref = view.state_cost(q, qd, q[0], qd[0], weights)
+    assert all(rel_err(a, b) <= 1e-4 for a, b in zip(ours, ref))
