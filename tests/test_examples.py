@@ -25,6 +25,9 @@ def test_horizon_is_the_per_knot_calls(robots):
                              "weights": torch.ones(2 * nv, dtype=torch.float64)}),
              ("control_cost", {"tau_ref": torch.zeros(nv, dtype=torch.float64), "weights": torch.ones(nv, dtype=torch.float64)})]
     out = view.horizon(q, qd, tau, 0.02, "rk4", costs)
+    q_next, qd_next = view.step(q, qd, tau, 0.02, "rk4")
+    assert torch.allclose(out["q_next"], q_next, rtol=1e-14, atol=1e-14)
+    assert torch.allclose(out["qd_next"], qd_next, rtol=1e-14, atol=1e-14)
     for t in range(3):
         A, B = view.step_derivatives(q[:, t], qd[:, t], tau[:, t], 0.02, "rk4")
         assert torch.allclose(out["A"][:, t], A, rtol=1e-12, atol=1e-12) and torch.allclose(out["B"][:, t], B, rtol=1e-12, atol=1e-12)

@@ -110,57 +110,52 @@ def d_integrate_blocks(space: Space, q: torch.Tensor, v: torch.Tensor, dt, conve
             blocks.append((vi, rot_t, jr))
         elif convention:
             eye = torch.eye(3, dtype=v.dtype, device=v.device).expand_as(jr)
-            blocks.append((vi, _block_diagonal(eye, rot_t), _block_diagonal(eye, jr)))
+            blocks.append((vi, block_diagonal(eye, rot_t), block_diagonal(eye, jr)))
         else:
-            p = _apply(_left_jacobian(w), v[..., vi:vi + 3])  # exp6(v) = (R(w), V(w) v_lin)
-            blocks.append((vi, _upper(rot_t, -rot_t @ _skew(p), rot_t), _upper(jr, _q_right(v[..., vi:vi + 3], w), jr)))
+            blocks.append((vi, _adjoint_exp6_inverse(v[..., vi:vi + 3], w, rot_t),
+                           _upper(jr, _q_right(v[..., vi:vi + 3], w), jr)))
     return blocks
 
 
-def tangent_map(blocks: list, which: int, x: torch.Tensor, identity: bool = True) -> torch.Tensor:
+def tangent_map(blocks: list, which: int, x: torch.Tensor) -> torch.Tensor:
     """(..., nv, k): x (..., nv, k) mapped by a block-diagonal matrix given by its quaternion joints'
     blocks (d_integrate_blocks, d_dexp_inverse_blocks; which: the first or second of each pair), the
-    identity outside them (or zero: identity=False)."""
+    identity outside them."""
     if not blocks:
-        return x if identity else torch.zeros_like(x)
+        return x
     parts, start = [], 0
     for vi, *pair in blocks:
         block = pair[which]
         n = block.shape[-1]
-        rest = x[..., start:vi, :]
-        parts += [rest if identity else torch.zeros_like(rest), block @ x[..., vi:vi + n, :]]
+        parts += [x[..., start:vi, :], block @ x[..., vi:vi + n, :]]
         start = vi + n
-    rest = x[..., start:, :]
-    return torch.cat(parts + [rest if identity else torch.zeros_like(rest)], dim=-2)
+    return torch.cat(parts + [x[..., start:, :]], dim=-2)
 
 
 def d_difference(space: Space, q0: torch.Tensor, q1: torch.Tensor, convention: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """(J_q0, J_q1), each (..., nv, nv): the tangent Jacobians of difference(q0, q1)."""
+    """(J_q0, J_q1), each (..., nv, nv): the tangent Jacobians of difference(q0, q1); J_q0 is minus the
+    identity on the scalar coordinates, J_q1 the identity."""
     q0, q1 = _broadcast(q0, q1)
     d = difference(space, q0, q1, convention)
-    blocks0, blocks1 = [], []
+    blocks = []  # per quaternion joint: (vi, -J_q0's block, J_q1's block)
     for kind, vi in zip(space.kinds, space.vi):
         if kind == "scalar":
-            one = torch.ones_like(d[..., :1]).unsqueeze(-1)
-            blocks0.append(-one)
-            blocks1.append(one)
             continue
         w = d[..., _angular(kind, vi):_angular(kind, vi) + 3]
-        jinv, rot_t = _right_jacobian_inverse(w), _rotation(w).mT
-        if kind == "ball":
-            blocks0.append(-jinv @ rot_t)
-            blocks1.append(jinv)
-        elif convention:
-            eye = torch.eye(3, dtype=d.dtype, device=d.device).expand_as(jinv)
-            blocks0.append(_block_diagonal(-eye, -jinv @ rot_t))
-            blocks1.append(_block_diagonal(eye, jinv))
-        else:
-            # Jexp6(d)^-1 = [[Jr^-1, -Jr^-1 Q Jr^-1], [0, Jr^-1]]; Ad(exp6(d)^-1) as in d_integrate
+        rot_t = _rotation(w).mT
+        if kind == "free" and not convention:
+            # Jexp6(d)^-1 = [[Jr^-1, -Jr^-1 Q Jr^-1], [0, Jr^-1]], then Ad(exp6(d)^-1) as in d_integrate
             log = _dexp_inverse_block(kind, d[..., vi:vi + 6], convention)
-            p = _apply(_left_jacobian(w), d[..., vi:vi + 3])
-            blocks0.append(-log @ _upper(rot_t, -rot_t @ _skew(p), rot_t))
-            blocks1.append(log)
-    return _assemble(blocks0, space.nv), _assemble(blocks1, space.nv)
+            blocks.append((vi, log @ _adjoint_exp6_inverse(d[..., vi:vi + 3], w, rot_t), log))
+            continue
+        jinv = _right_jacobian_inverse(w)
+        if kind == "ball":
+            blocks.append((vi, jinv @ rot_t, jinv))
+        else:
+            eye = torch.eye(3, dtype=d.dtype, device=d.device).expand_as(jinv)
+            blocks.append((vi, block_diagonal(eye, jinv @ rot_t), block_diagonal(eye, jinv)))
+    eye = torch.eye(space.nv, dtype=d.dtype, device=d.device).expand(*d.shape[:-1], space.nv, space.nv)
+    return -tangent_map(blocks, 0, eye), tangent_map(blocks, 1, eye)
 
 
 def dexp_inverse(space: Space, theta: torch.Tensor, v: torch.Tensor, convention: int) -> torch.Tensor:
@@ -202,7 +197,7 @@ def _dexp_inverse_block(kind: str, theta: torch.Tensor, convention: int) -> torc
         return _right_jacobian_inverse(theta)
     jinv = _right_jacobian_inverse(theta[..., 3:])
     if convention:
-        return _block_diagonal(torch.eye(3, dtype=theta.dtype, device=theta.device).expand_as(jinv), jinv)
+        return block_diagonal(torch.eye(3, dtype=theta.dtype, device=theta.device).expand_as(jinv), jinv)
     return _upper(jinv, -jinv @ _q_right(theta[..., :3], theta[..., 3:]) @ jinv, jinv)
 
 
@@ -343,6 +338,12 @@ def _left_jacobian_inverse(w):
     return _so3_terms(w, lambda t: -0.5 * torch.ones_like(t), lambda t2: -0.5 * torch.ones_like(t2), _cot_term, _cot_series)
 
 
+def _adjoint_exp6_inverse(rho: torch.Tensor, w: torch.Tensor, rot_t: torch.Tensor) -> torch.Tensor:
+    """Ad(exp6(rho, w)^-1) (linear first), with rot_t = R(w)^T: exp6 = (R(w), V(w) rho)."""
+    p = _apply(_left_jacobian(w), rho)
+    return _upper(rot_t, -rot_t @ _skew(p), rot_t)
+
+
 def _q_right(rho: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     """The coupling block of SE(3)'s right Jacobian [[Jr, Q], [0, Jr]] (linear first): Barfoot's left
     Q(rho, w) at (-rho, -w)."""
@@ -395,21 +396,13 @@ def _apply(m: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     return (m @ x.unsqueeze(-1)).squeeze(-1)
 
 
-def _block_diagonal(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    return _upper(a, torch.zeros_like(a), b)
+def block_diagonal(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """[[a, 0], [0, b]] of two square blocks, any sizes."""
+    za = torch.zeros(*a.shape[:-1], b.shape[-1], dtype=a.dtype, device=a.device)
+    zb = torch.zeros(*b.shape[:-1], a.shape[-1], dtype=b.dtype, device=b.device)
+    return torch.cat([torch.cat([a, za], dim=-1), torch.cat([zb, b], dim=-1)], dim=-2)
 
 
 def _upper(a: torch.Tensor, b: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
     """[[a, b], [0, c]] of 3 x 3 blocks."""
     return torch.cat([torch.cat([a, b], dim=-1), torch.cat([torch.zeros_like(c), c], dim=-1)], dim=-2)
-
-
-def _assemble(blocks: list[torch.Tensor], nv: int) -> torch.Tensor:
-    """The block-diagonal (..., nv, nv) matrix of the joints' square blocks, in order."""
-    rows, start = [], 0
-    for b in blocks:
-        n = b.shape[-1]
-        pad = [torch.zeros(*b.shape[:-1], m, dtype=b.dtype, device=b.device) for m in (start, nv - start - n)]
-        rows.append(torch.cat([pad[0], b, pad[1]], dim=-1))
-        start += n
-    return torch.cat(rows, dim=-2)

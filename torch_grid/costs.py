@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import torch
 
-from .configuration import _dexp_inverse_block, _left_jacobian_inverse, _log3
+from .configuration import _dexp_inverse_block, _left_jacobian_inverse, _log3, block_diagonal
 
 
 class CostFunctions:
@@ -22,7 +22,7 @@ class CostFunctions:
         r = torch.cat([self.difference(q_ref, q), qd - qd_ref], dim=-1)
         j_q = self.d_difference(q_ref, q)[1]
         eye = torch.eye(nv, dtype=qd.dtype, device=qd.device).expand_as(j_q)
-        return _weighted(r, _block_diagonal(j_q, eye), _checked_weights("state_cost", weights, 2 * nv))
+        return _weighted(r, block_diagonal(j_q, eye), _checked_weights("state_cost", weights, 2 * nv))
 
     def control_cost(self, tau, tau_ref, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = tau - tau_ref, weights (..., nv)."""
@@ -97,12 +97,6 @@ def _state_rows(jacobian: torch.Tensor, qd: torch.Tensor) -> torch.Tensor:
     batch = torch.broadcast_shapes(jacobian.shape[:-2], qd.shape[:-1])
     jacobian = jacobian.expand(*batch, *jacobian.shape[-2:])
     return torch.cat([jacobian, torch.zeros_like(jacobian)], dim=-1)
-
-
-def _block_diagonal(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    za, zb = torch.zeros(*a.shape[:-1], b.shape[-1], dtype=a.dtype, device=a.device), \
-        torch.zeros(*b.shape[:-1], a.shape[-1], dtype=b.dtype, device=b.device)
-    return torch.cat([torch.cat([a, za], dim=-1), torch.cat([zb, b], dim=-1)], dim=-2)
 
 
 def _checked_weights(cost: str, weights, n: int) -> torch.Tensor:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import torch
 
-from .configuration import d_dexp_inverse_blocks, d_integrate_blocks, dexp_inverse, tangent_map
+from .configuration import _dt, d_dexp_inverse_blocks, d_integrate_blocks, dexp_inverse, tangent_map
 
 # (A rows below the diagonal, B) of each Runge-Kutta scheme
 TABLEAUS = {
@@ -57,6 +57,10 @@ class StepFunctions:
                          f_ext: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """(A `(..., 2 nv, 2 nv)`, B `(..., 2 nv, nv)`): the derivatives of step's [q'; qd'] with respect to
         [q; qd] and tau, along the tangent spaces (q' compared by difference, q moved by integrate)."""
+        return self._step_and_derivatives(q, qd, tau, dt, integrator, f_ext)[2:]
+
+    def _step_and_derivatives(self, q, qd, tau, dt, integrator, f_ext):
+        """(q', qd', A, B): step and step_derivatives from one pass over the stages."""
         _check(integrator)
         return _in_chunks(lambda *args: self._step_derivatives(*args, integrator), q, qd, tau, dt, f_ext)
 
@@ -95,8 +99,8 @@ class StepFunctions:
 
         a0, da0 = stage(q, qd, None, None)
         if integrator == "semi_implicit_euler":
-            dv_next = hh * da0 + start_v
-            return _split(advance(qd + h * a0, dv_next), dv_next, nv)
+            qd_next, dv_next = qd + h * a0, hh * da0 + start_v
+            return (self.integrate(q, qd_next, dt), qd_next) + _split(advance(qd_next, dv_next), dv_next, nv)
         rows, weights = TABLEAUS[integrator]
         carried, dcarried, acc, dacc = [qd], [start_v], [a0], [da0]
         for row in rows:
@@ -113,8 +117,10 @@ class StepFunctions:
                 n = j_v.shape[-1]
                 dc[..., vi:vi + n, :] = j_v @ dv[..., vi:vi + n, :] + j_theta @ (hh * dtheta[..., vi:vi + n, :])
             dcarried.append(dc)
-        dq_next = advance(_combine(weights, carried), _combine(weights, dcarried))
-        return _split(dq_next, hh * _combine(weights, dacc) + start_v, nv)
+        theta = _combine(weights, carried)
+        dq_next = advance(theta, _combine(weights, dcarried))
+        return ((self.integrate(q, theta, dt), qd + h * _combine(weights, acc))
+                + _split(dq_next, hh * _combine(weights, dacc) + start_v, nv))
 
     def step_second_derivatives(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dt,
                                 integrator: str = "semi_implicit_euler",
@@ -125,12 +131,8 @@ class StepFunctions:
         configuration space's closed forms)."""
         _check(integrator)
         nv = qd.shape[-1]
-        batch = torch.broadcast_shapes(q.shape[:-1], qd.shape[:-1], tau.shape[:-1],
-                                       torch.as_tensor(dt).shape, () if f_ext is None else f_ext.shape[:-2])
-        flat = [x.expand(*batch, *x.shape[x.dim() - k:]).reshape(-1, *x.shape[x.dim() - k:]) if x is not None else None
-                for x, k in ((q, 1), (qd, 1), (tau, 1), (f_ext, 2))]
-        h = torch.as_tensor(dt, dtype=qd.dtype, device=qd.device).expand(batch).reshape(-1)
-        y_q, y_v = self.step(flat[0], flat[1], flat[2], h, integrator, flat[3])
+        batch, (q, qd, tau, h, f_ext) = _flattened(q, qd, tau, dt, f_ext)
+        y_q, y_v = self.step(q, qd, tau, h, integrator, f_ext)
 
         def deviation(z, q, qd, tau, h, f, y_q, y_v):
             out_q, out_v = self.step(self.integrate(q, z[:nv]), qd + z[nv:2 * nv], tau + z[2 * nv:], h, integrator, f)
@@ -139,7 +141,7 @@ class StepFunctions:
         z = torch.zeros(3 * nv, dtype=qd.dtype, device=qd.device)
         hessian = torch.func.jacfwd(torch.func.jacrev(deviation))
         dims = (None, 0, 0, 0, 0, None if f_ext is None else 0, 0, 0)
-        out = torch.func.vmap(hessian, in_dims=dims)(z, *flat[:3], h, flat[3], y_q, y_v)
+        out = torch.func.vmap(hessian, in_dims=dims)(z, q, qd, tau, h, f_ext, y_q, y_v)
         return out.reshape(*batch, 2 * nv, 3 * nv, 3 * nv)
 
 
@@ -148,16 +150,23 @@ class StepFunctions:
 CHUNK = 256
 
 
-def _in_chunks(fn, q, qd, tau, dt, f_ext):
-    """fn(q, qd, tau, dt, f_ext) -> (A, B) over a flattened batch, in pieces of CHUNK samples."""
+def _flattened(q, qd, tau, dt, f_ext) -> tuple[torch.Size, list]:
+    """(the broadcast batch shape, [q, qd, tau, dt, f_ext] with that batch flattened to one dimension);
+    dt becomes a (n,) tensor, an absent f_ext stays None."""
     dt = torch.as_tensor(dt, dtype=qd.dtype, device=qd.device)
     batch = torch.broadcast_shapes(q.shape[:-1], qd.shape[:-1], tau.shape[:-1], dt.shape,
                                    () if f_ext is None else f_ext.shape[:-2])
     n = batch.numel()
+    return batch, [None if x is None else x.expand(*batch, *x.shape[x.dim() - k:]).reshape(n, *x.shape[x.dim() - k:])
+                   for x, k in ((q, 1), (qd, 1), (tau, 1), (dt, 0), (f_ext, 2))]
+
+
+def _in_chunks(fn, q, qd, tau, dt, f_ext):
+    """fn(q, qd, tau, dt, f_ext) -> a tuple of tensors, over a flattened batch in pieces of CHUNK samples."""
+    batch, flat = _flattened(q, qd, tau, dt, f_ext)
+    n = batch.numel()
     if n <= CHUNK:
         return fn(q, qd, tau, dt, f_ext)
-    flat = [None if x is None else x.expand(*batch, *x.shape[x.dim() - k:]).reshape(n, *x.shape[x.dim() - k:])
-            for x, k in ((q, 1), (qd, 1), (tau, 1), (dt, 0), (f_ext, 2))]
     pieces = [fn(*(None if x is None else x[s:s + CHUNK] for x in flat)) for s in range(0, n, CHUNK)]
     return tuple(torch.cat(parts).reshape(*batch, *parts[0].shape[1:]) for parts in zip(*pieces))
 
@@ -165,11 +174,6 @@ def _in_chunks(fn, q, qd, tau, dt, f_ext):
 def _check(integrator) -> None:
     if integrator not in INTEGRATORS:
         raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
-
-
-def _dt(dt, x: torch.Tensor) -> torch.Tensor:
-    """dt as (..., 1) against x's batch."""
-    return torch.as_tensor(dt, dtype=x.dtype, device=x.device).unsqueeze(-1)
 
 
 def _combine(coefficients, xs):

@@ -33,8 +33,7 @@ class MPCDynamics(torch.nn.Module):
     def grad_input(self, x: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(R (..., n, n), S (..., n, nv)), n = nq + nv: the Jacobians of forward in x's coordinates."""
         q, qd = x[..., :self.nq], x[..., self.nq:]
-        A, B = self.view.step_derivatives(q, qd, u, self.dt, self.integrator)
-        q_next = self.view.step(q, qd, u, self.dt, self.integrator)[0]
+        q_next, _, A, B = self.view._step_and_derivatives(q, qd, u, self.dt, self.integrator, None)
         out, into = chart_maps(self.view, q_next)[0], chart_maps(self.view, q)[1]
         nv = self.nv
         R = torch.cat([torch.cat([out @ A[..., :nv, :nv] @ into, out @ A[..., :nv, nv:]], dim=-1),
