@@ -179,6 +179,10 @@ class Call {
     TORCH_CHECK(r >= 0 && r <= 2, op_, ": ", name, " must be 0 (world), 1 (local) or 2 (local_world_aligned), got ", r);
     push_int(r);
   }
+  void scheme(int64_t s, const char* name) {
+    TORCH_CHECK(s == 0 || s == 1, op_, ": ", name, " must be 0 (euler) or 1 (semi-implicit euler), got ", s);
+    push_int(s);
+  }
   // The inputs a backward op differentiates: bit i for the i-th of its n differentiable inputs.
   void mask(int64_t m, const char* name, int n) {
     TORCH_CHECK(m >= 0 && m < (int64_t(1) << n), op_, ": ", name, " must be a bit mask of ", n, " inputs, got ", m);

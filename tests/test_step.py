@@ -195,6 +195,46 @@ def test_step_derivatives_match_central_differences(robots, name, convention):
         assert rel_err(torch.cat([A, B], dim=-1), ref) <= 1e-7, integrator
 
 
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+@pytest.mark.parametrize("name", ["go2", "trees"])
+def test_euler_kernel_is_the_torch_composition(robots, name, convention):
+    """The Euler schemes' kernel (what step_derivatives, horizon and MPCDynamics run when nothing
+    differentiates them) against the same schemes composed in torch (what runs under autograd), on every
+    joint type: turns of zero, 1e-6 rad, about one and beyond 2 pi in one step, a (2, 3) batch with a
+    per-sample dt and external forces."""
+    robot = robots[name]
+    view = getattr(robot, convention)
+    g = torch.Generator().manual_seed(12)
+    q = view.random_configuration(2, 3, generator=g)
+    qd, tau = (torch.randn(2, 3, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
+    speed = torch.tensor([[0.0, 1e-4, 1.0], [20.0, 100.0, 400.0]], dtype=torch.float64)
+    qd = qd * speed.unsqueeze(-1)
+    dt = torch.tensor([0.01, 0.02, 0.04], dtype=torch.float64)
+    f_ext = torch.randn(2, 3, robot.nbodies, 6, dtype=torch.float64, generator=g)
+    for integrator in ("euler", "semi_implicit_euler"):
+        fused = view._step_and_derivatives(q, qd, tau, dt, integrator, f_ext)
+        composed = view.step(q, qd, tau, dt, integrator, f_ext) + view.step_derivatives(
+            q, qd, tau.clone().requires_grad_(), dt, integrator, f_ext)
+        for a, b, what in zip(fused, composed, ("q'", "qd'", "A", "B")):
+            assert a.shape == b.shape
+            assert rel_err(a, b.detach()) <= 1e-12, (integrator, what)
+    conv, h = int(convention == "mujoco"), dt.unsqueeze(-1)
+    with pytest.raises(RuntimeError, match="scheme must be 0 .euler. or 1 .semi-implicit euler., got 2"):
+        robot._ops.step_derivatives(q, qd, tau, None, h, 2, conv)
+    out = robot._ops.step_derivatives(q, qd, tau.clone().requires_grad_(), None, h, 1, conv)
+    with pytest.raises(NotImplementedError, match="step_derivatives kernel has no derivative; differentiate Robot.step_d"):
+        out[2].sum().backward()
+
+
+def test_euler_kernel_under_torch_compile(robots):
+    """step_derivatives compiled whole (fullgraph) takes the kernel too and gives the eager A, B."""
+    robot = robots["go2"]
+    q, qd, tau = _state(robot.mujoco, robot, 4, 13)
+    compiled = torch.compile(lambda q, qd, tau: robot.mujoco.step_derivatives(q, qd, tau, 0.01), fullgraph=True)
+    for a, b in zip(compiled(q, qd, tau), robot.mujoco.step_derivatives(q, qd, tau, 0.01)):
+        assert torch.equal(a, b)
+
+
 @pytest.mark.parametrize("name, convention", [("iiwa14", "pin"), ("go2", "pin"), ("go2", "mujoco")])
 def test_step_second_derivatives_match_differences_of_the_first(robots, name, convention):
     """The step Hessian [o, a, c] against central differences along z_c of the gradient of

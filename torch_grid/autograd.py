@@ -60,12 +60,21 @@ def _save_inputs(ctx, inputs, output) -> None:
 def _no_backward(name: str) -> Callable:
     # Every op without a backward computes derivatives (a backward's kernels, the second-order tensors):
     # differentiating it is a third derivative, or the second of an op whose outputs are derivatives.
+    # The Euler step kernel is the fast path of step_derivatives, which composes the step in torch
+    # whenever autograd is to see it.
+    message = (f"torch_grid: {name} has no derivative: the op whose derivative it computes cannot be differentiated "
+               "once more (a third derivative, or the second derivative of an op whose outputs are derivatives)")
+    if name in KERNEL_ONLY:
+        message = f"torch_grid: the {name} kernel has no derivative; {KERNEL_ONLY[name]}"
+
     def backward(ctx, *grads):
-        raise NotImplementedError(
-            f"torch_grid: {name} has no derivative: the op whose derivative it computes cannot be differentiated "
-            "once more (a third derivative, or the second derivative of an op whose outputs are derivatives)")
+        raise NotImplementedError(message)
 
     return backward
+
+
+# Ops that a Python function runs only when nothing differentiates it, with what to call instead.
+KERNEL_ONLY = {"step_derivatives": "differentiate Robot.step_derivatives, which then composes the step in torch"}
 
 
 def _backward(name: str, formula: Callable, ops, model: RobotModel) -> Callable:

@@ -258,6 +258,8 @@ def op_args_header(table: dict[str, OpSpec] = OPS) -> str:
         for a in op.args:
             if a.kind in ("frame", "reference"):
                 fields.append(f"  int {a.name};  // {a.kind} index")
+            elif a.kind == "scheme":
+                fields.append(f"  int {a.name};  // integrator: 0 euler, 1 semi-implicit euler")
             elif a.kind == "frames":
                 fields.append(f"  const int* {a.name};  // frame indices\n  int n_{a.name};")
             elif a.is_tensor:
@@ -343,7 +345,8 @@ def glue_unit() -> str:
 
 
 def _params(op: OpSpec) -> str:
-    ctype = {"frame": "int64_t", "frames": "at::IntArrayRef", "reference": "int64_t", "mask": "int64_t"}
+    ctype = {"frame": "int64_t", "frames": "at::IntArrayRef", "reference": "int64_t", "mask": "int64_t",
+             "scheme": "int64_t"}
     params = [(f"const {'std::optional<at::Tensor>' if a.optional else 'at::Tensor'}& {a.name}" if a.is_tensor
                else f"{ctype[a.kind]} {a.name}") for a in op.args]
     return ", ".join(params + ["int64_t convention"])

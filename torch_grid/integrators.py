@@ -19,6 +19,7 @@ from __future__ import annotations
 import torch
 
 from .configuration import _dt, d_dexp_inverse_blocks, d_integrate_blocks, dexp_inverse, tangent_map
+from .func import dual, transforming
 
 # (A rows below the diagonal, B) of each Runge-Kutta scheme
 TABLEAUS = {
@@ -28,6 +29,8 @@ TABLEAUS = {
     "rk4": (((0.5,), (0.0, 0.5), (0.0, 0.0, 1.0)), (1 / 6, 1 / 3, 1 / 3, 1 / 6)),
 }
 INTEGRATORS = ("euler", "semi_implicit_euler", "midpoint", "rk3", "rk4")
+# The schemes the step_derivatives kernel fuses with the forward-dynamics derivatives (csrc/kernels/step.h)
+FUSED = {"euler": 0, "semi_implicit_euler": 1}
 
 
 class StepFunctions:
@@ -60,8 +63,13 @@ class StepFunctions:
         return self._step_and_derivatives(q, qd, tau, dt, integrator, f_ext)[2:]
 
     def _step_and_derivatives(self, q, qd, tau, dt, integrator, f_ext):
-        """(q', qd', A, B): step and step_derivatives from one pass over the stages."""
+        """(q', qd', A, B): step and step_derivatives from one pass over the stages; the Euler schemes
+        in one kernel call when nothing asks for their derivatives (the kernel has no backward)."""
         _check(integrator)
+        if integrator in FUSED and self._robot._coupling is None and not _differentiated(q, qd, tau, dt, f_ext):
+            h = _dt(dt, qd)
+            q_next, qd_next, A, B = self._kernel_call("step_derivatives", q, qd, tau, f_ext, h, FUSED[integrator])
+            return q_next, qd_next, A.flatten(-4, -3).flatten(-2), B.flatten(-3, -2)
         return _in_chunks(lambda *args: self._step_derivatives(*args, integrator), q, qd, tau, dt, f_ext)
 
     def _step_derivatives(self, q, qd, tau, dt, f_ext, integrator):
@@ -169,6 +177,14 @@ def _in_chunks(fn, q, qd, tau, dt, f_ext):
         return fn(q, qd, tau, dt, f_ext)
     pieces = [fn(*(None if x is None else x[s:s + CHUNK] for x in flat)) for s in range(0, n, CHUNK)]
     return tuple(torch.cat(parts).reshape(*batch, *parts[0].shape[1:]) for parts in zip(*pieces))
+
+
+def _differentiated(*args) -> bool:
+    """Whether autograd records through the arguments, or a torch.func transform or forward-mode AD sees them."""
+    tensors = [x for x in args if isinstance(x, torch.Tensor)]
+    if torch.is_grad_enabled() and any(x.requires_grad for x in tensors):
+        return True
+    return not torch.compiler.is_compiling() and (transforming() or dual(tensors))
 
 
 def _check(integrator) -> None:

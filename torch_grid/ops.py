@@ -18,7 +18,7 @@ from .model import RobotModel
 # rotated (the acceleration with a term of the op's velocity); the others are the same in both.
 TENSOR_KINDS = {"configuration": ("nq",), "velocity": ("nv",), "acceleration": ("nv",), "force": ("nv",),
                 "body_forces": ("nbodies", 6), "frame_weights": ("nframes", 6), "plain": None}
-INTEGER_KINDS = ("frame", "frames", "reference", "mask")
+INTEGER_KINDS = ("frame", "frames", "reference", "mask", "scheme")
 # Output kinds, and the reframe each gets in the MuJoCo convention, applied by the generated binding:
 # force G x; acceleration G (x + base term); congruence G X G^T (nv x nv); columns X G^T (k x nv);
 # force_rows G X (nv x k); plain: none. "twin": the kernel reframes it itself, by a hand-derived formula.
@@ -79,7 +79,7 @@ class OpSpec:
         return any(o.kind == "twin" for o in self.outputs)
 
     def schema(self) -> str:
-        types = {"frame": "int", "frames": "int[]", "reference": "int", "mask": "int"}
+        types = {"frame": "int", "frames": "int[]", "reference": "int", "mask": "int", "scheme": "int"}
         params = [f"Tensor{'?' if a.optional else ''} {a.name}" if a.is_tensor else f"{types[a.kind]} {a.name}"
                   for a in self.args]
         outs = ", ".join("Tensor" for _ in self.outputs)
@@ -148,6 +148,9 @@ _VALUE_OPS = (
         OpSpec("forward_dynamics_gradient", "ForwardDynamicsGradient", (Q, QD, TAU, FEXT),
                (Out("dqdd_dq", "twin", NVxNV), Out("dqdd_dqd", "twin", NVxNV), Out("dqdd_dtau", "twin", NVxNV)),
                "derivatives"),
+        OpSpec("step_derivatives", "StepDerivatives", (Q, QD, TAU, FEXT, Arg("dt", "plain", shape=(1,)), Arg("scheme", "scheme")),
+               (Out("q_next", "twin", ("nq",)), Out("qd_next", "twin", NV), Out("A", "twin", (2, "nv", 2, "nv")),
+                Out("B", "twin", (2, "nv", "nv"))), "derivatives"),
         OpSpec("inverse_dynamics_external_force_gradient", "InverseDynamicsExternalForceGradient", (Q,),
                (Out("dtau_dfext", "force_rows", ("nv", "nbodies", 6)),), "derivatives"),
         OpSpec("forward_dynamics_external_force_gradient", "ForwardDynamicsExternalForceGradient", (Q,),

@@ -67,6 +67,8 @@ template <class M, class S, int C> struct Conv {
     if constexpr (active)
       for (int f = 0; f < M::NFREE; ++f) store3(mul(R[f], load3(tau + vi[f])), tau + vi[f]);
   }
+  // Joint velocity out: v_lin = R v_lin (a velocity maps as a force does, by G).
+  TG_HD void velocity_out(S* v) const { force_out(v); }
   // Joint acceleration out: qdd_lin = R (qdd_lin + w x v_lin).
   TG_HD void acceleration_out(const S* v, S* qdd) const {
     if constexpr (active)

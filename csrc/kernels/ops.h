@@ -17,6 +17,7 @@
 #include "rnea.h"
 #include "rnea_derivatives.h"
 #include "rnea_second_order.h"
+#include "step.h"
 
 namespace tg {
 
@@ -253,16 +254,37 @@ template <class M, class S> struct InverseDynamicsGradientTangent {
 // Since ID(q, qd, FD(q, qd, tau)) = tau, dqdd/dx = -M^-1 dtau/dx at qdd = FD(q, qd, tau), and
 // dqdd/dtau = M^-1, in either convention. Minv, RNEA (for qdd) and the RNEA derivatives share the
 // Placements pass.
+// dqdd/dq, dqdd/dqd, dqdd/dtau (NV x NV each, in the convention) and qdd (in Pinocchio's).
+template <class M, class S, int C>
+TG_HD void forward_dynamics_gradient(const Placements<M, S>& K, const S* qd, const S* tau, const S* fext,
+                                     const Conv<M, S, C>& cv, S* dq, S* dqd, S* dtau, S* qdd) {
+  minv<M, S>(K, dtau);  // needed anyway, so qdd comes from it rather than from ABA
+  forward_dynamics_from_minv<M, S>(K, qd, tau, fext, dtau, qdd);
+  inverse_dynamics_derivatives<M, S>(K, qd, qdd, fext, cv, dq, dqd);
+  cv.congruence_out(dtau);
+  negate_left_multiply<M, S, M::NV>(dtau, dq);
+  negate_left_multiply<M, S, M::NV>(dtau, dqd);
+}
+
 template <class M, class S> struct ForwardDynamicsGradient {
   template <int C> TG_HD static void run(const ForwardDynamicsGradientArgs<S>& a, const Conv<M, S, C>& cv) {
-    const Placements<M, S> K(a.q);
     S qdd[M::NV];
-    minv<M, S>(K, a.dqdd_dtau);  // needed anyway, so qdd comes from it rather than from ABA
-    forward_dynamics_from_minv<M, S>(K, a.qd, a.tau, a.f_ext, a.dqdd_dtau, qdd);
-    inverse_dynamics_derivatives<M, S>(K, a.qd, qdd, a.f_ext, cv, a.dqdd_dq, a.dqdd_dqd);
-    cv.congruence_out(a.dqdd_dtau);
-    negate_left_multiply<M, S, M::NV>(a.dqdd_dtau, a.dqdd_dq);
-    negate_left_multiply<M, S, M::NV>(a.dqdd_dtau, a.dqdd_dqd);
+    forward_dynamics_gradient<M, S>(Placements<M, S>(a.q), a.qd, a.tau, a.f_ext, cv, a.dqdd_dq, a.dqdd_dqd, a.dqdd_dtau,
+                                    qdd);
+  }
+};
+
+// One Euler step (scheme 0: explicit, 1: semi-implicit) and its Jacobians (step.h): G is computed
+// into the rows of q', which euler_step reads before it overwrites them.
+template <class M, class S> struct StepDerivatives {
+  template <int C> TG_HD static void run(const StepDerivativesArgs<S>& a, const Conv<M, S, C>& cv) {
+    constexpr int NV = M::NV;
+    S qdd[NV], v[NV];
+    forward_dynamics_gradient<M, S>(Placements<M, S>(a.q), a.qd, a.tau, a.f_ext, cv, a.A, a.A + NV * NV, a.B, qdd);
+    for (int k = 0; k < NV; ++k) v[k] = a.qd[k];
+    cv.velocity_out(v);
+    cv.acceleration_out(a.qd, qdd);
+    euler_step<M, S, C>(a.q, v, qdd, a.dt[0], a.scheme, a.q_next, a.qd_next, a.A, a.B);
   }
 };
 

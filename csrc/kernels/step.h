@@ -1,0 +1,175 @@
+// The plant step's two Euler schemes and their tangent Jacobians, from the forward-dynamics
+// derivatives in one pass (torch_grid/integrators.py holds every scheme in torch). With
+// a = FD(q, qd, tau, f_ext) and G = [da/dq, da/dqd, da/dtau], all in the call's convention:
+//   euler                (scheme 0)  qd' = qd + dt a,  q' = q (+) dt qd
+//   semi_implicit_euler  (scheme 1)  qd' = qd + dt a,  q' = q (+) dt qd'
+// Along z = [dq; dqd; dtau]: dqd'/dz = dt G + [0 I 0] and dq'/dz = Jq [I 0 0] + dt Jv dw/dz, w the
+// velocity integrated (qd or qd'), Jq and Jv the tangent Jacobians of q (+) u, u = dt w. Both are
+// the identity but at quaternion joints, where, with R = exp3(u_ang) and Jr SO(3)'s right Jacobian:
+//   ball joint, MuJoCo's free joint (its position: identity)   Jq = R^T,  Jv = Jr
+//   Pinocchio's free joint, SE(3), q (+) u = M exp6(u)          Jq = Ad(exp6(u)^-1) = [[R^T, -R^T [V u_lin]], [0, R^T]]
+//                                                               Jv = [[Jr, Q(u)], [0, Jr]]
+// (linear rows first; V = Jr(-u_ang) = Jl, Q Barfoot's coupling block at -u).
+#pragma once
+
+#include "convention.h"
+
+namespace tg {
+
+// SO(3)'s coefficients at the angle t = |u|, by their Taylor series near 0 (truncation ~ t^6).
+template <class S> struct So3Coefficients {
+  S sin_half, cos_half;  // sin(t/2) / t, cos(t/2): exp3(u) = [sin_half u; cos_half] (xyzw)
+  S a, b;                // (1 - cos t) / t^2, (t - sin t) / t^3
+  S c2, c3;              // (t^2 + 2 cos t - 2) / (2 t^4), (2 t - 3 sin t + t cos t) / (2 t^5)
+};
+
+template <class S> TG_HD So3Coefficients<S> so3_coefficients(Vec3<S> u) {
+  const S t2 = dot(u, u), t4 = t2 * t2;
+  if (t2 < S(1e-4))
+    return {S(0.5) - t2 / S(48) + t4 / S(3840), S(1) - t2 / S(8) + t4 / S(384),
+            S(0.5) - t2 / S(24) + t4 / S(720), S(1) / S(6) - t2 / S(120) + t4 / S(5040),
+            S(1) / S(24) - t2 / S(720) + t4 / S(40320), S(1) / S(120) - t2 / S(2520) + t4 / S(120960)};
+  const S t = sqrt(t2), s = sin(t), c = cos(t);
+  return {sin(t / S(2)) / t, cos(t / S(2)), (S(1) - c) / t2, (t - s) / (t2 * t), (t2 + S(2) * c - S(2)) / (S(2) * t4),
+          (S(2) * t - S(3) * s + t * c) / (S(2) * t4 * t)};
+}
+
+template <class S> TG_HD Mat3<S> lincomb3(S x, const Mat3<S>& A, S y, const Mat3<S>& B) {
+  Mat3<S> C;
+  for (int k = 0; k < 9; ++k) C.m[k] = x * A.m[k] + y * B.m[k];
+  return C;
+}
+
+template <class S> TG_HD Mat3<S> transpose3(const Mat3<S>& A) {
+  return {{A.m[0], A.m[3], A.m[6], A.m[1], A.m[4], A.m[7], A.m[2], A.m[5], A.m[8]}};
+}
+
+// I + x [u] + y [u]^2
+template <class S> TG_HD Mat3<S> so3_terms(Vec3<S> u, S x, S y) {
+  const Mat3<S> U = skew(u);
+  return lincomb3(S(1), identity3<S>(), S(1), lincomb3(x, U, y, mul(U, U)));
+}
+
+// Quaternion product a b (xyzw).
+template <class S> TG_HD void quat_mul(const S* a, const S* b, S* out) {
+  const Vec3<S> av = load3(a), bv = load3(b);
+  store3(a[3] * bv + b[3] * av + cross(av, bv), out);
+  out[3] = a[3] * b[3] - dot(av, bv);
+}
+
+// Barfoot's Q(rho, w) of SE(3)'s left Jacobian, the coupling block of the right one at (-rho, -w).
+template <class S> TG_HD Mat3<S> se3_coupling(Vec3<S> rho, Vec3<S> w, const So3Coefficients<S>& k) {
+  const Mat3<S> P = skew(S(-1) * rho), W = skew(S(-1) * w);
+  const Mat3<S> WP = mul(W, P), PW = mul(P, W), WPW = mul(WP, W);
+  const Mat3<S> first = lincomb3(S(1), lincomb3(S(1), WP, S(1), PW), S(1), WPW);
+  const Mat3<S> second = lincomb3(S(1), lincomb3(S(1), mul(W, WP), S(1), mul(PW, W)), S(-3), WPW);
+  const Mat3<S> third = lincomb3(S(1), mul(WPW, W), S(1), mul(W, WPW));
+  return lincomb3(S(1), lincomb3(S(0.5), P, k.b, first), S(1), lincomb3(k.c2, second, k.c3, third));
+}
+
+// n x n block (n = 3 or 6, row-major, stride n) from 3 x 3 blocks at (r, c).
+template <class S> TG_HD void put3(S* X, int n, int r, int c, const Mat3<S>& B) {
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) X[n * (r + i) + c + j] = B.m[3 * i + j];
+}
+
+// Joint i's part of q' = q (+) u (q in Pinocchio's layout, q' in the convention's) and, at a
+// quaternion joint, its n x n blocks Jq, Jv (n = 3 or 6; returns n, 0 at the other joints).
+template <class M, class S, int C> TG_HD int integrate_joint(int i, const S* q, const S* u, S* q_next, S* Jq, S* Jv) {
+  const auto& d = data<M, S>();
+  const int qi = d.qi[i], vi = d.vi[i], t = d.jtype[i];
+  if (t != FREE && t != BALL) {
+    q_next[qi] = q[qi] + u[vi];
+    return 0;
+  }
+  const int n = t == FREE ? 6 : 3, qa = t == FREE ? qi + 3 : qi;
+  const Vec3<S> w = load3(u + vi + n - 3);
+  const So3Coefficients<S> k = so3_coefficients(w);
+  S quat[4], e[4], turned[4];
+  const S norm = sqrt(q[qa] * q[qa] + q[qa + 1] * q[qa + 1] + q[qa + 2] * q[qa + 2] + q[qa + 3] * q[qa + 3]);
+  for (int c = 0; c < 4; ++c) quat[c] = q[qa + c] / norm;
+  store3(k.sin_half * w, e);
+  e[3] = k.cos_half;
+  quat_mul(quat, e, turned);
+  const Mat3<S> Rt = transpose3(quat_rotation(e[0], e[1], e[2], e[3])), Jr = so3_terms(w, -k.a, k.b);
+  for (int r = 0; r < n * n; ++r) Jq[r] = Jv[r] = S(0);
+  put3(Jq, n, n - 3, n - 3, Rt);
+  put3(Jv, n, n - 3, n - 3, Jr);
+  if (t == FREE) {
+    const Vec3<S> p = load3(q + qi), ul = load3(u + vi);
+    if constexpr (C == MJX) {
+      store3(p + ul, q_next + qi);
+      put3(Jq, 6, 0, 0, identity3<S>());
+      put3(Jv, 6, 0, 0, identity3<S>());
+    } else {  // M exp6(u): p + R V u_lin, the quaternion kept in the input's hemisphere as Pinocchio's
+      const Vec3<S> Vu = mul(so3_terms(w, k.a, k.b), ul);
+      store3(p + mul(quat_rotation(quat[0], quat[1], quat[2], quat[3]), Vu), q_next + qi);
+      if (e[3] < S(0))
+        for (int c = 0; c < 4; ++c) turned[c] = -turned[c];
+      put3(Jq, 6, 0, 0, Rt);
+      put3(Jq, 6, 0, 3, mul(Rt, skew(S(-1) * Vu)));
+      put3(Jv, 6, 0, 0, Jr);
+      put3(Jv, 6, 0, 3, se3_coupling(ul, w, k));
+    }
+  }
+  S* out = q_next + qa;
+  if constexpr (C == MJX) {  // wxyz
+    out[0] = turned[3]; out[1] = turned[0]; out[2] = turned[1]; out[3] = turned[2];
+  } else {
+    for (int c = 0; c < 4; ++c) out[c] = turned[c];
+  }
+  return n;
+}
+
+// The step and its Jacobians. On entry the rows of q' hold G (A's first NV rows: da/dq then da/dqd,
+// NV x NV each; B's first NV rows: da/dtau), which the rows of qd' are made of before those rows are
+// overwritten; v and acc are qd and a in the convention, q in Pinocchio's layout.
+// Outputs: q_next (NQ), qd_next (NV), A (2 NV x 2 NV), B (2 NV x NV), row-major.
+template <class M, class S, int C>
+TG_HD void euler_step(const S* q, const S* v, const S* acc, S h, int scheme, S* q_next, S* qd_next, S* A, S* B) {
+  constexpr int NV = M::NV, N2 = 2 * NV;
+  const auto& d = data<M, S>();
+  const S* Gq = A;
+  const S* Gv = A + NV * NV;
+  const S* Gt = B;
+  // qd' = qd + dt a;  dqd'/dz = dt G + [0 I 0], the rows NV.. of A and B
+  for (int r = 0; r < NV; ++r) {
+    qd_next[r] = v[r] + h * acc[r];
+    S* Ar = A + N2 * (NV + r);
+    S* Br = B + NV * (NV + r);
+    for (int c = 0; c < NV; ++c) {
+      Ar[c] = h * Gq[NV * r + c];
+      Ar[NV + c] = h * Gv[NV * r + c] + (c == r ? S(1) : S(0));
+      Br[c] = h * Gt[NV * r + c];
+    }
+  }
+  // q' = q (+) u, u = dt w;  dq'/dz = Jq [I 0 0] + dt Jv dw/dz, dw/dz = dqd'/dz (semi-implicit) or [0 I 0]
+  S u[NV];
+  for (int r = 0; r < NV; ++r) u[r] = h * (scheme ? qd_next[r] : v[r]);
+  for (int i = 0; i < M::NB; ++i) {
+    S Jq[36], Jv[36];
+    const int n = integrate_joint<M, S, C>(i, q, u, q_next, Jq, Jv);
+    const int vi = d.vi[i], rows = n ? n : d.nvj[i];
+    for (int a = 0; a < rows; ++a) {
+      S* Ar = A + N2 * (vi + a);
+      S* Br = B + NV * (vi + a);
+      for (int c = 0; c < N2; ++c) Ar[c] = S(0);
+      for (int c = 0; c < NV; ++c) Br[c] = S(0);
+      for (int b = 0; b < (n ? n : 1); ++b) {
+        const S jv = h * (n ? Jv[n * a + b] : S(1)), jq = n ? Jq[n * a + b] : S(1);
+        const int row = n ? vi + b : vi + a;
+        Ar[row] += jq;
+        if (scheme) {
+          const S* Dr = A + N2 * (NV + row);
+          const S* Er = B + NV * (NV + row);
+          for (int c = 0; c < N2; ++c) Ar[c] += jv * Dr[c];
+          for (int c = 0; c < NV; ++c) Br[c] += jv * Er[c];
+        } else {
+          Ar[NV + row] += jv;
+        }
+      }
+    }
+  }
+}
+
+}  // namespace tg
