@@ -264,6 +264,30 @@ def test_step_second_derivatives_match_differences_of_the_first(robots, name, co
         assert rel_err(H.transpose(-1, -2), H) <= 1e-10, integrator
 
 
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+def test_euler_step_hessian_is_forward_over_reverse(robots, convention, monkeypatch):
+    """The Euler schemes' closed-form step Hessian (from forward_dynamics_second_order, step_hessian.py)
+    against forward over reverse through step (what the Runge-Kutta schemes use), on every joint type
+    (two free joints, a ball, a hinge, a slide), at rest, slow and fast (turns of about one rad per step),
+    with a per-sample dt and external forces."""
+    import torch_grid.integrators as integrators
+
+    robot = robots["trees"]
+    view = getattr(robot, convention)
+    g = torch.Generator().manual_seed(14)
+    q = view.random_configuration(3, generator=g)
+    qd, tau = (torch.randn(3, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
+    qd = qd * torch.tensor([[0.0], [1.0], [30.0]], dtype=torch.float64)
+    dt = torch.tensor([0.01, 0.03, 0.05], dtype=torch.float64)
+    f_ext = torch.randn(3, robot.nbodies, 6, dtype=torch.float64, generator=g)
+    closed = {i: view.step_second_derivatives(q, qd, tau, dt, i, f_ext) for i in ("euler", "semi_implicit_euler")}
+    monkeypatch.setattr(integrators, "FUSED", {})
+    for integrator, ours in closed.items():
+        ref = view.step_second_derivatives(q, qd, tau, dt, integrator, f_ext)
+        assert ours.shape == ref.shape == (3, 2 * robot.nv, 3 * robot.nv, 3 * robot.nv)
+        assert rel_err(ours, ref) <= 1e-11, integrator
+
+
 @pytest.mark.parametrize("integrator", ["semi_implicit_euler", "rk4"])
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
 def test_step_gradgradcheck(robots, convention, integrator):

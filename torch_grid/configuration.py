@@ -105,16 +105,26 @@ def d_integrate_blocks(space: Space, q: torch.Tensor, v: torch.Tensor, dt, conve
         if kind == "scalar":
             continue
         w = v[..., _angular(kind, vi):_angular(kind, vi) + 3]
-        rot_t, jr = _rotation(w).mT, _right_jacobian(w)
+        rot_t, j_v = _rotation(w).mT, d_integrate_v_block(kind, v[..., vi:vi + (6 if kind == "free" else 3)], convention)
         if kind == "ball":
-            blocks.append((vi, rot_t, jr))
+            blocks.append((vi, rot_t, j_v))
         elif convention:
-            eye = torch.eye(3, dtype=v.dtype, device=v.device).expand_as(jr)
-            blocks.append((vi, block_diagonal(eye, rot_t), block_diagonal(eye, jr)))
+            eye = torch.eye(3, dtype=v.dtype, device=v.device).expand_as(rot_t)
+            blocks.append((vi, block_diagonal(eye, rot_t), j_v))
         else:
-            blocks.append((vi, _adjoint_exp6_inverse(v[..., vi:vi + 3], w, rot_t),
-                           _upper(jr, _q_right(v[..., vi:vi + 3], w), jr)))
+            blocks.append((vi, _adjoint_exp6_inverse(v[..., vi:vi + 3], w, rot_t), j_v))
     return blocks
+
+
+def d_integrate_v_block(kind: str, u: torch.Tensor, convention: int) -> torch.Tensor:
+    """d(q (+) u)/du of one quaternion joint ("free" or "ball"), u (..., 6 or 3): the right Jacobian Jr on a
+    rotation, the identity on MuJoCo's free position, SE(3)'s [[Jr, Q], [0, Jr]] on Pinocchio's free joint."""
+    jr = _right_jacobian(u[..., -3:])
+    if kind == "ball":
+        return jr
+    if convention:
+        return block_diagonal(torch.eye(3, dtype=u.dtype, device=u.device).expand_as(jr), jr)
+    return _upper(jr, _q_right(u[..., :3], u[..., 3:]), jr)
 
 
 def tangent_map(blocks: list, which: int, x: torch.Tensor) -> torch.Tensor:

@@ -12,7 +12,9 @@ Integrators, with a = forward_dynamics(q, qd, tau, f_ext) and (+) the configurat
 The Jacobians are along the tangent spaces (the state deviation [dq; dqd], as Crocoddyl's Fx, Fu and
 MuJoCo's mjd_transitionFD A, B), by the chain rule through the stages: forward_dynamics_gradient at
 each stage, the configuration space's d_integrate and the derivatives of dexp^-1. Everything is torch
-over the robot's ops, so autograd differentiates step itself to second order.
+over the robot's ops, so autograd differentiates step itself to second order; the Euler schemes'
+(q', qd', A, B) also come from one kernel (csrc/kernels/step.h), which runs when nothing differentiates
+them.
 """
 from __future__ import annotations
 
@@ -20,6 +22,7 @@ import torch
 
 from .configuration import _dt, d_dexp_inverse_blocks, d_integrate_blocks, dexp_inverse, tangent_map
 from .func import dual, transforming
+from .step_hessian import euler_step_hessian
 
 # (A rows below the diagonal, B) of each Runge-Kutta scheme
 TABLEAUS = {
@@ -134,10 +137,13 @@ class StepFunctions:
                                 integrator: str = "semi_implicit_euler",
                                 f_ext: torch.Tensor | None = None) -> torch.Tensor:
         """(..., 2 nv, 3 nv, 3 nv): the Hessian at z = 0 of z -> [difference(q', q'(z)); qd'(z) - qd'] with
-        (q'(z), qd'(z)) = step(q (+) z_q, qd + z_qd, tau + z_tau), symmetric in its last two indices:
-        forward over reverse through step (the kernels' backwards and their forward-mode rules, and the
-        configuration space's closed forms)."""
+        (q'(z), qd'(z)) = step(q (+) z_q, qd + z_qd, tau + z_tau), symmetric in its last two indices. The
+        Euler schemes: in closed form from forward_dynamics_second_order (step_hessian.py); the Runge-Kutta
+        schemes: forward over reverse through step (the kernels' backwards and their forward-mode rules,
+        and the configuration space's closed forms)."""
         _check(integrator)
+        if integrator in FUSED:
+            return euler_step_hessian(self, q, qd, tau, dt, f_ext, semi=bool(FUSED[integrator]))
         nv = qd.shape[-1]
         batch, (q, qd, tau, h, f_ext) = _flattened(q, qd, tau, dt, f_ext)
         y_q, y_v = self.step(q, qd, tau, h, integrator, f_ext)

@@ -1,0 +1,102 @@
+"""The Hessian of the Euler schemes' step, from the forward-dynamics second derivatives.
+
+With z = [dq; dqd; dtau], a(z) = forward_dynamics(q (+) dq, qd + dqd, tau + dtau), G = da/dz and
+Ha = d2a/dz2 (symmetric; its q-q block is the symmetric part of d2qdd_dq2, whose tangent-space
+derivatives differ from it by a Lie bracket, which is antisymmetric):
+  qd'(z) = qd + dqd + dt a(z)                                  Hessian dt Ha
+  q'(z)  = (q (+) dq) (+) w(z),  w = dt qd'(z) (semi-implicit) or dt (qd + dqd) (euler)
+On a scalar joint the q' row is dq + w - w0, Hessian dt^2 Ha (none for euler). On a quaternion joint,
+with E = exp and w0 = w(0), difference(q', q'(z)) = log(E(X) E(psi)) = X + psi + [X, psi] / 2 + ...
+where X = Ad(E(w0)^-1) dq = J_q dq and psi = log(E(w0)^-1 E(w)) = J_r dw + dw^T Hpsi dw / 2, J_r the
+right Jacobian (d_integrate's J_v) and Hpsi[m, a, b] = sym_ab dJ_r[m, a] / dw_b (differentiate
+J_r(psi) psi' = J_r(w0 + t u) u once: J_r(psi) = I - ad(psi) / 2 + ..., and ad(x) x = 0). The
+bracket is the cross product on SO(3), SE(3)'s ad on Pinocchio's free joint, zero on MuJoCo's free
+position.
+"""
+from __future__ import annotations
+
+import torch
+
+from .configuration import _dt, d_integrate_blocks, d_integrate_v_block
+
+
+def euler_step_hessian(view, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dt, f_ext, semi: bool) -> torch.Tensor:
+    """(..., 2 nv, 3 nv, 3 nv): step_second_derivatives of euler (semi False) or semi_implicit_euler."""
+    space, convention, nv = view._robot._space, view._convention, qd.shape[-1]
+    h = _dt(dt, qd)
+    a = view.forward_dynamics(q, qd, tau, f_ext)
+    G = torch.cat(view.forward_dynamics_gradient(q, qd, tau, f_ext), dim=-1)
+    second = view.forward_dynamics_second_order(q, qd, tau, f_ext)
+    batch = torch.broadcast_shapes(second[0].shape[:-3], h.shape[:-1])
+    hh = h.reshape(*h.shape[:-1], 1, 1, 1)
+    # written in place: the tensor is 2 nv (3 nv)^2 numbers per sample (6 MB on a humanoid)
+    out = torch.empty(*batch, 2 * nv, 3 * nv, 3 * nv, dtype=qd.dtype, device=qd.device)
+    _scaled_acceleration_hessian(second, hh, out[..., nv:, :, :])
+    if semi:
+        torch.mul(out[..., nv:, :, :], hh, out=out[..., :nv, :, :])
+    else:
+        out[..., :nv, :, :] = 0
+    # dw/dz = dt (dqd'/dz) or dt [0 I 0]
+    zero, eye = torch.zeros(nv, nv, dtype=qd.dtype, device=qd.device), torch.eye(nv, dtype=qd.dtype, device=qd.device)
+    e_v, h2 = torch.cat([zero, eye, zero], dim=-1), h.unsqueeze(-1)
+    dw = h2 * (e_v + h2 * G) if semi else (h2 * e_v).expand(*batch, nv, 3 * nv)
+    w = (h * (qd + h * a) if semi else h * qd).expand(*batch, nv)
+    for (vi, j_q, j_r), kind in zip(d_integrate_blocks(space, q, w, 1.0, convention), _quaternion_kinds(space)):
+        n = j_r.shape[-1]
+        rows, W = slice(vi, vi + n), dw[..., vi:vi + n, :]
+        dJ = _jacobian_of_j_r(kind, w[..., rows], convention)
+        block = torch.einsum("...mbd,...ba,...dc->...mac", 0.5 * (dJ + dJ.transpose(-1, -2)), W, W)
+        if semi:  # J_r dt^2 Ha
+            block = block + torch.einsum("...mb,...bac->...mac", j_r, out[..., rows, :, :])
+        X = torch.zeros(*batch, n, 3 * nv, dtype=qd.dtype, device=qd.device)
+        X[..., vi:vi + n] = j_q
+        bracket = _bracket(kind, convention, X, j_r @ W)
+        out[..., rows, :, :] = block + 0.5 * (bracket + bracket.transpose(-1, -2))
+    return out
+
+
+def _scaled_acceleration_hessian(second, hh: torch.Tensor, out: torch.Tensor) -> None:
+    """out (..., nv, 3 nv, 3 nv) = dt Ha from forward_dynamics_second_order's tensors (mixed partials
+    commute where one side is flat: Ha[i, q_j, v_k] = dqdv[i, j, k], Ha[i, tau_j, q_k] = dtaudq[i, j, k])."""
+    d2q, d2v, dqdv, dtaudq = second
+    nv = d2q.shape[-1]
+    q, v, t = slice(0, nv), slice(nv, 2 * nv), slice(2 * nv, 3 * nv)
+    torch.add(d2q, d2q.transpose(-1, -2), out=out[..., q, q])
+    out[..., q, q] *= 0.5 * hh
+    for (r, c), x in (((q, v), dqdv), ((q, t), dtaudq.transpose(-1, -2)), ((v, q), dqdv.transpose(-1, -2)),
+                      ((v, v), d2v), ((t, q), dtaudq)):
+        torch.mul(x, hh, out=out[..., r, c])
+    for r, c in ((v, t), (t, v), (t, t)):
+        out[..., r, c] = 0
+
+
+def _quaternion_kinds(space) -> list[str]:
+    return [k for k in space.kinds if k != "scalar"]
+
+
+def _jacobian_of_j_r(kind: str, u: torch.Tensor, convention: int) -> torch.Tensor:
+    """dJ[m, a, b] = d J_r(u)[m, a] / du_b, (..., n, n, n), by forward-mode AD of the closed form."""
+    n = u.shape[-1]
+    jac = torch.func.vmap(torch.func.jacfwd(lambda x: d_integrate_v_block(kind, x, convention)))(u.reshape(-1, n))
+    return jac.reshape(*u.shape[:-1], n, n, n)
+
+
+def _levi_civita(like: torch.Tensor) -> torch.Tensor:
+    eps = torch.zeros(3, 3, 3, dtype=like.dtype, device=like.device)
+    for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+        eps[i, j, k], eps[i, k, j] = 1.0, -1.0
+    return eps
+
+
+def _bracket(kind: str, convention: int, X: torch.Tensor, Y: torch.Tensor) -> torch.Tensor:
+    """B[m, a, c] = [X e_a, Y e_c]_m, X and Y (..., n, k) columns of the joint's tangent (linear first)."""
+    eps = _levi_civita(X)
+    if kind == "ball":
+        return torch.einsum("mij,...ia,...jc->...mac", eps, X, Y)
+    ang = torch.einsum("mij,...ia,...jc->...mac", eps, X[..., 3:, :], Y[..., 3:, :])
+    if convention:  # R^3 x SO(3): the position commutes
+        lin = torch.zeros_like(ang)
+    else:  # se(3): [(v1, w1), (v2, w2)] = (w1 x v2 - w2 x v1, w1 x w2)
+        lin = (torch.einsum("mij,...ia,...jc->...mac", eps, X[..., 3:, :], Y[..., :3, :])
+               - torch.einsum("mij,...ic,...ja->...mac", eps, Y[..., 3:, :], X[..., :3, :]))
+    return torch.cat([lin, ang], dim=-3)
