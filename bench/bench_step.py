@@ -79,10 +79,12 @@ def step_rows(robots: dict) -> list[str]:
         rk4 = _per_sample_us(lambda: view.step_derivatives(q, qd, tau, 0.01, "rk4"), B)
         m = _mujoco_model(src, floating, mujoco.mjtIntegrator.mjINT_EULER)
         ref = _transition_fd_us(m, q[0].numpy())
+        some = q[:64], qd[:64], tau[:64]
+        closed = _per_sample_us(lambda: view.step_second_derivatives(*some, 0.01, "semi_implicit_euler"), 64, seconds=2.0)
         small = q[:16], qd[:16], tau[:16]
         hessian = _per_sample_us(lambda: view.step_second_derivatives(*small, 0.01, "rk4"), 16, seconds=2.0)
         rows.append(f"| {name} | {fdg:.2f} | {euler:.2f} ({euler / fdg:.2f}x) | {rk4:.2f} ({rk4 / fdg:.2f}x) | "
-                    f"{ref:.1f} ({ref / euler:.0f}x ours) | {hessian:.0f} |")
+                    f"{ref:.1f} ({ref / euler:.0f}x ours) | {closed:.0f} | {hessian:.0f} |")
         print(rows[-1], flush=True)
     torch.set_num_threads(threads)
     return rows
@@ -130,9 +132,10 @@ def step_section(robots: dict) -> str:
               "step_derivatives (A, B) for semi-implicit Euler (one kernel) and rk4 (torch over the kernels) with "
               "their ratio to it; MuJoCo's "
               "mjd_transitionFD per call on the same robot (Euler, forward differences, its default; motors on the "
-              "joints) and how many of our samples it costs; step_second_derivatives (rk4) per sample at B = 16.\n\n"
+              "joints) and how many of our samples it costs; step_second_derivatives per sample for semi-implicit "
+              "Euler (closed form, B = 64) and rk4 (forward over reverse, B = 16).\n\n"
               "| robot | forward_dynamics_gradient | step_derivatives euler | step_derivatives rk4 | mjd_transitionFD | "
-              "step_second_derivatives |\n|---|---|---|---|---|---|\n")
+              "step_second_derivatives euler | step_second_derivatives rk4 |\n|---|---|---|---|---|---|---|\n")
     iteration, horizon = ilqr_iteration_ms()
     return (header + "\n".join(step_rows(robots)) + "\n\n"
             f"examples/ilqr.py's go2 problem, 256 samples, horizon 50, semi-implicit Euler, one thread: one call of "
