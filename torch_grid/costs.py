@@ -19,17 +19,20 @@ class CostFunctions:
     def state_cost(self, q, qd, q_ref, qd_ref, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = [difference(q_ref, q); qd - qd_ref], weights (..., 2 nv)."""
         nv = qd.shape[-1]
-        r = torch.cat([self.difference(q_ref, q), qd - qd_ref], dim=-1)
+        w = _checked_weights("state_cost", weights, 2 * nv)
+        r_q, r_v = self.difference(q_ref, q), qd - qd_ref
         j_q = self.d_difference(q_ref, q)[1]
-        eye = torch.eye(nv, dtype=qd.dtype, device=qd.device).expand_as(j_q)
-        return _weighted(r, block_diagonal(j_q, eye), _checked_weights("state_cost", weights, 2 * nv))
+        # J = [[j_q, 0], [0, I]]: its blocks apart (the dense 2 nv product costs 8x the q block's)
+        batch = torch.broadcast_shapes(r_q.shape[:-1], r_v.shape[:-1], w.shape[:-1])
+        value_q, grad_q, hess_q = _weighted(r_q, j_q, w[..., :nv])
+        value_v, grad_v, hess_v = _diagonal(r_v, w[..., nv:])
+        return (value_q + value_v, torch.cat([grad_q.expand(*batch, nv), grad_v.expand(*batch, nv)], dim=-1),
+                block_diagonal(hess_q.expand(*batch, nv, nv), hess_v.expand(*batch, nv, nv)))
 
     def control_cost(self, tau, tau_ref, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = tau - tau_ref, weights (..., nv)."""
         r = tau - tau_ref
-        w = _checked_weights("control_cost", weights, r.shape[-1])
-        eye = torch.eye(r.shape[-1], dtype=r.dtype, device=r.device).expand(*r.shape, r.shape[-1])
-        return _weighted(r, eye, w)
+        return _diagonal(r, _checked_weights("control_cost", weights, r.shape[-1]))
 
     def frame_translation_cost(self, q, qd, frame, target, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = the frame's world position - target (..., 3), weights (..., 3)."""
@@ -90,6 +93,12 @@ def log_barrier(x: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, weigh
 def _weighted(r: torch.Tensor, J: torch.Tensor, w: torch.Tensor):
     wr = w * r
     return 0.5 * (wr * r).sum(-1), (J.mT @ wr.unsqueeze(-1)).squeeze(-1), J.mT @ (w.unsqueeze(-1) * J)
+
+
+def _diagonal(r: torch.Tensor, w: torch.Tensor):
+    """_weighted with J = I."""
+    wr = w * r
+    return 0.5 * (wr * r).sum(-1), wr, torch.diag_embed(w.expand_as(wr))
 
 
 def _state_rows(jacobian: torch.Tensor, qd: torch.Tensor) -> torch.Tensor:
