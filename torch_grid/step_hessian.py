@@ -41,8 +41,9 @@ def euler_step_hessian(view, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tenso
     e_v, h2 = torch.cat([zero, eye, zero], dim=-1), h.unsqueeze(-1)
     dw = h2 * (e_v + h2 * G) if semi else (h2 * e_v).expand(*batch, nv, 3 * nv)
     w = (h * (qd + h * a) if semi else h * qd).expand(*batch, nv)
-    for (vi, j_q, j_r), kind in zip(d_integrate_blocks(space, q, w, 1.0, convention), _quaternion_kinds(space)):
+    for vi, j_q, j_r in d_integrate_blocks(space, q, w, 1.0, convention):
         n = j_r.shape[-1]
+        kind = "free" if n == 6 else "ball"
         rows, W = slice(vi, vi + n), dw[..., vi:vi + n, :]
         dJ = _jacobian_of_j_r(kind, w[..., rows], convention)
         block = torch.einsum("...mbd,...ba,...dc->...mac", 0.5 * (dJ + dJ.transpose(-1, -2)), W, W)
@@ -68,10 +69,6 @@ def _scaled_acceleration_hessian(second, hh: torch.Tensor, out: torch.Tensor) ->
         torch.mul(x, hh, out=out[..., r, c])
     for r, c in ((v, t), (t, v), (t, t)):
         out[..., r, c] = 0
-
-
-def _quaternion_kinds(space) -> list[str]:
-    return [k for k in space.kinds if k != "scalar"]
 
 
 def _jacobian_of_j_r(kind: str, u: torch.Tensor, convention: int) -> torch.Tensor:
