@@ -211,8 +211,11 @@ def test_euler_kernel_is_the_torch_composition(robots, name, convention):
     qd = qd * speed.unsqueeze(-1)
     dt = torch.tensor([0.01, 0.02, 0.04], dtype=torch.float64)
     f_ext = torch.randn(2, 3, robot.nbodies, 6, dtype=torch.float64, generator=g)
+    # a zero quaternion reads as the identity in both (as MuJoCo's mj_normalizeQuat), not as NaN
+    q[0, 0, 3:7] = 0  # the first free joint's quaternion
     for integrator in ("euler", "semi_implicit_euler"):
         fused = view._step_and_derivatives(q, qd, tau, dt, integrator, f_ext)
+        assert all(torch.isfinite(x).all() for x in fused)
         composed = view.step(q, qd, tau, dt, integrator, f_ext) + view.step_derivatives(
             q, qd, tau.clone().requires_grad_(), dt, integrator, f_ext)
         for a, b, what in zip(fused, composed, ("q'", "qd'", "A", "B")):

@@ -86,8 +86,10 @@ template <class M, class S, int C> TG_HD int integrate_joint(int i, const S* q, 
   const Vec3<S> w = load3(u + vi + n - 3);
   const So3Coefficients<S> k = so3_coefficients(w);
   S quat[4], e[4], turned[4];
+  // read normalised; zero or non-finite norm reads as the identity, as mj_normalizeQuat and quat_rotation do
   const S norm = sqrt(q[qa] * q[qa] + q[qa + 1] * q[qa + 1] + q[qa + 2] * q[qa + 2] + q[qa + 3] * q[qa + 3]);
-  for (int c = 0; c < 4; ++c) quat[c] = q[qa + c] / norm;
+  const bool valid = norm > S(0) && norm < S(INFINITY);
+  for (int c = 0; c < 4; ++c) quat[c] = valid ? q[qa + c] / norm : S(c == 3);
   store3(k.sin_half * w, e);
   e[3] = k.cos_half;
   quat_mul(quat, e, turned);
