@@ -129,7 +129,7 @@ def ilqr_iteration_ms(batch: int = 256, T: int = 50) -> tuple[float, float]:
 
 def step_section(robots: dict) -> str:
     header = ("Plant step, MuJoCo convention, one thread, float64, B = 4096 (µs per sample): forward_dynamics_gradient; "
-              "step_derivatives (A, B) for semi-implicit Euler (one kernel) and rk4 (torch over the kernels) with "
+              "step_derivatives (A, B) for semi-implicit Euler (one kernel) and rk4 (one kernel) with "
               "their ratio to it; MuJoCo's "
               "mjd_transitionFD per call on the same robot (Euler, forward differences, its default; motors on the "
               "joints) and how many of our samples it costs; step_second_derivatives per sample for semi-implicit "

@@ -13,7 +13,7 @@ namespace tg {
 // Limits of one call, checked by the glue: tensor inputs, outputs, integer arguments (frame
 // indices, reference, mask). A CUDA launch passes the Batch by value (2.2 KB of the 4 KB of
 // kernel parameters).
-constexpr int kMaxIn = 8, kMaxOut = 4, kMaxIargs = 512;
+constexpr int kMaxIn = 8, kMaxOut = 5, kMaxIargs = 512;
 
 struct Batch {
   int64_t n = 0;                        // number of samples

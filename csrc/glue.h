@@ -183,6 +183,10 @@ class Call {
     TORCH_CHECK(s == 0 || s == 1, op_, ": ", name, " must be 0 (euler) or 1 (semi-implicit euler), got ", s);
     push_int(s);
   }
+  void tableau(int64_t s, const char* name) {
+    TORCH_CHECK(s >= 2 && s <= 4, op_, ": ", name, " must be 2 (midpoint), 3 (rk3) or 4 (rk4), got ", s);
+    push_int(s);
+  }
   // The inputs a backward op differentiates: bit i for the i-th of its n differentiable inputs.
   void mask(int64_t m, const char* name, int n) {
     TORCH_CHECK(m >= 0 && m < (int64_t(1) << n), op_, ": ", name, " must be a bit mask of ", n, " inputs, got ", m);
@@ -199,6 +203,25 @@ class Call {
     batch_.out[k] = t.data_ptr();
     batch_.out_stride[k] = numel(trailing);
     return t;
+  }
+
+  // The kernel's scratch of shape (*trailing) per sample: on CUDA a new output like any other; on the
+  // CPU each thread's block of the streamed buffer, never copied out (the tensor returned is one block
+  // expanded over the batch).
+  at::Tensor workspace(std::initializer_list<int64_t> trailing) {
+    if (device_.is_cuda()) {
+      workspace_ |= 1 << n_out_;
+      return output(trailing);
+    }
+    std::vector<int64_t> shape = batch_shape_;
+    shape.insert(shape.end(), trailing.begin(), trailing.end());
+    TORCH_CHECK(n_out_ < kMaxOut, op_, ": more than ", kMaxOut, " outputs");
+    at::Tensor t = at::empty(std::vector<int64_t>(trailing), at::TensorOptions().dtype(dtype_).device(device_));
+    const int k = n_out_++;
+    workspace_ |= 1 << k;
+    batch_.out[k] = t.data_ptr();
+    batch_.out_stride[k] = numel(trailing);
+    return t.expand(shape);
   }
 
   void run(const OpKernels& kernels) {
@@ -223,8 +246,8 @@ class Call {
     // float64 outputs too large for the cache are streamed.
     const CpuFn fn = kernels.cpu[1][c];
     const auto range = s == 0 ? &Call::as_double
-                       : n_ * out_per_sample() * int64_t(sizeof(double)) > kStreamBytes ? &Call::streamed
-                                                                                        : &Call::direct;
+                       : workspace_ || n_ * out_per_sample() * int64_t(sizeof(double)) > kStreamBytes ? &Call::streamed
+                                                                                                      : &Call::direct;
     if (n_ == 1) {  // a single sample: no thread pool
       (this->*range)(fn, 0, 1);
       return;
@@ -352,7 +375,7 @@ class Call {
       output_slots(d, buffer.data(), n);
       fn(d, 0, n);
       for (int k = 0; k < n_out_; ++k)
-        if (batch_.out[k])
+        if (batch_.out[k] && !(workspace_ >> k & 1))
           stream_copy(static_cast<double*>(batch_.out[k]) + batch_.out_stride[k] * s0, static_cast<const double*>(d.out[k]),
                       batch_.out_stride[k] * n);
     }
@@ -406,7 +429,7 @@ class Call {
       output_slots(d, next, n);
       fn(d, 0, n);
       for (int k = 0; k < n_out_; ++k) {
-        if (!batch_.out[k]) continue;
+        if (!batch_.out[k] || workspace_ >> k & 1) continue;
         const int64_t size = batch_.out_stride[k];
         const double* y = static_cast<const double*>(d.out[k]);
         float* x = static_cast<float*>(batch_.out[k]) + size * s0;
@@ -434,6 +457,7 @@ class Call {
   bool have_batch_ = false;
   int64_t n_ = 0;
   int n_in_ = 0, n_out_ = 0;
+  int workspace_ = 0;  // bit k: output k is a workspace
   at::Tensor keep_[kMaxIn];  // contiguous copies
   int64_t in_size_[kMaxIn] = {};  // elements of one sample of each input
   Batch batch_;

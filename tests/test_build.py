@@ -194,7 +194,7 @@ def test_op_table_limits_are_checked_when_it_is_built():
     assert f"kMaxIn = {ops.MAX_TENSOR_INPUTS}, kMaxOut = {ops.MAX_OUTPUTS}," in header
     crba, Q, NVxNV = ops.OPS["crba"], ops.Q, ("nv", "nv")
     bad = {
-        "outputs": dataclasses.replace(crba, name="many", outputs=tuple(ops.Out(f"o{k}", "plain", ("nv",)) for k in range(5))),
+        "outputs": dataclasses.replace(crba, name="many", outputs=tuple(ops.Out(f"o{k}", "plain", ("nv",)) for k in range(6))),
         "unknown kind": dataclasses.replace(crba, name="kind", args=crba.args + (ops.Arg("k", "weird"),)),
         "unknown size": dataclasses.replace(crba, name="size", args=(ops.Arg("q", "plain", shape=("nx",)),)),
         "the configuration": dataclasses.replace(crba, name="noq", args=(ops.Arg("qd", "velocity"),)),

@@ -74,7 +74,8 @@ def _no_backward(name: str) -> Callable:
 
 
 # Ops that a Python function runs only when nothing differentiates it, with what to call instead.
-KERNEL_ONLY = {"step_derivatives": "differentiate Robot.step_derivatives, which then composes the step in torch"}
+KERNEL_ONLY = {name: "differentiate Robot.step_derivatives, which then composes the step in torch"
+               for name in ("step_derivatives", "rk_step_derivatives")}
 
 
 def _backward(name: str, formula: Callable, ops, model: RobotModel) -> Callable:

@@ -260,6 +260,8 @@ def op_args_header(table: dict[str, OpSpec] = OPS) -> str:
                 fields.append(f"  int {a.name};  // {a.kind} index")
             elif a.kind == "scheme":
                 fields.append(f"  int {a.name};  // integrator: 0 euler, 1 semi-implicit euler")
+            elif a.kind == "tableau":
+                fields.append(f"  int {a.name};  // Runge-Kutta scheme: 2 midpoint, 3 rk3, 4 rk4")
             elif a.kind == "frames":
                 fields.append(f"  const int* {a.name};  // frame indices\n  int n_{a.name};")
             elif a.is_tensor:
@@ -346,7 +348,7 @@ def glue_unit() -> str:
 
 def _params(op: OpSpec) -> str:
     ctype = {"frame": "int64_t", "frames": "at::IntArrayRef", "reference": "int64_t", "mask": "int64_t",
-             "scheme": "int64_t"}
+             "scheme": "int64_t", "tableau": "int64_t"}
     params = [(f"const {'std::optional<at::Tensor>' if a.optional else 'at::Tensor'}& {a.name}" if a.is_tensor
                else f"{ctype[a.kind]} {a.name}") for a in op.args]
     return ", ".join(params + ["int64_t convention"])
@@ -370,7 +372,8 @@ def _wrapper(index: int, op: OpSpec) -> str:
             body.append(f'  call.{a.kind}({a.name}, "{a.name}"{extra});')
     outs = [f"out{k}" for k in range(len(op.outputs))]
     for name, o in zip(outs, op.outputs):
-        body.append(f"  at::Tensor {name} = call.output({{{', '.join(_SIZE.get(d, str(d)) for d in o.shape)}}});")
+        make = "workspace" if o.kind == "workspace" else "output"
+        body.append(f"  at::Tensor {name} = call.{make}({{{', '.join(_SIZE.get(d, str(d)) for d in o.shape)}}});")
     body.append(f"  call.run(r.ops[{index}]);")
     if len(outs) == 1:
         ret, value = "at::Tensor", outs[0]

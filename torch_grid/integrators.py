@@ -12,9 +12,9 @@ Integrators, with a = forward_dynamics(q, qd, tau, f_ext) and (+) the configurat
 The Jacobians are along the tangent spaces (the state deviation [dq; dqd], as Crocoddyl's Fx, Fu and
 MuJoCo's mjd_transitionFD A, B), by the chain rule through the stages: forward_dynamics_gradient at
 each stage, the configuration space's d_integrate and the derivatives of dexp^-1. Everything is torch
-over the robot's ops, so autograd differentiates step itself to second order; the Euler schemes'
-(q', qd', A, B) also come from one kernel (csrc/kernels/step.h), which runs when nothing differentiates
-them.
+over the robot's ops, so autograd differentiates step itself to second order; (q', qd', A, B) also come
+from one kernel per call (csrc/kernels/step.h for the Euler schemes, csrc/kernels/runge_kutta.h for
+Runge-Kutta), which runs when nothing differentiates them.
 """
 from __future__ import annotations
 
@@ -32,8 +32,10 @@ TABLEAUS = {
     "rk4": (((0.5,), (0.0, 0.5), (0.0, 0.0, 1.0)), (1 / 6, 1 / 3, 1 / 3, 1 / 6)),
 }
 INTEGRATORS = ("euler", "semi_implicit_euler", "midpoint", "rk3", "rk4")
-# The schemes the step_derivatives kernel fuses with the forward-dynamics derivatives (csrc/kernels/step.h)
+# The schemes the kernels fuse with the forward-dynamics derivatives: step_derivatives (csrc/kernels/step.h)
+# and rk_step_derivatives (csrc/kernels/runge_kutta.h)
 FUSED = {"euler": 0, "semi_implicit_euler": 1}
+RK_FUSED = {"midpoint": 2, "rk3": 3, "rk4": 4}
 
 
 class StepFunctions:
@@ -66,12 +68,16 @@ class StepFunctions:
         return self._step_and_derivatives(q, qd, tau, dt, integrator, f_ext)[2:]
 
     def _step_and_derivatives(self, q, qd, tau, dt, integrator, f_ext):
-        """(q', qd', A, B): step and step_derivatives from one pass over the stages; the Euler schemes
-        in one kernel call when nothing asks for their derivatives (the kernel has no backward)."""
+        """(q', qd', A, B): step and step_derivatives from one pass over the stages; in one kernel call
+        when nothing asks for their derivatives (the kernels have no backward)."""
         _check(integrator)
-        if integrator in FUSED and self._robot._coupling is None and not _differentiated(q, qd, tau, dt, f_ext):
+        if self._robot._coupling is None and not _differentiated(q, qd, tau, dt, f_ext):
             h = _dt(dt, qd)
-            q_next, qd_next, A, B = self._kernel_call("step_derivatives", q, qd, tau, f_ext, h, FUSED[integrator])
+            if integrator in FUSED:
+                q_next, qd_next, A, B = self._kernel_call("step_derivatives", q, qd, tau, f_ext, h, FUSED[integrator])
+            else:  # the stages' derivatives in a workspace: one per CPU thread, one per sample on CUDA
+                q_next, qd_next, A, B, _ = self._kernel_call("rk_step_derivatives", q, qd, tau, f_ext, h,
+                                                             RK_FUSED[integrator])
             return q_next, qd_next, A.flatten(-4, -3).flatten(-2), B.flatten(-3, -2)
         return _in_chunks(lambda *args: self._step_derivatives(*args, integrator), q, qd, tau, dt, f_ext)
 

@@ -18,14 +18,16 @@ from .model import RobotModel
 # rotated (the acceleration with a term of the op's velocity); the others are the same in both.
 TENSOR_KINDS = {"configuration": ("nq",), "velocity": ("nv",), "acceleration": ("nv",), "force": ("nv",),
                 "body_forces": ("nbodies", 6), "frame_weights": ("nframes", 6), "plain": None}
-INTEGER_KINDS = ("frame", "frames", "reference", "mask", "scheme")
+INTEGER_KINDS = ("frame", "frames", "reference", "mask", "scheme", "tableau")
 # Output kinds, and the reframe each gets in the MuJoCo convention, applied by the generated binding:
 # force G x; acceleration G (x + base term); congruence G X G^T (nv x nv); columns X G^T (k x nv);
 # force_rows G X (nv x k); plain: none. "twin": the kernel reframes it itself, by a hand-derived formula.
-OUTPUT_KINDS = ("force", "acceleration", "congruence", "columns", "force_rows", "plain", "twin")
+# "workspace": the kernel's scratch, not a result (on the CPU one block per thread, returned expanded over
+# the batch; on CUDA one per sample).
+OUTPUT_KINDS = ("force", "acceleration", "congruence", "columns", "force_rows", "plain", "twin", "workspace")
 SIZES = ("nv", "nq", "nbodies", "nparams", "nframes", "nsel")
 # What one call can carry (csrc/batch.h: kMaxIn, kMaxOut), checked when the table is built.
-MAX_TENSOR_INPUTS, MAX_OUTPUTS = 8, 4
+MAX_TENSOR_INPUTS, MAX_OUTPUTS = 8, 5
 
 
 @dataclass(frozen=True)
@@ -79,7 +81,7 @@ class OpSpec:
         return any(o.kind == "twin" for o in self.outputs)
 
     def schema(self) -> str:
-        types = {"frame": "int", "frames": "int[]", "reference": "int", "mask": "int", "scheme": "int"}
+        types = {"frame": "int", "frames": "int[]", "reference": "int", "mask": "int", "scheme": "int", "tableau": "int"}
         params = [f"Tensor{'?' if a.optional else ''} {a.name}" if a.is_tensor else f"{types[a.kind]} {a.name}"
                   for a in self.args]
         outs = ", ".join("Tensor" for _ in self.outputs)
@@ -151,6 +153,10 @@ _VALUE_OPS = (
         OpSpec("step_derivatives", "StepDerivatives", (Q, QD, TAU, FEXT, Arg("dt", "plain", shape=(1,)), Arg("scheme", "scheme")),
                (Out("q_next", "twin", ("nq",)), Out("qd_next", "twin", NV), Out("A", "twin", (2, "nv", 2, "nv")),
                 Out("B", "twin", (2, "nv", "nv"))), "derivatives"),
+        OpSpec("rk_step_derivatives", "RkStepDerivatives",
+               (Q, QD, TAU, FEXT, Arg("dt", "plain", shape=(1,)), Arg("scheme", "tableau")),
+               (Out("q_next", "twin", ("nq",)), Out("qd_next", "twin", NV), Out("A", "twin", (2, "nv", 2, "nv")),
+                Out("B", "twin", (2, "nv", "nv")), Out("work", "workspace", (8, "nv", 3, "nv"))), "derivatives"),
         OpSpec("inverse_dynamics_external_force_gradient", "InverseDynamicsExternalForceGradient", (Q,),
                (Out("dtau_dfext", "force_rows", ("nv", "nbodies", 6)),), "derivatives"),
         OpSpec("forward_dynamics_external_force_gradient", "ForwardDynamicsExternalForceGradient", (Q,),
@@ -278,7 +284,9 @@ def _fake(spec: OpSpec, model: RobotModel):
                 raise RuntimeError(f"{spec.name}: {spec.args[k].name} must have the device and dtype of q "
                                    f"({q.device}, {q.dtype}), got {x.device}, {x.dtype}")
         nsel = len(args[0]) if spec.name == "end_effector_pose" else 0
-        outs = [q.new_empty(s) for s in spec.output_shapes(model, tuple(q.shape[:-1]), nsel)]
+        batch = tuple(q.shape[:-1])
+        outs = [q.new_empty(s[len(batch):]).expand(s) if o.kind == "workspace" and q.device.type == "cpu"
+                else q.new_empty(s) for o, s in zip(spec.outputs, spec.output_shapes(model, batch, nsel))]
         return outs[0] if len(outs) == 1 else tuple(outs)
 
     return fake

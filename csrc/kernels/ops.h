@@ -17,6 +17,7 @@
 #include "rnea.h"
 #include "rnea_derivatives.h"
 #include "rnea_second_order.h"
+#include "runge_kutta.h"
 #include "step.h"
 
 namespace tg {
@@ -285,6 +286,14 @@ template <class M, class S> struct StepDerivatives {
     cv.velocity_out(v);
     cv.acceleration_out(a.qd, qdd);
     euler_step<M, S, C>(a.q, v, qdd, a.dt[0], a.scheme, a.q_next, a.qd_next, a.A, a.B);
+  }
+};
+
+// One Runge-Kutta step (scheme 2: midpoint, 3: rk3, 4: rk4) and its Jacobians (runge_kutta.h), the
+// stages' derivatives in the workspace.
+template <class M, class S> struct RkStepDerivatives {
+  template <int C> TG_HD static void run(const RkStepDerivativesArgs<S>& a, const Conv<M, S, C>& cv) {
+    rk_step<M, S, C>(cv, a.qd, a.tau, a.f_ext, a.dt[0], a.scheme, a.q_next, a.qd_next, a.A, a.B, a.work);
   }
 };
 
