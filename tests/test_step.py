@@ -169,6 +169,38 @@ def test_semi_implicit_euler_derivatives_are_crocoddyls(robots, pin_models):
         assert rel_err(A[k], torch.from_numpy(fx)) <= 1e-10 and rel_err(B[k], torch.from_numpy(fu)) <= 1e-10
 
 
+def test_runge_kutta_derivatives_are_crocoddyls(robots, pin_models):
+    """Crocoddyl's IntegratedActionModelRK (RK2 midpoint, RK3, RK4: k_i = [v_i; a_i] at
+    x (+) dt sum_j a_ij k_j, x' = x (+) dt sum_i b_i k_i, Fx and Fu by the chain rule through the k_i),
+    written with Pinocchio's aba and computeABADerivatives, on a fixed arm. On a floating base Crocoddyl
+    adds stage velocities in their own charts (not Munthe-Kaas's dexp^-1, as MuJoCo 4): there the
+    mj_step and central-difference tests hold instead."""
+    robot, model = robots["iiwa14"], pin_models["iiwa14"]
+    data, nv, dt = model.createData(), model.nv, 0.02
+    q, qd, tau = _state(robot.pin, robot, 2, 14)
+    for integrator in RK_FUSED:
+        rows, weights = TABLEAUS[integrator]
+        q_next, qd_next = robot.pin.step(q, qd, tau, dt, integrator)
+        A, B = robot.pin.step_derivatives(q, qd, tau, dt, integrator)
+        for k in range(2):
+            x, u = np.concatenate([q[k].numpy(), qd[k].numpy()]), tau[k].numpy()
+            ks, dks = [], []  # k_i and d k_i / d[x; u]
+            for row in ((),) + rows:
+                xi = x + dt * sum((c * kj for c, kj in zip(row, ks)), np.zeros(2 * nv))
+                dxi = np.hstack([np.eye(2 * nv), np.zeros((2 * nv, nv))])
+                dxi = dxi + dt * sum((c * dk for c, dk in zip(row, dks)), np.zeros_like(dxi))
+                pin.computeABADerivatives(model, data, xi[:nv], xi[nv:], u)
+                minv = np.triu(data.Minv) + np.triu(data.Minv, 1).T
+                f_x = np.block([[np.zeros((nv, nv)), np.eye(nv), np.zeros((nv, nv))],
+                                [data.ddq_dq, data.ddq_dv, minv]])
+                ks.append(np.concatenate([xi[nv:], pin.aba(model, data, xi[:nv], xi[nv:], u)]))
+                dks.append(f_x @ np.vstack([dxi, np.hstack([np.zeros((nv, 2 * nv)), np.eye(nv)])]))
+            ref_x = x + dt * sum(w * kj for w, kj in zip(weights, ks))
+            ref = np.hstack([np.eye(2 * nv), np.zeros((2 * nv, nv))]) + dt * sum(w * dk for w, dk in zip(weights, dks))
+            assert rel_err(torch.cat([q_next[k], qd_next[k]]), torch.from_numpy(ref_x)) <= 1e-12, integrator
+            assert rel_err(torch.cat([A[k], B[k]], dim=-1), torch.from_numpy(ref)) <= 1e-10, integrator
+
+
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
 @pytest.mark.parametrize("name", ["go2", "trees"])
 def test_step_derivatives_match_central_differences(robots, name, convention):
