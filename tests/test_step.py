@@ -309,27 +309,33 @@ def test_step_second_derivatives_match_differences_of_the_first(robots, name, co
 
 
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
-def test_euler_step_hessian_is_forward_over_reverse(robots, convention, monkeypatch):
-    """The Euler schemes' closed-form step Hessian (from forward_dynamics_second_order, step_hessian.py)
-    against forward over reverse through step (what the Runge-Kutta schemes use), on every joint type
-    (two free joints, a ball, a hinge, a slide), at rest, slow and fast (turns of about one rad per step),
-    with a per-sample dt and external forces."""
-    import torch_grid.integrators as integrators
-
+def test_step_hessians_are_forward_over_reverse(robots, convention):
+    """step_second_derivatives (the Euler schemes' closed form from forward_dynamics_second_order; rk4's
+    symmetrised forward-mode derivative of step_derivatives) against forward over reverse through step
+    itself, on every joint type (two free joints, a ball, a hinge, a slide), at rest, slow and fast (turns
+    of about one rad per step), with a per-sample dt and external forces."""
     robot = robots["trees"]
-    view = getattr(robot, convention)
+    view, nv = getattr(robot, convention), robot.nv
     g = torch.Generator().manual_seed(14)
     q = view.random_configuration(3, generator=g)
-    qd, tau = (torch.randn(3, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
+    qd, tau = (torch.randn(3, nv, dtype=torch.float64, generator=g) for _ in range(2))
     qd = qd * torch.tensor([[0.0], [1.0], [30.0]], dtype=torch.float64)
     dt = torch.tensor([0.01, 0.03, 0.05], dtype=torch.float64)
     f_ext = torch.randn(3, robot.nbodies, 6, dtype=torch.float64, generator=g)
-    closed = {i: view.step_second_derivatives(q, qd, tau, dt, i, f_ext) for i in ("euler", "semi_implicit_euler")}
-    monkeypatch.setattr(integrators, "FUSED", {})
-    for integrator, ours in closed.items():
-        ref = view.step_second_derivatives(q, qd, tau, dt, integrator, f_ext)
-        assert ours.shape == ref.shape == (3, 2 * robot.nv, 3 * robot.nv, 3 * robot.nv)
-        assert rel_err(ours, ref) <= 1e-11, integrator
+    z = torch.zeros(3 * nv, dtype=torch.float64)
+    for integrator in ("euler", "semi_implicit_euler", "rk4"):
+        ours = view.step_second_derivatives(q, qd, tau, dt, integrator, f_ext)
+        y_q, y_v = view.step(q, qd, tau, dt, integrator, f_ext)
+
+        def deviation(z, q, qd, tau, h, f, y_q, y_v):
+            out_q, out_v = view.step(view.integrate(q, z[:nv]), qd + z[nv:2 * nv], tau + z[2 * nv:], h, integrator, f)
+            return torch.cat([view.difference(y_q, out_q), out_v - y_v])
+
+        ref = torch.func.vmap(torch.func.jacfwd(torch.func.jacrev(deviation)), in_dims=(None, 0, 0, 0, 0, 0, 0, 0))(
+            z, q, qd, tau, dt, f_ext, y_q, y_v)
+        assert ours.shape == ref.shape == (3, 2 * nv, 3 * nv, 3 * nv)
+        # four stages of rounding, at 1.5 rad per step (rk4: 9e-11)
+        assert rel_err(ours, ref) <= (1e-9 if integrator == "rk4" else 1e-11), integrator
 
 
 @pytest.mark.parametrize("integrator", ["semi_implicit_euler", "rk4"])

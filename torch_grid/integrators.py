@@ -145,24 +145,27 @@ class StepFunctions:
         """(..., 2 nv, 3 nv, 3 nv): the Hessian at z = 0 of z -> [difference(q', q'(z)); qd'(z) - qd'] with
         (q'(z), qd'(z)) = step(q (+) z_q, qd + z_qd, tau + z_tau), symmetric in its last two indices. The
         Euler schemes: in closed form from forward_dynamics_second_order (step_hessian.py); the Runge-Kutta
-        schemes: forward over reverse through step (the kernels' backwards and their forward-mode rules,
-        and the configuration space's closed forms)."""
+        schemes: the symmetrised forward-mode derivative of step_derivatives' chain rule along z (the
+        forward-dynamics gradient's jvp from the second-order kernels, the configuration space's closed
+        forms), 3 nv tangents per sample."""
         _check(integrator)
         if integrator in FUSED:
             return euler_step_hessian(self, q, qd, tau, dt, f_ext, semi=bool(FUSED[integrator]))
         nv = qd.shape[-1]
         batch, (q, qd, tau, h, f_ext) = _flattened(q, qd, tau, dt, f_ext)
-        y_q, y_v = self.step(q, qd, tau, h, integrator, f_ext)
 
-        def deviation(z, q, qd, tau, h, f, y_q, y_v):
-            out_q, out_v = self.step(self.integrate(q, z[:nv]), qd + z[nv:2 * nv], tau + z[2 * nv:], h, integrator, f)
-            return torch.cat([self.difference(y_q, out_q), out_v - y_v])
+        def jacobian(z, q, qd, tau, h, f):
+            """[A | B] at x (+) z."""
+            A, B = self._step_derivatives(self.integrate(q, z[:nv]), qd + z[nv:2 * nv], tau + z[2 * nv:], h, f,
+                                          integrator)[2:]
+            return torch.cat([A, B], dim=-1)
 
+        # D_b J_a differs from the Hessian by Lie brackets, antisymmetric in (a, b), on both sides: the
+        # input's x (+) z (+) e against x (+) (z + e), and the output's chart at q'(x (+) z) against q'(x)
         z = torch.zeros(3 * nv, dtype=qd.dtype, device=qd.device)
-        hessian = torch.func.jacfwd(torch.func.jacrev(deviation))
-        dims = (None, 0, 0, 0, 0, None if f_ext is None else 0, 0, 0)
-        out = torch.func.vmap(hessian, in_dims=dims)(z, q, qd, tau, h, f_ext, y_q, y_v)
-        return out.reshape(*batch, 2 * nv, 3 * nv, 3 * nv)
+        dims = (None, 0, 0, 0, 0, None if f_ext is None else 0)
+        dj = torch.func.vmap(torch.func.jacfwd(jacobian), in_dims=dims)(z, q, qd, tau, h, f_ext)
+        return (0.5 * (dj + dj.transpose(-1, -2))).reshape(*batch, 2 * nv, 3 * nv, 3 * nv)
 
 
 # Samples per piece of a large batch: the chain rule's (nv, nv) temporaries of a piece stay in cache
