@@ -151,6 +151,23 @@ template <int ROWS, int N, class S> TG_HD void add_product(int K, const S* g, in
   }
 }
 
+// out = w sum_j a_j X_j over the j < n with a_j != 0 (zero if none), D entries each.
+template <int D, class S> TG_HD void combine(int n, const double* a, S w, S* const* X, S* out) {
+  bool first = true;
+  for (int j = 0; j < n; ++j) {
+    if (a[j] == 0) continue;
+    const S c = w * S(a[j]);
+    const S* x = X[j];
+    if (first)
+      for (int e = 0; e < D; ++e) out[e] = c * x[e];
+    else
+      for (int e = 0; e < D; ++e) out[e] += c * x[e];
+    first = false;
+  }
+  if (first)
+    for (int e = 0; e < D; ++e) out[e] = S(0);
+}
+
 // acc = FD(q, v, tau) at a stage (cs at its configuration; v, tau in Pinocchio's convention) and its
 // derivatives G = [G_q, G_v, G_tau] (NV x NV each), both in the convention.
 template <class M, class S, int C>
@@ -158,6 +175,46 @@ TG_HD void rk_stage(const Conv<M, S, C>& cs, const S* v, const S* tau, const S* 
   constexpr int NN = M::NV * M::NV;
   forward_dynamics_gradient<M, S>(Placements<M, S>(cs.q), v, tau, fext, cs, G, G + NN, G + 2 * NN, acc);
   cs.acceleration_out(v, acc);
+}
+
+// A stage's per-joint part, with u = dt theta_i, v = v_i and the derivatives dv = dv_i, dq = dtheta_i
+// (NV x 3 NV): q_i = q (+) u into qs (the convention's layout), the carried velocity c_i = dexp(u)^-1 v
+// into c with its rows dc_i = D_v dv + D_theta dt dtheta (dv off quaternion joints) into dc (when kept)
+// and w times onto the rows of q' in [A | B], then dq_i = Jq [I 0 0] + dt Jv dtheta in place of dtheta.
+template <class M, class S, int C>
+TG_HD void stage_rows(const S* q, const S* u, const S* v, S h, const S* dv, S* dq, S* dc, S w, S* A, S* B, S* qs, S* c) {
+  constexpr int NV = M::NV, N3 = 3 * NV;
+  const auto& d = data<M, S>();
+  S blk[6 * N3];
+  for (int jn = 0; jn < M::NB; ++jn) {
+    S Jq[36], Jv[36], Dth[36], Dx[36];
+    const int n = integrate_joint<M, S, C>(jn, q, u, qs, Jq, Jv), vi = d.vi[jn], rows = n ? n : d.nvj[jn];
+    if (n) {
+      dexp_inverse_jacobians<S, C>(n, u + vi, v + vi, c + vi, Dth, Dx);
+      for (int a = 0; a < n; ++a) {
+        S* o = blk + N3 * a;
+        for (int col = 0; col < N3; ++col) o[col] = S(0);
+        for (int b = 0; b < n; ++b) {
+          const S x = Dx[n * a + b], y = h * Dth[n * a + b];
+          const S *dvb = dv + N3 * (vi + b), *dtb = dq + N3 * (vi + b);
+          for (int col = 0; col < N3; ++col) o[col] += x * dvb[col] + y * dtb[col];
+        }
+      }
+    } else {
+      for (int a = 0; a < rows; ++a) {
+        c[vi + a] = v[vi + a];
+        for (int col = 0; col < N3; ++col) blk[N3 * a + col] = dv[N3 * (vi + a) + col];
+      }
+    }
+    for (int a = 0; a < rows; ++a) {
+      if (dc)
+        for (int col = 0; col < N3; ++col) dc[N3 * (vi + a) + col] = blk[N3 * a + col];
+      if (w != S(0)) jacobian_row_update<NV>(A, B, vi + a, w, blk + N3 * a, S(1));
+    }
+    advance_rows<N3>(n, rows, vi, Jq, Jv, h, dq, blk);
+    for (int a = 0; a < rows; ++a)
+      for (int col = 0; col < N3; ++col) dq[N3 * (vi + a) + col] = blk[N3 * a + col];
+  }
 }
 
 // The step and its Jacobians. cv at q, qd and tau in Pinocchio's convention (as the binding passes them).
@@ -185,50 +242,17 @@ TG_HD void rk_step(const Conv<M, S, C>& cv, const S* qd, const S* tau, const S* 
     if (i == 0) {
       rk_stage<M, S, C>(cv, qd, tau, fext, G, acc[0]);
     } else {
-      // theta_i, v_i; dtheta_i into dq, dv_i into G (free until the stage's derivatives)
+      // theta_i, v_i; dtheta_i into dq, dv_i into G (free until the stage's derivatives); then q_i, c_i, dc_i, dq_i
       for (int k = 0; k < NV; ++k) {
         S th = S(0), ac = S(0);
         for (int j = 0; j < i; ++j) th += S(ai[j]) * car[j][k], ac += S(ai[j]) * acc[j][k];
         u[k] = h * th;
         v[k] = v0[k] + h * ac;
       }
-      for (int e = 0; e < D; ++e) dq[e] = S(0), G[e] = S(0);
-      for (int j = 0; j < i; ++j)
-        if (ai[j] != 0) {
-          const S a = S(ai[j]), ha = h * a;
-          for (int e = 0; e < D; ++e) dq[e] += a * dc[j][e], G[e] += ha * dacc[j][e];
-        }
+      combine<D>(i, ai, S(1), dc, dq);
+      combine<D>(i, ai, h, dacc, G);
       for (int r = 0; r < NV; ++r) G[N3 * r + NV + r] += S(1);
-      // per joint: q_i, the carried velocity c_i and its rows dc_i, then dq_i's rows in place
-      for (int jn = 0; jn < M::NB; ++jn) {
-        S Jq[36], Jv[36], Dth[36], Dx[36];
-        const int n = integrate_joint<M, S, C>(jn, cv.q, u, qs, Jq, Jv), vi = d.vi[jn], rows = n ? n : d.nvj[jn];
-        if (n) {  // dc_i = D_v dv_i + D_theta h dtheta_i
-          dexp_inverse_jacobians<S, C>(n, u + vi, v + vi, car[i] + vi, Dth, Dx);
-          for (int a = 0; a < n; ++a) {
-            S* o = blk + N3 * a;
-            for (int c = 0; c < N3; ++c) o[c] = S(0);
-            for (int b = 0; b < n; ++b) {
-              const S x = Dx[n * a + b], y = h * Dth[n * a + b];
-              const S *dvb = G + N3 * (vi + b), *dtb = dq + N3 * (vi + b);
-              for (int c = 0; c < N3; ++c) o[c] += x * dvb[c] + y * dtb[c];
-            }
-          }
-        } else {  // dc_i = dv_i
-          for (int a = 0; a < rows; ++a) {
-            car[i][vi + a] = v[vi + a];
-            for (int c = 0; c < N3; ++c) blk[N3 * a + c] = G[N3 * (vi + a) + c];
-          }
-        }
-        for (int a = 0; a < rows; ++a) {
-          if (i < s - 1)
-            for (int c = 0; c < N3; ++c) dc[i][N3 * (vi + a) + c] = blk[N3 * a + c];
-          if (bi != S(0)) jacobian_row_update<NV>(A, B, vi + a, bi, blk + N3 * a, S(1));
-        }
-        advance_rows<N3>(n, rows, vi, Jq, Jv, h, dq, blk);
-        for (int a = 0; a < rows; ++a)
-          for (int c = 0; c < N3; ++c) dq[N3 * (vi + a) + c] = blk[N3 * a + c];
-      }
+      stage_rows<M, S, C>(cv.q, u, v, h, G, dq, i < s - 1 ? dc[i] : nullptr, bi, A, B, qs, car[i]);
       const Conv<M, S, C> cs(qs);
       S vb[Conv<M, S, C>::active ? NV : 1], tb[Conv<M, S, C>::active ? NV : 1];
       rk_stage<M, S, C>(cs, cs.velocity(v, vb), cs.force(tau_c, tb), fext, G, acc[i]);
