@@ -118,36 +118,52 @@ template <int N3, class S> TG_HD void advance_rows(int n, int rows, int vi, cons
 #define TG_KEEP_LOOP
 #endif
 
-// out (RB x N, rows from 0) += w g X over columns [c0, c0 + CB): g RB rows of stride gs, X K x N; the
-// RB x CB block stays in registers.
+// out (RB x N, rows from 0) += sum_t w_t g_t X_t over columns [c0, c0 + CB): g_t RB rows of stride gs,
+// X_t K x N; the RB x CB block stays in registers across the terms.
 template <int N, int RB, int CB, class S>
-TG_HD void add_block_product(int K, const S* g, int gs, S w, const S* X, S* out, int c0) {
+TG_HD void add_block_products(int nt, int K, const S* const* g, int gs, const S* w, const S* const* X, S* out, int c0) {
   S acc[RB][CB];
   for (int r = 0; r < RB; ++r)
     for (int c = 0; c < CB; ++c) acc[r][c] = S(0);
-  for (int k = 0; k < K; ++k) {
-    const S* x = X + N * k + c0;
-    for (int r = 0; r < RB; ++r) {
-      const S gr = g[gs * r + k];
-      TG_KEEP_LOOP
-      for (int c = 0; c < CB; ++c) acc[r][c] += gr * x[c];
+  for (int t = 0; t < nt; ++t)
+    for (int k = 0; k < K; ++k) {
+      const S* x = X[t] + N * k + c0;
+      for (int r = 0; r < RB; ++r) {
+        const S gr = w[t] * g[t][gs * r + k];
+        TG_KEEP_LOOP
+        for (int c = 0; c < CB; ++c) acc[r][c] += gr * x[c];
+      }
     }
-  }
   for (int r = 0; r < RB; ++r)
-    for (int c = 0; c < CB; ++c) out[N * r + c0 + c] += w * acc[r][c];
+    for (int c = 0; c < CB; ++c) out[N * r + c0 + c] += acc[r][c];
 }
 
-// out (ROWS x N) += w g X, with g (ROWS x K, row stride gs) and X (K x N), all row-major.
-template <int ROWS, int N, class S> TG_HD void add_product(int K, const S* g, int gs, S w, const S* X, S* out) {
-  constexpr int RB = 4, CB = 16, RR = ROWS % RB, RC = N % CB;
+// The columns from c0 of a row block in vector-sized pieces (8, 4, 2, 1): an odd-width block is not
+// vectorized.
+template <int N, int RB, int RC, class S>
+TG_HD void add_tail_products(int nt, int K, const S* const* g, int gs, const S* w, const S* const* X, S* out, int c0) {
+  if constexpr (RC > 0) {
+    constexpr int W = RC >= 8 ? 8 : RC >= 4 ? 4 : RC >= 2 ? 2 : 1;
+    add_block_products<N, RB, W>(nt, K, g, gs, w, X, out, c0);
+    add_tail_products<N, RB, RC - W>(nt, K, g, gs, w, X, out, c0 + W);
+  }
+}
+
+// out (ROWS x N) += sum_t w_t g_t X_t, with g_t (ROWS x K, row stride gs) and X_t (K x N), all row-major.
+template <int ROWS, int N, class S>
+TG_HD void add_products(int nt, int K, const S* const* g, int gs, const S* w, const S* const* X, S* out) {
+  constexpr int RB = 6, CB = 16, RR = ROWS % RB, RC = N % CB;
   for (int r0 = 0; r0 < ROWS - RR; r0 += RB) {
-    for (int c0 = 0; c0 < N - RC; c0 += CB) add_block_product<N, RB, CB>(K, g + gs * r0, gs, w, X, out + N * r0, c0);
-    if constexpr (RC > 0) add_block_product<N, RB, RC>(K, g + gs * r0, gs, w, X, out + N * r0, N - RC);
+    const S* gr[4];
+    for (int t = 0; t < nt; ++t) gr[t] = g[t] + gs * r0;
+    for (int c0 = 0; c0 < N - RC; c0 += CB) add_block_products<N, RB, CB>(nt, K, gr, gs, w, X, out + N * r0, c0);
+    add_tail_products<N, RB, RC>(nt, K, gr, gs, w, X, out + N * r0, N - RC);
   }
   if constexpr (RR > 0) {
-    const int r0 = ROWS - RR;
-    for (int c0 = 0; c0 < N - RC; c0 += CB) add_block_product<N, RR, CB>(K, g + gs * r0, gs, w, X, out + N * r0, c0);
-    if constexpr (RC > 0) add_block_product<N, RR, RC>(K, g + gs * r0, gs, w, X, out + N * r0, N - RC);
+    const S* gr[4];
+    for (int t = 0; t < nt; ++t) gr[t] = g[t] + gs * (ROWS - RR);
+    for (int c0 = 0; c0 < N - RC; c0 += CB) add_block_products<N, RR, CB>(nt, K, gr, gs, w, X, out + N * (ROWS - RR), c0);
+    add_tail_products<N, RR, RC>(nt, K, gr, gs, w, X, out + N * (ROWS - RR), N - RC);
   }
 }
 
@@ -188,31 +204,37 @@ TG_HD void stage_rows(const S* q, const S* u, const S* v, S h, const S* dv, S* d
   S blk[6 * N3];
   for (int jn = 0; jn < M::NB; ++jn) {
     S Jq[36], Jv[36], Dth[36], Dx[36];
-    const int n = integrate_joint<M, S, C>(jn, q, u, qs, Jq, Jv), vi = d.vi[jn], rows = n ? n : d.nvj[jn];
-    if (n) {
-      dexp_inverse_jacobians<S, C>(n, u + vi, v + vi, c + vi, Dth, Dx);
-      for (int a = 0; a < n; ++a) {
-        S* o = blk + N3 * a;
-        for (int col = 0; col < N3; ++col) o[col] = S(0);
-        for (int b = 0; b < n; ++b) {
-          const S x = Dx[n * a + b], y = h * Dth[n * a + b];
-          const S *dvb = dv + N3 * (vi + b), *dtb = dq + N3 * (vi + b);
-          for (int col = 0; col < N3; ++col) o[col] += x * dvb[col] + y * dtb[col];
-        }
-      }
-    } else {
-      for (int a = 0; a < rows; ++a) {
+    const int n = integrate_joint<M, S, C>(jn, q, u, qs, Jq, Jv), vi = d.vi[jn];
+    if (!n) {  // vector-space joint: c_i = v_i, dc_i = dv_i, dq_i = [I 0 0] + dt dtheta_i
+      for (int a = 0; a < d.nvj[jn]; ++a) {
+        const S* x = dv + N3 * (vi + a);
+        S* o = dq + N3 * (vi + a);
         c[vi + a] = v[vi + a];
-        for (int col = 0; col < N3; ++col) blk[N3 * a + col] = dv[N3 * (vi + a) + col];
+        if (dc)
+          for (int col = 0; col < N3; ++col) dc[N3 * (vi + a) + col] = x[col];
+        if (w != S(0)) jacobian_row_update<NV>(A, B, vi + a, w, x, S(1));
+        for (int col = 0; col < N3; ++col) o[col] *= h;
+        o[vi + a] += S(1);
+      }
+      continue;
+    }
+    dexp_inverse_jacobians<S, C>(n, u + vi, v + vi, c + vi, Dth, Dx);
+    for (int a = 0; a < n; ++a) {
+      S* o = blk + N3 * a;
+      for (int col = 0; col < N3; ++col) o[col] = S(0);
+      for (int b = 0; b < n; ++b) {
+        const S x = Dx[n * a + b], y = h * Dth[n * a + b];
+        const S *dvb = dv + N3 * (vi + b), *dtb = dq + N3 * (vi + b);
+        for (int col = 0; col < N3; ++col) o[col] += x * dvb[col] + y * dtb[col];
       }
     }
-    for (int a = 0; a < rows; ++a) {
+    for (int a = 0; a < n; ++a) {
       if (dc)
         for (int col = 0; col < N3; ++col) dc[N3 * (vi + a) + col] = blk[N3 * a + col];
       if (w != S(0)) jacobian_row_update<NV>(A, B, vi + a, w, blk + N3 * a, S(1));
     }
-    advance_rows<N3>(n, rows, vi, Jq, Jv, h, dq, blk);
-    for (int a = 0; a < rows; ++a)
+    advance_rows<N3>(n, n, vi, Jq, Jv, h, dq, blk);
+    for (int a = 0; a < n; ++a)
       for (int col = 0; col < N3; ++col) dq[N3 * (vi + a) + col] = blk[N3 * a + col];
   }
 }
@@ -267,9 +289,14 @@ TG_HD void rk_step(const Conv<M, S, C>& cv, const S* qd, const S* tau, const S* 
         da[N3 * r + 2 * NV + c] = G[2 * NN + NV * r + c];
       }
     if (i) {
-      add_product<NV, N3>(NV, G, NV, S(1), dq, da);
+      const S* g[4];
+      const S* X[4];
+      S w[4];
+      int nt = 0;
+      g[nt] = G, w[nt] = S(1), X[nt++] = dq;
       for (int j = 0; j < i; ++j)
-        if (ai[j] != 0) add_product<NV, N3>(NV, G + NN, NV, h * S(ai[j]), dacc[j], da);
+        if (ai[j] != 0) g[nt] = G + NN, w[nt] = h * S(ai[j]), X[nt++] = dacc[j];
+      add_products<NV, N3>(nt, NV, g, NV, w, X, da);
     }
     if (bi != S(0))
       for (int r = 0; r < NV; ++r) jacobian_row_update<NV>(A, B, NV + r, bi, da + N3 * r, S(1));
