@@ -179,7 +179,7 @@ def _inertia_solve(ops, model, needs, grads, output, q, x, convention):
     mu = ops.inertia_solve(q, grads[0], convention)
     dq = None
     if needs[0]:
-        dq = -_mass_product_vjp(ops, q, output.unsqueeze(-2), mu.unsqueeze(-2), convention)
+        dq = -_mass_product_vjp(ops, model, q, output.unsqueeze(-2), mu.unsqueeze(-2), convention)
         dq = tangent_to_ambient(model, q, dq, convention)
     return dq, mu if needs[1] else None, None
 
@@ -234,10 +234,13 @@ def _minv(ops, model, needs, grads, output, q, convention):
     return _crba(ops, model, needs, (inner,), None, q, convention)
 
 
-def _mass_product_vjp(ops, q, a, lam, convention):
-    """d/dq sum_m lam_m^T M(q) a_m along the tangent, (..., nv), for a and lam of shape (..., m, nv).
-    ID(q, 0, a) = M a + g(q) in either convention, so it is the ID products at (0, a_m) with
+def _mass_product_vjp(ops, model, q, a, lam, convention):
+    """d/dq sum_m lam_m^T M(q) a_m along the tangent, (..., nv), for a and lam of shape (..., m, nv): the
+    crba gradient for the weight sum_m lam_m a_m^T where its kernel runs (Pinocchio's convention, or where
+    the conventions agree). Otherwise ID(q, 0, a) = M a + g(q), so the ID products at (0, a_m) with
     cotangents lam_m, less one gravity product at (0, 0) with cotangent sum_m lam_m."""
+    if not (convention and model.conventions_differ):
+        return ops.crba_vjp(q, lam.mT @ a, convention)
     m = a.shape[-2]
     zero = torch.zeros_like(a)
     products, _ = ops.inverse_dynamics_vjp(repeat(q, m, 1), zero, a, None, lam, convention)
@@ -294,7 +297,7 @@ def _energy(ops, model, needs, grads, output, q, qd, convention):
     grad = grads[0]
     g_kinetic = grad[..., 0:1] + grad[..., 2:3]
     g_potential = grad[..., 1:2] + grad[..., 2:3]
-    dke_dq = 0.5 * _mass_product_vjp(ops, q, qd.unsqueeze(-2), qd.unsqueeze(-2), convention)
+    dke_dq = 0.5 * _mass_product_vjp(ops, model, q, qd.unsqueeze(-2), qd.unsqueeze(-2), convention)
     dpe_dq = ops.generalized_gravity(q, convention)
     dq = tangent_to_ambient(model, q, g_kinetic * dke_dq + g_potential * dpe_dq, convention)
     dqd = g_kinetic * _vjp(ops.crba(q, convention), qd)
