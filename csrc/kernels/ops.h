@@ -13,6 +13,7 @@
 #include "frames.h"
 #include "minv.h"
 #include "op_args.h"
+#include "products.h"
 #include "regressors.h"
 #include "rnea.h"
 #include "rnea_derivatives.h"
@@ -22,21 +23,15 @@
 
 namespace tg {
 
-// Columns [c0, c0 + W) of X <- -A X for an NV x NV matrix A and an NV x COLS row-major X: rows of
-// the product are sums of rows of X, which keeps the inner loop contiguous; W is a compile-time
-// width, so it vectorises.
+// Columns [c0, c0 + W) of X <- -A X for an NV x NV matrix A and an NV x COLS row-major X, through a
+// temporary of W columns.
 template <class M, class S, int COLS, int W> TG_HD void negate_left_multiply_block(const S* A, S* X, int c0) {
   constexpr int NV = M::NV;
   S T[NV * W];
-  for (int r = 0; r < NV; ++r) {
-    S* t = T + W * r;
-    for (int c = 0; c < W; ++c) t[c] = S(0);
-    for (int k = 0; k < NV; ++k) {
-      const S a = A[NV * r + k];
-      const S* x = X + COLS * k + c0;
-      for (int c = 0; c < W; ++c) t[c] -= a * x[c];
-    }
-  }
+  const S* g[1] = {A};
+  const S* x[1] = {X + c0};
+  const S w[1] = {S(-1)};
+  products<NV, W, COLS, W, false>(1, NV, g, NV, w, x, T);
   for (int r = 0; r < NV; ++r)
     for (int c = 0; c < W; ++c) X[COLS * r + c0 + c] = T[W * r + c];
 }

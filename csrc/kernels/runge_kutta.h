@@ -13,6 +13,7 @@
 #pragma once
 
 #include "forward_mode.h"
+#include "products.h"
 #include "step.h"
 
 namespace tg {
@@ -107,63 +108,6 @@ template <int N3, class S> TG_HD void advance_rows(int n, int rows, int vi, cons
       for (int c = 0; c < N3; ++c) o[c] += w * x[c];
       o[vi + b] += Jq[n * a + b];
     }
-  }
-}
-
-// GCC unrolls a short fixed-length loop completely before its vectorizer runs, and then multiplies in
-// scalars; kept a loop, the column block below is vectorized and held in registers.
-#if defined(__GNUC__) && !defined(__clang__) && !defined(__CUDACC__)
-#define TG_KEEP_LOOP _Pragma("GCC unroll 1")
-#else
-#define TG_KEEP_LOOP
-#endif
-
-// out (RB x N, rows from 0) += sum_t w_t g_t X_t over columns [c0, c0 + CB): g_t RB rows of stride gs,
-// X_t K x N; the RB x CB block stays in registers across the terms.
-template <int N, int RB, int CB, class S>
-TG_HD void add_block_products(int nt, int K, const S* const* g, int gs, const S* w, const S* const* X, S* out, int c0) {
-  S acc[RB][CB];
-  for (int r = 0; r < RB; ++r)
-    for (int c = 0; c < CB; ++c) acc[r][c] = S(0);
-  for (int t = 0; t < nt; ++t)
-    for (int k = 0; k < K; ++k) {
-      const S* x = X[t] + N * k + c0;
-      for (int r = 0; r < RB; ++r) {
-        const S gr = w[t] * g[t][gs * r + k];
-        TG_KEEP_LOOP
-        for (int c = 0; c < CB; ++c) acc[r][c] += gr * x[c];
-      }
-    }
-  for (int r = 0; r < RB; ++r)
-    for (int c = 0; c < CB; ++c) out[N * r + c0 + c] += acc[r][c];
-}
-
-// The columns from c0 of a row block in vector-sized pieces (8, 4, 2, 1): an odd-width block is not
-// vectorized.
-template <int N, int RB, int RC, class S>
-TG_HD void add_tail_products(int nt, int K, const S* const* g, int gs, const S* w, const S* const* X, S* out, int c0) {
-  if constexpr (RC > 0) {
-    constexpr int W = RC >= 8 ? 8 : RC >= 4 ? 4 : RC >= 2 ? 2 : 1;
-    add_block_products<N, RB, W>(nt, K, g, gs, w, X, out, c0);
-    add_tail_products<N, RB, RC - W>(nt, K, g, gs, w, X, out, c0 + W);
-  }
-}
-
-// out (ROWS x N) += sum_t w_t g_t X_t, with g_t (ROWS x K, row stride gs) and X_t (K x N), all row-major.
-template <int ROWS, int N, class S>
-TG_HD void add_products(int nt, int K, const S* const* g, int gs, const S* w, const S* const* X, S* out) {
-  constexpr int RB = 6, CB = 16, RR = ROWS % RB, RC = N % CB;
-  for (int r0 = 0; r0 < ROWS - RR; r0 += RB) {
-    const S* gr[4];
-    for (int t = 0; t < nt; ++t) gr[t] = g[t] + gs * r0;
-    for (int c0 = 0; c0 < N - RC; c0 += CB) add_block_products<N, RB, CB>(nt, K, gr, gs, w, X, out + N * r0, c0);
-    add_tail_products<N, RB, RC>(nt, K, gr, gs, w, X, out + N * r0, N - RC);
-  }
-  if constexpr (RR > 0) {
-    const S* gr[4];
-    for (int t = 0; t < nt; ++t) gr[t] = g[t] + gs * (ROWS - RR);
-    for (int c0 = 0; c0 < N - RC; c0 += CB) add_block_products<N, RR, CB>(nt, K, gr, gs, w, X, out + N * (ROWS - RR), c0);
-    add_tail_products<N, RR, RC>(nt, K, gr, gs, w, X, out + N * (ROWS - RR), N - RC);
   }
 }
 
@@ -296,7 +240,7 @@ TG_HD void rk_step(const Conv<M, S, C>& cv, const S* qd, const S* tau, const S* 
       g[nt] = G, w[nt] = S(1), X[nt++] = dq;
       for (int j = 0; j < i; ++j)
         if (ai[j] != 0) g[nt] = G + NN, w[nt] = h * S(ai[j]), X[nt++] = dacc[j];
-      add_products<NV, N3>(nt, NV, g, NV, w, X, da);
+      products<NV, N3, N3, N3, true>(nt, NV, g, NV, w, X, da);
     }
     if (bi != S(0))
       for (int r = 0; r < NV; ++r) jacobian_row_update<NV>(A, B, NV + r, bi, da + N3 * r, S(1));
