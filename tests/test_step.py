@@ -362,6 +362,21 @@ def test_unknown_integrator_is_refused(robots):
         robot.step(q, qd, tau, 0.01, "rk5")
 
 
+@pytest.mark.parametrize("fn", ["step", "step_derivatives", "step_second_derivatives", "horizon"])
+def test_malformed_dt_is_refused(robots, fn):
+    """Each entry point names itself and dt, whatever dt is, before any kernel or torch op sees it."""
+    robot = robots["iiwa14"]
+    q, qd, tau = _state(robot.pin, robot, 3, 3)
+    call = getattr(robot, fn)
+    for dt, error, message in (("0.01", TypeError, "be a number or a tensor, got str"),
+                               (None, TypeError, "got NoneType"), ([0.01], TypeError, "got list"),
+                               (True, TypeError, "got bool"),
+                               (torch.ones(2, dtype=torch.float64), ValueError, r"batch shape, got shape \(2,\)"),
+                               (torch.tensor(0.01), TypeError, "have q's dtype")):
+        with pytest.raises(error, match=f"{fn}: dt must .*{message}"):
+            call(q, qd, tau, dt, "rk4")
+
+
 def test_large_batches_go_in_pieces(robots, monkeypatch):
     """Under autograd (the torch composition) a batch above integrators.CHUNK samples is split (here at 2)
     and put back in its shape: the same A, B as one piece, with a per-sample dt and a leading batch of two

@@ -239,18 +239,24 @@ class ConfigurationFunctions:
         second = ("v", (space.nv,)) if op.endswith("integrate") else ("q1", (space.nq,))
         _check_tensor(op, "q0" if second[0] == "q1" else "q", q, (space.nq,), q)
         _check_tensor(op, second[0], x, second[1], q)
-        if isinstance(dt, torch.Tensor):
-            if dt.dtype != q.dtype or dt.device != q.device:
-                raise TypeError(f"{op}: dt must have q's dtype and device ({q.dtype}, {q.device}), got {dt.dtype}, "
-                                f"{dt.device}")
-            try:
-                torch.broadcast_shapes(dt.shape, q.shape[:-1], x.shape[:-1])
-            except RuntimeError:
-                raise ValueError(f"{op}: dt must be a number or a tensor of the batch shape, got shape {tuple(dt.shape)} "
-                                 f"with q {tuple(q.shape)}") from None
-        elif not isinstance(dt, numbers.Real):
-            raise TypeError(f"{op}: dt must be a number or a tensor, got {type(dt).__name__}")
+        check_dt(op, dt, q, x)
         return q, x
+
+
+def check_dt(op: str, dt, q: torch.Tensor, *others: torch.Tensor) -> None:
+    """dt must be a real number, or a tensor of q's dtype and device whose shape broadcasts with the batch
+    shape of q and the others."""
+    if isinstance(dt, torch.Tensor):
+        if dt.dtype != q.dtype or dt.device != q.device:
+            raise TypeError(f"{op}: dt must have q's dtype and device ({q.dtype}, {q.device}), got {dt.dtype}, "
+                            f"{dt.device}")
+        try:
+            torch.broadcast_shapes(dt.shape, *(x.shape[:-1] for x in (q, *others) if isinstance(x, torch.Tensor)))
+        except RuntimeError:
+            raise ValueError(f"{op}: dt must be a number or a tensor of the batch shape, got shape {tuple(dt.shape)} "
+                             f"with q {tuple(q.shape)}") from None
+    elif not isinstance(dt, numbers.Real) or isinstance(dt, bool):
+        raise TypeError(f"{op}: dt must be a number or a tensor, got {type(dt).__name__}")
 
 
 # -- SO(3) and SE(3) pieces, batched over leading dimensions -------------------------------------------

@@ -29,7 +29,7 @@ class HorizonFunctions:
         cost (..., T), lx (..., T, 2nv), lu (..., T, nv), lxx (..., T, 2nv, 2nv), luu (..., T, nv, nv) and
         lxu (..., T, 2nv, nv) (zero: no listed cost couples state and control).
         """
-        q_next, qd_next, A, B = self._step_and_derivatives(q, qd, tau, dt, integrator, f_ext)
+        q_next, qd_next, A, B = self._step_and_derivatives(q, qd, tau, dt, integrator, f_ext, "horizon")
         out = {"q_next": q_next, "qd_next": qd_next, "A": A, "B": B}
         if step_hessian:
             out["H"] = self.step_second_derivatives(q, qd, tau, dt, integrator, f_ext)

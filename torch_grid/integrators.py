@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import torch
 
-from .configuration import _dt, d_dexp_inverse_blocks, d_integrate_blocks, dexp_inverse, tangent_map
+from .configuration import _dt, check_dt, d_dexp_inverse_blocks, d_integrate_blocks, dexp_inverse, tangent_map
 from .func import dual, transforming
 from .step_hessian import euler_step_hessian
 
@@ -45,7 +45,7 @@ class StepFunctions:
              f_ext: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """(q', qd') `(..., nq)`, `(..., nv)`: one step of dt (a number or a (...,) tensor) with tau (and
         f_ext) held over it; integrator one of INTEGRATORS."""
-        _check(integrator)
+        _check("step", integrator, q, qd, tau, dt)
         h = _dt(dt, qd)
         if integrator == "semi_implicit_euler":
             qd_next = qd + h * self.forward_dynamics(q, qd, tau, f_ext)
@@ -67,10 +67,10 @@ class StepFunctions:
         [q; qd] and tau, along the tangent spaces (q' compared by difference, q moved by integrate)."""
         return self._step_and_derivatives(q, qd, tau, dt, integrator, f_ext)[2:]
 
-    def _step_and_derivatives(self, q, qd, tau, dt, integrator, f_ext):
+    def _step_and_derivatives(self, q, qd, tau, dt, integrator, f_ext, op="step_derivatives"):
         """(q', qd', A, B): step and step_derivatives from one pass over the stages; in one kernel call
         when nothing asks for their derivatives (the kernels have no backward)."""
-        _check(integrator)
+        _check(op, integrator, q, qd, tau, dt)
         if self._robot._coupling is None and not _differentiated(q, qd, tau, dt, f_ext):
             h = _dt(dt, qd)
             if integrator in FUSED:
@@ -148,7 +148,7 @@ class StepFunctions:
         schemes: the symmetrised forward-mode derivative of step_derivatives' chain rule along z (the
         forward-dynamics gradient's jvp from the second-order kernels, the configuration space's closed
         forms), 3 nv tangents per sample."""
-        _check(integrator)
+        _check("step_second_derivatives", integrator, q, qd, tau, dt)
         if integrator in FUSED:
             return euler_step_hessian(self, q, qd, tau, dt, f_ext, semi=bool(FUSED[integrator]))
         nv = qd.shape[-1]
@@ -202,9 +202,11 @@ def _differentiated(*args) -> bool:
     return not torch.compiler.is_compiling() and (transforming() or dual(tensors))
 
 
-def _check(integrator) -> None:
+def _check(op: str, integrator, q, qd, tau, dt) -> None:
     if integrator not in INTEGRATORS:
-        raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
+        raise ValueError(f"{op}: integrator must be one of {INTEGRATORS}, got {integrator!r}")
+    if isinstance(q, torch.Tensor):
+        check_dt(op, dt, q, qd, tau)
 
 
 def _combine(coefficients, xs):

@@ -1,0 +1,83 @@
+// Dense row-major matrix products with register blocking, for the NV x NV by NV x k products of the
+// derivative kernels (forward_dynamics_gradient's -M^-1 dtau/dx, the Runge-Kutta chain rule): an RB x CB
+// block of the result stays in registers while the rows of X stream past it.
+#pragma once
+
+#include "spatial.h"
+
+namespace tg {
+
+// GCC unrolls a short fixed-length loop completely before its vectorizer runs, and then multiplies in
+// scalars; kept a loop, the column block below is vectorized and held in registers.
+#if defined(__GNUC__) && !defined(__clang__) && !defined(__CUDACC__)
+#define TG_KEEP_LOOP _Pragma("GCC unroll 1")
+#else
+#define TG_KEEP_LOOP
+#endif
+
+// The register block: 6 x 16 on a CPU; one row of 16 on a GPU, whose thread holds far fewer registers
+// (larger blocks spilled more in forward_dynamics_external_force_gradient on G1).
+#ifdef __CUDA_ARCH__
+constexpr int kProductRows = 1, kProductCols = 16;
+#else
+constexpr int kProductRows = 6, kProductCols = 16;
+#endif
+
+// out (RB x CB, row stride OS) (+)= sum_t w_t g_t X_t: g_t RB x K (row stride gs), X_t K x CB (row
+// stride XS); ADD adds to out, otherwise overwrites it.
+template <int XS, int OS, int RB, int CB, bool ADD, class S>
+TG_HD void block_products(int nt, int K, const S* const* g, int gs, const S* w, const S* const* X, S* out) {
+  S acc[RB][CB];
+  for (int r = 0; r < RB; ++r)
+    for (int c = 0; c < CB; ++c) acc[r][c] = S(0);
+  for (int t = 0; t < nt; ++t)
+    for (int k = 0; k < K; ++k) {
+      const S* x = X[t] + XS * k;
+      for (int r = 0; r < RB; ++r) {
+        const S gr = w[t] * g[t][gs * r + k];
+        TG_KEEP_LOOP
+        for (int c = 0; c < CB; ++c) acc[r][c] += gr * x[c];
+      }
+    }
+  for (int r = 0; r < RB; ++r)
+    for (int c = 0; c < CB; ++c) out[OS * r + c] = ADD ? out[OS * r + c] + acc[r][c] : acc[r][c];
+}
+
+// An RB-row block over COLS columns: blocks of kProductCols, then the rest in vector-sized pieces (8, 4,
+// 2, 1), since an odd-width block is not vectorized.
+template <int XS, int OS, int RB, int COLS, bool ADD, class S>
+TG_HD void row_block_products(int nt, int K, const S* const* g, int gs, const S* w, const S* const* X, S* out) {
+  constexpr int CB = kProductCols, RC = COLS % CB;
+  const S* x[4];
+  for (int c0 = 0; c0 < COLS - RC; c0 += CB) {
+    for (int t = 0; t < nt; ++t) x[t] = X[t] + c0;
+    block_products<XS, OS, RB, CB, ADD>(nt, K, g, gs, w, x, out + c0);
+  }
+  if constexpr (RC > 0) {
+    constexpr int W = RC >= 8 ? 8 : RC >= 4 ? 4 : RC >= 2 ? 2 : 1;
+    for (int t = 0; t < nt; ++t) x[t] = X[t] + COLS - RC;
+    block_products<XS, OS, RB, W, ADD>(nt, K, g, gs, w, x, out + COLS - RC);
+    if constexpr (RC > W) {
+      for (int t = 0; t < nt; ++t) x[t] += W;
+      row_block_products<XS, OS, RB, RC - W, ADD>(nt, K, g, gs, w, x, out + COLS - RC + W);
+    }
+  }
+}
+
+// out (ROWS x COLS, row stride OS) (+)= sum_t w_t g_t X_t for up to 4 terms: g_t ROWS x K (row stride
+// gs), X_t K x COLS (row stride XS).
+template <int ROWS, int COLS, int XS, int OS, bool ADD, class S>
+TG_HD void products(int nt, int K, const S* const* g, int gs, const S* w, const S* const* X, S* out) {
+  constexpr int RB = kProductRows, RR = ROWS % RB;
+  const S* gr[4];
+  for (int r0 = 0; r0 < ROWS - RR; r0 += RB) {
+    for (int t = 0; t < nt; ++t) gr[t] = g[t] + gs * r0;
+    row_block_products<XS, OS, RB, COLS, ADD>(nt, K, gr, gs, w, X, out + OS * r0);
+  }
+  if constexpr (RR > 0) {
+    for (int t = 0; t < nt; ++t) gr[t] = g[t] + gs * (ROWS - RR);
+    row_block_products<XS, OS, RR, COLS, ADD>(nt, K, gr, gs, w, X, out + OS * (ROWS - RR));
+  }
+}
+
+}  // namespace tg
