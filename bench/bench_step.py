@@ -133,7 +133,8 @@ def step_section(robots: dict) -> str:
               "their ratio to it; MuJoCo's "
               "mjd_transitionFD per call on the same robot (Euler, forward differences, its default; motors on the "
               "joints) and how many of our samples it costs; step_second_derivatives per sample for semi-implicit "
-              "Euler (closed form, B = 64) and rk4 (forward over reverse, B = 16).\n\n"
+              "Euler (closed form, B = 64) and rk4 (the symmetrised forward-mode derivative of its chain rule, "
+              "B = 16).\n\n"
               "| robot | forward_dynamics_gradient | step_derivatives euler | step_derivatives rk4 | mjd_transitionFD | "
               "step_second_derivatives euler | step_second_derivatives rk4 |\n|---|---|---|---|---|---|---|\n")
     iteration, horizon = ilqr_iteration_ms()

@@ -89,6 +89,33 @@ def test_hessian_of_a_loss_through_forward_dynamics(robots, convention):
     assert rel_err(H, torch.stack(columns, dim=-1)) <= 1e-6
 
 
+@pytest.mark.parametrize("name", ["forward_dynamics", "energy"])
+def test_mass_product_gradient_in_pieces(robots, monkeypatch, name):
+    """Above autograd.WEIGHT_CHUNK samples (here 2) the mass-product gradient in inertia_solve's and
+    energy's backward runs in pieces: the same Hessian-vector product as in one piece, on a (2, 3) batch
+    whose q broadcasts over its first dimension, on the floating go2."""
+    import torch_grid.autograd as autograd
+
+    robot = robots["go2"]
+    g = torch.Generator().manual_seed(4)
+    q = robot.random_configuration(3, generator=g)
+    qd, x, w = (torch.randn(2, 3, robot.nv, dtype=torch.float64, generator=g) for _ in range(3))
+
+    def hvp():
+        leaves = [t.detach().requires_grad_(True) for t in (q, qd, x)]
+        out = FUNCTIONS[name](robot, *leaves, None)
+        loss = (out * w[..., :out.shape[-1]]).sum()
+        grads = torch.autograd.grad(loss, leaves, create_graph=True, allow_unused=True)
+        product = sum((gr * v.sum()).sum() for gr, v in zip(grads, (q, qd, x)) if gr is not None)
+        return torch.autograd.grad(product, leaves, allow_unused=True)
+
+    whole = hvp()
+    monkeypatch.setattr(autograd, "WEIGHT_CHUNK", 2)
+    for a, b in zip(hvp(), whole):
+        if a is not None:
+            assert torch.allclose(a, b, rtol=1e-12, atol=1e-12)
+
+
 def test_derivative_outputs_refuse_a_second_backward(robots):
     """Ops whose outputs are already derivatives (J, the dynamics gradients) differentiate once; a
     backward of their backward is a clear error, not a missing term."""

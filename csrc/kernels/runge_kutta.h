@@ -232,12 +232,11 @@ TG_HD void rk_step(const Conv<M, S, C>& cv, const S* qd, const S* tau, const S* 
         da[N3 * r + NV + c] = G[NN + NV * r + c];
         da[N3 * r + 2 * NV + c] = G[2 * NN + NV * r + c];
       }
-    if (i) {
-      const S* g[4];
-      const S* X[4];
-      S w[4];
-      int nt = 0;
-      g[nt] = G, w[nt] = S(1), X[nt++] = dq;
+    if (i) {  // the products with dq_i and with dv_i's sum over the earlier stages, in one pass over da
+      const S* g[4] = {G};
+      const S* X[4] = {dq};
+      S w[4] = {S(1)};
+      int nt = 1;
       for (int j = 0; j < i; ++j)
         if (ai[j] != 0) g[nt] = G + NN, w[nt] = h * S(ai[j]), X[nt++] = dacc[j];
       products<NV, N3, N3, N3, true>(nt, NV, g, NV, w, X, da);
