@@ -62,6 +62,15 @@ def robot_header(model: RobotModel, namespace: str) -> str:
         if p >= 0:
             vend[p] = max(vend[p], vend[i])
     j = model.joints
+    # per dof, the dof before it on the path to the root (the previous of its joint, else the last of the
+    # nearest ancestor joint with dofs; -1 at the root): the sparsity of M's factor (kernels/ltdl.h)
+    dof_parent = []
+    for i, x in enumerate(j):
+        a = x.parent
+        while a >= 0 and j[a].nv == 0:
+            a = j[a].parent
+        if x.nv:
+            dof_parent += [vi[a] + j[a].nv - 1 if a >= 0 else -1] + [vi[i] + k for k in range(x.nv - 1)]
     depth, last_child, has_children = [], [True] * nb, [False] * nb
     for i, x in enumerate(j):
         depth.append(0 if x.parent < 0 else depth[x.parent] + 1)
@@ -81,6 +90,7 @@ def robot_header(model: RobotModel, namespace: str) -> str:
         ("int", "vi", vi),
         ("int", "nvj", [x.nv for x in j]),
         ("int", "vend", vend),
+        ("int", "dof_parent", dof_parent),
         ("int", "free_joint", [i for i, x in enumerate(j) if x.type == "free"] or [-1]),
         ("T", "axis", [list(x.axis) for x in j]),
         ("T", "R", [list(x.rotation) for x in j]),

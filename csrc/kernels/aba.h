@@ -6,15 +6,12 @@
 
 namespace tg {
 
-// gravity = false with qd = 0 and no fext solves M qdd = tau: M^-1 tau in O(n) (a run-time flag:
-// one instantiation serves both, and it is read only at the roots).
-//
 // Memory (a GPU thread's stack): velocities and accelerations are kept by tree level on a GPU
 // (Levels); what children pass up to their parent in the backward pass (articulated inertia, bias
 // force) goes to the parent's level, assigned by the first child to arrive (the parent's last in
 // depth-first order) and added by the others; U = IA S is kept per dof (joint i's k-th at vi + k).
 template <class M, class S>
-TG_HD void aba(const S* q, const S* qd, const S* tau, const S* fext, S* qdd, bool gravity = true) {
+TG_HD void aba(const S* q, const S* qd, const S* tau, const S* fext, S* qdd) {
   const auto& d = data<M, S>();
   JointPlacements<M, S> liMi(q);
   using L = Levels<M>;
@@ -82,8 +79,7 @@ TG_HD void aba(const S* q, const S* qd, const S* tau, const S* fext, S* qdd, boo
   // Forward pass: qdd_i = D^-1 (u - U^T a'), a' the parent acceleration seen in frame i.
   for (int i = 0; i < M::NB; ++i) {
     const int n = d.nvj[i], vi = d.vi[i], p = d.parent[i], l = L::of(d, i);
-    const Sv<S> a0 = gravity ? base_acceleration<M, S>() : sv_zero<S>();
-    const Sv<S> a_in = actinv_motion(liMi[i], p < 0 ? a0 : va[L::parent(d, i)]) + c[i];
+    const Sv<S> a_in = actinv_motion(liMi[i], p < 0 ? base_acceleration<M, S>() : va[L::parent(d, i)]) + c[i];
     S D[36], x[6];
     for (int r = 0; r < n; ++r) {
       for (int k = 0; k < n; ++k) D[n * r + k] = dot(joint_axis<M, S>(i, r), U[vi + k]) + (r == k ? S(d.armature[vi + r]) : S(0));
