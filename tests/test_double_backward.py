@@ -89,31 +89,21 @@ def test_hessian_of_a_loss_through_forward_dynamics(robots, convention):
     assert rel_err(H, torch.stack(columns, dim=-1)) <= 1e-6
 
 
-@pytest.mark.parametrize("name", ["forward_dynamics", "energy"])
-def test_mass_product_gradient_in_pieces(robots, monkeypatch, name):
-    """Above autograd.WEIGHT_CHUNK samples (here 2) the mass-product gradient in inertia_solve's and
-    energy's backward runs in pieces: the same Hessian-vector product as in one piece, on a (2, 3) batch
-    whose q broadcasts over its first dimension, on the floating go2."""
-    import torch_grid.autograd as autograd
-
-    robot = robots["go2"]
-    g = torch.Generator().manual_seed(4)
+@pytest.mark.parametrize("name", ["iiwa14", "go2", "balls"])
+def test_mass_product_gradient(robots, balls, name):
+    """mass_product_vjp, the O(n) tangent gradient of lam . M(q) a in the backwards of inertia_solve and
+    energy, against crba_vjp (an O(n d) kernel of its own) with the weight lam a^T; its backward and
+    forward-mode rules (inverse-dynamics products) against central differences, at quaternions of norm 1.3."""
+    robot = balls if name == "balls" else robots[name]
+    g = torch.Generator().manual_seed(5)
     q = robot.random_configuration(3, generator=g)
-    qd, x, w = (torch.randn(2, 3, robot.nv, dtype=torch.float64, generator=g) for _ in range(3))
-
-    def hvp():
-        leaves = [t.detach().requires_grad_(True) for t in (q, qd, x)]
-        out = FUNCTIONS[name](robot, *leaves, None)
-        loss = (out * w[..., :out.shape[-1]]).sum()
-        grads = torch.autograd.grad(loss, leaves, create_graph=True, allow_unused=True)
-        product = sum((gr * v.sum()).sum() for gr, v in zip(grads, (q, qd, x)) if gr is not None)
-        return torch.autograd.grad(product, leaves, allow_unused=True)
-
-    whole = hvp()
-    monkeypatch.setattr(autograd, "WEIGHT_CHUNK", 2)
-    for a, b in zip(hvp(), whole):
-        if a is not None:
-            assert torch.allclose(a, b, rtol=1e-12, atol=1e-12)
+    a, lam = (torch.randn(3, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
+    ours = robot._ops.mass_product_vjp(q, a, lam, 0)
+    assert rel_err(ours, robot._ops.crba_vjp(q, lam.unsqueeze(-1) * a.unsqueeze(-2), 0)) <= 1e-12
+    inputs = [t[:1].clone().requires_grad_(True) for t in (1.3 * q, a, lam)]
+    for call in (robot._ops.mass_product_vjp, lambda *x: robot._func.call("mass_product_vjp", *x)):
+        assert torch.autograd.gradcheck(lambda *x: call(*x, 0), inputs, eps=1e-6, atol=1e-6, rtol=1e-5,
+                                        check_forward_ad=call is not robot._ops.mass_product_vjp)
 
 
 def test_derivative_outputs_refuse_a_second_backward(robots):

@@ -234,31 +234,31 @@ def _minv(ops, model, needs, grads, output, q, convention):
     return _crba(ops, model, needs, (inner,), None, q, convention)
 
 
-# Samples per crba_vjp call of _mass_product_vjp: a piece's (nv, nv) weights are reused memory, where a
-# whole batch's are fresh pages each call (40 MB for G1 at B = 4096, as long as the kernel itself).
-WEIGHT_CHUNK = 256
-
-
 def _mass_product_vjp(ops, model, q, a, lam, convention):
-    """d/dq sum_m lam_m^T M(q) a_m along the tangent, (..., nv), for a and lam of shape (..., m, nv): the
-    crba gradient for the weight sum_m lam_m a_m^T where its kernel runs (Pinocchio's convention, or where
-    the conventions agree). Otherwise ID(q, 0, a) = M a + g(q), so the ID products at (0, a_m) with
-    cotangents lam_m, less one gravity product at (0, 0) with cotangent sum_m lam_m."""
-    if not (convention and model.conventions_differ):
-        batch = torch.broadcast_shapes(q.shape[:-1], a.shape[:-2], lam.shape[:-2])
-        n = batch.numel()
-        if n <= WEIGHT_CHUNK or torch.compiler.is_compiling():
-            return ops.crba_vjp(q, lam.mT @ a, convention)
-        q, a, lam = (x.expand(*batch, *x.shape[x.dim() - k:]).reshape(n, *x.shape[x.dim() - k:])
-                     for x, k in ((q, 1), (a, 2), (lam, 2)))
-        pieces = [ops.crba_vjp(q[s:s + WEIGHT_CHUNK], lam[s:s + WEIGHT_CHUNK].mT @ a[s:s + WEIGHT_CHUNK], convention)
-                  for s in range(0, n, WEIGHT_CHUNK)]
-        return torch.cat(pieces).reshape(*batch, -1)
+    """d/dq sum_m lam_m^T M(q) a_m along the tangent, (..., nv), for a and lam of shape (..., m, nv): one O(n)
+    kernel per pair where it runs (Pinocchio's convention, or where the conventions agree). Otherwise
+    ID(q, 0, a) = M a + g(q), so the ID products at (0, a_m) with cotangents lam_m, less one gravity
+    product at (0, 0) with cotangent sum_m lam_m."""
     m = a.shape[-2]
+    if not (convention and model.conventions_differ):
+        return ops.mass_product_vjp(repeat(q, m, 1), a, lam, convention).sum(-2)
     zero = torch.zeros_like(a)
     products, _ = ops.inverse_dynamics_vjp(repeat(q, m, 1), zero, a, None, lam, convention)
     gravity, _ = ops.inverse_dynamics_vjp(q, zero[..., 0, :], zero[..., 0, :], None, lam.sum(-2), convention)
     return products.sum(-2) - gravity
+
+
+def _mass_product_vjp_op(ops, model, needs, grads, output, q, a, lam, convention):
+    """g = the tangent gradient of lam . M(q) a = lam . (ID(q, 0, a) - ID(q, 0, 0)): the backwards of those
+    two inverse-dynamics products (forward over reverse), so d/da = D_u(M) lam and d/dlam = D_u(M) a."""
+    zero = torch.zeros_like(a)
+    terms = []
+    for acc, want in ((a, (needs[0], False, needs[1], False, needs[2])), (zero, (needs[0], False, False, False, needs[2]))):
+        g = (ops.inverse_dynamics_vjp(q, zero, acc, None, lam, convention)[0], None) if has_brackets(model) else None
+        terms.append(_inverse_dynamics_vjp(ops, model, want, (grads[0], None), g, q, zero, acc, None, lam, convention))
+    dq = terms[0][0] - terms[1][0] if needs[0] else None
+    dlam = terms[0][4] - terms[1][4] if needs[2] else None
+    return dq, terms[0][2] if needs[1] else None, dlam, None
 
 
 def mass_product_jvp(ops, q, x, t, convention):
@@ -478,6 +478,7 @@ BACKWARDS = {
     "inertia_solve": _inertia_solve,
     "crba": _crba,
     "crba_vjp": _crba_vjp,
+    "mass_product_vjp": _mass_product_vjp_op,
     "minv": _minv,
     "forward_kinematics": _forward_kinematics,
     "end_effector_pose": _end_effector_pose,

@@ -163,6 +163,14 @@ def _crba_vjp_jvp(ops, _out, q, weight, convention, t_q, t_w, _):
     return d
 
 
+def _mass_product_vjp_jvp(ops, _out, q, a, lam, convention, t_q, t_a, t_lam, _):
+    """g = the q-gradient of lam . (ID(q, 0, a) - ID(q, 0, 0)): the tangents of those two products."""
+    zero = torch.zeros_like(a)
+    d = _inverse_dynamics_vjp_jvp(ops, None, q, zero, a, None, lam, convention, t_q, None, t_a, None, t_lam, None)[0]
+    rest = _inverse_dynamics_vjp_jvp(ops, None, q, zero, zero, None, lam, convention, t_q, None, None, None, t_lam, None)[0]
+    return d - rest
+
+
 def _inertia_solve_jvp(ops, y, q, x, convention, t_q, t_x, _):
     """y = M^-1 x: dy = M^-1 (t_x - D_t(M) y)."""
     rhs = torch.zeros_like(x) if t_x is None else t_x
@@ -246,6 +254,7 @@ def _forward_dynamics_gradient_jvp(ops, out, q, qd, tau, f_ext, convention, t_q,
 # Ops whose forward-mode derivative is its own formula (their backwards are made of kernels without
 # derivatives, so the generic rule above does not apply).
 _JVPS = {"inverse_dynamics_vjp": _inverse_dynamics_vjp_jvp, "inertia_solve": _inertia_solve_jvp, "crba_vjp": _crba_vjp_jvp,
+         "mass_product_vjp": _mass_product_vjp_jvp,
          "inverse_dynamics_gradient": _inverse_dynamics_gradient_jvp,
          "forward_dynamics_gradient": _forward_dynamics_gradient_jvp,
          "frame_jacobian": _frame_jacobian_jvp}

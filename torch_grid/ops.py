@@ -108,6 +108,8 @@ _VALUE_OPS = (
         OpSpec("crba", "Crba", (Q,), (Out("M", "congruence", NVxNV),)),
         OpSpec("crba_vjp", "CrbaVjp", (Q, Arg("weight", "plain", shape=NVxNV)), (Out("grad_q", "plain", NV),),
                mujoco_twin=False),
+        OpSpec("mass_product_vjp", "MassProductVjp", (Q, Arg("a", "plain", shape=NV), Arg("cotangent", "plain", shape=NV)),
+               (Out("grad_q", "plain", NV),), mujoco_twin=False),
         OpSpec("minv", "Minv", (Q,), (Out("Minv", "congruence", NVxNV),)),
         OpSpec("generalized_gravity", "GeneralizedGravity", (Q,), (Out("g", "force", NV),)),
         OpSpec("nonlinear_effects", "NonlinearEffects", (Q, QD), (Out("nle", "twin", NV),)),

@@ -73,6 +73,12 @@ template <class M, class S> struct CrbaVjp {
   TG_HD static void run(const CrbaVjpArgs<S>& a) { crba_vjp<M, S>(a.q, a.weight, a.grad_q); }
 };
 
+template <class M, class S> struct MassProductVjp {
+  TG_HD static void run(const MassProductVjpArgs<S>& a) {
+    mass_product_vjp<M, S>(Placements<M, S>(a.q), a.a, a.cotangent, a.grad_q);
+  }
+};
+
 template <class M, class S> struct Minv {
   TG_HD static void run(const MinvArgs<S>& a) { minv<M, S>(a.q, a.Minv); }
 };

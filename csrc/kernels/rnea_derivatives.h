@@ -207,6 +207,54 @@ TG_HD void rnea_vjp(const RneaDerivativesWork<M, S>& W, const S* lambda, S* tau,
   }
 }
 
+// The gradient along the tangent of lam^T M(q) a (NV), in O(n): rnea_vjp's terms at qd = 0 without
+// gravity, where tau = M a and w, alpha and B vanish: g_j = u_j . P_j + L_j . (Yc_j u_j + s_j x* F_j),
+// u_j = a_p x s_j, with a the accelerations and F the subtree forces of qdd = a alone.
+template <class M, class S>
+TG_HD void mass_product_vjp(const Placements<M, S>& K, const S* acc, const S* lambda, S* g_q) {
+  const auto& d = data<M, S>();
+  using Lv = Levels<M>;
+  Sv<S> s[M::NV], F[M::NB], P[M::NB], a[Lv::N], L[Lv::N];
+  Inertia<S> Yc[M::NB];
+  for (int i = 0; i < M::NB; ++i) {
+    const int p = d.parent[i], vi = d.vi[i];
+    Sv<S>& ai = a[Lv::of(d, i)];
+    ai = p < 0 ? sv_zero<S>() : a[Lv::parent(d, i)];
+    for (int k = 0; k < d.nvj[i]; ++k) {
+      s[vi + k] = act_motion(K.oMi[i], joint_axis<M, S>(i, k));
+      ai = ai + acc[vi + k] * s[vi + k];
+    }
+    Yc[i] = act(K.oMi[i], body_inertia<M, S>(i));
+    F[i] = mul(Yc[i], ai);
+  }
+  for (int i = M::NB - 1; i > 0; --i)
+    if (d.parent[i] >= 0) {
+      Yc[d.parent[i]] = Yc[d.parent[i]] + Yc[i];
+      F[d.parent[i]] = F[d.parent[i]] + F[i];
+    }
+  for (int i = 0; i < M::NB; ++i) {
+    P[i] = sv_zero<S>();
+    for (int l = 0; l < d.nvj[i]; ++l) P[i] = P[i] + lambda[d.vi[i] + l] * mul(Yc[i], s[d.vi[i] + l]);
+  }
+  for (int i = M::NB - 1; i >= 0; --i)
+    if (d.parent[i] >= 0) P[d.parent[i]] = P[d.parent[i]] + P[i];
+  // down the tree: L_i over the strict ancestors' columns, u_j from the parent's acceleration
+  for (int i = 0; i < M::NB; ++i) {
+    const int p = d.parent[i];
+    Sv<S>& Li = L[Lv::of(d, i)];
+    Li = sv_zero<S>();
+    if (p >= 0) {
+      Li = L[Lv::parent(d, i)];
+      for (int l = 0; l < d.nvj[p]; ++l) Li = Li + lambda[d.vi[p] + l] * s[d.vi[p] + l];
+    }
+    const Sv<S> ap = p < 0 ? sv_zero<S>() : a[Lv::parent(d, i)];
+    for (int c = d.vi[i]; c < d.vi[i] + d.nvj[i]; ++c) {
+      const Sv<S> u = cross_motion(ap, s[c]);
+      g_q[c] = dot(u, P[i]) + dot(Li, mul(Yc[i], u) + cross_force(s[c], F[i]));
+    }
+  }
+}
+
 // Coriolis matrix C (NV x NV) with C qd = nonlinear effects - gravity, Pinocchio's factorisation
 // (dM/dt - 2 C skew-symmetric): the pairs above with X = dS/dt = v x S and Y = S / 2. It reads only
 // the velocity terms (velocity_setup, or a derivatives workspace at any qdd and fext).
