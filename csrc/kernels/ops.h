@@ -158,11 +158,9 @@ template <class M, class S> struct FrameJacobianDot {
 // mu = G^T lambda.
 template <class M, class S> struct InverseDynamicsVjp {
   template <int C> TG_HD static void run(const InverseDynamicsVjpArgs<S>& a, const Conv<M, S, C>& cv) {
-    const Placements<M, S> K(a.q);
-    RneaDerivativesWork<M, S> W;
-    rnea_derivatives_setup<M, S>(K, a.qd, a.qdd, a.f_ext, W);
     S tau[M::NV], Mmu[Conv<M, S, C>::active ? M::NV : 1];
-    rnea_vjp<M, S>(W, a.cotangent, tau, a.grad_q, a.grad_qd, Conv<M, S, C>::active ? Mmu : nullptr);
+    rnea_vjp<false, M, S>(Placements<M, S>(a.q), a.qd, a.qdd, a.f_ext, a.cotangent, tau, a.grad_q, a.grad_qd,
+                          Conv<M, S, C>::active ? Mmu : nullptr);
     if constexpr (Conv<M, S, C>::active) cv.inverse_dynamics_vjp_out(a.qd, a.qdd, tau, Mmu, a.cotangent, a.grad_q, a.grad_qd);
   }
 };
@@ -171,10 +169,8 @@ template <class M, class S> struct InverseDynamicsVjp {
 // every tangent a double backward through inverse_dynamics_vjp reads.
 template <class M, class S> struct InverseDynamicsVjpFull {
   template <int C> TG_HD static void run(const InverseDynamicsVjpFullArgs<S>& a, const Conv<M, S, C>& cv) {
-    const Placements<M, S> K(a.q);
-    RneaDerivativesWork<M, S> W;
-    rnea_derivatives_setup<M, S>(K, a.qd, a.qdd, a.f_ext, W);
-    rnea_vjp<M, S>(W, a.cotangent, a.tau, a.grad_q, a.grad_qd, a.grad_qdd);
+    rnea_vjp<false, M, S>(Placements<M, S>(a.q), a.qd, a.qdd, a.f_ext, a.cotangent, a.tau, a.grad_q, a.grad_qd,
+                          a.grad_qdd);
     cv.inverse_dynamics_vjp_out(a.qd, a.qdd, a.tau, a.grad_qdd, a.cotangent, a.grad_q, a.grad_qd);
   }
 };

@@ -160,99 +160,82 @@ TG_HD void rnea_derivatives(const RneaDerivativesWork<M, S>& W, S* tau, S* dtau_
   ancestor_pairs<false, false, M, S>(W, W.alpha, W.s, dtau_dqd);
 }
 
-// lambda^T d tau / dq and lambda^T d tau / dqd (NV each) without forming the matrices, in O(n):
-// over the pairs above, with P_j, Q_j the subtree sums of lambda_m Yc_m S_m and lambda_m B_m^T S_m
-// and L_j the sum of lambda_m S_m over j's strict ancestors,
-//   (lambda^T d tau/dq)_j = u_j . P_j + w_j . Q_j + L_j . (Yc_j u_j + B_j w_j + s_j x* F_j)
-// and alike for qd with alpha and s. tau is written too, and M lambda where Mlam is not null:
-//   (M lambda)_j = S_j . (Yc_j L_j + P_j)   (the columns above j's body, then those at or below it).
-template <class M, class S>
-TG_HD void rnea_vjp(const RneaDerivativesWork<M, S>& W, const S* lambda, S* tau, S* g_q, S* g_qd, S* Mlam = nullptr) {
+// lambda^T d tau / dq and lambda^T d tau / dqd (NV each) in O(n), the pairs above summed over their rows
+// first, which leaves no 6x6 subtree sum B. With y_k the sum of lambda_m S_m over the columns at or
+// above body k, L_j that of j's parent, and the subtree sums Z_j of I_k y_k and R_j of B_k^T y_k (each
+// body's own inertia I, velocity v and momentum h = I v: B^T y = v x* I y - I (v x y) - y x* h),
+//   (lambda^T d tau/dq)_j = u_j . Z_j + w_j . R_j + L_j . (s_j x* F_j),   (lambda^T d tau/dqd)_j = alpha_j . Z_j + s_j . R_j,
+// and tau_j = s_j . F_j, (M lambda)_j = s_j . Z_j (written where Mlam is not null). Rest: at qd = 0
+// without gravity or fext (qd and fext are not read), where tau = M qdd and h, R and w vanish: the
+// gradient of lambda^T M(q) qdd (mass_product_vjp).
+template <bool Rest = false, class M, class S>
+TG_HD void rnea_vjp(const Placements<M, S>& K, const S* qd, const S* qdd, const S* fext, const S* lambda, S* tau,
+                    S* g_q, S* g_qd, S* Mlam = nullptr) {
   const auto& d = data<M, S>();
-  using Lv = Levels<M>;
-  Sv<S> P[M::NB], Q[M::NB], L[Lv::N];  // L per tree level: only a body's ancestors' are needed
-  for (int i = 0; i < M::NB; ++i) {
-    P[i] = Q[i] = sv_zero<S>();
-    for (int l = 0; l < d.nvj[i]; ++l) {
-      const S lam = lambda[d.vi[i] + l];
-      tau[d.vi[i] + l] = dot(W.s[d.vi[i] + l], W.F[i]);
-      P[i] = P[i] + lam * mul(W.Yc[i], W.s[d.vi[i] + l]);
-      Q[i] = Q[i] + lam * mul_transpose(W.B[i], W.s[d.vi[i] + l]);
+  constexpr int NB = M::NB;
+  Sv<S> s[M::NV], v[NB], a[NB], h[NB], F[NB], y[NB], Z[NB], R[NB];
+  Inertia<S> I[NB];
+  // forward: world axes, velocities, accelerations (gravity included) and body forces
+  for (int i = 0; i < NB; ++i) {
+    const int p = d.parent[i], vi = d.vi[i];
+    v[i] = p < 0 ? sv_zero<S>() : v[p];
+    for (int k = 0; k < d.nvj[i]; ++k) {
+      s[vi + k] = act_motion(K.oMi[i], joint_axis<M, S>(i, k));
+      if constexpr (!Rest) v[i] = v[i] + qd[vi + k] * s[vi + k];
+    }
+    a[i] = p >= 0 ? a[p] : Rest ? sv_zero<S>() : base_acceleration<M, S>();
+    for (int k = 0; k < d.nvj[i]; ++k) a[i] = a[i] + qdd[vi + k] * s[vi + k];
+    if constexpr (!Rest)
+      for (int k = 0; k < d.nvj[i]; ++k) a[i] = a[i] + qd[vi + k] * cross_motion(v[i], s[vi + k]);
+    I[i] = act(K.oMi[i], body_inertia<M, S>(i));
+    F[i] = mul(I[i], a[i]);
+    if constexpr (!Rest) {
+      h[i] = mul(I[i], v[i]);
+      F[i] = F[i] + cross_force(v[i], h[i]);
+    }
+    if (!Rest && fext) {
+      const Sv<S> fe = {{fext[6 * i], fext[6 * i + 1], fext[6 * i + 2], fext[6 * i + 3], fext[6 * i + 4], fext[6 * i + 5]}};
+      F[i] = F[i] - act_force(K.oMi[i], fe);
     }
   }
-  for (int i = M::NB - 1; i >= 0; --i)
+  for (int i = NB - 1; i > 0; --i)
+    if (d.parent[i] >= 0) F[d.parent[i]] = F[d.parent[i]] + F[i];
+  // down: y; each body's I y and B^T y
+  for (int i = 0; i < NB; ++i) {
+    y[i] = d.parent[i] < 0 ? sv_zero<S>() : y[d.parent[i]];
+    for (int c = d.vi[i]; c < d.vi[i] + d.nvj[i]; ++c) y[i] = y[i] + lambda[c] * s[c];
+    Z[i] = mul(I[i], y[i]);
+    if constexpr (!Rest) R[i] = cross_force(v[i], Z[i]) - mul(I[i], cross_motion(v[i], y[i])) - cross_force(y[i], h[i]);
+  }
+  for (int i = NB - 1; i > 0; --i)
     if (d.parent[i] >= 0) {
-      P[d.parent[i]] = P[d.parent[i]] + P[i];
-      Q[d.parent[i]] = Q[d.parent[i]] + Q[i];
+      Z[d.parent[i]] = Z[d.parent[i]] + Z[i];
+      if constexpr (!Rest) R[d.parent[i]] = R[d.parent[i]] + R[i];
     }
-  for (int i = 0; i < M::NB; ++i) {
+  // per column: w = v_p x s, u = a_p x s + v_p x w, alpha = (v_p + v_i) x s
+  for (int i = 0; i < NB; ++i) {
     const int p = d.parent[i];
-    Sv<S>& Li = L[Lv::of(d, i)];
-    if (p >= 0) {
-      Li = L[Lv::parent(d, i)];
-      for (int l = 0; l < d.nvj[p]; ++l) Li = Li + lambda[d.vi[p] + l] * W.s[d.vi[p] + l];
-    } else {
-      Li = sv_zero<S>();
-    }
-    const Sv<S> ML = Mlam ? mul(W.Yc[i], Li) + P[i] : sv_zero<S>();
-    for (int c = 0; c < d.nvj[i]; ++c) {
-      const int col = d.vi[i] + c;
-      const Sv<S>& s = W.s[col];
-      if (Mlam) Mlam[col] = dot(s, ML);
-      const Sv<S> dFq = mul(W.Yc[i], W.u[col]) + mul(W.B[i], W.w[col]) + cross_force(s, W.F[i]);
-      const Sv<S> dFv = mul(W.Yc[i], W.alpha[col]) + mul(W.B[i], s);
-      g_q[col] = dot(W.u[col], P[i]) + dot(W.w[col], Q[i]) + dot(Li, dFq);
-      g_qd[col] = dot(W.alpha[col], P[i]) + dot(s, Q[i]) + dot(Li, dFv);
+    const Sv<S> vp = p < 0 ? sv_zero<S>() : v[p], L = p < 0 ? sv_zero<S>() : y[p];
+    const Sv<S> ap = p >= 0 ? a[p] : Rest ? sv_zero<S>() : base_acceleration<M, S>();
+    for (int c = d.vi[i]; c < d.vi[i] + d.nvj[i]; ++c) {
+      tau[c] = dot(s[c], F[i]);
+      if (Mlam) Mlam[c] = dot(s[c], Z[i]);
+      if constexpr (Rest) {
+        g_q[c] = dot(cross_motion(ap, s[c]), Z[i]) + dot(L, cross_force(s[c], F[i]));
+      } else {
+        const Sv<S> w = cross_motion(vp, s[c]), u = cross_motion(ap, s[c]) + cross_motion(vp, w);
+        g_q[c] = dot(u, Z[i]) + dot(w, R[i]) + dot(L, cross_force(s[c], F[i]));
+        g_qd[c] = dot(cross_motion(vp + v[i], s[c]), Z[i]) + dot(s[c], R[i]);
+      }
     }
   }
 }
 
-// The gradient along the tangent of lam^T M(q) a (NV), in O(n): rnea_vjp's terms at qd = 0 without
-// gravity, where tau = M a and w, alpha and B vanish: g_j = u_j . P_j + L_j . (Yc_j u_j + s_j x* F_j),
-// u_j = a_p x s_j, with a the accelerations and F the subtree forces of qdd = a alone.
+// The gradient along the tangent of lam^T M(q) a (NV): rnea_vjp at rest without gravity.
 template <class M, class S>
 TG_HD void mass_product_vjp(const Placements<M, S>& K, const S* acc, const S* lambda, S* g_q) {
-  const auto& d = data<M, S>();
-  using Lv = Levels<M>;
-  Sv<S> s[M::NV], F[M::NB], P[M::NB], a[Lv::N], L[Lv::N];
-  Inertia<S> Yc[M::NB];
-  for (int i = 0; i < M::NB; ++i) {
-    const int p = d.parent[i], vi = d.vi[i];
-    Sv<S>& ai = a[Lv::of(d, i)];
-    ai = p < 0 ? sv_zero<S>() : a[Lv::parent(d, i)];
-    for (int k = 0; k < d.nvj[i]; ++k) {
-      s[vi + k] = act_motion(K.oMi[i], joint_axis<M, S>(i, k));
-      ai = ai + acc[vi + k] * s[vi + k];
-    }
-    Yc[i] = act(K.oMi[i], body_inertia<M, S>(i));
-    F[i] = mul(Yc[i], ai);
-  }
-  for (int i = M::NB - 1; i > 0; --i)
-    if (d.parent[i] >= 0) {
-      Yc[d.parent[i]] = Yc[d.parent[i]] + Yc[i];
-      F[d.parent[i]] = F[d.parent[i]] + F[i];
-    }
-  for (int i = 0; i < M::NB; ++i) {
-    P[i] = sv_zero<S>();
-    for (int l = 0; l < d.nvj[i]; ++l) P[i] = P[i] + lambda[d.vi[i] + l] * mul(Yc[i], s[d.vi[i] + l]);
-  }
-  for (int i = M::NB - 1; i >= 0; --i)
-    if (d.parent[i] >= 0) P[d.parent[i]] = P[d.parent[i]] + P[i];
-  // down the tree: L_i over the strict ancestors' columns, u_j from the parent's acceleration
-  for (int i = 0; i < M::NB; ++i) {
-    const int p = d.parent[i];
-    Sv<S>& Li = L[Lv::of(d, i)];
-    Li = sv_zero<S>();
-    if (p >= 0) {
-      Li = L[Lv::parent(d, i)];
-      for (int l = 0; l < d.nvj[p]; ++l) Li = Li + lambda[d.vi[p] + l] * s[d.vi[p] + l];
-    }
-    const Sv<S> ap = p < 0 ? sv_zero<S>() : a[Lv::parent(d, i)];
-    for (int c = d.vi[i]; c < d.vi[i] + d.nvj[i]; ++c) {
-      const Sv<S> u = cross_motion(ap, s[c]);
-      g_q[c] = dot(u, P[i]) + dot(Li, mul(Yc[i], u) + cross_force(s[c], F[i]));
-    }
-  }
+  S tau[M::NV];
+  rnea_vjp<true, M, S>(K, nullptr, acc, nullptr, lambda, tau, g_q, nullptr);
 }
 
 // Coriolis matrix C (NV x NV) with C qd = nonlinear effects - gravity, Pinocchio's factorisation
