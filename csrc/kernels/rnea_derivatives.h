@@ -52,7 +52,7 @@ template <class S> TG_HD M6<S> momentum_rate_matrix(const Inertia<S>& I, const S
 
 // Body i's velocity terms: its world axes and velocity, and its own world inertia and B (summed
 // over subtrees by velocity_sums).
-template <class M, class S> TG_HD void velocity_step(int i, const S* qd, VelocityWork<M, S>& W) {
+template <class M, class S> TG_HD_INLINE void velocity_step(int i, const S* qd, VelocityWork<M, S>& W) {
   const auto& d = data<M, S>();
   const int p = d.parent[i], vi = d.vi[i];
   W.v[i] = p < 0 ? sv_zero<S>() : W.v[p];
