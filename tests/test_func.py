@@ -3,7 +3,6 @@ batching rule (one batched call, no per-sample fallback), vmap of grad, function
 (jvp, jacfwd, hessian, forward_ad) of the value ops."""
 from __future__ import annotations
 
-import warnings
 
 import pytest
 import torch
@@ -74,18 +73,27 @@ def test_vmap_is_the_batched_call(robots, balls, name, convention):
     robot = _robot(name, robots, balls)
     view = getattr(robot, convention)
     q, qd, x = _state(robot, convention, 5, seed=3)
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # torch's per-sample fallback warns
+    fallback = torch._C._functorch._is_vmap_fallback_enabled()
+    torch._C._functorch._set_vmap_fallback_enabled(False)  # an op without a batching rule raises
+    try:
         tau = torch.func.vmap(view.inverse_dynamics)(q, qd, x)
         M = torch.func.vmap(view.crba)(q)
         jac = torch.func.vmap(lambda q: view.frame_jacobian(q, robot.nframes - 1))(q)
         shared = torch.func.vmap(view.inverse_dynamics, in_dims=(0, None, None))(q, qd[0], x[0])
         moved = torch.func.vmap(view.inverse_dynamics, in_dims=(1, 1, 1))(q.mT, qd.mT, x.mT)
+        # the second-order tensors (in the MuJoCo convention composed in torch from Pinocchio's ops)
+        second = torch.func.vmap(view.inverse_dynamics_second_order)(q, qd, x)
+        hess = torch.func.vmap(lambda q: view.frame_kinematic_hessian(q, robot.nframes - 1))(q)
+        # per-sample gradients: vmap of grad
+        grads = torch.func.vmap(torch.func.grad(lambda q, qd, x: view.forward_dynamics(q, qd, x).square().sum()))(
+            q, qd, x)
+    finally:
+        torch._C._functorch._set_vmap_fallback_enabled(fallback)
+    assert all(rel_err(a, b) <= 1e-14 for a, b in zip(second, view.inverse_dynamics_second_order(q, qd, x)))
+    assert rel_err(hess, view.frame_kinematic_hessian(q, robot.nframes - 1)) <= 1e-14
     assert torch.equal(tau, view.inverse_dynamics(q, qd, x)) and torch.equal(moved, tau)
     assert torch.equal(M, view.crba(q)) and torch.equal(jac, view.frame_jacobian(q, robot.nframes - 1))
     assert torch.equal(shared, view.inverse_dynamics(q, qd[0], x[0]))
-    # per-sample gradients: vmap of grad
-    grads = torch.func.vmap(torch.func.grad(lambda q, qd, x: view.forward_dynamics(q, qd, x).square().sum()))(q, qd, x)
     leaf = q.clone().requires_grad_(True)
     (ref,) = torch.autograd.grad(view.forward_dynamics(leaf, qd, x).square().sum(), leaf)
     assert rel_err(grads, ref) <= 1e-12

@@ -75,6 +75,20 @@ def test_forward_mode_ad_is_refused_with_the_op_name(robots, name, convention):
     assert torch.isfinite(q.grad).all()
 
 
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+def test_second_order_tensors_refuse_forward_mode(robots, convention):
+    """inverse_dynamics_second_order and frame_kinematic_hessian have no forward mode (a third derivative):
+    refused by name in both conventions, the MuJoCo one (composed in torch from Pinocchio's tensors on a
+    floating base) included, rather than returning the tangent of the composition alone."""
+    robot = robots["go2"]
+    view = getattr(robot, convention)
+    q, qd, qdd, _ = _states(robot, 2, 5, convention)
+    with pytest.raises(NotImplementedError, match="inverse_dynamics_second_order has no forward-mode derivative"):
+        torch.func.jvp(lambda x: view.inverse_dynamics_second_order(q, x, qdd), (qd,), (torch.ones_like(qd),))
+    with pytest.raises(NotImplementedError, match="frame_kinematic_hessian has no forward-mode derivative"):
+        torch.func.jvp(lambda x: view.frame_kinematic_hessian(x, robot.nframes - 1), (q,), (torch.ones_like(q),))
+
+
 def test_osc_inertia_of_a_frame_with_fewer_than_six_dofs_is_refused(robots):
     robot = robots["iiwa14"]
     low = next(i for i, f in enumerate(robot.model.frames) if 0 <= f.parent <= 2)  # moved by at most 3 joints

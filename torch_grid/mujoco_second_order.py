@@ -193,7 +193,7 @@ def kinematic_hessian(model, q_pin, J, H):
 
 def inverse_dynamics_second_order_mujoco(robot, q, qd, qdd, f_ext):
     """Robot.mujoco.inverse_dynamics_second_order of a robot with quaternion joints."""
-    return second_order_from_ops(robot._ops, _model(robot, "inverse_dynamics_second_order"), q, qd, qdd, f_ext)
+    return second_order_from_ops(_PinCalls(robot.pin), _model(robot, "inverse_dynamics_second_order"), q, qd, qdd, f_ext)
 
 
 def second_order_from_ops(ops, model, q, qd, qdd, f_ext):
@@ -212,7 +212,7 @@ def second_order_from_ops(ops, model, q, qd, qdd, f_ext):
 
 def frame_kinematic_hessian(robot, q, frame: int, reference: int):
     """Robot.mujoco.frame_kinematic_hessian of a robot with quaternion joints."""
-    return kinematic_hessian_from_ops(robot._ops, _model(robot, "frame_kinematic_hessian"), q, frame, reference)
+    return kinematic_hessian_from_ops(_PinCalls(robot.pin), _model(robot, "frame_kinematic_hessian"), q, frame, reference)
 
 
 def kinematic_hessian_from_ops(ops, model, q, frame: int, reference: int):
@@ -220,6 +220,18 @@ def kinematic_hessian_from_ops(ops, model, q, frame: int, reference: int):
     q_pin = q_mjx_to_pin(q, balls=ball_joints(model), free=free_joints(model))
     J = ops.frame_jacobian(q_pin, frame, reference, 0)
     return kinematic_hessian(model, q_pin, J, ops.frame_kinematic_hessian(q_pin, frame, reference, 0))
+
+
+class _PinCalls:
+    """The ops as the pin view calls them (the trailing convention, 0, dropped): through their torch.func
+    rules under vmap and the other transforms, and refused where forward mode has no rule (a raw op under
+    torch.func.jvp would return wrong tangents)."""
+
+    def __init__(self, view):
+        self._view = view
+
+    def __getattr__(self, name: str):
+        return lambda *args: self._view._kernel_call(name, *args[:-1])
 
 
 def _model(robot, name: str):
