@@ -311,7 +311,7 @@ def test_step_second_derivatives_match_differences_of_the_first(robots, name, co
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
 def test_step_hessians_are_forward_over_reverse(robots, convention):
     """step_second_derivatives (the Euler schemes' closed form from forward_dynamics_second_order; rk4's
-    symmetrised forward-mode derivative of step_derivatives) against forward over reverse through step
+    second-order chain rule through the stages) against forward over reverse through step
     itself, on every joint type (two free joints, a ball, a hinge, a slide), at rest, slow and fast (turns
     of about one rad per step), with a per-sample dt and external forces."""
     robot = robots["trees"]
@@ -336,6 +336,39 @@ def test_step_hessians_are_forward_over_reverse(robots, convention):
         assert ours.shape == ref.shape == (3, 2 * nv, 3 * nv, 3 * nv)
         # four stages of rounding, at 1.5 rad per step (rk4: 9e-11)
         assert rel_err(ours, ref) <= (1e-9 if integrator == "rk4" else 1e-11), integrator
+
+
+def test_runge_kutta_hessian_in_pieces(robots, monkeypatch):
+    """rk4's step Hessian over a batch in pieces (here of four samples and then two, sharing one set of
+    buffers) equals the whole batch's, in its leading shape of two dimensions, with a per-sample dt."""
+    import torch_grid.rk_hessian as rk_hessian
+
+    robot = robots["go2"]
+    nv = robot.nv
+    g = torch.Generator().manual_seed(21)
+    q = robot.mujoco.random_configuration(2, 3, generator=g)
+    qd, tau = (torch.randn(2, 3, nv, dtype=torch.float64, generator=g) for _ in range(2))
+    dt = torch.rand(2, 3, dtype=torch.float64, generator=g) * 0.05
+    whole = robot.mujoco.step_second_derivatives(q, qd, tau, dt, "rk4")
+    monkeypatch.setattr(rk_hessian, "PIECE_BYTES", 4 * 8 * nv * (3 * nv) ** 2)
+    pieces = robot.mujoco.step_second_derivatives(q, qd, tau, dt, "rk4")
+    assert whole.shape == pieces.shape == (2, 3, 2 * nv, 3 * nv, 3 * nv)
+    assert torch.allclose(whole, pieces, rtol=1e-13, atol=1e-13)
+    assert rel_err(pieces[1, 2], robot.mujoco.step_second_derivatives(q[1, 2], qd[1, 2], tau[1, 2], dt[1, 2], "rk4")) <= 1e-13
+
+
+@pytest.mark.parametrize("integrator", ["semi_implicit_euler", "rk4"])
+def test_step_hessian_refuses_a_derivative(robots, integrator):
+    """step_second_derivatives has no backward (a third derivative) and does not run under vmap (it is
+    batched already): asked for either, it says so."""
+    robot = robots["go2"]
+    q, qd, tau = _state(robot.pin, robot, 2, 4)
+    with pytest.raises(NotImplementedError, match="step_second_derivatives has no derivative"):
+        robot.pin.step_second_derivatives(q, qd.requires_grad_(), tau, 0.01, integrator)
+    with pytest.raises(NotImplementedError, match="does not run under torch.func transforms"):
+        torch.func.vmap(lambda *x: robot.pin.step_second_derivatives(*x, 0.01, integrator))(q, qd.detach(), tau)
+    with torch.no_grad():
+        assert robot.pin.step_second_derivatives(q, qd, tau, 0.01, integrator).shape[0] == 2
 
 
 @pytest.mark.parametrize("integrator", ["semi_implicit_euler", "rk4"])

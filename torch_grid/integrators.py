@@ -22,6 +22,7 @@ import torch
 
 from .configuration import _dt, check_dt, d_dexp_inverse_blocks, d_integrate_blocks, dexp_inverse, tangent_map
 from .func import dual, transforming
+from .rk_hessian import rk_step_hessian
 from .step_hessian import euler_step_hessian
 
 # (A rows below the diagonal, B) of each Runge-Kutta scheme
@@ -145,27 +146,21 @@ class StepFunctions:
         """(..., 2 nv, 3 nv, 3 nv): the Hessian at z = 0 of z -> [difference(q', q'(z)); qd'(z) - qd'] with
         (q'(z), qd'(z)) = step(q (+) z_q, qd + z_qd, tau + z_tau), symmetric in its last two indices. The
         Euler schemes: in closed form from forward_dynamics_second_order (step_hessian.py); the Runge-Kutta
-        schemes: the symmetrised forward-mode derivative of step_derivatives' chain rule along z (the
-        forward-dynamics gradient's jvp from the second-order kernels, the configuration space's closed
-        forms), 3 nv tangents per sample."""
+        schemes: the second-order chain rule through the stages, from each stage's forward-dynamics gradient
+        and second derivatives and the configuration space's closed forms (rk_hessian.py)."""
         _check("step_second_derivatives", integrator, q, qd, tau, dt)
+        tensors = [x for x in (q, qd, tau, dt, f_ext) if isinstance(x, torch.Tensor)]
+        if (torch.is_grad_enabled() and any(x.requires_grad for x in tensors)) or dual(tensors):
+            raise NotImplementedError("step_second_derivatives has no derivative (a third derivative of the step): "
+                                      "call it on detached inputs or under torch.no_grad()")
+        if transforming():
+            raise NotImplementedError("step_second_derivatives does not run under torch.func transforms (vmap, grad, "
+                                      "jacrev, ...): it takes any leading batch shape; call it on the batch")
         if integrator in FUSED:
             return euler_step_hessian(self, q, qd, tau, dt, f_ext, semi=bool(FUSED[integrator]))
         nv = qd.shape[-1]
         batch, (q, qd, tau, h, f_ext) = _flattened(q, qd, tau, dt, f_ext)
-
-        def jacobian(z, q, qd, tau, h, f):
-            """[A | B] at x (+) z."""
-            A, B = self._step_derivatives(self.integrate(q, z[:nv]), qd + z[nv:2 * nv], tau + z[2 * nv:], h, f,
-                                          integrator)[2:]
-            return torch.cat([A, B], dim=-1)
-
-        # D_b J_a differs from the Hessian by Lie brackets, antisymmetric in (a, b), on both sides: the
-        # input's x (+) z (+) e against x (+) (z + e), and the output's chart at q'(x (+) z) against q'(x)
-        z = torch.zeros(3 * nv, dtype=qd.dtype, device=qd.device)
-        dims = (None, 0, 0, 0, 0, None if f_ext is None else 0)
-        dj = torch.func.vmap(torch.func.jacfwd(jacobian), in_dims=dims)(z, q, qd, tau, h, f_ext)
-        return (0.5 * (dj + dj.transpose(-1, -2))).reshape(*batch, 2 * nv, 3 * nv, 3 * nv)
+        return rk_step_hessian(self, TABLEAUS[integrator], q, qd, tau, h, f_ext).reshape(*batch, 2 * nv, 3 * nv, 3 * nv)
 
 
 # Samples per piece of a large batch: the chain rule's (nv, nv) temporaries of a piece stay in cache
@@ -180,7 +175,7 @@ def _flattened(q, qd, tau, dt, f_ext) -> tuple[torch.Size, list]:
     batch = torch.broadcast_shapes(q.shape[:-1], qd.shape[:-1], tau.shape[:-1], dt.shape,
                                    () if f_ext is None else f_ext.shape[:-2])
     n = batch.numel()
-    return batch, [None if x is None else x.expand(*batch, *x.shape[x.dim() - k:]).reshape(n, *x.shape[x.dim() - k:])
+    return batch, [None if x is None else x.expand(batch + x.shape[x.dim() - k:]).reshape(n, *x.shape[x.dim() - k:])
                    for x, k in ((q, 1), (qd, 1), (tau, 1), (dt, 0), (f_ext, 2))]
 
 

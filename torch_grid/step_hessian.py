@@ -36,24 +36,45 @@ def euler_step_hessian(view, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tenso
         torch.mul(out[..., nv:, :, :], hh, out=out[..., :nv, :, :])
     else:
         out[..., :nv, :, :] = 0
-    # dw/dz = dt (dqd'/dz) or dt [0 I 0]
+    # dw/dz = dt (dqd'/dz) or dt [0 I 0]; w's Hessian (dt^2 Ha or none) is already on q' rows
     zero, eye = torch.zeros(nv, nv, dtype=qd.dtype, device=qd.device), torch.eye(nv, dtype=qd.dtype, device=qd.device)
     e_v, h2 = torch.cat([zero, eye, zero], dim=-1), h.unsqueeze(-1)
     dw = h2 * (e_v + h2 * G) if semi else (h2 * e_v).expand(*batch, nv, 3 * nv)
     w = (h * (qd + h * a) if semi else h * qd).expand(*batch, nv)
-    for vi, j_q, j_r in d_integrate_blocks(space, q, w, 1.0, convention):
+    chart_hessian(space, convention, d_integrate_blocks(space, q, w, 1.0, convention), w, dw, out[..., :nv, :, :])
+    return out
+
+
+def chart_jacobian(blocks: list, dw: torch.Tensor) -> torch.Tensor:
+    """(..., nv, 3 nv): the Jacobian at z = 0 of e(z) = difference(q (+) w(0), (q (+) dq) (+) w(z)) from
+    dw = dw/dz (..., nv, 3 nv), with blocks = d_integrate_blocks at (q, w, dt = 1): [I 0 0] + dw on the
+    scalar coordinates, J_q [I 0 0] + J_r dw on a quaternion joint's."""
+    nv = dw.shape[-2]
+    out = dw.clone()
+    out[..., :nv] += torch.eye(nv, dtype=dw.dtype, device=dw.device)
+    for vi, j_q, j_r in blocks:
+        n = j_q.shape[-1]
+        out[..., vi:vi + n, :] = j_r @ dw[..., vi:vi + n, :]
+        out[..., vi:vi + n, vi:vi + n] += j_q
+    return out
+
+
+def chart_hessian(space, convention: int, blocks: list, w: torch.Tensor, dw: torch.Tensor, out: torch.Tensor,
+                  dJs: list | None = None) -> None:
+    """In place: out (..., nv, 3 nv, 3 nv) holds the Hessian of w(z) and becomes that of e(z) (chart_jacobian),
+    unchanged on the scalar coordinates; on a quaternion joint J_r Hw + Hpsi[dw, dw] + the bracket. dJs: each
+    block's _jacobian_of_j_r at w, if already computed."""
+    for b, (vi, j_q, j_r) in enumerate(blocks):
         n = j_r.shape[-1]
         kind = "free" if n == 6 else "ball"
         rows, W = slice(vi, vi + n), dw[..., vi:vi + n, :]
-        dJ = _jacobian_of_j_r(kind, w[..., rows], convention)
+        dJ = _jacobian_of_j_r(kind, w[..., rows], convention) if dJs is None else dJs[b]
         block = torch.einsum("...mbd,...ba,...dc->...mac", 0.5 * (dJ + dJ.transpose(-1, -2)), W, W)
-        if semi:  # J_r dt^2 Ha
-            block = block + torch.einsum("...mb,...bac->...mac", j_r, out[..., rows, :, :])
-        X = torch.zeros(*batch, n, 3 * nv, dtype=qd.dtype, device=qd.device)
+        block = block + torch.einsum("...mb,...bac->...mac", j_r, out[..., rows, :, :])
+        X = torch.zeros(*W.shape[:-2], n, W.shape[-1], dtype=W.dtype, device=W.device)
         X[..., vi:vi + n] = j_q
         bracket = _bracket(kind, convention, X, j_r @ W)
         out[..., rows, :, :] = block + 0.5 * (bracket + bracket.transpose(-1, -2))
-    return out
 
 
 def _scaled_acceleration_hessian(second, hh: torch.Tensor, out: torch.Tensor) -> None:
