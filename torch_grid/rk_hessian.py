@@ -94,13 +94,19 @@ def _hessian(view, tableau, q, qd, tau, h, f_ext, stages, w, jets, pool, out):
         _scaled_acceleration_hessian(view.forward_dynamics_second_order(qi, vi, tau, f_ext), h3.new_ones(()), Ha)
         if dx is None:
             return G, Ha
-        dx = torch.cat([dx, e_tau], dim=-2)
-        # dx^T Ha dx per output row (Ha symmetric: (Ha dx)^T dx), then G_e He + G_v Hv
-        T = torch.bmm(Ha.view(n, nv * N, N), dx, out=X.view(n, nv * N, N)).view(n * nv, N, N).mT
-        Ha = torch.bmm(T, temp.copy_(dx.unsqueeze(1).expand(n, nv, N, N)).view(n * nv, N, N),
-                       out=stage_acc[i].view(n * nv, N, N)).view(n, nv, N * N)
-        Ha.baddbmm_(G[..., :nv], He.view(n, nv, N * N)).baddbmm_(G[..., nv:2 * nv], Hv.view(n, nv, N * N))
-        return G @ dx, stage_acc[i]
+        # dx^T Ha dx per output row, with the rows of x = [e; v; tau] dx = [P; E] (E = [0 0 I]) and Ha
+        # symmetric, zero on (v, tau) and (tau, tau): T = Ha [P; E] takes Ha's first 2 nv columns times P
+        # plus its tau columns, and dx^T Ha dx = T^T dx = T[:2 nv]^T P plus T[tau]^T on the tau columns
+        P, M = dx, 2 * nv
+        T = torch.bmm(Ha.view(n, nv * N, N)[..., :M], P, out=X.view(n, nv * N, N)).view(n, nv, N, N)
+        T[..., M:] += Ha[..., M:]
+        Pm = temp.view(-1)[:n * nv * M * N].view(n * nv, M, N).copy_(P.unsqueeze(1).expand(n, nv, M, N).flatten(0, 1))
+        Ha = torch.bmm(T[:, :, :M].flatten(0, 1).mT, Pm, out=stage_acc[i].view(n * nv, N, N)).view(n, nv, N, N)
+        Ha[..., M:] += T[:, :, M:].mT
+        # then G_e He + G_v Hv
+        Ha = Ha.view(n, nv, N * N)
+        Ha.baddbmm_(G[..., :nv], He.view(n, nv, N * N)).baddbmm_(G[..., nv:M], Hv.view(n, nv, N * N))
+        return G @ torch.cat([P, e_tau], dim=-2), stage_acc[i]
 
     def chart(i, dtheta, He):
         """e's Jacobian at stage i (the step's at i = stages); He, dt theta's Hessian, becomes e's."""
