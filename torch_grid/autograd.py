@@ -22,7 +22,8 @@ import torch
 from .model import RobotModel
 from .mujoco_second_order import crba_vjp as mujoco_crba_vjp
 from .ops import FORWARD_MODE_BACKWARD, OPS, OpSpec
-from .tangent import ambient_direction, bracket_term, has_brackets, tangent_directions, tangent_to_ambient
+from .tangent import (ambient_direction, bracket_term, bracket_term_outer, has_brackets, tangent_directions,
+                      tangent_to_ambient)
 
 
 def backward_formula(spec: OpSpec) -> Callable | None:
@@ -154,7 +155,7 @@ def _inverse_dynamics_vjp(ops, model, needs, grads, output, q, qd, qdd, f_ext, l
         d_gq, d_gqd, d_mlam, d_tau = ops.inverse_dynamics_vjp_full_jvp(q, qd, qdd, f_ext, lam, t_u, u_qd, convention)
         if needs[0]:
             if has_brackets(model):
-                d_gq = d_gq + bracket_term(model, u_q.unsqueeze(-1) * output[0].unsqueeze(-2), convention)
+                d_gq = d_gq + bracket_term_outer(model, u_q, output[0], convention)
             dq = tangent_to_ambient(model, q, d_gq, convention)
         dqd = d_gqd if needs[1] else None
         dqdd = d_mlam if needs[2] else None

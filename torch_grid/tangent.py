@@ -190,14 +190,25 @@ def bracket_term(model: RobotModel, g_tan: torch.Tensor, convention: int) -> tor
     """(..., nv): sum_j g_j . [e_k, e_j] over each quaternion joint's directions j, k, with g_j (rows
     of g_tan, (..., nv, nv)) the tangent gradients: the second derivative along k then j less the
     one along j then k."""
+    return _brackets(model, lambda vi, n: g_tan[..., vi:vi + n, vi:vi + n], g_tan.shape[:-2] + g_tan.shape[-1:],
+                     g_tan, convention)
+
+
+def bracket_term_outer(model: RobotModel, u: torch.Tensor, g: torch.Tensor, convention: int) -> torch.Tensor:
+    """bracket_term of the outer product u g^T (u, g (..., nv)) from its quaternion joints' blocks alone."""
+    return _brackets(model, lambda vi, n: u[..., vi:vi + n, None] * g[..., None, vi:vi + n],
+                     torch.broadcast_shapes(u.shape, g.shape), g, convention)
+
+
+def _brackets(model: RobotModel, block, shape, like: torch.Tensor, convention: int) -> torch.Tensor:
+    """bracket_term with block(vi, n) the rows and columns vi.. vi + n of g_tan, out of shape (..., nv)."""
     indices, parts = [], []
     for j in layout(model).quaternions:
         n = 6 if j.free else 3
-        c = torch.tensor(_BRACKET[j.free, convention], dtype=g_tan.dtype, device=g_tan.device)
-        block = g_tan[..., j.vi:j.vi + n, j.vi:j.vi + n]
+        c = torch.tensor(_BRACKET[j.free, convention], dtype=like.dtype, device=like.device)
         indices += range(j.vi, j.vi + n)
-        parts.append(torch.einsum("...jm,kjm->...k", block, c))
-    out = torch.zeros(g_tan.shape[:-2] + g_tan.shape[-1:], dtype=g_tan.dtype, device=g_tan.device)
+        parts.append(torch.einsum("...jm,kjm->...k", block(j.vi, n), c))
+    out = torch.zeros(shape, dtype=like.dtype, device=like.device)
     if not parts:
         return out
-    return out.index_copy(-1, torch.tensor(indices, dtype=torch.long, device=g_tan.device), torch.cat(parts, dim=-1))
+    return out.index_copy(-1, torch.tensor(indices, dtype=torch.long, device=like.device), torch.cat(parts, dim=-1))
