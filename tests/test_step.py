@@ -432,7 +432,8 @@ def test_large_batches_go_in_pieces(robots, monkeypatch):
 
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
 def test_float32_follows_float64(robots, convention):
-    """step, step_derivatives and a cost in float32 against float64 (a floating base)."""
+    """step, step_derivatives, step_second_derivatives and a cost in float32 against float64 (a floating
+    base)."""
     robot = robots["go2"]
     view = getattr(robot, convention)
     q, qd, tau = _state(view, robot, 3, 10)
@@ -444,6 +445,9 @@ def test_float32_follows_float64(robots, convention):
         ours = view.step_derivatives(q.float(), qd.float(), tau.float(), 0.01, integrator)
         ref = view.step_derivatives(q, qd, tau, 0.01, integrator)
         assert all(rel_err(a, b) <= 1e-4 for a, b in zip(ours, ref)), integrator
+        ours = view.step_second_derivatives(q.float(), qd.float(), tau.float(), 0.01, integrator)
+        ref = view.step_second_derivatives(q, qd, tau, 0.01, integrator)
+        assert ours.dtype == torch.float32 and rel_err(ours, ref) <= 1e-4, integrator
     weights = torch.ones(2 * robot.nv, dtype=torch.float64)
     ours = view.state_cost(q.float(), qd.float(), q[0].float(), qd[0].float(), weights.float())
     ref = view.state_cost(q, qd, q[0], qd[0], weights)
