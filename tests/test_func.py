@@ -84,6 +84,7 @@ def test_vmap_is_the_batched_call(robots, balls, name, convention):
         # the second-order tensors (in the MuJoCo convention composed in torch from Pinocchio's ops)
         second = torch.func.vmap(view.inverse_dynamics_second_order)(q, qd, x)
         hess = torch.func.vmap(lambda q: view.frame_kinematic_hessian(q, robot.nframes - 1))(q)
+        pose = torch.func.vmap(lambda q: view.end_effector_pose(q, [robot.nframes - 1]))(q)  # a list argument
         # per-sample gradients: vmap of grad
         grads = torch.func.vmap(torch.func.grad(lambda q, qd, x: view.forward_dynamics(q, qd, x).square().sum()))(
             q, qd, x)
@@ -91,6 +92,7 @@ def test_vmap_is_the_batched_call(robots, balls, name, convention):
         torch._C._functorch._set_vmap_fallback_enabled(fallback)
     assert all(rel_err(a, b) <= 1e-14 for a, b in zip(second, view.inverse_dynamics_second_order(q, qd, x)))
     assert rel_err(hess, view.frame_kinematic_hessian(q, robot.nframes - 1)) <= 1e-14
+    assert torch.equal(pose, view.end_effector_pose(q, [robot.nframes - 1]))
     assert torch.equal(tau, view.inverse_dynamics(q, qd, x)) and torch.equal(moved, tau)
     assert torch.equal(M, view.crba(q)) and torch.equal(jac, view.frame_jacobian(q, robot.nframes - 1))
     assert torch.equal(shared, view.inverse_dynamics(q, qd[0], x[0]))

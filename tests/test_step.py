@@ -8,6 +8,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 import torch
+from torch.autograd import forward_ad
 
 from oracles import rel_err
 from torch_grid.integrators import INTEGRATORS, RK_FUSED, TABLEAUS
@@ -408,6 +409,30 @@ def test_malformed_dt_is_refused(robots, fn):
                                (torch.tensor(0.01), TypeError, "have q's dtype")):
         with pytest.raises(error, match=f"{fn}: dt must .*{message}"):
             call(q, qd, tau, dt, "rk4")
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+def test_step_derivatives_under_vmap_and_forward_ad(robots, convention):
+    """step_derivatives of every scheme (the torch composition under a transform) on a floating base: vmap
+    with a float dt and a configuration or torque held fixed equals the batched call; forward-mode AD by
+    torch.autograd.forward_ad equals torch.func.jvp (dexp^-1's derivative inside it is then taken in
+    reverse mode, which that level may nest)."""
+    robot = robots["go2"]
+    view = getattr(robot, convention)
+    q, qd, tau = _state(view, robot, 3, 23)
+    t = torch.randn_like(qd)
+    for integrator in INTEGRATORS:
+        def f(q, qd, tau):
+            return torch.cat(view.step_derivatives(q, qd, tau, 0.01, integrator), dim=-1)
+
+        ref = f(q, qd, tau)
+        assert rel_err(torch.func.vmap(f, in_dims=(0, 0, None))(q, qd, tau[0]), f(q, qd, tau[0])) <= 1e-14, integrator
+        assert rel_err(torch.func.vmap(f, in_dims=(None, 0, 0))(q[0], qd, tau), f(q[0], qd, tau)) <= 1e-14, integrator
+        assert rel_err(torch.func.vmap(f)(q, qd, tau), ref) <= 1e-14, integrator
+        _, jvp = torch.func.jvp(lambda x: f(q, x, tau), (qd,), (t,))
+        with forward_ad.dual_level():
+            tangent = forward_ad.unpack_dual(f(q, forward_ad.make_dual(qd, t), tau)).tangent
+        assert rel_err(tangent, jvp) <= 1e-12, integrator
 
 
 def test_large_batches_go_in_pieces(robots, monkeypatch):

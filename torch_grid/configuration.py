@@ -21,6 +21,7 @@ import numbers
 from dataclasses import dataclass
 
 import torch
+from torch.autograd import forward_ad
 
 from .conventions import quaternion_rotation, unit_quaternion
 
@@ -184,8 +185,12 @@ def dexp_inverse(space: Space, theta: torch.Tensor, v: torch.Tensor, convention:
 
 def d_dexp_inverse_blocks(space: Space, theta: torch.Tensor, v: torch.Tensor, convention: int) -> list:
     """Per quaternion joint (its first velocity index, d/dtheta block, d/dv block) of dexp_inverse; d/dv
-    is the identity elsewhere, d/dtheta zero. d/dtheta by forward-mode AD of the block's closed form."""
+    is the identity elsewhere, d/dtheta zero. d/dtheta by forward-mode AD of the block's closed form, or,
+    inside a torch.autograd.forward_ad level (which torch.func.jacfwd may not nest in), by reverse mode
+    with create_graph, whose own forward-mode derivative the outer level takes."""
     theta, v = _broadcast(theta, v)
+    outer = (not torch._C._functorch.get_interpreter_stack() and forward_ad._current_level >= 0
+             and any(forward_ad.unpack_dual(x).tangent is not None for x in (theta, v)))
     blocks = []
     for kind, vi in zip(space.kinds, space.vi):
         if kind == "scalar":
@@ -196,9 +201,23 @@ def d_dexp_inverse_blocks(space: Space, theta: torch.Tensor, v: torch.Tensor, co
         def carried(t, x, kind=kind):
             return _apply(_dexp_inverse_block(kind, t, convention), x)
 
-        jac = torch.func.vmap(torch.func.jacfwd(carried))(t_b.reshape(-1, n), v_b.reshape(-1, n))
+        if outer:
+            jac = _reverse_jacobian(carried, t_b, v_b)
+        else:
+            jac = torch.func.vmap(torch.func.jacfwd(carried))(t_b.reshape(-1, n), v_b.reshape(-1, n))
         blocks.append((vi, jac.reshape(*theta.shape[:-1], n, n), _dexp_inverse_block(kind, t_b, convention)))
     return blocks
+
+
+def _reverse_jacobian(fn, t: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    """(..., n, n): d fn(t, x) / dt of a function acting on the last dimension, one reverse pass per row."""
+    t = t.clone()
+    if not t.requires_grad:
+        t.requires_grad_(True)
+    with torch.enable_grad():
+        out = fn(t, x)
+        rows = [torch.autograd.grad(out[..., m].sum(), t, create_graph=True)[0] for m in range(out.shape[-1])]
+    return torch.stack(rows, dim=-2)
 
 
 def _dexp_inverse_block(kind: str, theta: torch.Tensor, convention: int) -> torch.Tensor:

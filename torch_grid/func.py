@@ -115,7 +115,7 @@ class FuncOps:
             ranks = [x.dim() - (d is not None) - t for x, d, t in zip(args, in_dims, trailing) if isinstance(x, torch.Tensor)]
             moved = []
             for x, d, t in zip(args, in_dims, trailing):
-                if d is not None:
+                if isinstance(x, torch.Tensor) and d is not None:  # a list argument (frames) has nested dims
                     x = x.movedim(d, 0)
                     x = x.reshape(x.shape[0], *[1] * (max(ranks) - (x.dim() - 1 - t)), *x.shape[1:])
                 moved.append(x)

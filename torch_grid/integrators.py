@@ -85,10 +85,9 @@ class StepFunctions:
     def _step_derivatives(self, q, qd, tau, dt, f_ext, integrator):
         h = _dt(dt, qd)
         hh, nv = h.unsqueeze(-1), qd.shape[-1]
-        batch = torch.broadcast_shapes(q.shape[:-1], qd.shape[:-1], tau.shape[:-1], h.shape[:-1])
         space, convention = self._robot._space, self._convention
         # A derivative along z = [dq; dqd; dtau] is an (..., nv, 3 nv) matrix; the integrate and dexp^-1
-        # maps are the identity but on their quaternion joints' rows, which are rewritten in place.
+        # maps are the identity but on their quaternion joints' rows, which are replaced (_with_rows).
         eye = torch.eye(nv, dtype=qd.dtype, device=qd.device)
         zero = torch.zeros_like(eye)
         start_q, start_v = torch.cat([eye, zero, zero], dim=-1), torch.cat([zero, eye, zero], dim=-1)
@@ -106,14 +105,10 @@ class StepFunctions:
         def advance(theta, dtheta):
             """The derivative of q (+) dt theta: J_q along dq, plus J_v dtheta."""
             step = hh * dtheta
-            out = step + start_q
-            if out.shape[:-2] != batch:  # a first stage's start, not yet batched
-                out = out.expand(*batch, nv, 3 * nv).clone()
-            for vi, j_q, j_v in d_integrate_blocks(space, q, theta, dt, convention):
-                n = j_q.shape[-1]
-                out[..., vi:vi + n, :] = j_v @ step[..., vi:vi + n, :]
-                out[..., vi:vi + n, vi:vi + n] += j_q
-            return out
+            rows = {vi: j_v @ step[..., vi:vi + j_q.shape[-1], :]
+                    + torch.nn.functional.pad(j_q, (vi, 3 * nv - vi - j_q.shape[-1]))
+                    for vi, j_q, j_v in d_integrate_blocks(space, q, theta, dt, convention)}
+            return _with_rows(step + start_q, rows)
 
         a0, da0 = stage(q, qd, None, None)
         if integrator == "semi_implicit_euler":
@@ -130,11 +125,9 @@ class StepFunctions:
             # stage velocity carried to q's chart: dexp(h theta)^-1 v, with its derivative
             blocks = d_dexp_inverse_blocks(space, h * theta, v, convention)
             carried.append(tangent_map(blocks, 1, v.unsqueeze(-1)).squeeze(-1))
-            dc = dv.clone()
-            for vi, j_theta, j_v in blocks:
-                n = j_v.shape[-1]
-                dc[..., vi:vi + n, :] = j_v @ dv[..., vi:vi + n, :] + j_theta @ (hh * dtheta[..., vi:vi + n, :])
-            dcarried.append(dc)
+            dcarried.append(_with_rows(dv, {vi: j_v @ dv[..., vi:vi + j_v.shape[-1], :]
+                                            + j_theta @ (hh * dtheta[..., vi:vi + j_v.shape[-1], :])
+                                            for vi, j_theta, j_v in blocks}))
         theta = _combine(weights, carried)
         dq_next = advance(theta, _combine(weights, dcarried))
         return ((self.integrate(q, theta, dt), qd + h * _combine(weights, acc))
@@ -202,6 +195,20 @@ def _check(op: str, integrator, q, qd, tau, dt) -> None:
         raise ValueError(f"{op}: integrator must be one of {INTEGRATORS}, got {integrator!r}")
     if isinstance(q, torch.Tensor):
         check_dt(op, dt, q, qd, tau)
+
+
+def _with_rows(x: torch.Tensor, rows: dict) -> torch.Tensor:
+    """x (..., m, k) with its rows vi.. replaced by rows[vi] (..., n, k), out of place (so that vmap batches it
+    whichever of them are batched), broadcast to their common batch shape."""
+    if not rows:
+        return x
+    batch = torch.broadcast_shapes(x.shape[:-2], *(r.shape[:-2] for r in rows.values()))
+    parts, start = [], 0
+    for vi in sorted(rows):
+        parts += [x[..., start:vi, :], rows[vi]]
+        start = vi + rows[vi].shape[-2]
+    parts.append(x[..., start:, :])
+    return torch.cat([p.expand(*batch, *p.shape[-2:]) for p in parts], dim=-2)
 
 
 def _combine(coefficients, xs):
