@@ -40,7 +40,8 @@ namespace tg {
 #if defined(__linux__) && defined(MADV_HUGEPAGE)
 // Blocks of large CPU outputs, backed by transparent huge pages. A freed block is kept (up to
 // kKeep bytes in all, for the life of the process) and handed to the next output of its size,
-// already mapped: a loop calling an op on the same batch pays the page faults once.
+// already mapped: a loop calling an op on the same batch pays the page faults once. The blocks
+// kept longest make room for a newer one, so sizes no longer in use do not fill the cache.
 struct LargeBlocks {
   static constexpr size_t kMin = size_t(8) << 20, kHuge = size_t(2) << 20, kKeep = size_t(1) << 30;
   static size_t rounded(size_t bytes) { return (bytes + kHuge - 1) / kHuge * kHuge; }
@@ -62,14 +63,21 @@ struct LargeBlocks {
     return p;
   }
   static void give(void* p, size_t size) {
-    {
+    std::vector<void*> evicted;
+    if (size <= kKeep) {
       std::lock_guard<std::mutex> lock(state().mutex);
-      if (state().bytes + size <= kKeep) {
-        state().kept.emplace_back(p, size);
-        state().bytes += size;
-        return;
+      auto& kept = state().kept;
+      size_t n = 0;  // the oldest blocks that make room
+      while (state().bytes + size > kKeep) {
+        evicted.push_back(kept[n].first);
+        state().bytes -= kept[n++].second;
       }
+      kept.erase(kept.begin(), kept.begin() + static_cast<std::ptrdiff_t>(n));
+      kept.emplace_back(p, size);
+      state().bytes += size;
+      p = nullptr;
     }
+    for (void* e : evicted) std::free(e);
     std::free(p);
   }
 
