@@ -341,7 +341,8 @@ def test_step_hessians_are_forward_over_reverse(robots, convention):
 
 def test_runge_kutta_hessian_in_pieces(robots, monkeypatch):
     """rk4's step Hessian over a batch in pieces (here of four samples and then two, sharing one set of
-    buffers) equals the whole batch's, in its leading shape of two dimensions, with a per-sample dt."""
+    buffers) equals the whole batch's, in its leading shape of two dimensions, with a per-sample dt; an
+    empty batch gives an empty Hessian."""
     import torch_grid.rk_hessian as rk_hessian
 
     robot = robots["go2"]
@@ -356,6 +357,8 @@ def test_runge_kutta_hessian_in_pieces(robots, monkeypatch):
     assert whole.shape == pieces.shape == (2, 3, 2 * nv, 3 * nv, 3 * nv)
     assert torch.allclose(whole, pieces, rtol=1e-13, atol=1e-13)
     assert rel_err(pieces[1, 2], robot.mujoco.step_second_derivatives(q[1, 2], qd[1, 2], tau[1, 2], dt[1, 2], "rk4")) <= 1e-13
+    assert robot.mujoco.step_second_derivatives(q[:0], qd[:0], tau[:0], dt[:0], "rk4").shape == (0, 3, 2 * nv, 3 * nv,
+                                                                                             3 * nv)
 
 
 @pytest.mark.parametrize("integrator", ["semi_implicit_euler", "rk4"])

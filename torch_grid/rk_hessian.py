@@ -30,6 +30,8 @@ def rk_step_hessian(view, tableau, q, qd, tau, h, f_ext) -> torch.Tensor:
     space, convention = view._robot._space, view._convention
     rows, weights = tableau
     nv, n = qd.shape[-1], qd.shape[0]
+    if n == 0:
+        return qd.new_empty(0, 2 * nv, 3 * nv, 3 * nv)
     h1 = h[:, None]
     # the stages' values, then each quaternion joint's closed-form derivatives at all of them in one call
     # (forward-mode AD of a few dozen small ops, whose cost is per call)
