@@ -336,8 +336,8 @@ def main() -> None:
         f"input, one thread, float64, B = {B}.\n\n" + "\n".join(second) + \
         "\n\nSecond-order kernels: the four (nv, nv, nv) tensors of inverse_dynamics_second_order per sample, " \
         "one thread, float64, against Pinocchio's C++ ComputeRNEASecondOrderDerivatives per call (one Data and " \
-        "four tensors reused, so they stay in cache; a batch writes 4 nv^3 numbers per sample to fresh " \
-        "memory, kept for the next call up to 1 GiB); forward_dynamics_second_order adds M^-1 products in torch." \
+        "four tensors reused, so they stay in cache; a batch writes 4 nv^3 numbers per sample to main " \
+        "memory, kept for the next call up to a quarter of the machine's memory); forward_dynamics_second_order adds M^-1 products in torch." \
         "\n\n" + "\n".join(kernels) + "\n\nTransforms, one thread, float64, B = 4096: torch.func.vmap against " \
         "the batched call (reference), and a Hessian-vector product of w . forward_dynamics(q, qd, tau) with " \
         "respect to all three (forward + backward with create_graph + double backward) against the forward " \

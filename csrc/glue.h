@@ -15,6 +15,7 @@
 #include <cstring>
 #if defined(__linux__)
 #include <sys/mman.h>
+#include <unistd.h>
 #endif
 #if defined(__x86_64__)
 #include <emmintrin.h>
@@ -38,13 +39,30 @@
 namespace tg {
 
 #if defined(__linux__) && defined(MADV_HUGEPAGE)
-// Blocks of large CPU outputs, backed by transparent huge pages. A freed block is kept (up to
-// kKeep bytes in all, for the life of the process) and handed to the next output of its size,
-// already mapped: a loop calling an op on the same batch pays the page faults once. The blocks
-// kept longest make room for a newer one, so sizes no longer in use do not fill the cache.
+// Blocks of large CPU outputs. A freed block is kept (up to keep() bytes in all, for the life of the
+// process, or until release()) and handed to the next output of its size, already mapped: a loop
+// calling an op on the same batch pays the page faults once. The blocks kept longest make room for
+// a newer one, so sizes no longer in use do not fill the cache. Blocks from 2 MiB are backed by
+// transparent huge pages.
 struct LargeBlocks {
-  static constexpr size_t kMin = size_t(8) << 20, kHuge = size_t(2) << 20, kKeep = size_t(1) << 30;
-  static size_t rounded(size_t bytes) { return (bytes + kHuge - 1) / kHuge * kHuge; }
+  static constexpr size_t kMin = size_t(128) << 10, kPage = size_t(4) << 10, kHuge = size_t(2) << 20;
+  static size_t rounded(size_t bytes) {
+    const size_t unit = bytes < kHuge ? kPage : kHuge;
+    return (bytes + unit - 1) / unit * unit;
+  }
+  // TORCH_GRID_KEEP_MB, or a quarter of the machine's memory and at least 1 GiB: G1's four
+  // second-order tensors at B = 4096 are 5.6 GB, which the kernel would otherwise zero afresh on
+  // every call (2x the call's time).
+  static size_t keep() {
+    static const size_t bytes = [] {
+      const char* env = std::getenv("TORCH_GRID_KEEP_MB");
+      if (env && *env) return static_cast<size_t>(std::atoll(env)) << 20;
+      const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGESIZE);
+      const size_t quarter = pages > 0 && page > 0 ? static_cast<size_t>(pages) * static_cast<size_t>(page) / 4 : 0;
+      return std::max(quarter, size_t(1) << 30);
+    }();
+    return bytes;
+  }
   static void* take(size_t size) {
     {
       std::lock_guard<std::mutex> lock(state().mutex);
@@ -58,17 +76,17 @@ struct LargeBlocks {
         }
     }
     void* p = nullptr;
-    if (posix_memalign(&p, kHuge, size) != 0) return nullptr;
-    madvise(p, size, MADV_HUGEPAGE);
+    if (posix_memalign(&p, size < kHuge ? kPage : kHuge, size) != 0) return nullptr;
+    if (size >= kHuge) madvise(p, size, MADV_HUGEPAGE);
     return p;
   }
   static void give(void* p, size_t size) {
     std::vector<void*> evicted;
-    if (size <= kKeep) {
+    if (size <= keep()) {
       std::lock_guard<std::mutex> lock(state().mutex);
       auto& kept = state().kept;
       size_t n = 0;  // the oldest blocks that make room
-      while (state().bytes + size > kKeep) {
+      while (state().bytes + size > keep()) {
         evicted.push_back(kept[n].first);
         state().bytes -= kept[n++].second;
       }
@@ -79,6 +97,21 @@ struct LargeBlocks {
     }
     for (void* e : evicted) std::free(e);
     std::free(p);
+  }
+  // Frees every kept block; returns their bytes.
+  static int64_t release() {
+    std::vector<std::pair<void*, size_t>> kept;
+    {
+      std::lock_guard<std::mutex> lock(state().mutex);
+      kept.swap(state().kept);
+      state().bytes = 0;
+    }
+    int64_t bytes = 0;
+    for (auto& block : kept) {
+      std::free(block.first);
+      bytes += static_cast<int64_t>(block.second);
+    }
+    return bytes;
   }
 
  private:
@@ -94,6 +127,15 @@ struct LargeBlocks {
   }
 };
 #endif
+
+// Frees the CPU output blocks kept for reuse; returns their bytes (torch_grid.empty_cache()).
+inline int64_t release_kept_blocks() {
+#if defined(__linux__) && defined(MADV_HUGEPAGE)
+  return LargeBlocks::release();
+#else
+  return 0;
+#endif
+}
 
 class Call {
  public:
@@ -325,13 +367,11 @@ class Call {
   }
 #endif
 
-  // A CPU output above glibc's largest mmap threshold (32 MiB) would be mapped afresh on every call,
-  // and the kernel would zero each of its pages on first touch: about 1 µs per sample for G1's M at
-  // B = 4096, 10-25 % of crba or minv. From 8 MiB the heap does not reliably help either: freed at
-  // its top, such blocks are trimmed back to the system (go2's three 10.6 MB forward-dynamics
-  // gradients took 11.7 instead of 8.8 µs per sample in a long-running process). Outputs above
-  // 8 MiB are backed by transparent huge pages instead, and each block is kept for the next output
-  // of the same size (LargeBlocks). Smaller outputs reuse the heap.
+  // glibc maps a block above its mmap threshold afresh, or trims a freed one at the top of the heap,
+  // and the kernel then zeroes each page on first touch: about 1 µs per sample for G1's M at
+  // B = 4096, 10-25 % of crba or minv, and 8x the time of inverse_dynamics_second_order on G1 at
+  // B = 4 (four 1.4 MB outputs, trimmed after every call). CPU outputs above glibc's first
+  // threshold, 128 KiB, come from LargeBlocks instead, kept for the next output of the same size.
   static at::Tensor empty(const std::vector<int64_t>& shape, const at::TensorOptions& options) {
 #if defined(__linux__) && defined(MADV_HUGEPAGE)
     const size_t bytes = static_cast<size_t>(numel(shape)) * options.dtype().itemsize();

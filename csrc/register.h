@@ -58,4 +58,5 @@ inline int64_t register_robot(const char* signature, int nops, DefineFn define, 
           [](const std::string& ns, const std::string& library, const std::string& symbol) -> int64_t {    \
             return tg::register_robot(signature, nops, define, implement, ns, library, symbol);            \
           });                                                                                              \
+    m.def("release_kept_blocks() -> int", []() -> int64_t { return tg::release_kept_blocks(); });           \
   }

@@ -184,8 +184,8 @@ def test_float32_on_the_cpu_is_float64_rounded(robots):
 
 
 def test_large_cpu_outputs_reuse_their_blocks(robots):
-    """An output above 8 MiB is backed by a block kept when freed and handed to the next output of
-    its size; a block is never shared by two live tensors. Outputs above 8 MiB in all are streamed
+    """An output above 8 MiB is backed by a block (of huge pages) kept when freed and handed to the
+    next output of its size; a block is never shared by two live tensors. Outputs above 8 MiB in all are streamed
     from a buffer the kernel fills a few samples at a time. Results equal small batches' bit for bit."""
     robot = robots["go2"]
     q = robot.random_configuration(13_000, generator=torch.Generator().manual_seed(4))  # M: 33.7 MB
@@ -204,6 +204,21 @@ def test_large_cpu_outputs_reuse_their_blocks(robots):
     parts = [robot.mujoco.inverse_dynamics_gradient(*x) for x in zip(q.split(1000), qd.split(1000), qdd.split(1000))]
     for whole, part in zip(robot.mujoco.inverse_dynamics_gradient(q, qd, qdd), zip(*parts)):
         assert torch.equal(whole, torch.cat(part))
+
+
+def test_mid_size_cpu_outputs_reuse_their_blocks_and_empty_cache_frees_them(robots):
+    """An output above 128 KiB (glibc would map it afresh, or trim it from the heap's top, and the
+    kernel zero its pages on every call) is kept when freed; torch_grid.empty_cache() frees them."""
+    robot = robots["go2"]
+    q = robot.random_configuration(500, generator=torch.Generator().manual_seed(4))  # M: 1.3 MB
+    first = robot.crba(q)
+    block, nbytes = first.data_ptr(), first.nbytes
+    del first
+    again = robot.crba(q)
+    assert again.data_ptr() == block and torch.equal(again, torch.cat([robot.crba(part) for part in q.split(100)]))
+    del again
+    assert torch_grid.empty_cache() >= nbytes
+    assert torch_grid.empty_cache() == 0
 
 
 def test_meta_tensors_propagate_shapes(robots):

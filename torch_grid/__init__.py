@@ -8,6 +8,7 @@ from pathlib import Path
 from . import conventions
 from .autograd import register_autograd
 from .build import build as _build
+from .build import release_kept_blocks
 from .costs import log_barrier, quadratic_barrier
 from .integrators import INTEGRATORS
 from .model import Frame, Joint, RobotModel, with_armature
@@ -15,10 +16,21 @@ from .parse import BUNDLED, from_pinocchio, source_to_model
 from .robot import Robot
 
 __all__ = ["load", "Robot", "RobotModel", "Joint", "Frame", "conventions", "from_pinocchio", "BUNDLED", "INTEGRATORS",
-           "log_barrier", "quadratic_barrier"]
+           "log_barrier", "quadratic_barrier", "empty_cache"]
 __version__ = "0.1.0"
 
 _AUTOGRAD_DONE: set[str] = set()
+
+
+def empty_cache() -> int:
+    """Free the memory of CPU outputs that were deleted but kept for reuse; returns its bytes.
+
+    An output above 128 KiB is, once freed, kept and handed to the next output of the same size,
+    so that a loop over one batch size maps and zeroes its memory once. Up to a quarter of the
+    machine's memory (at least 1 GiB; TORCH_GRID_KEEP_MB sets it) is kept, the longest-kept
+    blocks making room for newer ones. Like torch.cuda.empty_cache, this returns it to the system.
+    """
+    return release_kept_blocks()
 
 
 def load(source, *, floating_base: bool | None = None, convention: str = "pin", enable_mujoco_kernels: bool = True,

@@ -107,6 +107,11 @@ def _load_glue(root: Path, cuda: bool) -> None:
     _GLUE.append(library)
 
 
+def release_kept_blocks() -> int:
+    """Free the CPU output blocks the glue keeps for reuse; returns their bytes (0 before any load)."""
+    return int(torch.ops.torch_grid_glue.release_kept_blocks()) if _GLUE else 0
+
+
 def _compile_glue(root: Path, cuda: bool, key: str, entry: Path) -> None:
     from torch.utils import cpp_extension
 
