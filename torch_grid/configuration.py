@@ -21,9 +21,9 @@ import numbers
 from dataclasses import dataclass
 
 import torch
-from torch.autograd import forward_ad
 
 from .conventions import quaternion_rotation, unit_quaternion
+from .func import dual, transforming
 
 
 @dataclass(frozen=True)
@@ -189,8 +189,7 @@ def d_dexp_inverse_blocks(space: Space, theta: torch.Tensor, v: torch.Tensor, co
     inside a torch.autograd.forward_ad level (which torch.func.jacfwd may not nest in), by reverse mode
     with create_graph, whose own forward-mode derivative the outer level takes."""
     theta, v = _broadcast(theta, v)
-    outer = (not torch._C._functorch.get_interpreter_stack() and forward_ad._current_level >= 0
-             and any(forward_ad.unpack_dual(x).tangent is not None for x in (theta, v)))
+    outer = not transforming() and dual((theta, v))
     blocks = []
     for kind, vi in zip(space.kinds, space.vi):
         if kind == "scalar":

@@ -22,6 +22,7 @@ import torch
 
 from .configuration import _dt, check_dt, d_dexp_inverse_blocks, d_integrate_blocks, dexp_inverse, tangent_map
 from .func import dual, transforming
+from .rk_hessian import combine as _combine
 from .rk_hessian import rk_step_hessian
 from .step_hessian import euler_step_hessian
 
@@ -142,13 +143,12 @@ class StepFunctions:
         schemes: the second-order chain rule through the stages, from each stage's forward-dynamics gradient
         and second derivatives and the configuration space's closed forms (rk_hessian.py)."""
         _check("step_second_derivatives", integrator, q, qd, tau, dt)
-        tensors = [x for x in (q, qd, tau, dt, f_ext) if isinstance(x, torch.Tensor)]
-        if (torch.is_grad_enabled() and any(x.requires_grad for x in tensors)) or dual(tensors):
+        if _differentiated(q, qd, tau, dt, f_ext):
+            if transforming():
+                raise NotImplementedError("step_second_derivatives does not run under torch.func transforms (vmap, "
+                                          "grad, jacrev, ...): it takes any leading batch shape; call it on the batch")
             raise NotImplementedError("step_second_derivatives has no derivative (a third derivative of the step): "
                                       "call it on detached inputs or under torch.no_grad()")
-        if transforming():
-            raise NotImplementedError("step_second_derivatives does not run under torch.func transforms (vmap, grad, "
-                                      "jacrev, ...): it takes any leading batch shape; call it on the batch")
         if integrator in FUSED:
             return euler_step_hessian(self, q, qd, tau, dt, f_ext, semi=bool(FUSED[integrator]))
         nv = qd.shape[-1]
@@ -209,12 +209,6 @@ def _with_rows(x: torch.Tensor, rows: dict) -> torch.Tensor:
         start = vi + rows[vi].shape[-2]
     parts.append(x[..., start:, :])
     return torch.cat([p.expand(*batch, *p.shape[-2:]) for p in parts], dim=-2)
-
-
-def _combine(coefficients, xs):
-    """sum_j c_j x_j over the non-zero coefficients."""
-    terms = [c * x for c, x in zip(coefficients, xs) if c]
-    return sum(terms[1:], terms[0])
 
 
 def _split(dq: torch.Tensor, dv: torch.Tensor, nv: int) -> tuple[torch.Tensor, torch.Tensor]:

@@ -37,14 +37,14 @@ def rk_step_hessian(view, tableau, q, qd, tau, h, f_ext) -> torch.Tensor:
     # (forward-mode AD of a few dozen small ops, whose cost is per call)
     c, acc, stages = [qd], [view.forward_dynamics(q, qd, tau, f_ext)], []
     for row in rows:
-        theta, v = _combine(row, c), qd + h1 * _combine(row, acc)
+        theta, v = combine(row, c), qd + h1 * combine(row, acc)
         qi = view.integrate(q, h1 * theta)
         stages.append((qi, v))
         acc.append(view.forward_dynamics(qi, v, tau, f_ext))
         c.append(dexp_inverse(space, h1 * theta, v, convention))
-    w = torch.stack([h1 * _combine(row, c) for row in rows] + [h1 * _combine(weights, c)])  # (stages + 1, n, nv)
+    w = torch.stack([h1 * combine(row, c) for row in rows] + [h1 * combine(weights, c)])  # (stages + 1, n, nv)
     vs = torch.stack([v for _, v in stages])
-    jets = []  # per quaternion joint: (kind, vi, k, the carried velocity's (K, J) per stage, dJ_r per chart)
+    jets = []  # per quaternion joint: (vi, k, the carried velocity's (K, J) per stage, dJ_r per chart)
     for kind, vi in zip(space.kinds, space.vi):
         if kind == "scalar":
             continue
@@ -58,7 +58,7 @@ def rk_step_hessian(view, tableau, q, qd, tau, h, f_ext) -> torch.Tensor:
         y = torch.cat([w[:-1, :, r], vs[..., r]], dim=-1).flatten(0, 1)
         K, J = torch.func.vmap(torch.func.jacfwd(jacobian, has_aux=True))(y)
         dJ = _jacobian_of_j_r(kind, w[..., r].flatten(0, 1), convention)
-        jets.append((kind, vi, k, K.unflatten(0, (len(rows), n)), J.unflatten(0, (len(rows), n)),
+        jets.append((vi, k, K.unflatten(0, (len(rows), n)), J.unflatten(0, (len(rows), n)),
                      dJ.unflatten(0, (len(rows) + 1, n))))
     out = torch.empty(n, 2 * nv, 3 * nv, 3 * nv, dtype=qd.dtype, device=qd.device)
     step = min(n, max(1, PIECE_BYTES // (8 * nv * (3 * nv) ** 2)))
@@ -68,8 +68,8 @@ def rk_step_hessian(view, tableau, q, qd, tau, h, f_ext) -> torch.Tensor:
     for s in range(0, n, step):
         p = slice(s, s + step)
         _hessian(view, tableau, q[p], qd[p], tau[p], h[p], None if f_ext is None else f_ext[p],
-                 [(qi[p], v[p]) for qi, v in stages], w[:, p], [(kind, vi, k, K[:, p], J[:, p], dJ[:, p])
-                                                             for kind, vi, k, K, J, dJ in jets],
+                 [(qi[p], v[p]) for qi, v in stages], w[:, p], [(vi, k, K[:, p], J[:, p], dJ[:, p])
+                                                             for vi, k, K, J, dJ in jets],
                  pool[:, :out[p].shape[0]], out[p])
     return out
 
@@ -121,15 +121,15 @@ def _hessian(view, tableau, q, qd, tau, h, f_ext, stages, w, jets, pool, out):
     dc, Hc = [e_v], [None]  # c_0 = qd
     dacc, Hacc = [da0], [Ha0]
     for i, row in enumerate(rows):
-        dtheta, dv = _combine(row, dc), e_v + h2 * _combine(row, dacc)
+        dtheta, dv = combine(row, dc), e_v + h2 * combine(row, dacc)
         Hu, Hv = _scaled_sum(h3, row, Hc, Hu), _scaled_sum(h3, row, Hacc, stage_c[i])
         # the carried velocity c_i = dexp(u)^-1 v_i, u = dt theta_i, from u's and v's derivatives (before
         # chart overwrites Hu); Hv becomes Hc, unchanged off the quaternion joints
         dci = dv.clone()
-        Hy = {vi: torch.cat([Hu[:, vi:vi + k], Hv[:, vi:vi + k]], dim=-3) for _, vi, k, *_ in jets}
+        Hy = {vi: torch.cat([Hu[:, vi:vi + k], Hv[:, vi:vi + k]], dim=-3) for vi, k, *_ in jets}
         de = chart(i, dtheta, Hu)
         da, Ha = acceleration(i + 1, *stages[i], torch.cat([de, dv], dim=-2), Hu, Hv)
-        for _, vi, k, K, J, _ in jets:
+        for vi, k, K, J, _ in jets:
             r = slice(vi, vi + k)
             dy = torch.cat([h2 * dtheta[:, r], dv[:, r]], dim=-2)
             dci[:, r] = J[i] @ dy
@@ -137,11 +137,11 @@ def _hessian(view, tableau, q, qd, tau, h, f_ext, stages, w, jets, pool, out):
                         + torch.einsum("...mp,...pac->...mac", J[i], Hy[vi]))
         dc.append(dci), Hc.append(Hv), dacc.append(da), Hacc.append(Ha)
     _scaled_sum(h3, weights, Hc, out[:, :nv])
-    chart(len(rows), _combine(weights, dc), out[:, :nv])
+    chart(len(rows), combine(weights, dc), out[:, :nv])
     _scaled_sum(h3, weights, Hacc, out[:, nv:])
 
 
-def _combine(coefficients, xs):
+def combine(coefficients, xs):
     """sum_j c_j x_j over the non-zero coefficients."""
     terms = [c * x for c, x in zip(coefficients, xs) if c]
     return sum(terms[1:], terms[0])
