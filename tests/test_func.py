@@ -159,6 +159,108 @@ def test_forward_mode(robots, balls, name, convention):
     assert rel_err(torch.func.hessian(loss)(qd), torch.autograd.functional.hessian(loss, qd)) <= 1e-10
 
 
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+@pytest.mark.parametrize("name", ["go2", "balls"])
+def test_forward_mode_of_the_kernel_jvps(robots, balls, name, convention):
+    """Ops whose outputs are derivatives, differentiated in forward mode by their own kernel on dual
+    numbers: jvp against central differences along the tangent and forward_ad, jacfwd against jacrev,
+    batched, at quaternions of norm 1.2."""
+    robot = _robot(name, robots, balls)
+    view = getattr(robot, convention)
+    q, qd, _ = _state(robot, convention, 2, seed=10)
+    q = 1.2 * q
+    frame = robot.nframes - 1
+    functions = {
+        "jacobian_com": lambda q, qd: view.jacobian_com(q),
+        "potential_energy_regressor": lambda q, qd: view.potential_energy_regressor(q),
+        "ccrba": lambda q, qd: torch.cat([view.ccrba(q, qd)[0], view.ccrba(q, qd)[1].unsqueeze(-1)], -1),
+        "frame_jacobian_dot": lambda q, qd: torch.stack([view.frame_jacobian_dot(q, qd, frame, ref)
+                                                         for ref in ("local", "world", "local_world_aligned")]),
+        "cmm_time_variation": lambda q, qd: view.cmm_time_variation(q, qd),
+        "dccrba": lambda q, qd: view.dccrba(q, qd),
+        "coriolis_matrix": lambda q, qd: view.coriolis_matrix(q, qd),
+        "kinetic_energy_regressor": lambda q, qd: view.kinetic_energy_regressor(q, qd),
+        "body_velocities": lambda q, qd: view.body_velocities(q, qd),
+    }
+    g = torch.Generator().manual_seed(11)
+    tangents = tuple(torch.randn(x.shape, dtype=x.dtype, generator=g) for x in (q, qd))
+    eps = 1e-6
+    for label, fn in functions.items():
+        out, jv = torch.func.jvp(fn, (q, qd), tangents)
+        assert torch.equal(out, fn(q, qd)), label
+        fd = (fn(q + eps * tangents[0], qd + eps * tangents[1]) - fn(q - eps * tangents[0], qd - eps * tangents[1])) / (2 * eps)
+        assert rel_err(jv, fd) <= 1e-6, label
+        with forward_ad.dual_level():
+            dual = fn(*(forward_ad.make_dual(p, t) for p, t in zip((q, qd), tangents)))
+            assert rel_err(forward_ad.unpack_dual(dual).tangent, jv) <= 1e-12, label
+        J = torch.func.jacrev(fn, argnums=(0, 1))(q[0], qd[0])
+        for k, Jf in enumerate(torch.func.jacfwd(fn, argnums=(0, 1))(q[0], qd[0])):
+            assert rel_err(Jf, J[k]) <= 1e-10, label
+    H = torch.func.hessian(lambda q: view.com(q).square().sum())(q[0])
+    assert rel_err(H, torch.func.jacrev(torch.func.jacrev(lambda q: view.com(q).square().sum()))(q[0])) <= 1e-10
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+def test_per_sample_hessians_by_vmap(robots, convention):
+    """vmap of hessian (forward over reverse) and of jacfwd equal a loop over the samples: through
+    end_effector_pose's rpy rows, torch.linalg.solve had returned garbage for every sample but the first."""
+    robot = robots["go2"]
+    view = getattr(robot, convention)
+    q, qd, tau = _state(robot, convention, 3, seed=12)
+    q = 1.2 * q
+    one, two = [robot.nframes - 1], [1, robot.nframes - 1]  # (the garbage came with one frame)
+    transforms = {
+        "end_effector_pose": torch.func.hessian(lambda q, qd, tau: view.end_effector_pose(q, one).square().sum()),
+        "end_effector_pose_gradient": torch.func.jacfwd(lambda q, qd, tau: view.end_effector_pose_gradient(q, one)),
+        "end_effector_pose_gradient, two frames": torch.func.jacfwd(
+            lambda q, qd, tau: view.end_effector_pose_gradient(q, two)),
+        "forward_dynamics": torch.func.hessian(lambda q, qd, tau: view.forward_dynamics(q, qd, tau).square().sum(),
+                                               argnums=(0, 1, 2)),
+        "com": torch.func.hessian(lambda q, qd, tau: view.com(q).square().sum()),
+    }
+    for label, fn in transforms.items():
+        batched = torch.func.vmap(fn)(q, qd, tau)
+        loop = [fn(*(x[i] for x in (q, qd, tau))) for i in range(3)]
+        for got, ref in zip(torch.utils._pytree.tree_leaves(batched),
+                            [torch.stack(parts) for parts in zip(*map(torch.utils._pytree.tree_leaves, loop))]):
+            assert rel_err(got, ref) <= 1e-12, label
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+@pytest.mark.parametrize("name", ["go2", "balls"])
+def test_hessians_in_q_of_the_value_functions(robots, balls, name, convention):
+    """The Hessian in q of a weighted sum of each value function, unbatched, at quaternions of norm 1.2:
+    torch.func.hessian (forward over reverse) and jacrev of jacrev (whose cotangents carry a batch q
+    does not) against autograd's double backward and central differences of the gradient."""
+    robot = _robot(name, robots, balls)
+    view = getattr(robot, convention)
+    q, qd, x = (t[0] for t in _state(robot, convention, 1, seed=8))
+    q = 1.2 * q
+    functions = {
+        "inverse_dynamics": lambda q: view.inverse_dynamics(q, qd, x),
+        "forward_dynamics": lambda q: view.forward_dynamics(q, qd, x),
+        "crba": lambda q: view.crba(q), "minv": lambda q: view.minv(q),
+        "generalized_gravity": lambda q: view.generalized_gravity(q),
+        "nonlinear_effects": lambda q: view.nonlinear_effects(q, qd),
+        "energy": lambda q: view.energy(q, qd), "com": lambda q: view.com(q),
+        "forward_kinematics": lambda q: torch.cat([t.reshape(-1) for t in view.forward_kinematics(q)]),
+        "end_effector_pose": lambda q: view.end_effector_pose(q, [1, robot.nframes - 1]),
+    }
+    g = torch.Generator().manual_seed(9)
+    for label, fn in functions.items():
+        w = torch.randn(fn(q).shape, dtype=torch.float64, generator=g)
+
+        def loss(q):
+            return (w * fn(q)).sum()
+
+        ref = torch.autograd.functional.hessian(loss, q)
+        assert rel_err(torch.func.hessian(loss)(q), ref) <= 1e-10, label
+        assert rel_err(torch.func.jacrev(torch.func.jacrev(loss))(q), ref) <= 1e-10, label
+        eps, grad = 1e-6, torch.func.grad(loss)
+        fd = torch.stack([(grad(q + eps * e) - grad(q - eps * e)) / (2 * eps) for e in torch.eye(q.numel(), dtype=q.dtype)])
+        assert rel_err(ref, fd) <= 1e-6, label
+
+
 @pytest.mark.parametrize("name, convention", [("go2", "pin"), ("balls", "pin"), ("iiwa14", "mujoco"), ("go2", "mujoco"),
                                               ("balls", "mujoco")])
 def test_frame_jacobian_forward_mode(robots, balls, name, convention):

@@ -48,11 +48,10 @@ def test_zero_configuration_has_finite_gradients(robots, convention):
         assert grad[..., 7:].abs().sum() > 0  # the joints still get their gradient
 
 
-@pytest.mark.parametrize("name, convention", [("coriolis_matrix", "pin"), ("jacobian_com", "mujoco"),
-                                              ("frame_jacobian_dot", "mujoco")])
+@pytest.mark.parametrize("name, convention", [("inverse_dynamics_regressor", "pin"), ("osc_inertia", "mujoco"),
+                                              ("forward_dynamics_parameter_gradient", "mujoco")])
 def test_forward_mode_ad_is_refused_with_the_op_name(robots, name, convention):
-    """Ops whose outputs are derivatives have no forward mode yet, but frame_jacobian and the dynamics
-    gradients (the value ops do: test_func.py)."""
+    """The few ops without a forward mode (test_func.py tests the others) refuse it by name."""
     robot = robots["go2"]
     view = getattr(robot, convention)
     call, arity = FUNCTIONS[name]

@@ -338,8 +338,8 @@ def _end_effector_pose(ops, model, needs, grads, output, q, frames, convention):
     grad = grads[0]
     weights = torch.zeros(*q.shape[:-1], len(model.frames), 6, dtype=q.dtype, device=q.device)
     index = torch.tensor(frames, device=q.device)
-    w_ang = torch.linalg.solve(rpy_rate_matrix(output[..., 3:]).transpose(-1, -2), grad[..., 3:].unsqueeze(-1))
-    weights = weights.index_add(-2, index, torch.cat([grad[..., :3], w_ang.squeeze(-1)], dim=-1))
+    w_ang = rpy_rate_transpose_solve(output[..., 3:], grad[..., 3:])
+    weights = weights.index_add(-2, index, torch.cat([grad[..., :3], w_ang], dim=-1))
     return tangent_to_ambient(model, q, ops.frames_vjp(q, weights, convention), convention), None, None
 
 
@@ -464,13 +464,24 @@ def _sum(*terms):
     return sum(present[1:], present[0]) if present else None
 
 
-def rpy_rate_matrix(rpy: torch.Tensor) -> torch.Tensor:
-    """(..., 3, 3) E with world angular velocity w = E d(roll, pitch, yaw)/dt, R = Rz(y) Ry(p) Rx(r)."""
+# E(rpy), with world angular velocity w = E d(roll, pitch, yaw)/dt, R = Rz(y) Ry(p) Rx(r):
+#   E = [[cy cp, -sy, 0], [sy cp, cy, 0], [-sp, 0, 1]],  det E = cp (singular at pitch = +-pi/2, as rpy).
+# Its solves in closed form: torch.linalg.solve returned garbage under vmap of jacfwd (torch 2.13).
+
+def rpy_rate_solve(rpy: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    """E(rpy)^-1 x, rpy (..., 3), x (..., 3, k): the first two rows turn back by yaw, the third adds sp r_x."""
+    p, y = rpy[..., 1:2], rpy[..., 2:3]
+    sp, cy, sy = torch.sin(p), torch.cos(y), torch.sin(y)
+    r_x = (cy * x[..., 0, :] + sy * x[..., 1, :]) / torch.cos(p)
+    return torch.stack([r_x, cy * x[..., 1, :] - sy * x[..., 0, :], x[..., 2, :] + sp * r_x], dim=-2)
+
+
+def rpy_rate_transpose_solve(rpy: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
+    """E(rpy)^-T g, rpy and g (..., 3): w_z = g_z, and (w_x, w_y) turned by yaw."""
     p, y = rpy[..., 1], rpy[..., 2]
-    cp, sp, cy, sy = torch.cos(p), torch.sin(p), torch.cos(y), torch.sin(y)
-    zero, one = torch.zeros_like(p), torch.ones_like(p)
-    return torch.stack([torch.stack([cy * cp, -sy, zero], -1), torch.stack([sy * cp, cy, zero], -1),
-                        torch.stack([-sp, zero, one], -1)], dim=-2)
+    sp, cy, sy = torch.sin(p), torch.cos(y), torch.sin(y)
+    a, b = (g[..., 0] + sp * g[..., 2]) / torch.cos(p), g[..., 1]
+    return torch.stack([cy * a - sy * b, sy * a + cy * b, g[..., 2]], dim=-1)
 
 
 BACKWARDS = {

@@ -19,7 +19,7 @@ from torch.autograd import forward_ad
 from .autograd import BACKWARDS, COMPOSED_BACKWARD, backward_formula, mass_product_jvp, repeat
 from .model import RobotModel
 from .mujoco_second_order import kinematic_hessian_from_ops, second_order_from_ops
-from .ops import FORWARD_MODE_BACKWARD, OPS
+from .ops import FORWARD_MODE_BACKWARD, KERNEL_JVP, OPS
 from .tangent import tangent_to_ambient
 
 
@@ -32,6 +32,12 @@ def dual(args) -> bool:
     """Whether an argument carries a torch.autograd.forward_ad tangent."""
     return forward_ad._current_level >= 0 and any(
         isinstance(x, torch.Tensor) and forward_ad.unpack_dual(x).tangent is not None for x in args)
+
+
+# Why an op inside a backward has no derivative of its own, in the words of the function the user called.
+_THIRD = (" (it computes a derivative inside a backward: differentiating it again is a third derivative, or the "
+          "second derivative of a function whose outputs are derivatives, such as frame_jacobian or "
+          "inverse_dynamics_gradient)")
 
 
 class FuncOps:
@@ -80,7 +86,8 @@ class FuncOps:
 
         def backward(ctx, *grads):
             if formula is None:
-                raise NotImplementedError(f"torch_grid: {name} has no derivative; it cannot be back-propagated through")
+                raise NotImplementedError(f"torch_grid: {name} has no derivative; it cannot be back-propagated through"
+                                          f"{_THIRD}")
             inputs, output = saved(ctx, ctx.saved_tensors)
             return formula(outer, model, ctx.needs_input_grad, grads, output, *inputs)
 
@@ -88,7 +95,7 @@ class FuncOps:
             # The backward is linear in its cotangents u, <J^T u, t> = <u, J t>: the Jacobian-vector
             # product is the gradient of <backward(u), t> with respect to u (at u = 0).
             if formula is None:
-                raise NotImplementedError(f"torch_grid: {name} has no forward-mode derivative")
+                raise NotImplementedError(f"torch_grid: {name} has no forward-mode derivative{_THIRD}")
             # The saved tensors carry this forward-mode level's tangents: their primals, so that the ops
             # below are not differentiated by it again.
             level = torch._C._functorch.maybe_current_level()
@@ -251,13 +258,39 @@ def _forward_dynamics_gradient_jvp(ops, out, q, qd, tau, f_ext, convention, t_q,
     return -minv @ (dA + dM @ z_q), -minv @ (dB + dM @ z_qd), -minv @ dM @ minv
 
 
+def _frames_vjp_jvp(ops, _out, q, weights, convention, t_q, t_w, _):
+    """Linear in the weights: the dual-number kernel's tangent along q plus frames_vjp of t_w."""
+    terms = ([] if t_q is None else [ops.frames_vjp_jvp(q, weights, t_q, convention)]) + \
+        ([] if t_w is None else [ops.frames_vjp(q, t_w, convention)])
+    return sum(terms[1:], terms[0])
+
+
+def _body_velocities_jvp(ops, _out, q, qd, convention, t_q, t_qd, _):
+    """Linear in qd: the dual-number kernel's tangent along q plus body_velocities of t_qd."""
+    terms = ([] if t_q is None else [ops.body_velocities_jvp(q, qd, t_q, convention)]) + \
+        ([] if t_qd is None else [ops.body_velocities(q, t_qd, convention)])
+    return sum(terms[1:], terms[0])
+
+
+def _kernel_jvp(name: str) -> Callable:
+    """The tangent of an op by its dual-number kernel `<name>_jvp`, along its first inputs (q, or q and qd)."""
+    wrt = len(OPS[f"{name}_jvp"].jvp_wrt)
+
+    def rule(ops, _out, *args):
+        n = len(args) // 2  # the inputs (the last the convention), then a tangent for each
+        return getattr(ops, f"{name}_jvp")(*args[:n - 1], *args[n:n + wrt], args[n - 1])
+
+    return rule
+
+
 # Ops whose forward-mode derivative is its own formula (their backwards are made of kernels without
 # derivatives, so the generic rule above does not apply).
 _JVPS = {"inverse_dynamics_vjp": _inverse_dynamics_vjp_jvp, "inertia_solve": _inertia_solve_jvp, "crba_vjp": _crba_vjp_jvp,
          "mass_product_vjp": _mass_product_vjp_jvp,
          "inverse_dynamics_gradient": _inverse_dynamics_gradient_jvp,
          "forward_dynamics_gradient": _forward_dynamics_gradient_jvp,
-         "frame_jacobian": _frame_jacobian_jvp}
+         "frame_jacobian": _frame_jacobian_jvp, "frames_vjp": _frames_vjp_jvp, "body_velocities": _body_velocities_jvp,
+         **{name: _kernel_jvp(name) for name in KERNEL_JVP}}
 
 # Ops with a forward-mode derivative: those whose backward is differentiable in its cotangents (made of
 # ops with backwards; the backward of an op whose outputs are derivatives is not), and those with a rule.

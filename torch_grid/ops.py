@@ -213,13 +213,21 @@ def forward_mode_jvp(op: OpSpec, wrt: tuple[str, ...]) -> OpSpec:
 # Jacobian-vector products on dual numbers (autograd.py): along q and qd, the gradient of lam . tau with
 # respect to q, qd and qdd (M lam) and tau, in one pass (the backwards of inverse_dynamics_vjp, and of
 # inverse_dynamics_gradient in MuJoCo's convention with quaternions), tau alone (d(M x) along q) and
-# the body velocities (-J lam along q).
+# the body velocities (-J lam along q), and the frames' vector-Jacobian product along q (the tangent of
+# forward_kinematics' and end_effector_pose's backward: their Hessians by torch.func.hessian).
 FORWARD_MODE_JVP = (("inverse_dynamics_vjp_full", ("q", "qd")), ("inverse_dynamics", ("q", "qd")),
-                    ("body_velocities", ("q",)))
+                    ("body_velocities", ("q",)), ("frames_vjp", ("q",)))
+
+# The ops whose forward mode (torch.func.jvp, jacfwd, forward_ad; com's Hessian by torch.func.hessian) is
+# their own kernel on dual numbers along their state inputs. (inverse_dynamics_regressor's Y and
+# osc_inertia's M^-1 on dual numbers would not fit a GPU thread.)
+KERNEL_JVP = {"jacobian_com": ("q",), "potential_energy_regressor": ("q",), "ccrba": ("q", "qd"),
+              "frame_jacobian_dot": ("q", "qd"), "cmm_time_variation": ("q", "qd"), "dccrba": ("q", "qd"),
+              "coriolis_matrix": ("q", "qd"), "kinetic_energy_regressor": ("q", "qd")}
 
 OPS: dict[str, OpSpec] = {op.name: op for op in _VALUE_OPS}
 OPS.update({f"{name}_backward": forward_mode_backward(OPS[name]) for name in FORWARD_MODE_BACKWARD})
-OPS.update({f"{name}_jvp": forward_mode_jvp(OPS[name], wrt) for name, wrt in FORWARD_MODE_JVP})
+OPS.update({f"{name}_jvp": forward_mode_jvp(OPS[name], wrt) for name, wrt in FORWARD_MODE_JVP + tuple(KERNEL_JVP.items())})
 
 
 def check_table(table: dict[str, OpSpec]) -> None:

@@ -11,7 +11,7 @@ from typing import Sequence
 import torch
 
 from . import mujoco_second_order
-from .autograd import rpy_rate_matrix
+from .autograd import rpy_rate_solve
 from .configuration import ConfigurationFunctions, Space
 from .costs import CostFunctions
 from .horizon import HorizonFunctions
@@ -223,7 +223,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
             raise TypeError(f"end_effector_pose_gradient: frames must be a list of frame names or indices, got {frames!r}")
         rpy = self.end_effector_pose(q, frames)[..., 3:]
         J = torch.stack([self.frame_jacobian(q, f, "local_world_aligned") for f in frames], dim=-3)
-        return torch.cat([J[..., :3, :], torch.linalg.solve(rpy_rate_matrix(rpy), J[..., 3:, :])], dim=-2)
+        return torch.cat([J[..., :3, :], rpy_rate_solve(rpy, J[..., 3:, :])], dim=-2)
 
     def end_effector_pose_hessian(self, q, frames: Sequence[str | int]) -> torch.Tensor:
         """Second derivative of end_effector_pose along the tangent, (..., len(frames), 6, nv, nv):
@@ -235,8 +235,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         rpy = self.end_effector_pose(q, frames)[..., 3:]
         J = torch.stack([self.frame_jacobian(q, f, "local_world_aligned") for f in frames], dim=-3)
         H = torch.stack([self.frame_kinematic_hessian(q, f, "local_world_aligned") for f in frames], dim=-4)
-        E = rpy_rate_matrix(rpy)
-        G = torch.linalg.solve(E, J[..., 3:, :])  # the rpy rows of the gradient
+        G = rpy_rate_solve(rpy, J[..., 3:, :])  # the rpy rows of the gradient
         p, y = rpy[..., 1], rpy[..., 2]
         cp, sp, cy, sy = torch.cos(p), torch.sin(p), torch.cos(y), torch.sin(y)
         zero = torch.zeros_like(p)
@@ -248,7 +247,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         dE = dE_dp.unsqueeze(-1) * G[..., 1:2, :].unsqueeze(-2) + dE_dy.unsqueeze(-1) * G[..., 2:3, :].unsqueeze(-2)
         inner = H[..., 3:, :, :] - torch.einsum("...abk,...bj->...ajk", dE, G)
         nv = J.shape[-1]
-        rot = torch.linalg.solve(E, inner.flatten(-2)).unflatten(-1, (nv, nv))
+        rot = rpy_rate_solve(rpy, inner.flatten(-2)).unflatten(-1, (nv, nv))
         return torch.cat([H[..., :3, :, :], rot], dim=-3)
 
     def inverse_dynamics_external_force_gradient(self, q) -> torch.Tensor:

@@ -132,6 +132,9 @@ def tangent_to_ambient(model: RobotModel, q: torch.Tensor, g: torch.Tensor, conv
     lay = layout(model)
     if not lay.quaternions:
         return g
+    # q's batch may differ from g's (a cotangent carries a batch of its own under torch.func transforms)
+    batch = torch.broadcast_shapes(q.shape[:-1], g.shape[:-1])
+    q, g = q.expand(*batch, q.shape[-1]), g.expand(*batch, g.shape[-1])
     # Each coordinate of q once, as (its indices, its gradient), put in q's order at the end: out of
     # place, so that torch.func.vmap batches it.
     indices, parts = [], []
