@@ -201,6 +201,32 @@ def test_forward_mode_of_the_kernel_jvps(robots, balls, name, convention):
 
 
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
+@pytest.mark.parametrize("name", ["go2", "balls"])
+def test_forward_mode_of_the_composed_functions(robots, balls, name, convention):
+    """In forward mode the external-force gradients and osc_inertia are composed of ops that have one
+    (body_velocities, minv, frame_jacobian): the same values as their kernels, and tangents against
+    central differences, forward_ad and jacrev, at quaternions of norm 1.2."""
+    robot = _robot(name, robots, balls)
+    view = getattr(robot, convention)
+    q = 1.2 * _state(robot, convention, 2, seed=13)[0]
+    frame = robot.nframes - 1
+    functions = {
+        "inverse_dynamics_external_force_gradient": view.inverse_dynamics_external_force_gradient,
+        "forward_dynamics_external_force_gradient": view.forward_dynamics_external_force_gradient,
+        "osc_inertia": lambda q: torch.stack([view.osc_inertia(q, frame, ref) for ref in ("local", "local_world_aligned")]),
+    }
+    t = torch.randn(q.shape, dtype=q.dtype, generator=torch.Generator().manual_seed(14))
+    eps = 1e-6
+    for label, fn in functions.items():
+        with forward_ad.dual_level():
+            value, tangent = forward_ad.unpack_dual(fn(forward_ad.make_dual(q, t)))
+        assert rel_err(value, fn(q)) <= 1e-12, label
+        assert rel_err(tangent, (fn(q + eps * t) - fn(q - eps * t)) / (2 * eps)) <= 1e-6, label
+        assert rel_err(torch.func.jvp(fn, (q,), (t,))[1], tangent) <= 1e-12, label
+        assert rel_err(torch.func.jacfwd(fn)(q[0]), torch.func.jacrev(fn)(q[0])) <= 1e-10, label
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
 def test_per_sample_hessians_by_vmap(robots, convention):
     """vmap of hessian (forward over reverse) and of jacfwd equal a loop over the samples: through
     end_effector_pose's rpy rows, torch.linalg.solve had returned garbage for every sample but the first."""

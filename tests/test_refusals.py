@@ -48,7 +48,7 @@ def test_zero_configuration_has_finite_gradients(robots, convention):
         assert grad[..., 7:].abs().sum() > 0  # the joints still get their gradient
 
 
-@pytest.mark.parametrize("name, convention", [("inverse_dynamics_regressor", "pin"), ("osc_inertia", "mujoco"),
+@pytest.mark.parametrize("name, convention", [("inverse_dynamics_regressor", "pin"), ("inverse_dynamics_regressor", "mujoco"),
                                               ("forward_dynamics_parameter_gradient", "mujoco")])
 def test_forward_mode_ad_is_refused_with_the_op_name(robots, name, convention):
     """The few ops without a forward mode (test_func.py tests the others) refuse it by name."""

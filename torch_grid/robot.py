@@ -252,11 +252,21 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
 
     def inverse_dynamics_external_force_gradient(self, q) -> torch.Tensor:
         """d inverse_dynamics / d f_ext (..., nv, nbodies, 6) = -J_k^T, J_k body k's Jacobian in its joint frame."""
+        if _forward_mode((q,)):
+            return -self._body_jacobians(q)
         return self._call("inverse_dynamics_external_force_gradient", q)
 
     def forward_dynamics_external_force_gradient(self, q) -> torch.Tensor:
         """d forward_dynamics / d f_ext (..., nv, nbodies, 6) = M^-1 J_k^T."""
+        if _forward_mode((q,)):
+            return (self.minv(q) @ self._body_jacobians(q).flatten(-2)).unflatten(-1, (self._robot.nbodies, 6))
         return self._call("forward_dynamics_external_force_gradient", q)
+
+    def _body_jacobians(self, q) -> torch.Tensor:
+        """(..., nv, nbodies, 6): [m, k] = J_k e_m, from body_velocities (linear in qd), which has a forward
+        mode: the external-force gradients in forward mode (their kernels have none)."""
+        eye = torch.eye(self._robot.nv, dtype=q.dtype, device=q.device)
+        return self.body_velocities(q.unsqueeze(-2), eye)
 
     def osc_inertia(self, q, frame: str | int, reference: str = "local_world_aligned") -> torch.Tensor:
         """Operational-space inertia Lambda = (J M^-1 J^T)^-1 (..., 6, 6) of a frame, J its Jacobian in
@@ -269,6 +279,9 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         if dofs < 6:
             raise ValueError(f"osc_inertia: frame {robot.frame_names[index]!r} is moved by {dofs} dofs; its operational-"
                              "space inertia exists only for a frame with full 6-dof mobility")
+        if _forward_mode((q,)):  # composed of ops that have a forward mode (the kernel has none)
+            J = self.frame_jacobian(q, index, reference)
+            return torch.linalg.inv(J @ self.minv(q) @ J.mT)
         return self._call("osc_inertia", q, index, _reference(reference))
 
     def cmm_time_variation(self, q, qd) -> torch.Tensor:
@@ -374,7 +387,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         if torch.compiler.is_compiling():
             return op(*_checked(name, robot._tensor_args[name], args), self._convention)
         stack = torch._C._functorch.get_interpreter_stack()
-        forward = (bool(stack) and any(i.key() == torch._C._functorch.TransformType.Jvp for i in stack)) or dual(args)
+        forward = _forward_mode(args)
         if forward and name not in FORWARD_MODE:
             # without this check forward mode would return zero tangents
             raise NotImplementedError(f"torch_grid: {name} has no forward-mode derivative (torch.func.jvp, jacfwd, "
@@ -556,6 +569,15 @@ def _fd_second_order(d2q, d2qd, dqdqd, dM, z_q, z_qd, minv):
     # [i, j, k] = sum_b (-M^-1 dM)[i, b, k] M^-1[b, j], M^-1 symmetric
     d2qdd_dtaudq = right(solve(dM).transpose(-1, -2), minv).transpose(-1, -2)
     return solve(d2qdd_dq2), solve(d2qd), solve(d2qdd_dqdqd), d2qdd_dtaudq
+
+
+def _forward_mode(args) -> bool:
+    """Whether forward-mode AD sees the call: a torch.func jvp transform, or a forward_ad dual argument
+    (never while torch.compile traces, which runs the kernels)."""
+    if torch.compiler.is_compiling():
+        return False
+    stack = torch._C._functorch.get_interpreter_stack()
+    return (bool(stack) and any(i.key() == torch._C._functorch.TransformType.Jvp for i in stack)) or dual(args)
 
 
 def _reference(reference) -> int:
