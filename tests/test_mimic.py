@@ -201,6 +201,25 @@ def test_gradcheck_every_function(gripper, convention, function):
                                     fast_mode=True)
 
 
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+def test_per_sample_jacobians_and_hessians_by_vmap(gripper, convention):
+    """vmap of jacfwd and of hessian through the reduced M's solve equal a loop over the samples
+    (torch.linalg.solve had returned garbage under vmap of jacfwd)."""
+    robot = gripper[0]
+    view = getattr(robot, convention)
+    q, v, a, _ = _states(robot, convention)
+    transforms = {
+        "jacfwd": torch.func.jacfwd(view.forward_dynamics, argnums=(0, 1, 2)),
+        "hessian": torch.func.hessian(lambda *x: view.forward_dynamics(*x).square().sum(), argnums=(0, 1, 2)),
+        "jacfwd of the gradient": torch.func.jacfwd(lambda *x: view.forward_dynamics_gradient(*x)[0]),
+    }
+    for label, fn in transforms.items():
+        batched = torch.utils._pytree.tree_leaves(torch.func.vmap(fn)(q, v, a))
+        loop = [torch.utils._pytree.tree_leaves(fn(q[i], v[i], a[i])) for i in range(q.shape[0])]
+        for got, ref in zip(batched, [torch.stack(parts) for parts in zip(*loop)]):
+            assert rel_err(got, ref) <= 1e-10, label
+
+
 def test_serialization_keeps_the_coupling(gripper, tmp_path):
     robot, _, _ = gripper
     again = pickle.loads(pickle.dumps(robot))

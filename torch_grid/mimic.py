@@ -168,7 +168,9 @@ def _forward_dynamics(c: Coupling, call: Callable, q, qd, tau, f_ext=None):
     q_full, qd_full = c.q(q), c.v(qd)
     M = c.both(call("crba", q_full))
     bias = c.rows(call("inverse_dynamics", q_full, qd_full, torch.zeros_like(qd_full), f_ext), -1)
-    return torch.linalg.solve(M, (tau - bias).unsqueeze(-1)).squeeze(-1)
+    # by Cholesky (M is symmetric positive definite): torch.linalg.solve returned garbage under vmap of
+    # jacfwd (torch 2.13)
+    return torch.cholesky_solve((tau - bias).unsqueeze(-1), torch.linalg.cholesky(M)).squeeze(-1)
 
 
 def _minv(c: Coupling, call: Callable, q):
