@@ -106,3 +106,30 @@ def test_frame_kinematic_hessian_and_pose_hessian(models, name, reference):
     assert rel_err(H_, _along(lambda p: view.frame_jacobian(p, frame, reference), plus, minus)[0]) <= 1e-6
     pose = view.end_effector_pose_hessian(q, [frame])
     assert rel_err(pose, _along(lambda p: view.end_effector_pose_gradient(p, [frame]), plus, minus)[0]) <= 1e-6
+
+
+@pytest.mark.parametrize("name", ["go2", "trees"])
+def test_broadcast_batches_and_vmap_with_inputs_held_fixed(models, name):
+    """The composed MuJoCo-convention tensors broadcast their inputs' batch shapes as the kernels do (q
+    unbatched beside a batch of velocities, qdd or f_ext unbatched), and vmap them over some inputs only:
+    equal to the call on the expanded inputs and to a loop."""
+    robot = models[name][0]
+    view = robot.mujoco
+    q, _, _, f = _state(robot, 31)
+    g = torch.Generator().manual_seed(32)
+    qd, x = (torch.randn(3, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
+    functions = {
+        "inverse_dynamics_second_order": lambda q, qd, x: view.inverse_dynamics_second_order(q, qd, x, f),
+        "forward_dynamics_second_order": lambda q, qd, x: view.forward_dynamics_second_order(q, qd, x, f),
+        "step_second_derivatives": lambda q, qd, x: (view.step_second_derivatives(q, qd, x, 0.01, f_ext=f),),
+    }
+    for label, fn in functions.items():
+        expanded = fn(q.expand(3, -1), qd, x)
+        for got, ref in zip(fn(q, qd, x), expanded):
+            assert rel_err(got, ref) <= 1e-14, label
+        for got, ref in zip(fn(q.expand(3, -1), qd, x[0]), fn(q.expand(3, -1), qd, x[0].expand(3, -1))):
+            assert rel_err(got, ref) <= 1e-14, label
+        if label != "step_second_derivatives":  # which refuses torch.func transforms
+            for got, ref in zip(torch.func.vmap(fn, in_dims=(None, 0, None))(q, qd, x[0]),
+                                fn(q.expand(3, -1), qd, x[0].expand(3, -1))):
+                assert rel_err(got, ref) <= 1e-12, label

@@ -66,9 +66,18 @@ def _rotate(X: torch.Tensor, dim: int, frees: list[_Free]) -> torch.Tensor:
 def _block(X: torch.Tensor, dim: int, rows: slice, cols: slice, D: torch.Tensor) -> torch.Tensor:
     """X contracted along `dim` with an nv x nv map that is the 3 x 3 block D (..., 3, 3) at (rows, cols)."""
     X = X.movedim(dim, -1)
-    out = torch.zeros_like(X)
-    out[..., cols] = (X[..., rows].unsqueeze(-2) @ _expand(D, X.dim() + 1)).squeeze(-2)
-    return out.movedim(-1, dim)
+    value = (X[..., rows].unsqueeze(-2) @ _expand(D, X.dim() + 1)).squeeze(-2)
+    return _padded(value, (cols,), X.shape[-1:]).movedim(-1, dim)
+
+
+def _padded(value: torch.Tensor, where: tuple[slice, ...], size) -> torch.Tensor:
+    """value placed at the slices `where` of its last dimensions, zero elsewhere, those dimensions of the
+    given size: out of place, so that vmap batches it whether or not value is batched."""
+    pads = []
+    for s, n in zip(reversed(where), reversed(tuple(size))):
+        r = range(n)[s]
+        pads += [r.start, n - r.stop]
+    return torch.nn.functional.pad(value, pads)
 
 
 def _expand(D: torch.Tensor, dims: int) -> torch.Tensor:
@@ -105,9 +114,7 @@ def _dav(f: _Free):
 
 def _put(out: torch.Tensor, rows: slice, j: slice, k: slice, value: torch.Tensor) -> torch.Tensor:
     """out[..., rows, j, k] += value (..., len(rows), 3, 3) (out of place)."""
-    pad = torch.zeros_like(out)
-    pad[..., rows, j, k] = value
-    return out + pad
+    return out + _padded(value, (rows, j, k), out.shape[-3:])
 
 
 def _lin_times(X: torch.Tensor, f: _Free, E: torch.Tensor) -> torch.Tensor:
@@ -200,6 +207,9 @@ def second_order_from_ops(ops, model, q, qd, qdd, f_ext):
     """MuJoCo's four tensors at MuJoCo's (q, qd, qdd), from Pinocchio's ops (convention 0) at the
     converted state. Passive joint forces (hinge and slide) do not reach them: they are linear, and
     no term here reads their rows."""
+    # one batch shape for the state: the reframes below combine q's and the velocities' per sample
+    batch = torch.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1], () if f_ext is None else f_ext.shape[:-2])
+    q, qd, qdd = (x.expand(*batch, x.shape[-1]) for x in (q, qd, qdd))
     free = free_joints(model)
     q_pin = q_mjx_to_pin(q, balls=ball_joints(model), free=free)
     v_pin = v_mjx_to_pin(q_pin, qd, free=free)
