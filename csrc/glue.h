@@ -46,6 +46,9 @@ namespace tg {
 // transparent huge pages.
 struct LargeBlocks {
   static constexpr size_t kMin = size_t(128) << 10, kPage = size_t(4) << 10, kHuge = size_t(2) << 20;
+  // At most this many blocks: a loop over ever new batch sizes would otherwise keep thousands of small
+  // blocks that are never reused, each searched on every output.
+  static constexpr size_t kMaxBlocks = 256;
   static size_t rounded(size_t bytes) {
     const size_t unit = bytes < kHuge ? kPage : kHuge;
     return (bytes + unit - 1) / unit * unit;
@@ -86,7 +89,7 @@ struct LargeBlocks {
       std::lock_guard<std::mutex> lock(state().mutex);
       auto& kept = state().kept;
       size_t n = 0;  // the oldest blocks that make room
-      while (state().bytes + size > keep()) {
+      while (state().bytes + size > keep() || kept.size() - n >= kMaxBlocks) {
         evicted.push_back(kept[n].first);
         state().bytes -= kept[n++].second;
       }

@@ -219,6 +219,12 @@ def test_mid_size_cpu_outputs_reuse_their_blocks_and_empty_cache_frees_them(robo
     del again
     assert torch_grid.empty_cache() >= nbytes
     assert torch_grid.empty_cache() == 0
+    # at most 256 blocks, the latest used: a loop over ever new batch sizes does not pile up blocks
+    kept, many = [], robot.random_configuration(800, generator=torch.Generator().manual_seed(5))
+    for n in range(60, 800):  # each output freed at once; sizes in 4 KiB pages (under 2 MiB), some shared
+        size = (robot.crba(many[:n]).nbytes + 4095) // 4096 * 4096
+        kept = [k for k in kept if k != size][-255:] + [size]
+    assert len(set(kept)) == 256 and torch_grid.empty_cache() == sum(kept)
 
 
 def test_meta_tensors_propagate_shapes(robots):

@@ -27,8 +27,8 @@ def empty_cache() -> int:
 
     An output above 128 KiB is, once freed, kept and handed to the next output of the same size,
     so that a loop over one batch size maps and zeroes its memory once. Up to a quarter of the
-    machine's memory (at least 1 GiB; TORCH_GRID_KEEP_MB sets it) is kept, the longest-kept
-    blocks making room for newer ones. Like torch.cuda.empty_cache, this returns it to the system.
+    machine's memory (at least 1 GiB; TORCH_GRID_KEEP_MB sets it) is kept in at most 256 blocks, the
+    longest-kept blocks making room for newer ones. Like torch.cuda.empty_cache, this returns it to the system.
     """
     return release_kept_blocks()
 
