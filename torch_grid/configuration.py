@@ -24,6 +24,7 @@ import torch
 
 from .conventions import quaternion_rotation, unit_quaternion
 from .func import dual, transforming
+from .tangent import broadcast_batch
 
 
 @dataclass(frozen=True)
@@ -49,7 +50,7 @@ class Space:
 
 def integrate(space: Space, q: torch.Tensor, v: torch.Tensor, dt, convention: int) -> torch.Tensor:
     """(..., nq): q (+) v dt, for q (..., nq), v (..., nv) and dt a number or a (...,) tensor."""
-    q, v = _broadcast(q, v)
+    q, v = broadcast_batch(q, v)
     v = v * _dt(dt, v)
     parts = []
     for kind, qi, vi in zip(space.kinds, space.qi, space.vi):
@@ -73,7 +74,7 @@ def integrate(space: Space, q: torch.Tensor, v: torch.Tensor, dt, convention: in
 
 def difference(space: Space, q0: torch.Tensor, q1: torch.Tensor, convention: int) -> torch.Tensor:
     """(..., nv): the tangent v with q0 (+) v = q1 (the shortest rotation)."""
-    q0, q1 = _broadcast(q0, q1)
+    q0, q1 = broadcast_batch(q0, q1)
     parts = []
     for kind, qi in zip(space.kinds, space.qi):
         if kind == "scalar":
@@ -91,7 +92,7 @@ def difference(space: Space, q0: torch.Tensor, q1: torch.Tensor, convention: int
 
 def d_integrate(space: Space, q: torch.Tensor, v: torch.Tensor, dt, convention: int) -> tuple[torch.Tensor, torch.Tensor]:
     """(J_q, J_v), each (..., nv, nv): the tangent Jacobians of q (+) v dt."""
-    q, v = _broadcast(q, v)
+    q, v = broadcast_batch(q, v)
     blocks = d_integrate_blocks(space, q, v, dt, convention)
     eye = torch.eye(space.nv, dtype=v.dtype, device=v.device).expand(*v.shape[:-1], space.nv, space.nv)
     return tangent_map(blocks, 0, eye), tangent_map(blocks, 1, eye) * _dt(dt, v).unsqueeze(-1)
@@ -146,7 +147,7 @@ def tangent_map(blocks: list, which: int, x: torch.Tensor) -> torch.Tensor:
 def d_difference(space: Space, q0: torch.Tensor, q1: torch.Tensor, convention: int) -> tuple[torch.Tensor, torch.Tensor]:
     """(J_q0, J_q1), each (..., nv, nv): the tangent Jacobians of difference(q0, q1); J_q0 is minus the
     identity on the scalar coordinates, J_q1 the identity."""
-    q0, q1 = _broadcast(q0, q1)
+    q0, q1 = broadcast_batch(q0, q1)
     d = difference(space, q0, q1, convention)
     blocks = []  # per quaternion joint: (vi, -J_q0's block, J_q1's block)
     for kind, vi in zip(space.kinds, space.vi):
@@ -174,7 +175,7 @@ def dexp_inverse(space: Space, theta: torch.Tensor, v: torch.Tensor, convention:
     dexp(theta) the J_v of d_integrate (dt = 1): the rate of theta for which q (+) theta(t) moves with v
     (Munthe-Kaas's Runge-Kutta stages). Per quaternion joint Jr(w)^-1 on the rotation; in Pinocchio's
     convention SE(3)'s Jexp6(theta)^-1 on a free joint; the other coordinates unchanged."""
-    theta, v = _broadcast(theta, v)
+    theta, v = broadcast_batch(theta, v)
     parts = []
     for kind, vi in zip(space.kinds, space.vi):
         n = {"free": 6, "ball": 3}.get(kind, 1)
@@ -188,7 +189,7 @@ def d_dexp_inverse_blocks(space: Space, theta: torch.Tensor, v: torch.Tensor, co
     is the identity elsewhere, d/dtheta zero. d/dtheta by forward-mode AD of the block's closed form, or,
     inside a torch.autograd.forward_ad level (which torch.func.jacfwd may not nest in), by reverse mode
     with create_graph, whose own forward-mode derivative the outer level takes."""
-    theta, v = _broadcast(theta, v)
+    theta, v = broadcast_batch(theta, v)
     outer = not transforming() and dual((theta, v))
     blocks = []
     for kind, vi in zip(space.kinds, space.vi):
@@ -393,11 +394,6 @@ def _q_right(rho: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
 
 
 # -- layout --------------------------------------------------------------------------------------------
-
-def _broadcast(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    batch = torch.broadcast_shapes(a.shape[:-1], b.shape[:-1])
-    return a.expand(*batch, a.shape[-1]), b.expand(*batch, b.shape[-1])
-
 
 def _dt(dt, v: torch.Tensor) -> torch.Tensor:
     """dt as (..., 1) against v's batch."""

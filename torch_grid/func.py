@@ -258,18 +258,16 @@ def _forward_dynamics_gradient_jvp(ops, out, q, qd, tau, f_ext, convention, t_q,
     return -minv @ (dA + dM @ z_q), -minv @ (dB + dM @ z_qd), -minv @ dM @ minv
 
 
-def _frames_vjp_jvp(ops, _out, q, weights, convention, t_q, t_w, _):
-    """Linear in the weights: the dual-number kernel's tangent along q plus frames_vjp of t_w."""
-    terms = ([] if t_q is None else [ops.frames_vjp_jvp(q, weights, t_q, convention)]) + \
-        ([] if t_w is None else [ops.frames_vjp(q, t_w, convention)])
-    return sum(terms[1:], terms[0])
+def _linear_jvp(name: str) -> Callable:
+    """The tangent of an op of (q, x) linear in x: its dual-number kernel `<name>_jvp` along q, plus the op
+    of x's tangent."""
 
+    def rule(ops, _out, q, x, convention, t_q, t_x, _):
+        terms = ([] if t_q is None else [getattr(ops, f"{name}_jvp")(q, x, t_q, convention)]) + \
+            ([] if t_x is None else [getattr(ops, name)(q, t_x, convention)])
+        return sum(terms[1:], terms[0])
 
-def _body_velocities_jvp(ops, _out, q, qd, convention, t_q, t_qd, _):
-    """Linear in qd: the dual-number kernel's tangent along q plus body_velocities of t_qd."""
-    terms = ([] if t_q is None else [ops.body_velocities_jvp(q, qd, t_q, convention)]) + \
-        ([] if t_qd is None else [ops.body_velocities(q, t_qd, convention)])
-    return sum(terms[1:], terms[0])
+    return rule
 
 
 def _kernel_jvp(name: str) -> Callable:
@@ -289,7 +287,8 @@ _JVPS = {"inverse_dynamics_vjp": _inverse_dynamics_vjp_jvp, "inertia_solve": _in
          "mass_product_vjp": _mass_product_vjp_jvp,
          "inverse_dynamics_gradient": _inverse_dynamics_gradient_jvp,
          "forward_dynamics_gradient": _forward_dynamics_gradient_jvp,
-         "frame_jacobian": _frame_jacobian_jvp, "frames_vjp": _frames_vjp_jvp, "body_velocities": _body_velocities_jvp,
+         "frame_jacobian": _frame_jacobian_jvp, "frames_vjp": _linear_jvp("frames_vjp"),
+         "body_velocities": _linear_jvp("body_velocities"),
          **{name: _kernel_jvp(name) for name in KERNEL_JVP}}
 
 # Ops with a forward-mode derivative: those whose backward is differentiable in its cotangents (made of

@@ -387,7 +387,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         if torch.compiler.is_compiling():
             return op(*_checked(name, robot._tensor_args[name], args), self._convention)
         stack = torch._C._functorch.get_interpreter_stack()
-        forward = _forward_mode(args)
+        forward = _forward_mode(args, stack)
         if forward and name not in FORWARD_MODE:
             # without this check forward mode would return zero tangents
             raise NotImplementedError(f"torch_grid: {name} has no forward-mode derivative (torch.func.jvp, jacfwd, "
@@ -571,12 +571,14 @@ def _fd_second_order(d2q, d2qd, dqdqd, dM, z_q, z_qd, minv):
     return solve(d2qdd_dq2), solve(d2qd), solve(d2qdd_dqdqd), d2qdd_dtaudq
 
 
-def _forward_mode(args) -> bool:
-    """Whether forward-mode AD sees the call: a torch.func jvp transform, or a forward_ad dual argument
-    (never while torch.compile traces, which runs the kernels)."""
+def _forward_mode(args, stack=None) -> bool:
+    """Whether forward-mode AD sees the call: a torch.func jvp transform (in `stack`, torch.func's
+    interpreter stack, read when not given), or a forward_ad dual argument (never while torch.compile
+    traces, which runs the kernels)."""
     if torch.compiler.is_compiling():
         return False
-    stack = torch._C._functorch.get_interpreter_stack()
+    if stack is None:
+        stack = torch._C._functorch.get_interpreter_stack()
     return (bool(stack) and any(i.key() == torch._C._functorch.TransformType.Jvp for i in stack)) or dual(args)
 
 

@@ -94,14 +94,19 @@ def tangent_directions(model: RobotModel, q: torch.Tensor, convention: int) -> t
     return t.index_copy(-1, index, torch.cat(values, dim=-1)).unflatten(-1, (model.nv, nq))
 
 
+def broadcast_batch(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """a (..., n) and b (..., m) expanded to their common batch shape."""
+    batch = torch.broadcast_shapes(a.shape[:-1], b.shape[:-1])
+    return a.expand(*batch, a.shape[-1]), b.expand(*batch, b.shape[-1])
+
+
 def ambient_direction(model: RobotModel, q: torch.Tensor, u: torch.Tensor, convention: int) -> torch.Tensor:
     """(..., nq): the change of q along the tangent vector u (..., nv), u^T tangent_directions(q)
     without the nv x nq matrix."""
     lay = layout(model)
     if not lay.quaternions:
         return u
-    batch = torch.broadcast_shapes(q.shape[:-1], u.shape[:-1])
-    q, u = q.expand(*batch, q.shape[-1]), u.expand(*batch, u.shape[-1])
+    q, u = broadcast_batch(q, u)
     indices, parts = [], []
     if lay.scalar_q:
         indices += list(lay.scalar_q)
@@ -133,8 +138,7 @@ def tangent_to_ambient(model: RobotModel, q: torch.Tensor, g: torch.Tensor, conv
     if not lay.quaternions:
         return g
     # q's batch may differ from g's (a cotangent carries a batch of its own under torch.func transforms)
-    batch = torch.broadcast_shapes(q.shape[:-1], g.shape[:-1])
-    q, g = q.expand(*batch, q.shape[-1]), g.expand(*batch, g.shape[-1])
+    q, g = broadcast_batch(q, g)
     # Each coordinate of q once, as (its indices, its gradient), put in q's order at the end: out of
     # place, so that torch.func.vmap batches it.
     indices, parts = [], []
