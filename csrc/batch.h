@@ -23,6 +23,10 @@ struct Batch {
   int64_t out_stride[kMaxOut] = {};
   int iargs[kMaxIargs] = {};
   int n_iargs = 0;
+  // The outputs already hold zeros wherever the op's kernel writes nothing (the glue's own buffer, zeroed
+  // once and refilled sample after sample by the same kernel): a kernel that writes a fixed pattern of
+  // entries (inverse_dynamics_second_order) then skips zero-filling the rest.
+  bool zeroed = false;
 };
 
 template <template <class, class, int> class Op, class M, class S, int C>
@@ -31,7 +35,7 @@ TG_HD void run_sample(const Batch& b, int64_t s) {
   S* out[kMaxOut];
   for (int k = 0; k < kMaxIn; ++k) in[k] = b.in[k] ? static_cast<const S*>(b.in[k]) + s * b.in_stride[k] : nullptr;
   for (int k = 0; k < kMaxOut; ++k) out[k] = b.out[k] ? static_cast<S*>(b.out[k]) + s * b.out_stride[k] : nullptr;
-  Op<M, S, C>::run(in, out, b.iargs, b.n_iargs);
+  Op<M, S, C>::run(in, out, b.iargs, b.n_iargs, b.zeroed);
 }
 
 // Ops that split a sample into independent work items (a forward-mode backward: one per input

@@ -275,3 +275,21 @@ def test_forward_dynamics_second_order_chunks_equal_the_whole_batch(robots):
     for a, b in zip(chunked, whole):
         assert a.shape == (5, 10, robot.nv, robot.nv, robot.nv)
         assert torch.allclose(a.reshape(b.shape), b.detach(), rtol=1e-12, atol=1e-12)
+
+
+def test_a_batch_written_through_the_buffer_equals_small_batches(robots):
+    """A batch whose tensors exceed the cache (go2: 190 kB a sample; above 8 MB in all) goes through a
+    buffer zeroed once, where each sample writes its entries over the previous one's: the same numbers
+    as batches of two (written in place, zero-filled), structural zeros included; after a call of
+    another op on the same batch too."""
+    robot = robots["go2"]
+    q, qd, qdd, _ = _states(robot, 64, seed=13)
+    qdd[5:] = 0  # samples whose entries are partly zero
+    big = robot.inverse_dynamics_second_order(q, qd, qdd)
+    robot.inverse_dynamics_gradient(q, qd, qdd)
+    again = robot.inverse_dynamics_second_order(q, qd, qdd)
+    for s in range(0, 64, 2):
+        small = robot.inverse_dynamics_second_order(q[s:s + 2], qd[s:s + 2], qdd[s:s + 2])
+        for a, b, c in zip(big, again, small):
+            assert torch.equal(a[s:s + 2], c) and torch.equal(b[s:s + 2], c)
+    assert (big[0] == 0).float().mean() > 0.3  # the zeros are there to be kept

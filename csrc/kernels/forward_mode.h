@@ -111,7 +111,7 @@ struct ForwardModeVjp {
   // each), or all of them in turn through run().
   static constexpr int kCoordinates = In::total;
 
-  TG_HD static void run(const S* const* in, S* const* out, const int* iargs, int n_iargs) {
+  TG_HD static void run(const S* const* in, S* const* out, const int* iargs, int n_iargs, bool = false) {
     for (int c = 0; c < kCoordinates; ++c) run_coordinate(in, out, iargs, n_iargs, c);
   }
 
@@ -155,7 +155,7 @@ struct ForwardModeVjp {
 // every output. One forward pass on dual numbers per sample.
 template <template <class, class, int> class Op, class M, class S, int C, class In, class Out, class Wrt>
 struct ForwardModeJvp {
-  TG_HD static void run(const S* const* in, S* const* out, const int* iargs, int n_iargs) {
+  TG_HD static void run(const S* const* in, S* const* out, const int* iargs, int n_iargs, bool = false) {
     using D = Dual<S>;
     constexpr int NI = In::count, NO = Out::count;
     D x[In::total], y[Out::total];

@@ -226,7 +226,7 @@ template <class M, class S> struct InverseDynamicsSecondOrder {
     const Placements<M, S> K(a.q);
     RneaDerivativesWork<M, S> W;
     rnea_derivatives_setup<M, S>(K, a.qd, a.qdd, a.f_ext, W);
-    rnea_second_order<M, S>(W, a.d2tau_dq2, a.d2tau_dqd2, a.d2tau_dqdqd, a.dM_dq);
+    rnea_second_order<M, S>(W, a.d2tau_dq2, a.d2tau_dqd2, a.d2tau_dqdqd, a.dM_dq, a.outputs_zeroed);
   }
 };
 

@@ -72,6 +72,53 @@ TG_HD PairTerms<S> pair_terms(const RneaDerivativesWork<M, S>& W, const ColumnTe
   return p;
 }
 
+// Eight values that one instruction adds or multiplies on a CPU with 512-bit vectors (GCC's vector
+// extension); a plain array on a GPU thread.
+#if defined(__GNUC__) && !defined(__CUDACC__)
+template <class S> struct Lanes {
+  typedef S V __attribute__((vector_size(8 * sizeof(S))));
+  V x;
+  TG_HD S operator[](int l) const { return x[l]; }
+  TG_HD void fma(S a, const Lanes& b) { x += a * b.x; }
+  TG_HD void fma(const Lanes& a, const Lanes& b) { x += a.x * b.x; }
+};
+#else
+template <class S> struct Lanes {
+  S x[8];
+  TG_HD S operator[](int l) const { return x[l]; }
+  TG_HD void fma(S a, const Lanes& b) {
+    for (int l = 0; l < 8; ++l) x[l] += a * b.x[l];
+  }
+  TG_HD void fma(const Lanes& a, const Lanes& b) {
+    for (int l = 0; l < 8; ++l) x[l] += a.x[l] * b.x[l];
+  }
+};
+#endif
+template <class S> TG_HD Lanes<S> lanes(S a, S b, S c, S d, S e, S f, S g, S h) {
+  Lanes<S> L;
+  L.x[0] = a, L.x[1] = b, L.x[2] = c, L.x[3] = d, L.x[4] = e, L.x[5] = f, L.x[6] = g, L.x[7] = h;
+  return L;
+}
+
+// A pair's dot products with a column c, as two 8-lane sums over the six rows of the vectors (so that
+// they vectorize): one = sum_r S_c[r] p1[r], with lanes BsT_Sb, D_Sb, dBT_Sb, rate_q, Sb_ICs,
+// rate_qv, rate_vq, Bs_Sb; and two = sum_r mixed_c[r] p2[r], mixed_c[r] = (S, psid x3, psidd x2,
+// alpha x2)[r] of c, with lanes (against S) rate_qv_above, or same_body_vv for a pair in one body,
+// (psid) BsT_Sb, wb_part, dBT_Sb, (psidd) Sb_ICs, DT_Sb, (alpha) DT_Sb, Sb_ICs.
+template <class S> struct PairLanes {
+  Lanes<S> p1[6], p2[6];
+};
+
+template <class S> TG_HD void pair_lanes(const PairTerms<S>& P, bool same_body, PairLanes<S>& L) {
+  const Sv<S>& above = same_body ? P.same_body_vv : P.rate_qv_above;
+  for (int r = 0; r < 6; ++r) {
+    L.p1[r] = lanes(P.BsT_Sb.v[r], P.D_Sb.v[r], P.dBT_Sb.v[r], P.rate_q.v[r], P.Sb_ICs.v[r], P.rate_qv.v[r],
+                    P.rate_vq.v[r], P.Bs_Sb.v[r]);
+    L.p2[r] = lanes(above.v[r], P.BsT_Sb.v[r], P.wb_part.v[r], P.dBT_Sb.v[r], P.Sb_ICs.v[r], P.DT_Sb.v[r], P.DT_Sb.v[r],
+                    P.Sb_ICs.v[r]);
+  }
+}
+
 // The tensors an entry belongs to.
 enum SecondOrderTensor : int { D2Q = 0, D2V = 1, DQDV = 2, DADQ = 3 };
 
@@ -79,63 +126,80 @@ enum SecondOrderTensor : int { D2Q = 0, D2V = 1, DQDV = 2, DADQ = 3 };
 // each: put(tensor, i, j, k, value). Entries of columns on different branches are zero.
 template <class M, class S, class Put> TG_HD void rnea_second_order_visit(const RneaDerivativesWork<M, S>& W, Put&& put) {
   const auto& d = data<M, S>();
+  // column c's row r in the lanes of PairLanes::p2: a table on the CPU, built as met on a GPU thread
+  const auto column_lanes = [&W](int c, int r) {
+    return lanes(W.s[c].v[r], W.w[c].v[r], W.w[c].v[r], W.w[c].v[r], W.u[c].v[r], W.u[c].v[r], W.alpha[c].v[r],
+                 W.alpha[c].v[r]);
+  };
+#ifdef __CUDA_ARCH__
+  const auto mixed = column_lanes;
+#else
+  Lanes<S> table[M::NV][6];
+  for (int c = 0; c < M::NV; ++c)
+    for (int r = 0; r < 6; ++r) table[c][r] = column_lanes(c, r);
+  const auto mixed = [&table](int c, int r) -> const Lanes<S>& { return table[c][r]; };
+#endif
   for (int i = 0; i < M::NB; ++i)
     for (int a = d.vi[i]; a < d.vi[i] + d.nvj[i]; ++a) {
       const ColumnTerms<S> A = column_terms<M, S>(W, i, a);
       for (int j = i; j >= 0; j = d.parent[j])
         for (int b = d.vi[j]; b < d.vi[j] + d.nvj[j]; ++b) {
           const PairTerms<S> P = pair_terms<M, S>(W, A, i, a, b);
+          PairLanes<S> L;
+          pair_lanes(P, j == i, L);
           for (int k = j; k >= 0; k = d.parent[k])
             for (int c = d.vi[k]; c < d.vi[k] + d.nvj[k]; ++c) {
-              const Sv<S>& Sc = W.s[c];
-              const Sv<S>& wc = W.w[c];
-              const S p1 = dot(P.BsT_Sb, wc);
-              const S p2 = dot(P.Sb_ICs, W.u[c]) + dot(P.wb_part, wc);
+              Lanes<S> one = lanes<S>(0, 0, 0, 0, 0, 0, 0, 0), two = one;
+              for (int r = 0; r < 6; ++r) {
+                one.fma(W.s[c].v[r], L.p1[r]);
+                two.fma(mixed(c, r), L.p2[r]);
+              }
+              const S p1 = two[1], p2 = two[4] + two[2];
               put(D2Q, a, b, c, p2);
               put(DQDV, a, c, b, -p1);
               if (j != i) {
-                const S q2 = dot(P.dBT_Sb, wc) + dot(P.DT_Sb, W.u[c]), v2 = dot(P.BsT_Sb, Sc), m = dot(Sc, P.D_Sb);
+                const S q2 = two[3] + two[5];
                 put(D2Q, b, c, a, q2);
                 put(D2Q, b, a, c, q2);
                 put(DQDV, b, c, a, p1);
-                put(DQDV, b, a, c, dot(P.dBT_Sb, Sc) + dot(P.DT_Sb, W.alpha[c]));
-                put(D2V, b, c, a, v2);
-                put(D2V, b, a, c, v2);
-                put(DADQ, b, c, a, m);
-                if (k != j) put(DADQ, c, b, a, m);  // within one body, (c, b) is another visit's (b, c)
+                put(DQDV, b, a, c, one[2] + two[6]);
+                put(D2V, b, c, a, one[0]);
+                put(D2V, b, a, c, one[0]);
+                put(DADQ, b, c, a, one[1]);
+                if (k != j) put(DADQ, c, b, a, one[1]);  // within one body, (c, b) is another visit's (b, c)
               }
               if (k != j) {
-                const S q3 = dot(Sc, P.rate_q), m = dot(Sc, P.Sb_ICs);
                 put(D2Q, a, c, b, p2);
-                put(D2Q, c, a, b, q3);
-                put(D2V, a, b, c, -dot(P.BsT_Sb, Sc));
-                put(D2V, a, c, b, -dot(P.BsT_Sb, Sc));
-                put(DQDV, a, b, c, dot(Sc, P.rate_qv) + dot(P.Sb_ICs, W.alpha[c]));
-                put(DQDV, c, b, a, dot(Sc, P.rate_vq));
-                put(DADQ, c, a, b, m);
-                put(DADQ, a, c, b, m);
+                put(D2Q, c, a, b, one[3]);
+                put(D2V, a, b, c, -one[0]);
+                put(D2V, a, c, b, -one[0]);
+                put(DQDV, a, b, c, one[5] + two[7]);
+                put(DQDV, c, b, a, one[6]);
+                put(DADQ, c, a, b, one[4]);
+                put(DADQ, a, c, b, one[4]);
                 if (j != i) {
-                  const S v3 = dot(Sc, P.Bs_Sb);
-                  put(D2Q, c, b, a, q3);
-                  put(D2V, c, a, b, v3);
-                  put(D2V, c, b, a, v3);
-                  put(DQDV, c, a, b, dot(Sc, P.rate_qv_above));
+                  put(D2Q, c, b, a, one[3]);
+                  put(D2V, c, a, b, one[7]);
+                  put(D2V, c, b, a, one[7]);
+                  put(DQDV, c, a, b, two[0]);
                 } else {
-                  put(D2V, c, b, a, dot(Sc, P.same_body_vv));
+                  put(D2V, c, b, a, two[0]);
                 }
               } else {
-                put(D2V, a, b, c, -dot(P.DT_Sb, Sc));
+                put(D2V, a, b, c, -dot(P.DT_Sb, W.s[c]));
               }
             }
         }
     }
 }
 
-// The four NV x NV x NV tensors (row-major, [i][j][k] at NV (NV i + j) + k).
+// The four NV x NV x NV tensors (row-major, [i][j][k] at NV (NV i + j) + k); the entries off the
+// visit's fixed pattern zeroed unless they hold zeros already.
 template <class M, class S>
-TG_HD void rnea_second_order(const RneaDerivativesWork<M, S>& W, S* d2q, S* d2v, S* dqdv, S* dadq) {
+TG_HD void rnea_second_order(const RneaDerivativesWork<M, S>& W, S* d2q, S* d2v, S* dqdv, S* dadq, bool zeroed) {
   constexpr int NV = M::NV;
-  for (int n = 0; n < NV * NV * NV; ++n) d2q[n] = d2v[n] = dqdv[n] = dadq[n] = S(0);
+  if (!zeroed)
+    for (int n = 0; n < NV * NV * NV; ++n) d2q[n] = d2v[n] = dqdv[n] = dadq[n] = S(0);
   S* const T[4] = {d2q, d2v, dqdv, dadq};
   rnea_second_order_visit<M, S>(W, [&](int t, int i, int j, int k, S v) { T[t][NV * (NV * i + j) + k] = v; });
 }
