@@ -181,6 +181,8 @@ def test_forward_mode_of_the_kernel_jvps(robots, balls, name, convention):
         "coriolis_matrix": lambda q, qd: view.coriolis_matrix(q, qd),
         "kinetic_energy_regressor": lambda q, qd: view.kinetic_energy_regressor(q, qd),
         "body_velocities": lambda q, qd: view.body_velocities(q, qd),
+        # qdd = flip(qd): its tangent moves qdd too
+        "inverse_dynamics_regressor": lambda q, qd: view.inverse_dynamics_regressor(q, qd, qd.flip(-1)),
     }
     g = torch.Generator().manual_seed(11)
     tangents = tuple(torch.randn(x.shape, dtype=x.dtype, generator=g) for x in (q, qd))
@@ -203,17 +205,21 @@ def test_forward_mode_of_the_kernel_jvps(robots, balls, name, convention):
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
 @pytest.mark.parametrize("name", ["go2", "balls"])
 def test_forward_mode_of_the_composed_functions(robots, balls, name, convention):
-    """In forward mode the external-force gradients and osc_inertia are composed of ops that have one
-    (body_velocities, minv, frame_jacobian): the same values as their kernels, and tangents against
-    central differences, forward_ad and jacrev, at quaternions of norm 1.2."""
+    """In forward mode the external-force gradients, osc_inertia and forward_dynamics_parameter_gradient
+    are composed of ops that have one (body_velocities, minv, frame_jacobian, inverse_dynamics_regressor,
+    forward_dynamics): the same values as their kernels, and tangents against central differences,
+    forward_ad and jacrev, at quaternions of norm 1.2."""
     robot = _robot(name, robots, balls)
     view = getattr(robot, convention)
-    q = 1.2 * _state(robot, convention, 2, seed=13)[0]
+    q, qd, tau = _state(robot, convention, 2, seed=13)
+    q = 1.2 * q
     frame = robot.nframes - 1
     functions = {
         "inverse_dynamics_external_force_gradient": view.inverse_dynamics_external_force_gradient,
         "forward_dynamics_external_force_gradient": view.forward_dynamics_external_force_gradient,
         "osc_inertia": lambda q: torch.stack([view.osc_inertia(q, frame, ref) for ref in ("local", "local_world_aligned")]),
+        "forward_dynamics_parameter_gradient": lambda q: view.forward_dynamics_parameter_gradient(
+            q, *((qd, tau) if q.dim() > 1 else (qd[0], tau[0]))),
     }
     t = torch.randn(q.shape, dtype=q.dtype, generator=torch.Generator().manual_seed(14))
     eps = 1e-6
@@ -224,6 +230,10 @@ def test_forward_mode_of_the_composed_functions(robots, balls, name, convention)
         assert rel_err(tangent, (fn(q + eps * t) - fn(q - eps * t)) / (2 * eps)) <= 1e-6, label
         assert rel_err(torch.func.jvp(fn, (q,), (t,))[1], tangent) <= 1e-12, label
         assert rel_err(torch.func.jacfwd(fn)(q[0]), torch.func.jacrev(fn)(q[0])) <= 1e-10, label
+    # forward_dynamics_parameter_gradient along qd and tau as well
+    fn = lambda qd, tau: view.forward_dynamics_parameter_gradient(q[0], qd, tau)  # noqa: E731
+    for Jf, Jr in zip(torch.func.jacfwd(fn, argnums=(0, 1))(qd[0], tau[0]), torch.func.jacrev(fn, argnums=(0, 1))(qd[0], tau[0])):
+        assert rel_err(Jf, Jr) <= 1e-10
 
 
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])

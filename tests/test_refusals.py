@@ -48,32 +48,6 @@ def test_zero_configuration_has_finite_gradients(robots, convention):
         assert grad[..., 7:].abs().sum() > 0  # the joints still get their gradient
 
 
-@pytest.mark.parametrize("name, convention", [("inverse_dynamics_regressor", "pin"), ("inverse_dynamics_regressor", "mujoco"),
-                                              ("forward_dynamics_parameter_gradient", "mujoco")])
-def test_forward_mode_ad_is_refused_with_the_op_name(robots, name, convention):
-    """The few ops without a forward mode (test_func.py tests the others) refuse it by name."""
-    robot = robots["go2"]
-    view = getattr(robot, convention)
-    call, arity = FUNCTIONS[name]
-    states = _states(robot, 2, 5, convention)[:arity]
-
-    def f(q):
-        return _flat(call(view, robot, q, *states[1:]))
-
-    with pytest.raises(NotImplementedError, match=rf"{name} has no forward-mode derivative"):
-        torch.func.jvp(f, (states[0],), (torch.ones_like(states[0]),))
-    with pytest.raises(NotImplementedError, match=rf"{name} has no forward-mode derivative"):
-        torch.func.jacfwd(f)(states[0])
-    with forward_ad.dual_level():
-        dual = forward_ad.make_dual(states[0], torch.ones_like(states[0]))
-        with pytest.raises(NotImplementedError, match=rf"{name} has no forward-mode derivative"):
-            f(dual)
-    # Outside forward mode the same calls work, inside reverse mode too.
-    q = states[0].clone().requires_grad_(True)
-    f(q).sum().backward()
-    assert torch.isfinite(q.grad).all()
-
-
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
 def test_second_order_tensors_refuse_forward_mode(robots, convention):
     """inverse_dynamics_second_order and frame_kinematic_hessian have no forward mode (a third derivative):

@@ -240,7 +240,7 @@ def forward_mode_kernels(ops: list[OpSpec]) -> str:
         if op.jvp_of:
             names = [a.name for a in value.tensor_args]
             wrt = "tg::Sizes<" + ", ".join(str(names.index(n)) for n in op.jvp_wrt) + ">"
-            base, extra = "ForwardModeJvp", f", {wrt}"
+            base, extra = "ForwardModeJvpInPlace" if op.jvp_in_place else "ForwardModeJvp", f", {wrt}"
         else:
             base, extra = "ForwardModeVjp", ""
         structs.append(f"template <class M, class S, int C> struct {op.kernel}\n"

@@ -271,12 +271,15 @@ def _linear_jvp(name: str) -> Callable:
 
 
 def _kernel_jvp(name: str) -> Callable:
-    """The tangent of an op by its dual-number kernel `<name>_jvp`, along its first inputs (q, or q and qd)."""
-    wrt = len(OPS[f"{name}_jvp"].jvp_wrt)
+    """The tangent of an op by its dual-number kernel `<name>_jvp`, along its first inputs (q, or q and qd,
+    or q, qd and qdd)."""
+    spec = OPS[f"{name}_jvp"]
+    wrt = len(spec.jvp_wrt)
 
     def rule(ops, _out, *args):
         n = len(args) // 2  # the inputs (the last the convention), then a tangent for each
-        return getattr(ops, f"{name}_jvp")(*args[:n - 1], *args[n:n + wrt], args[n - 1])
+        tangent = getattr(ops, f"{name}_jvp")(*args[:n - 1], *args[n:n + wrt], args[n - 1])
+        return tangent[..., 1].contiguous() if spec.jvp_in_place else tangent  # (value, tangent) pairs
 
     return rule
 

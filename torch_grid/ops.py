@@ -64,6 +64,7 @@ class OpSpec:
     forward_mode_of: str = ""  # set on the vector-Jacobian product of that op by forward-mode kernels
     jvp_of: str = ""  # set on the Jacobian-vector product of that op by forward-mode kernels
     jvp_wrt: tuple[str, ...] = ()  # the inputs whose tangents a Jacobian-vector product takes
+    jvp_in_place: bool = False  # a Jacobian-vector product returning (value, tangent) pairs, trailing dim 2
     mujoco_twin: bool = True  # False: no MuJoCo-convention kernel where the conventions differ (the call refuses)
 
     @property
@@ -202,12 +203,14 @@ def forward_mode_backward(op: OpSpec) -> OpSpec:
 
 def forward_mode_jvp(op: OpSpec, wrt: tuple[str, ...]) -> OpSpec:
     """`<op>_jvp(inputs..., tangents...)`: the derivative of every output along the tangents of the
-    inputs named in `wrt` (the other inputs held fixed; a null tangent is zero)."""
+    inputs named in `wrt` (the other inputs held fixed; a null tangent is zero). For an op of JVP_IN_PLACE
+    each output is its (value, tangent) pairs, of shape (..., *shape, 2)."""
     args = {a.name: a for a in op.tensor_args}
     tangents = tuple(Arg(f"{name}_dot", "plain", True, args[name].trailing) for name in wrt)
-    outputs = tuple(Out(f"{o.name}_dot", "plain", o.shape) for o in op.outputs)
+    in_place = op.name in JVP_IN_PLACE
+    outputs = tuple(Out(f"{o.name}_dot", "plain", tuple(o.shape) + ((2,) if in_place else ())) for o in op.outputs)
     return OpSpec(f"{op.name}_jvp", f"{op.kernel}Jvp", op.args + tangents, outputs, "derivatives_backward",
-                  jvp_of=op.name, jvp_wrt=wrt)
+                  jvp_of=op.name, jvp_wrt=wrt, jvp_in_place=in_place)
 
 
 # Jacobian-vector products on dual numbers (autograd.py): along q and qd, the gradient of lam . tau with
@@ -219,11 +222,15 @@ FORWARD_MODE_JVP = (("inverse_dynamics_vjp_full", ("q", "qd")), ("inverse_dynami
                     ("body_velocities", ("q",)), ("frames_vjp", ("q",)))
 
 # The ops whose forward mode (torch.func.jvp, jacfwd, forward_ad; com's Hessian by torch.func.hessian) is
-# their own kernel on dual numbers along their state inputs. (inverse_dynamics_regressor's Y and
-# osc_inertia's M^-1 on dual numbers would not fit a GPU thread.)
+# their own kernel on dual numbers along their state inputs. (osc_inertia's M^-1 on dual numbers would
+# not fit a GPU thread.)
 KERNEL_JVP = {"jacobian_com": ("q",), "potential_energy_regressor": ("q",), "ccrba": ("q", "qd"),
               "frame_jacobian_dot": ("q", "qd"), "cmm_time_variation": ("q", "qd"), "dccrba": ("q", "qd"),
-              "coriolis_matrix": ("q", "qd"), "kinetic_energy_regressor": ("q", "qd")}
+              "coriolis_matrix": ("q", "qd"), "kinetic_energy_regressor": ("q", "qd"),
+              "inverse_dynamics_regressor": ("q", "qd", "qdd")}
+# Of those, the ones whose outputs on dual numbers (Y: NV x 10 NB pairs) would not fit a GPU thread's
+# stack: their dual outputs are written in place in the op's output.
+JVP_IN_PLACE = ("inverse_dynamics_regressor",)
 
 OPS: dict[str, OpSpec] = {op.name: op for op in _VALUE_OPS}
 OPS.update({f"{name}_backward": forward_mode_backward(OPS[name]) for name in FORWARD_MODE_BACKWARD})

@@ -324,6 +324,8 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
 
     def forward_dynamics_parameter_gradient(self, q, qd, tau) -> torch.Tensor:
         """d forward_dynamics / d inertial_parameters (..., nv, 10 nbodies) = -M^-1 Y at qdd = FD."""
+        if _forward_mode((q, qd, tau)):  # composed of ops that have a forward mode (the kernel has none)
+            return -(self.minv(q) @ self.inverse_dynamics_regressor(q, qd, self.forward_dynamics(q, qd, tau)))
         if self._robot._with_passive:
             tau = tau + self._robot._passive(q, qd)
         return self._call("forward_dynamics_parameter_gradient", q, qd, tau)

@@ -175,4 +175,28 @@ struct ForwardModeJvp {
   }
 };
 
+// The same for an op whose outputs would not fit a GPU thread's stack as dual numbers
+// (inverse_dynamics_regressor's NV x 10 NB): each output (value, tangent) pairs, written in place in
+// `out`, an array of twice the output's size.
+template <template <class, class, int> class Op, class M, class S, int C, class In, class Out, class Wrt>
+struct ForwardModeJvpInPlace {
+  TG_HD static void run(const S* const* in, S* const* out, const int* iargs, int n_iargs, bool = false) {
+    using D = Dual<S>;
+    static_assert(sizeof(D) == 2 * sizeof(S), "a dual number is a (value, tangent) pair");
+    constexpr int NI = In::count, NO = Out::count;
+    D x[In::total];
+    const D* xs[NI];
+    D* ys[NO];
+    dual_arguments<In, Sizes<>, S>(in, x, xs, nullptr, nullptr);
+    for (int o = 0; o < NO; ++o) ys[o] = reinterpret_cast<D*>(out[o]);
+    for (int w = 0; w < Wrt::count; ++w) {
+      const int j = Wrt::at(w);
+      const S* t = in[NI + w];
+      if (t && in[j])
+        for (int m = 0; m < In::at(j); ++m) x[In::offset(j) + m].d = t[m];
+    }
+    Op<M, D, C>::run(xs, ys, iargs, n_iargs);
+  }
+};
+
 }  // namespace tg
