@@ -63,7 +63,8 @@ def robot_header(model: RobotModel, namespace: str) -> str:
             vend[p] = max(vend[p], vend[i])
     j = model.joints
     # per dof, the dof before it on the path to the root (the previous of its joint, else the last of the
-    # nearest ancestor joint with dofs; -1 at the root): the sparsity of M's factor (kernels/ltdl.h)
+    # nearest ancestor joint with dofs; -1 at the root): the sparsity of M's factor (kernels/ltdl.h); and
+    # dof_end, the end of its descendants [k + 1, dof_end) (dofs are numbered depth first)
     dof_parent = []
     for i, x in enumerate(j):
         a = x.parent
@@ -91,6 +92,7 @@ def robot_header(model: RobotModel, namespace: str) -> str:
         ("int", "nvj", [x.nv for x in j]),
         ("int", "vend", vend),
         ("int", "dof_parent", dof_parent),
+        ("int", "dof_end", [vend[i] for i, x in enumerate(j) for _ in range(x.nv)]),
         ("int", "free_joint", [i for i, x in enumerate(j) if x.type == "free"] or [-1]),
         ("T", "axis", [list(x.axis) for x in j]),
         ("T", "R", [list(x.rotation) for x in j]),

@@ -14,10 +14,9 @@
 
 namespace tg {
 
-template <class M, class S> TG_HD void crba(const S* q, S* Mout) {
+template <class M, class S> TG_HD void crba(const Placements<M, S>& K, S* Mout) {
   const auto& d = data<M, S>();
   constexpr int NV = M::NV;
-  const Placements<M, S> K(q);
   Inertia<S> Ic[M::NB];  // about joint i's origin, world-aligned
   S F[6][NV];            // F[:, c]: force of the subtree owning dof c per unit acceleration of c
   for (int i = 0; i < M::NB; ++i) Ic[i] = rotate(K.oMi[i].R, body_inertia<M, S>(i));
@@ -68,6 +67,8 @@ template <class M, class S> TG_HD void crba(const S* q, S* Mout) {
     Mout[NV * r + r] += S(d.armature[r]);
   }
 }
+
+template <class M, class S> TG_HD void crba(const S* q, S* Mout) { crba<M, S>(Placements<M, S>(q), Mout); }
 
 // The gradient along the tangent of <G, M(q)> for a weight G (NV x NV), O(n d) for a tree of depth d.
 // With world axes S and composite inertias Ic about one point (the root's origin), a block of M is

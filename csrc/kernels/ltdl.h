@@ -5,7 +5,7 @@
 // in row k, and stay so. M and its factor share the storage (row-major NV x NV, lower triangle read).
 #pragma once
 
-#include "spatial.h"
+#include "products.h"
 
 namespace tg {
 
@@ -40,6 +40,76 @@ template <class M, class S> TG_HD void ltdl_solve(const S* H, S* x) {
     for (int j = 0; j < i; ++j) s += H[NV * i + j] * x[j];
     x[i] -= s;
   }
+}
+
+// x (COLS entries) -= sum_m c[m] X[ks[m]] over n rows of X (row stride XS). On a CPU x is held in registers
+// as 8-lane vectors (GCC's vector extension) while the rows stream past: each FMA then has a dozen
+// independent others beside it, where a few columns at a time would wait on the one before. A GPU thread
+// updates x in place.
+#if defined(__GNUC__) && !defined(__CUDACC__)
+template <int XS, int COLS, class S> inline void less_rows(int n, const int* ks, const S* c, const S* X, S* x) {
+  typedef S V __attribute__((vector_size(8 * sizeof(S))));
+  constexpr int NL = COLS / 8, T = COLS % 8;
+  V acc[NL > 0 ? NL : 1];
+  S tail[T > 0 ? T : 1];
+#pragma GCC unroll 16
+  for (int l = 0; l < NL; ++l) __builtin_memcpy(&acc[l], x + 8 * l, sizeof(V));
+  for (int t = 0; t < T; ++t) tail[t] = x[8 * NL + t];
+  for (int m = 0; m < n; ++m) {
+    const S cm = c[m];
+    const S* xr = X + XS * ks[m];
+#pragma GCC unroll 16
+    for (int l = 0; l < NL; ++l) {
+      V y;
+      __builtin_memcpy(&y, xr + 8 * l, sizeof(V));
+      acc[l] -= cm * y;
+    }
+    for (int t = 0; t < T; ++t) tail[t] -= cm * xr[8 * NL + t];
+  }
+#pragma GCC unroll 16
+  for (int l = 0; l < NL; ++l) __builtin_memcpy(x + 8 * l, &acc[l], sizeof(V));
+  for (int t = 0; t < T; ++t) x[8 * NL + t] = tail[t];
+}
+constexpr int kSolveCols = 128;
+#else
+template <int XS, int COLS, class S> TG_HD void less_rows(int n, const int* ks, const S* c, const S* X, S* x) {
+  for (int m = 0; m < n; ++m) {
+    const S cm = c[m];
+    const S* xr = X + XS * ks[m];
+    for (int e = 0; e < COLS; ++e) x[e] -= cm * xr[e];
+  }
+}
+constexpr int kSolveCols = 16;
+#endif
+
+// Columns [c0, c0 + W) of X := M^-1 X (NV x COLS, row-major) from ltdl_factor's H, a row at a time: L^T Z = X
+// from the leaves (row j less L_ij times each row i below it, [j + 1, dof_end)), then Y = D^-1 Z - L Y from
+// the root (row i less L_ij times each row j on its dof_parent chain).
+template <class M, int COLS, int W, class S> TG_HD void ltdl_solve_columns(const S* H, S* X, int c0) {
+  const auto& d = data<M, S>();
+  constexpr int NV = M::NV;
+  int ks[NV];
+  S L[NV];
+  for (int j = NV - 1; j >= 0; --j) {
+    int n = 0;
+    for (int i = j + 1; i < d.dof_end[j]; ++i) ks[n] = i, L[n++] = H[NV * i + j];
+    if (n) less_rows<COLS, W>(n, ks, L, X + c0, X + COLS * j + c0);
+  }
+  for (int i = 0; i < NV; ++i) {
+    S* x = X + COLS * i + c0;
+    const S inv = S(1) / H[NV * i + i];
+    for (int c = 0; c < W; ++c) x[c] *= inv;
+    int n = 0;
+    for (int j = d.dof_parent[i]; j >= 0; j = d.dof_parent[j]) ks[n] = j, L[n++] = H[NV * i + j];
+    if (n) less_rows<COLS, W>(n, ks, L, X + c0, x);
+  }
+}
+
+// X := M^-1 X for NV x COLS X (row-major), in slices of columns that stay in a CPU core's L1 cache.
+template <class M, int COLS, class S> TG_HD void ltdl_solve_rows(const S* H, S* X) {
+  constexpr int W = kSolveCols, RC = COLS % W;
+  for (int c0 = 0; c0 < COLS - RC; c0 += W) ltdl_solve_columns<M, COLS, W>(H, X, c0);
+  if constexpr (RC > 0) ltdl_solve_columns<M, COLS, RC>(H, X, COLS - RC);
 }
 
 }  // namespace tg

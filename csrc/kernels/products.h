@@ -17,21 +17,29 @@ namespace tg {
 
 // The register block: 6 x 16 on a CPU; one row of 16 on a GPU, whose thread holds far fewer registers
 // (larger blocks spilled more in forward_dynamics_external_force_gradient on G1).
+// A single row's products (the L^T D L solve's) take wider blocks on a CPU, where a few columns per inner
+// index would leave the loop's own work dominant.
 #ifdef __CUDA_ARCH__
-constexpr int kProductRows = 1, kProductCols = 16;
+constexpr int kProductRows = 1, kProductCols = 16, kRowCols = 16;
 #else
-constexpr int kProductRows = 6, kProductCols = 16;
+constexpr int kProductRows = 6, kProductCols = 16, kRowCols = 16;
 #endif
 
+// The inner index k of a block's products: every one of 0..K-1, or those of a list (`const int*`).
+struct AllColumns {
+  TG_HD int operator[](int k) const { return k; }
+};
+
 // out (RB x CB, row stride OS) (+)= sum_t w_t g_t X_t: g_t RB x K (row stride gs), X_t K x CB (row
-// stride XS); ADD adds to out, otherwise overwrites it.
-template <int XS, int OS, int RB, int CB, bool ADD, class S>
-TG_HD void block_products(int nt, int K, const S* const* g, int gs, const S* w, const S* const* X, S* out) {
+// stride XS), the inner index k = ks[0..K); ADD adds to out, otherwise overwrites it.
+template <int XS, int OS, int RB, int CB, bool ADD, class S, class Ks = AllColumns>
+TG_HD void block_products(int nt, int K, const S* const* g, int gs, const S* w, const S* const* X, S* out, Ks ks = {}) {
   S acc[RB][CB];
   for (int r = 0; r < RB; ++r)
     for (int c = 0; c < CB; ++c) acc[r][c] = S(0);
   for (int t = 0; t < nt; ++t)
-    for (int k = 0; k < K; ++k) {
+    for (int n = 0; n < K; ++n) {
+      const int k = ks[n];
       const S* x = X[t] + XS * k;
       for (int r = 0; r < RB; ++r) {
         const S gr = w[t] * g[t][gs * r + k];
@@ -43,23 +51,24 @@ TG_HD void block_products(int nt, int K, const S* const* g, int gs, const S* w, 
     for (int c = 0; c < CB; ++c) out[OS * r + c] = ADD ? out[OS * r + c] + acc[r][c] : acc[r][c];
 }
 
-// An RB-row block over COLS columns: blocks of kProductCols, then the rest in vector-sized pieces (8, 4,
+// An RB-row block over COLS columns: blocks of CB, then the rest in vector-sized pieces (8, 4,
 // 2, 1), since an odd-width block is not vectorized.
-template <int XS, int OS, int RB, int COLS, bool ADD, class S>
-TG_HD void row_block_products(int nt, int K, const S* const* g, int gs, const S* w, const S* const* X, S* out) {
-  constexpr int CB = kProductCols, RC = COLS % CB;
+template <int XS, int OS, int RB, int COLS, bool ADD, int CB = kProductCols, class S, class Ks = AllColumns>
+TG_HD void row_block_products(int nt, int K, const S* const* g, int gs, const S* w, const S* const* X, S* out,
+                              Ks ks = {}) {
+  constexpr int RC = COLS % CB;
   const S* x[4];
   for (int c0 = 0; c0 < COLS - RC; c0 += CB) {
     for (int t = 0; t < nt; ++t) x[t] = X[t] + c0;
-    block_products<XS, OS, RB, CB, ADD>(nt, K, g, gs, w, x, out + c0);
+    block_products<XS, OS, RB, CB, ADD>(nt, K, g, gs, w, x, out + c0, ks);
   }
   if constexpr (RC > 0) {
     constexpr int W = RC >= 8 ? 8 : RC >= 4 ? 4 : RC >= 2 ? 2 : 1;
     for (int t = 0; t < nt; ++t) x[t] = X[t] + COLS - RC;
-    block_products<XS, OS, RB, W, ADD>(nt, K, g, gs, w, x, out + COLS - RC);
+    block_products<XS, OS, RB, W, ADD>(nt, K, g, gs, w, x, out + COLS - RC, ks);
     if constexpr (RC > W) {
       for (int t = 0; t < nt; ++t) x[t] += W;
-      row_block_products<XS, OS, RB, RC - W, ADD>(nt, K, g, gs, w, x, out + COLS - RC + W);
+      row_block_products<XS, OS, RB, RC - W, ADD>(nt, K, g, gs, w, x, out + COLS - RC + W, ks);
     }
   }
 }
@@ -77,6 +86,49 @@ TG_HD void products(int nt, int K, const S* const* g, int gs, const S* w, const 
   if constexpr (RR > 0) {
     for (int t = 0; t < nt; ++t) gr[t] = g[t] + gs * (ROWS - RR);
     row_block_products<XS, OS, RR, COLS, ADD>(nt, K, gr, gs, w, X, out + OS * (ROWS - RR));
+  }
+}
+
+// The columns k of an NV x NV matrix that can be non-zero in rows [r0, r1) when it is zero between dofs
+// on different branches of the tree (d tau/dq, d tau/dqd): the rows' ancestors below r0 (dof_parent), then
+// [r0, the end of their subtrees) (dofs are numbered depth first, dof_end). Into ks, ascending; returns
+// their count.
+template <class M, class S> TG_HD int related_columns(int r0, int r1, int* ks) {
+  const auto& d = data<M, S>();
+  bool mark[M::NV];
+  for (int k = 0; k < r0; ++k) mark[k] = false;
+  int end = r1;
+  for (int r = r0; r < r1; ++r) {
+    end = d.dof_end[r] > end ? d.dof_end[r] : end;
+    for (int j = d.dof_parent[r]; j >= 0; j = d.dof_parent[j]) {
+      if (j >= r0) continue;
+      if (mark[j]) break;  // and so are its ancestors
+      mark[j] = true;
+    }
+  }
+  int n = 0;
+  for (int k = 0; k < r0; ++k)
+    if (mark[k]) ks[n++] = k;
+  for (int k = r0; k < end; ++k) ks[n++] = k;
+  return n;
+}
+
+// out (NV x COLS, row stride OS) (+)= sum_t w_t g_t X_t for up to 4 terms, each g_t NV x NV (row stride NV)
+// zero between dofs on different branches: each block of rows runs over its related columns alone.
+template <class M, int COLS, int XS, int OS, bool ADD, class S>
+TG_HD void tree_products(int nt, const S* const* g, const S* w, const S* const* X, S* out) {
+  constexpr int NV = M::NV, RB = kProductRows, RR = NV % RB;
+  int ks[NV];
+  const S* gr[4];
+  for (int r0 = 0; r0 < NV - RR; r0 += RB) {
+    const int n = related_columns<M, S>(r0, r0 + RB, ks);
+    for (int t = 0; t < nt; ++t) gr[t] = g[t] + NV * r0;
+    row_block_products<XS, OS, RB, COLS, ADD>(nt, n, gr, NV, w, X, out + OS * r0, static_cast<const int*>(ks));
+  }
+  if constexpr (RR > 0) {
+    const int n = related_columns<M, S>(NV - RR, NV, ks);
+    for (int t = 0; t < nt; ++t) gr[t] = g[t] + NV * (NV - RR);
+    row_block_products<XS, OS, RR, COLS, ADD>(nt, n, gr, NV, w, X, out + OS * (NV - RR), static_cast<const int*>(ks));
   }
 }
 

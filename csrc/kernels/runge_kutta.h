@@ -1,27 +1,35 @@
 // The explicit Runge-Kutta steps in Munthe-Kaas's form (MuJoCo's mj_RungeKutta; torch_grid/integrators.py
-// holds the same in torch) and their tangent Jacobians, with each stage's forward-dynamics derivatives.
+// holds the same in torch) and their tangent Jacobians, from each stage's inverse-dynamics derivatives.
 // Stage i (tableau a, weights b; every vector in the call's convention):
 //   theta_i = sum_j a_ij c_j,  q_i = q (+) dt theta_i,  v_i = qd + dt sum_j a_ij acc_j,  acc_i = FD(q_i, v_i, tau)
-//   c_i = dexp(dt theta_i)^-1 v_i   (the stage velocity carried to q's chart; c_0 = qd)
-// and the step q' = q (+) dt sum_j b_j c_j, qd' = qd + dt sum_j b_j acc_j. Along z = [dq; dqd; dtau]
-// (each derivative an NV x 3 NV row-major matrix):
-//   dv_i = [0 I 0] + dt sum_j a_ij dacc_j,   dtheta_i = sum_j a_ij dc_j
-//   dq_i = Jq [I 0 0] + dt Jv dtheta_i                  (Jq, Jv: integrate's tangent Jacobians at dt theta_i)
-//   dacc_i = G_q dq_i + G_v dv_i + [0 0 G_tau]          (G: forward_dynamics_gradient at stage i)
-//   dc_i = D_v dv_i + D_theta dt dtheta_i               (D: dexp^-1's derivatives, at quaternion joints)
-// The stages' dc_j and dacc_j live in the op's workspace; the sums over b_j build up in A and B's rows.
+//   c_i = dexp(dt theta_i)^-1 v_i   (the stage velocity carried to q's chart; v_i at a vector-space joint)
+// and the step q' = q (+) dt sum_j b_j c_j, qd' = qd + dt sum_j b_j acc_j. Along z = [dq; dqd; dtau] (each
+// derivative an NV x 3 NV row-major matrix), with D_q, D_v the stage's d tau/dq, d tau/dqd at acc_i and M
+// its mass matrix (FD's derivatives are -M^-1 [D_q D_v -I]):
+//   M dacc_i = [0 0 I] - D_q dq_i - D_v dv_i,   dv_i = [0 I 0] + dt sum_j a_ij dacc_j
+// At a vector-space joint's rows dc_j = dv_j, so that dq_i = [I 0 0] + dt sum_j a_ij dc_j there is
+//   dq_i = [I, dt c_i I, 0] + dt^2 sum_l (a a)_il dacc_l                  (c_i = sum_j a_ij)
+// and at a quaternion joint's (n x n blocks: Jq, Jv integrate's tangent Jacobians at dt theta_i, D dexp^-1's)
+//   dq_i = Jq [I 0 0] + dt Jv dtheta_i,  dtheta_i = sum_j a_ij dc_j,  dc_i = D_v dv_i + dt D_theta dtheta_i.
+// A stage thus costs products of D_q and D_v, zero between branches of the tree, with earlier dacc_l, and a
+// solve by M's L^T D L factor: never the dense M^-1 D. The step's rows: qd' = [0 I 0] + dt sum_l b_l dacc_l;
+// q' = [I, dt I, 0] + dt^2 sum_l (b a)_l dacc_l at a vector-space joint, Jq [I 0 0] + dt Jv sum_j b_j dc_j at
+// a quaternion joint (at the step's dt theta).
 #pragma once
 
+#include "crba.h"
 #include "forward_mode.h"
+#include "ltdl.h"
 #include "products.h"
+#include "rnea.h"
 #include "step.h"
 
 namespace tg {
 
-// ops.h (its workspace beside minv's)
+// ops.h (its workspace in its own frame)
 template <class M, class S, int C>
-TG_HD void forward_dynamics_gradient(const Placements<M, S>& K, const S* qd, const S* tau, const S* fext,
-                                     const Conv<M, S, C>& cv, S* dq, S* dqd, S* dtau, S* qdd);
+TG_HD void inverse_dynamics_derivatives(const Placements<M, S>& K, const S* qd, const S* qdd, const S* fext,
+                                        const Conv<M, S, C>& cv, S* dtau_dq, S* dtau_dqd);
 
 // Scheme 2 (midpoint), 3 (rk3) or 4 (rk4): the rows of a below the diagonal and the weights b.
 struct RkTableau {
@@ -91,100 +99,41 @@ template <int NV, class S> TG_HD void jacobian_row(const S* A, const S* B, int r
   for (int c = 0; c < NV; ++c) out[2 * NV + c] = B[NV * r + c];
 }
 
-// out = Jq [I 0 0] + h Jv X at a joint's rows (n x n blocks at a quaternion joint, n = 0: the identity),
-// X's rows vi.. (stride N3), out's rows from 0.
-template <int N3, class S> TG_HD void advance_rows(int n, int rows, int vi, const S* Jq, const S* Jv, S h, const S* X, S* out) {
-  for (int a = 0; a < rows; ++a) {
-    S* o = out + N3 * a;
-    if (!n) {
-      for (int c = 0; c < N3; ++c) o[c] = h * X[N3 * (vi + a) + c];
-      o[vi + a] += S(1);
-      continue;
-    }
-    for (int c = 0; c < N3; ++c) o[c] = S(0);
-    for (int b = 0; b < n; ++b) {
-      const S w = h * Jv[n * a + b];
-      const S* x = X + N3 * (vi + b);
-      for (int c = 0; c < N3; ++c) o[c] += w * x[c];
-      o[vi + b] += Jq[n * a + b];
-    }
-  }
+// out (n x COLS) (+)= sum_t w_t g_t X_t for a quaternion joint's n x n blocks g_t (n = 3 or 6).
+template <int COLS, bool ADD, class S>
+TG_HD void joint_rows(int n, int nt, const S* const* g, const S* w, const S* const* X, S* out) {
+  if (n == 6)
+    products<6, COLS, COLS, COLS, ADD>(nt, 6, g, 6, w, X, out);
+  else
+    products<3, COLS, COLS, COLS, ADD>(nt, 3, g, 3, w, X, out);
 }
 
-// out = w sum_j a_j X_j over the j < n with a_j != 0 (zero if none), D entries each.
-template <int D, class S> TG_HD void combine(int n, const double* a, S w, S* const* X, S* out) {
-  bool first = true;
-  for (int j = 0; j < n; ++j) {
-    if (a[j] == 0) continue;
-    const S c = w * S(a[j]);
-    const S* x = X[j];
-    if (first)
-      for (int e = 0; e < D; ++e) out[e] = c * x[e];
-    else
-      for (int e = 0; e < D; ++e) out[e] += c * x[e];
-    first = false;
-  }
-  if (first)
-    for (int e = 0; e < D; ++e) out[e] = S(0);
-}
-
-// acc = FD(q, v, tau) at a stage (cs at its configuration; v, tau in Pinocchio's convention) and its
-// derivatives G = [G_q, G_v, G_tau] (NV x NV each), both in the convention.
+// A stage's dynamics at cs (v, tau in Pinocchio's convention): acc = FD(q, v, tau), D_q and D_v at it and
+// the L^T D L factor of M (ltdl.h), all in the convention: M_c = G M G^T, so that
+// M_c^-1 G (tau - bias) = G qdd.
 template <class M, class S, int C>
-TG_HD void rk_stage(const Conv<M, S, C>& cs, const S* v, const S* tau, const S* fext, S* G, S* acc) {
-  constexpr int NN = M::NV * M::NV;
-  forward_dynamics_gradient<M, S>(Placements<M, S>(cs.q), v, tau, fext, cs, G, G + NN, G + 2 * NN, acc);
+TG_HD void rk_stage(const Conv<M, S, C>& cs, const S* v, const S* tau, const S* fext, S* Dq, S* Dv, S* H, S* acc) {
+  constexpr int NV = M::NV;
+  const Placements<M, S> K(cs.q);
+  S zero[NV], buf[Conv<M, S, C>::active ? NV : 1];
+  crba<M, S>(K, H);
+  cs.congruence_out(H);
+  ltdl_factor<M, S>(H);
+  for (int k = 0; k < NV; ++k) zero[k] = S(0);
+  rnea<M, S>(K, v, zero, fext, acc);
+  for (int k = 0; k < NV; ++k) acc[k] = tau[k] - acc[k];
+  cs.force_out(acc);
+  ltdl_solve<M, S>(H, acc);
+  const S* qdd = cs.velocity(acc, buf);  // G^T
+  inverse_dynamics_derivatives<M, S>(K, v, qdd, fext, cs, Dq, Dv);
+  if (qdd != acc)
+    for (int k = 0; k < NV; ++k) acc[k] = qdd[k];
   cs.acceleration_out(v, acc);
 }
 
-// A stage's per-joint part, with u = dt theta_i, v = v_i and the derivatives dv = dv_i, dq = dtheta_i
-// (NV x 3 NV): q_i = q (+) u into qs (the convention's layout), the carried velocity c_i = dexp(u)^-1 v
-// into c with its rows dc_i = D_v dv + D_theta dt dtheta (dv off quaternion joints) into dc (when kept)
-// and w times onto the rows of q' in [A | B], then dq_i = Jq [I 0 0] + dt Jv dtheta in place of dtheta.
-template <class M, class S, int C>
-TG_HD void stage_rows(const S* q, const S* u, const S* v, S h, const S* dv, S* dq, S* dc, S w, S* A, S* B, S* qs, S* c) {
-  constexpr int NV = M::NV, N3 = 3 * NV;
-  const auto& d = data<M, S>();
-  S blk[6 * N3];
-  for (int jn = 0; jn < M::NB; ++jn) {
-    S Jq[36], Jv[36], Dth[36], Dx[36];
-    const int n = integrate_joint<M, S, C>(jn, q, u, qs, Jq, Jv), vi = d.vi[jn];
-    if (!n) {  // vector-space joint: c_i = v_i, dc_i = dv_i, dq_i = [I 0 0] + dt dtheta_i
-      for (int a = 0; a < d.nvj[jn]; ++a) {
-        const S* x = dv + N3 * (vi + a);
-        S* o = dq + N3 * (vi + a);
-        c[vi + a] = v[vi + a];
-        if (dc)
-          for (int col = 0; col < N3; ++col) dc[N3 * (vi + a) + col] = x[col];
-        if (w != S(0)) jacobian_row_update<NV>(A, B, vi + a, w, x, S(1));
-        for (int col = 0; col < N3; ++col) o[col] *= h;
-        o[vi + a] += S(1);
-      }
-      continue;
-    }
-    dexp_inverse_jacobians<S, C>(n, u + vi, v + vi, c + vi, Dth, Dx);
-    for (int a = 0; a < n; ++a) {
-      S* o = blk + N3 * a;
-      for (int col = 0; col < N3; ++col) o[col] = S(0);
-      for (int b = 0; b < n; ++b) {
-        const S x = Dx[n * a + b], y = h * Dth[n * a + b];
-        const S *dvb = dv + N3 * (vi + b), *dtb = dq + N3 * (vi + b);
-        for (int col = 0; col < N3; ++col) o[col] += x * dvb[col] + y * dtb[col];
-      }
-    }
-    for (int a = 0; a < n; ++a) {
-      if (dc)
-        for (int col = 0; col < N3; ++col) dc[N3 * (vi + a) + col] = blk[N3 * a + col];
-      if (w != S(0)) jacobian_row_update<NV>(A, B, vi + a, w, blk + N3 * a, S(1));
-    }
-    advance_rows<N3>(n, n, vi, Jq, Jv, h, dq, blk);
-    for (int a = 0; a < n; ++a)
-      for (int col = 0; col < N3; ++col) dq[N3 * (vi + a) + col] = blk[N3 * a + col];
-  }
-}
-
 // The step and its Jacobians. cv at q, qd and tau in Pinocchio's convention (as the binding passes them).
-// Outputs: q_next (NQ), qd_next (NV), A (2 NV x 2 NV), B (2 NV x NV), in the convention; work: 8 NV x 3 NV.
+// Outputs: q_next (NQ), qd_next (NV), A (2 NV x 2 NV), B (2 NV x NV), in the convention; work: 8 NV x 3 NV,
+// dacc_0..3, then dc_0..2 (a quaternion joint's rows), then D_q, D_v and M's factor.
 template <class M, class S, int C>
 TG_HD void rk_step(const Conv<M, S, C>& cv, const S* qd, const S* tau, const S* fext, S h, int scheme, S* q_next,
                    S* qd_next, S* A, S* B, S* work) {
@@ -192,82 +141,154 @@ TG_HD void rk_step(const Conv<M, S, C>& cv, const S* qd, const S* tau, const S* 
   const auto& d = data<M, S>();
   const RkTableau T = rk_tableau(scheme);
   const int s = T.stages;
-  S* const dc[3] = {work, work + D, work + 2 * D};
-  S* const dacc[3] = {work + 3 * D, work + 4 * D, work + 5 * D};
-  S* const dq = work + 6 * D;  // a stage's dtheta, then its dq
-  S* const G = work + 7 * D;
-  S v0[NV], tau_c[NV], acc[4][NV], car[4][NV], v[NV], u[NV], qs[M::NQ], row[N3], blk[6 * N3];
+  S* const dacc[4] = {work, work + D, work + 2 * D, work + 3 * D};
+  S* const dc[3] = {work + 4 * D, work + 5 * D, work + 6 * D};
+  S* const Dq = work + 7 * D;
+  S* const Dv = Dq + NN;
+  S* const H = Dv + NN;
+  S v0[NV], tau_c[NV], acc[4][NV], car[4][NV], v[NV], u[NV], qs[M::NQ], blk[6 * N3];
   for (int k = 0; k < NV; ++k) v0[k] = qd[k], tau_c[k] = tau[k];
   cv.velocity_out(v0);
   cv.force_out(tau_c);
-  for (int k = 0; k < NV; ++k) car[0][k] = v0[k], row[k] = S(0), row[NV + k] = S(0), row[2 * NV + k] = S(0);
-  for (int r = 0; r < 2 * NV; ++r) jacobian_row_update<NV>(A, B, r, S(0), row, S(0));
-  for (int i = 0; i < s; ++i) {
-    const double* ai = T.a[i];
-    const S bi = S(T.b[i]);
-    if (i == 0) {
-      rk_stage<M, S, C>(cv, qd, tau, fext, G, acc[0]);
-    } else {
-      // theta_i, v_i; dtheta_i into dq, dv_i into G (free until the stage's derivatives); then q_i, c_i, dc_i, dq_i
-      for (int k = 0; k < NV; ++k) {
-        S th = S(0), ac = S(0);
-        for (int j = 0; j < i; ++j) th += S(ai[j]) * car[j][k], ac += S(ai[j]) * acc[j][k];
-        u[k] = h * th;
-        v[k] = v0[k] + h * ac;
-      }
-      combine<D>(i, ai, S(1), dc, dq);
-      combine<D>(i, ai, h, dacc, G);
-      for (int r = 0; r < NV; ++r) G[N3 * r + NV + r] += S(1);
-      stage_rows<M, S, C>(cv.q, u, v, h, G, dq, i < s - 1 ? dc[i] : nullptr, bi, A, B, qs, car[i]);
-      const Conv<M, S, C> cs(qs);
-      S vb[Conv<M, S, C>::active ? NV : 1], tb[Conv<M, S, C>::active ? NV : 1];
-      rk_stage<M, S, C>(cs, cs.velocity(v, vb), cs.force(tau_c, tb), fext, G, acc[i]);
-    }
-    // dacc_i = G_q dq_i + G_v dv_i + [0 0 G_tau], with dq_0 = [I 0 0] and dv_0 = [0 I 0]; the last stage's
-    // into dc_0, no longer read
-    S* const da = i < s - 1 ? dacc[i] : dc[0];
-    for (int r = 0; r < NV; ++r)
-      for (int c = 0; c < NV; ++c) {
-        da[N3 * r + c] = i ? S(0) : G[NV * r + c];
-        da[N3 * r + NV + c] = G[NN + NV * r + c];
-        da[N3 * r + 2 * NV + c] = G[2 * NN + NV * r + c];
-      }
-    if (i) {  // the products with dq_i and with dv_i's sum over the earlier stages, in one pass over da
-      const S* g[4] = {G};
-      const S* X[4] = {dq};
-      S w[4] = {S(1)};
-      int nt = 1;
-      for (int j = 0; j < i; ++j)
-        if (ai[j] != 0) g[nt] = G + NN, w[nt] = h * S(ai[j]), X[nt++] = dacc[j];
-      products<NV, N3, N3, N3, true>(nt, NV, g, NV, w, X, da);
-    }
-    if (bi != S(0))
-      for (int r = 0; r < NV; ++r) jacobian_row_update<NV>(A, B, NV + r, bi, da + N3 * r, S(1));
-    if (i == 0) {  // c_0 = qd: dc_0 = [0 I 0]
-      for (int e = 0; e < D; ++e) dc[0][e] = S(0);
-      for (int r = 0; r < NV; ++r) dc[0][N3 * r + NV + r] = S(1);
-      if (bi != S(0))
-        for (int r = 0; r < NV; ++r) A[2 * NV * r + NV + r] += bi;
+  // q' rows: [I, dt I, 0] at vector-space joints, zero at quaternion joints (where sum_j b_j dc_j builds up);
+  // qd' rows: [0 I 0]
+  for (int r = 0; r < 2 * NV; ++r) {
+    for (int c = 0; c < 2 * NV; ++c) A[2 * NV * r + c] = S(0);
+    for (int c = 0; c < NV; ++c) B[NV * r + c] = S(0);
+  }
+  for (int jn = 0; jn < M::NB; ++jn) {
+    const int t = d.jtype[jn];
+    if (t == FREE || t == BALL) continue;
+    for (int a = 0; a < d.nvj[jn]; ++a) {
+      const int r = d.vi[jn] + a;
+      A[2 * NV * r + r] = S(1);
+      A[2 * NV * r + NV + r] = h;
     }
   }
-  // q' = q (+) dt theta, theta = sum_j b_j c_j, whose derivative the rows of q' hold; qd' = qd + dt sum_j b_j acc_j
+  for (int r = 0; r < NV; ++r) A[2 * NV * (NV + r) + NV + r] = S(1);
+  for (int i = 0; i < s; ++i) {
+    const double* ai = T.a[i];
+    // theta_i, v_i; then q_i, c_i and, at quaternion joints, dc_i = D_v dv_i + dt D_theta dtheta_i, onto the
+    // rows of q' (weight b_i) and kept for the later stages
+    double ci = 0, aa[4] = {0, 0, 0, 0}, ba = 0;  // sum_j a_ij, (a a)_il, (b a)_i
+    for (int j = 0; j < i; ++j) {
+      ci += ai[j];
+      for (int l = 0; l < j; ++l) aa[l] += ai[j] * T.a[j][l];
+    }
+    for (int m = i + 1; m < s; ++m) ba += T.b[m] * T.a[m][i];
+    for (int k = 0; k < NV; ++k) {
+      S th = S(0), ac = S(0);
+      for (int j = 0; j < i; ++j) th += S(ai[j]) * car[j][k], ac += S(ai[j]) * acc[j][k];
+      u[k] = h * th;
+      v[k] = v0[k] + h * ac;
+    }
+    for (int jn = 0; jn < M::NB; ++jn) {
+      S Jq[36], Jv[36], Dth[36], Dx[36];
+      const int n = integrate_joint<M, S, C>(jn, cv.q, u, qs, Jq, Jv), vi = d.vi[jn];
+      if (!n) {
+        for (int a = 0; a < d.nvj[jn]; ++a) car[i][vi + a] = v[vi + a];
+        continue;
+      }
+      dexp_inverse_jacobians<S, C>(n, u + vi, v + vi, car[i] + vi, Dth, Dx);
+      const S* g[4];
+      const S* X[4];
+      S w[4];
+      int nt = 0;
+      for (int j = 0; j < i; ++j)
+        if (ai[j] != 0) {
+          g[nt] = Dx, w[nt] = h * S(ai[j]), X[nt++] = dacc[j] + N3 * vi;
+          g[nt] = Dth, w[nt] = h * S(ai[j]), X[nt++] = dc[j] + N3 * vi;
+        }
+      joint_rows<N3, false>(n, nt, g, w, X, blk);
+      for (int a = 0; a < n; ++a) {
+        for (int b = 0; b < n; ++b) blk[N3 * a + NV + vi + b] += Dx[n * a + b];
+        if (i < s - 1)
+          for (int c = 0; c < N3; ++c) dc[i][N3 * (vi + a) + c] = blk[N3 * a + c];
+        if (T.b[i] != 0) jacobian_row_update<NV>(A, B, vi + a, S(T.b[i]), blk + N3 * a, S(1));
+      }
+    }
+    // the stage's dynamics
+    if (i == 0) {
+      rk_stage<M, S, C>(cv, qd, tau, fext, Dq, Dv, H, acc[0]);
+    } else {
+      const Conv<M, S, C> cs(qs);
+      S vb[Conv<M, S, C>::active ? NV : 1], tb[Conv<M, S, C>::active ? NV : 1];
+      rk_stage<M, S, C>(cs, cs.velocity(v, vb), cs.force(tau_c, tb), fext, Dq, Dv, H, acc[i]);
+    }
+    // R = [0 0 I] - D_q dq_i - D_v dv_i into dacc_i: the identity blocks, each quaternion joint's columns of
+    // D_q times its rows of dq_i (then zeroed), the products with the earlier dacc_l; dacc_i = M^-1 R
+    S* const R = dacc[i];
+    for (int r = 0; r < NV; ++r)
+      for (int c = 0; c < NV; ++c) {
+        R[N3 * r + c] = -Dq[NV * r + c];
+        R[N3 * r + NV + c] = -(h * S(ci) * Dq[NV * r + c] + Dv[NV * r + c]);
+        R[N3 * r + 2 * NV + c] = S(r == c);
+      }
+    for (int jn = 0; jn < M::NB; ++jn) {
+      S Jq[36], Jv[36], P[NV * 6];  // P = D_q's columns of the joint times Jv
+      const int n = integrate_joint<M, S, C>(jn, cv.q, u, qs, Jq, Jv), vi = d.vi[jn];
+      if (!n) continue;
+      for (int r = 0; r < NV; ++r) {
+        S* dq = Dq + NV * r + vi;
+        for (int b = 0; b < n; ++b) {
+          S pq = S(0), pv = S(0);
+          for (int a = 0; a < n; ++a) pq += dq[a] * Jq[n * a + b], pv += dq[a] * Jv[n * a + b];
+          R[N3 * r + vi + b] += dq[b] - pq;  // in place of the identity blocks' D_q terms
+          R[N3 * r + NV + vi + b] += h * S(ci) * dq[b];
+          P[n * r + b] = pv;
+        }
+        for (int b = 0; b < n; ++b) dq[b] = S(0);
+      }
+      // - dt sum_j a_ij P dc_j at the joint's rows
+      const S* g[4];
+      const S* X[4];
+      S w[4];
+      int nt = 0;
+      for (int j = 0; j < i; ++j)
+        if (ai[j] != 0) g[nt] = P, w[nt] = -h * S(ai[j]), X[nt++] = dc[j] + N3 * vi;
+      if (nt) products<NV, N3, N3, N3, true>(nt, n, g, n, w, X, R);
+    }
+    {
+      const S* g[4];
+      const S* X[4];
+      S w[4];
+      int nt = 0;
+      for (int l = 0; l < i; ++l) {
+        if (aa[l] != 0) g[nt] = Dq, w[nt] = -h * h * S(aa[l]), X[nt++] = dacc[l];
+        if (ai[l] != 0) g[nt] = Dv, w[nt] = -h * S(ai[l]), X[nt++] = dacc[l];
+      }
+      if (nt) tree_products<M, N3, N3, N3, true>(nt, g, w, X, R);
+    }
+    ltdl_solve_rows<M, N3>(H, R);
+    // onto the rows of qd' (dt b_i) and of q' at vector-space joints (dt^2 (b a)_i)
+    const S wv = h * S(T.b[i]), wq = h * h * S(ba);
+    if (wv != S(0))
+      for (int r = 0; r < NV; ++r) jacobian_row_update<NV>(A, B, NV + r, wv, R + N3 * r, S(1));
+    if (wq != S(0))
+      for (int jn = 0; jn < M::NB; ++jn) {
+        const int t = d.jtype[jn];
+        if (t == FREE || t == BALL) continue;
+        for (int a = 0; a < d.nvj[jn]; ++a) jacobian_row_update<NV>(A, B, d.vi[jn] + a, wq, R + N3 * (d.vi[jn] + a), S(1));
+      }
+  }
+  // q' = q (+) dt theta, theta = sum_j b_j c_j, its rows Jq [I 0 0] + dt Jv dtheta at quaternion joints (dtheta
+  // what their rows hold); qd' = qd + dt sum_j b_j acc_j
   for (int k = 0; k < NV; ++k) {
     S th = S(0), ac = S(0);
     for (int j = 0; j < s; ++j) th += S(T.b[j]) * car[j][k], ac += S(T.b[j]) * acc[j][k];
     u[k] = h * th;
     qd_next[k] = v0[k] + h * ac;
   }
-  for (int e = 0; e < N3; ++e) row[e] = S(0);
-  for (int r = 0; r < NV; ++r) {
-    jacobian_row_update<NV>(A, B, NV + r, S(0), row, h);
-    A[2 * NV * (NV + r) + NV + r] += S(1);
-  }
   for (int jn = 0; jn < M::NB; ++jn) {
     S Jq[36], Jv[36];
-    const int n = integrate_joint<M, S, C>(jn, cv.q, u, q_next, Jq, Jv), vi = d.vi[jn], rows = n ? n : d.nvj[jn];
-    for (int a = 0; a < rows; ++a) jacobian_row<NV>(A, B, vi + a, dq + N3 * (vi + a));
-    advance_rows<N3>(n, rows, vi, Jq, Jv, h, dq, blk);
-    for (int a = 0; a < rows; ++a) jacobian_row_update<NV>(A, B, vi + a, S(1), blk + N3 * a, S(0));
+    const int n = integrate_joint<M, S, C>(jn, cv.q, u, q_next, Jq, Jv), vi = d.vi[jn];
+    if (!n) continue;
+    for (int a = 0; a < n; ++a) jacobian_row<NV>(A, B, vi + a, blk + N3 * a);
+    for (int a = 0; a < n; ++a) {
+      jacobian_row_update<NV>(A, B, vi + a, h * Jv[n * a], blk, S(0));
+      for (int b = 1; b < n; ++b) jacobian_row_update<NV>(A, B, vi + a, h * Jv[n * a + b], blk + N3 * b, S(1));
+      for (int b = 0; b < n; ++b) A[2 * NV * (vi + a) + vi + b] += Jq[n * a + b];
+    }
   }
 }
 
