@@ -63,8 +63,9 @@ def robot_header(model: RobotModel, namespace: str) -> str:
             vend[p] = max(vend[p], vend[i])
     j = model.joints
     # per dof, the dof before it on the path to the root (the previous of its joint, else the last of the
-    # nearest ancestor joint with dofs; -1 at the root): the sparsity of M's factor (kernels/ltdl.h); and
-    # dof_end, the end of its descendants [k + 1, dof_end) (dofs are numbered depth first)
+    # nearest ancestor joint with dofs; -1 at the root): the sparsity of M's factor (kernels/ltdl.h); that
+    # chain itself, nearest first, padded with -1 (a kernel reads it without walking the chain, one load
+    # after another); and dof_end, the end of its descendants [k + 1, dof_end) (dofs are numbered depth first)
     dof_parent = []
     for i, x in enumerate(j):
         a = x.parent
@@ -72,6 +73,15 @@ def robot_header(model: RobotModel, namespace: str) -> str:
             a = j[a].parent
         if x.nv:
             dof_parent += [vi[a] + j[a].nv - 1 if a >= 0 else -1] + [vi[i] + k for k in range(x.nv - 1)]
+    chains = []
+    for k in range(len(dof_parent)):
+        chain, a = [], dof_parent[k]
+        while a >= 0:
+            chain.append(a)
+            a = dof_parent[a]
+        chains.append(chain)
+    width = max(1, max(len(c) for c in chains))
+    dof_ancestors = [c + [-1] * (width - len(c)) for c in chains]
     depth, last_child, has_children = [], [True] * nb, [False] * nb
     for i, x in enumerate(j):
         depth.append(0 if x.parent < 0 else depth[x.parent] + 1)
@@ -93,6 +103,7 @@ def robot_header(model: RobotModel, namespace: str) -> str:
         ("int", "vend", vend),
         ("int", "dof_parent", dof_parent),
         ("int", "dof_end", [vend[i] for i, x in enumerate(j) for _ in range(x.nv)]),
+        ("int", "dof_ancestors", dof_ancestors),
         ("int", "free_joint", [i for i, x in enumerate(j) if x.type == "free"] or [-1]),
         ("T", "axis", [list(x.axis) for x in j]),
         ("T", "R", [list(x.rotation) for x in j]),

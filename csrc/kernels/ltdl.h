@@ -1,60 +1,72 @@
 // M = L^T D L with L unit lower triangular (Featherstone, RBDA 6.5, spatial_v2 LTDL.m). Entry (k, j) of M,
-// and of L (there is no fill-in), is non-zero only for j an ancestor dof of k, so the eliminations
-// follow the tree: one per pair (k, i) with i on dof_parent's chain from k. Each updates row i over
-// [0, i] as one contiguous (vectorised) segment: the entries of other branches there are exact zeros
-// in row k, and stay so. M and its factor share the storage (row-major NV x NV, lower triangle read).
+// and of L (there is no fill-in), is non-zero only for j an ancestor dof of k, so the eliminations and
+// solves follow the tree, each dof's ancestors read from dof_ancestors. M and its factor share the
+// storage (row-major NV x NV, lower triangle read; the entries between branches are not).
 #pragma once
 
 #include "products.h"
 
 namespace tg {
 
-// In place: D on the diagonal, L strictly below it.
+// In place: D on the diagonal, L strictly below it. Eliminating (k, i) updates row i where row k can be
+// non-zero left of it: i and its ancestors (spatial_v2's LTDL).
 template <class M, class S> TG_HD void ltdl_factor(S* H) {
   const auto& d = data<M, S>();
   constexpr int NV = M::NV;
   for (int k = NV - 1; k >= 0; --k) {
-    const S* Hk = H + NV * k;
+    S* Hk = H + NV * k;
     const S inv = S(1) / Hk[k];
-    for (int i = d.dof_parent[k]; i >= 0; i = d.dof_parent[i]) {
+    for (const int i : d.dof_ancestors[k]) {
+      if (i < 0) break;
       // eliminate (k, i): row i loses L_ki times row k
       const S a = Hk[i] * inv;
       S* Hi = H + NV * i;
-      for (int j = 0; j <= i; ++j) Hi[j] -= a * Hk[j];
-      H[NV * k + i] = a;
+      Hi[i] -= a * Hk[i];
+      for (const int j : d.dof_ancestors[i]) {
+        if (j < 0) break;
+        Hi[j] -= a * Hk[j];
+      }
+      Hk[i] = a;
     }
   }
 }
 
-// x := M^-1 x from ltdl_factor's H: L^T z = x (leaves up), z / D, then L y = z (root down); L's zeros
-// make the dense triangular loops exact.
+// x := M^-1 x from ltdl_factor's H: L^T z = x (leaves up), z / D, then L y = z (root down).
 template <class M, class S> TG_HD void ltdl_solve(const S* H, S* x) {
+  const auto& d = data<M, S>();
   constexpr int NV = M::NV;
-  for (int i = NV - 1; i > 0; --i) {
-    const S xi = x[i];
-    for (int j = 0; j < i; ++j) x[j] -= H[NV * i + j] * xi;
-  }
-  for (int i = 0; i < NV; ++i) x[i] /= H[NV * i + i];
-  for (int i = 1; i < NV; ++i) {
-    S s = S(0);
-    for (int j = 0; j < i; ++j) s += H[NV * i + j] * x[j];
-    x[i] -= s;
+  for (int i = NV - 1; i > 0; --i)
+    for (const int j : d.dof_ancestors[i]) {
+      if (j < 0) break;
+      x[j] -= H[NV * i + j] * x[i];
+    }
+  for (int i = 0; i < NV; ++i) {
+    S s = x[i] / H[NV * i + i];
+    for (const int j : d.dof_ancestors[i]) {
+      if (j < 0) break;
+      s -= H[NV * i + j] * x[j];
+    }
+    x[i] = s;
   }
 }
 
-// x (COLS entries) -= sum_m c[m] X[ks[m]] over n rows of X (row stride XS). On a CPU x is held in registers
-// as 8-lane vectors (GCC's vector extension) while the rows stream past: each FMA then has a dozen
-// independent others beside it, where a few columns at a time would wait on the one before. A GPU thread
-// updates x in place.
+// x (COLS entries) := a x - sum_m c[m] X[ks[m]] over n rows of X (row stride XS), also added to t if given.
+// On a CPU x is held in registers as 8-lane vectors (GCC's vector extension) while the rows stream past:
+// each FMA then has a dozen independent others beside it, where a few columns at a time would wait on the
+// one before. A GPU thread updates x in place.
 #if defined(__GNUC__) && !defined(__CUDACC__)
-template <int XS, int COLS, class S> inline void less_rows(int n, const int* ks, const S* c, const S* X, S* x) {
+template <int XS, int COLS, class S>
+inline void less_rows(int n, const int* ks, const S* c, const S* X, S* x, S a = S(1), S* t = nullptr) {
   typedef S V __attribute__((vector_size(8 * sizeof(S))));
   constexpr int NL = COLS / 8, T = COLS % 8;
   V acc[NL > 0 ? NL : 1];
   S tail[T > 0 ? T : 1];
 #pragma GCC unroll 16
-  for (int l = 0; l < NL; ++l) __builtin_memcpy(&acc[l], x + 8 * l, sizeof(V));
-  for (int t = 0; t < T; ++t) tail[t] = x[8 * NL + t];
+  for (int l = 0; l < NL; ++l) {
+    __builtin_memcpy(&acc[l], x + 8 * l, sizeof(V));
+    acc[l] *= a;
+  }
+  for (int e = 0; e < T; ++e) tail[e] = a * x[8 * NL + e];
   for (int m = 0; m < n; ++m) {
     const S cm = c[m];
     const S* xr = X + XS * ks[m];
@@ -64,28 +76,43 @@ template <int XS, int COLS, class S> inline void less_rows(int n, const int* ks,
       __builtin_memcpy(&y, xr + 8 * l, sizeof(V));
       acc[l] -= cm * y;
     }
-    for (int t = 0; t < T; ++t) tail[t] -= cm * xr[8 * NL + t];
+    for (int e = 0; e < T; ++e) tail[e] -= cm * xr[8 * NL + e];
   }
 #pragma GCC unroll 16
   for (int l = 0; l < NL; ++l) __builtin_memcpy(x + 8 * l, &acc[l], sizeof(V));
-  for (int t = 0; t < T; ++t) x[8 * NL + t] = tail[t];
+  for (int e = 0; e < T; ++e) x[8 * NL + e] = tail[e];
+  if (t) {
+#pragma GCC unroll 16
+    for (int l = 0; l < NL; ++l) {
+      V y;
+      __builtin_memcpy(&y, t + 8 * l, sizeof(V));
+      y += acc[l];
+      __builtin_memcpy(t + 8 * l, &y, sizeof(V));
+    }
+    for (int e = 0; e < T; ++e) t[8 * NL + e] += tail[e];
+  }
 }
 constexpr int kSolveCols = 128;
 #else
-template <int XS, int COLS, class S> TG_HD void less_rows(int n, const int* ks, const S* c, const S* X, S* x) {
+template <int XS, int COLS, class S>
+TG_HD void less_rows(int n, const int* ks, const S* c, const S* X, S* x, S a = S(1), S* t = nullptr) {
+  for (int e = 0; e < COLS; ++e) x[e] *= a;
   for (int m = 0; m < n; ++m) {
     const S cm = c[m];
     const S* xr = X + XS * ks[m];
     for (int e = 0; e < COLS; ++e) x[e] -= cm * xr[e];
   }
+  if (t)
+    for (int e = 0; e < COLS; ++e) t[e] += x[e];
 }
 constexpr int kSolveCols = 16;
 #endif
 
 // Columns [c0, c0 + W) of X := M^-1 X (NV x COLS, row-major) from ltdl_factor's H, a row at a time: L^T Z = X
 // from the leaves (row j less L_ij times each row i below it, [j + 1, dof_end)), then Y = D^-1 Z - L Y from
-// the root (row i less L_ij times each row j on its dof_parent chain).
-template <class M, int COLS, int W, class S> TG_HD void ltdl_solve_columns(const S* H, S* X, int c0) {
+// the root (row i less L_ij times each row j among its ancestors); each row of Y also added to T's (of X's
+// layout) if given.
+template <class M, int COLS, int W, class S> TG_HD void ltdl_solve_columns(const S* H, S* X, int c0, S* T = nullptr) {
   const auto& d = data<M, S>();
   constexpr int NV = M::NV;
   int ks[NV];
@@ -96,20 +123,21 @@ template <class M, int COLS, int W, class S> TG_HD void ltdl_solve_columns(const
     if (n) less_rows<COLS, W>(n, ks, L, X + c0, X + COLS * j + c0);
   }
   for (int i = 0; i < NV; ++i) {
-    S* x = X + COLS * i + c0;
-    const S inv = S(1) / H[NV * i + i];
-    for (int c = 0; c < W; ++c) x[c] *= inv;
     int n = 0;
-    for (int j = d.dof_parent[i]; j >= 0; j = d.dof_parent[j]) ks[n] = j, L[n++] = H[NV * i + j];
-    if (n) less_rows<COLS, W>(n, ks, L, X + c0, x);
+    for (const int j : d.dof_ancestors[i]) {
+      if (j < 0) break;
+      ks[n] = j, L[n++] = H[NV * i + j];
+    }
+    less_rows<COLS, W>(n, ks, L, X + c0, X + COLS * i + c0, S(1) / H[NV * i + i], T ? T + COLS * i + c0 : nullptr);
   }
 }
 
-// X := M^-1 X for NV x COLS X (row-major), in slices of columns that stay in a CPU core's L1 cache.
-template <class M, int COLS, class S> TG_HD void ltdl_solve_rows(const S* H, S* X) {
+// X := M^-1 X for NV x COLS X (row-major), at most as many columns at a time as a CPU core's registers hold;
+// the result also added to T's (of X's layout) if given.
+template <class M, int COLS, class S> TG_HD void ltdl_solve_rows(const S* H, S* X, S* T = nullptr) {
   constexpr int W = kSolveCols, RC = COLS % W;
-  for (int c0 = 0; c0 < COLS - RC; c0 += W) ltdl_solve_columns<M, COLS, W>(H, X, c0);
-  if constexpr (RC > 0) ltdl_solve_columns<M, COLS, RC>(H, X, COLS - RC);
+  for (int c0 = 0; c0 < COLS - RC; c0 += W) ltdl_solve_columns<M, COLS, W>(H, X, c0, T);
+  if constexpr (RC > 0) ltdl_solve_columns<M, COLS, RC>(H, X, COLS - RC, T);
 }
 
 }  // namespace tg

@@ -195,16 +195,18 @@ template <class M, class S> struct FramesVjp {
   TG_HD static void run(const FramesVjpArgs<S>& a) { frames_vjp<M, S>(a.q, a.weights, a.tau); }
 };
 
-// d tau/dq, d tau/dqd in the convention C (qd, qdd in Pinocchio's). The free joints' columns of M come
-// from the derivatives' composite inertias. Its workspace lives in this function's frame, which a
-// GPU thread's stack holds only while it runs (not beside the caller's minv).
-template <class M, class S, int C>
+// d tau/dq, d tau/dqd in the convention C (qd, qdd in Pinocchio's); without Zero, the entries between
+// branches of the tree are left as they were (the reframe mixes a free joint's rows and columns, related to
+// every dof of its tree). The free joints' columns of M come from the derivatives' composite inertias. Its
+// workspace lives in this function's frame, which a GPU thread's stack holds only while it runs (not beside
+// the caller's minv).
+template <class M, class S, int C, bool Zero>
 TG_HD void inverse_dynamics_derivatives(const Placements<M, S>& K, const S* qd, const S* qdd, const S* fext,
                                         const Conv<M, S, C>& cv, S* dtau_dq, S* dtau_dqd) {
   RneaDerivativesWork<M, S> W;
   rnea_derivatives_setup<M, S>(K, qd, qdd, fext, W);
   S tau[M::NV];
-  rnea_derivatives<M, S>(W, tau, dtau_dq, dtau_dqd);
+  rnea_derivatives<M, S, Zero>(W, tau, dtau_dq, dtau_dqd);
   if constexpr (Conv<M, S, C>::active) {
     S Mb[M::NV * Conv<M, S, C>::NB3];
     mass_base_columns<M, S>(W, Mb);

@@ -9,10 +9,14 @@ namespace tg {
 
 // GCC unrolls a short fixed-length loop completely before its vectorizer runs, and then multiplies in
 // scalars; kept a loop, the column block below is vectorized and held in registers.
+// The block's rows, though, are unrolled: a loop over them would index the accumulators, which then
+// live in memory.
 #if defined(__GNUC__) && !defined(__clang__) && !defined(__CUDACC__)
 #define TG_KEEP_LOOP _Pragma("GCC unroll 1")
+#define TG_UNROLL _Pragma("GCC unroll 16")
 #else
 #define TG_KEEP_LOOP
+#define TG_UNROLL
 #endif
 
 // The register block: 6 x 16 on a CPU; one row of 16 on a GPU, whose thread holds far fewer registers
@@ -30,67 +34,88 @@ struct AllColumns {
   TG_HD int operator[](int k) const { return k; }
 };
 
-// out (RB x CB, row stride OS) (+)= sum_t w_t g_t X_t: g_t RB x K (row stride gs), X_t K x CB (row
-// stride XS), the inner index k = ks[0..K); ADD adds to out, otherwise overwrites it.
-template <int XS, int OS, int RB, int CB, bool ADD, class S, class Ks = AllColumns>
-TG_HD void block_products(int nt, int K, const S* const* g, int gs, const S* w, const S* const* X, S* out, Ks ks = {}) {
+// out (RB x CB, row stride OS) (+)= sum_t w_t g_t X_t: g_t RB x K (row stride gs; with TG, g_t^T for g_t
+// K x RB), X_t K x CB (row stride XS), the inner index k = ks[0..K); ADD adds to out, otherwise overwrites
+// it. The weights scale the block between terms, w_0 S_0 + w_1 S_1 = w_1 (S_1 + (w_0 / w_1) S_0), not each
+// product (nonzero w).
+template <int XS, int OS, int RB, int CB, bool ADD, bool TG = false, class S, class Ks = AllColumns>
+TG_HD_NOINLINE void block_products(int nt, int K, const S* const* g, int gs, const S* w, const S* const* X, S* out,
+                                   Ks ks = {}) {
   S acc[RB][CB];
-  for (int r = 0; r < RB; ++r)
+  TG_UNROLL
+  for (int r = 0; r < RB; ++r) {
+    TG_KEEP_LOOP
     for (int c = 0; c < CB; ++c) acc[r][c] = S(0);
-  for (int t = 0; t < nt; ++t)
+  }
+  for (int t = 0; t < nt; ++t) {
+    if (t > 0) {
+      const S ratio = w[t - 1] / w[t];
+      TG_UNROLL
+      for (int r = 0; r < RB; ++r) {
+        TG_KEEP_LOOP
+        for (int c = 0; c < CB; ++c) acc[r][c] *= ratio;
+      }
+    }
     for (int n = 0; n < K; ++n) {
       const int k = ks[n];
       const S* x = X[t] + XS * k;
+      TG_UNROLL
       for (int r = 0; r < RB; ++r) {
-        const S gr = w[t] * g[t][gs * r + k];
+        const S gr = TG ? g[t][gs * k + r] : g[t][gs * r + k];
         TG_KEEP_LOOP
         for (int c = 0; c < CB; ++c) acc[r][c] += gr * x[c];
       }
     }
-  for (int r = 0; r < RB; ++r)
-    for (int c = 0; c < CB; ++c) out[OS * r + c] = ADD ? out[OS * r + c] + acc[r][c] : acc[r][c];
+  }
+  const S last = nt > 0 ? w[nt - 1] : S(0);
+  TG_UNROLL
+  for (int r = 0; r < RB; ++r) {
+    TG_KEEP_LOOP
+    for (int c = 0; c < CB; ++c) out[OS * r + c] = ADD ? out[OS * r + c] + last * acc[r][c] : last * acc[r][c];
+  }
 }
 
 // An RB-row block over COLS columns: blocks of CB, then the rest in vector-sized pieces (8, 4,
 // 2, 1), since an odd-width block is not vectorized.
-template <int XS, int OS, int RB, int COLS, bool ADD, int CB = kProductCols, class S, class Ks = AllColumns>
+template <int XS, int OS, int RB, int COLS, bool ADD, int CB = kProductCols, bool TG = false, class S,
+          class Ks = AllColumns>
 TG_HD void row_block_products(int nt, int K, const S* const* g, int gs, const S* w, const S* const* X, S* out,
                               Ks ks = {}) {
   constexpr int RC = COLS % CB;
   const S* x[4];
   for (int c0 = 0; c0 < COLS - RC; c0 += CB) {
     for (int t = 0; t < nt; ++t) x[t] = X[t] + c0;
-    block_products<XS, OS, RB, CB, ADD>(nt, K, g, gs, w, x, out + c0, ks);
+    block_products<XS, OS, RB, CB, ADD, TG>(nt, K, g, gs, w, x, out + c0, ks);
   }
   if constexpr (RC > 0) {
     constexpr int W = RC >= 8 ? 8 : RC >= 4 ? 4 : RC >= 2 ? 2 : 1;
     for (int t = 0; t < nt; ++t) x[t] = X[t] + COLS - RC;
-    block_products<XS, OS, RB, W, ADD>(nt, K, g, gs, w, x, out + COLS - RC, ks);
+    block_products<XS, OS, RB, W, ADD, TG>(nt, K, g, gs, w, x, out + COLS - RC, ks);
     if constexpr (RC > W) {
       for (int t = 0; t < nt; ++t) x[t] += W;
-      row_block_products<XS, OS, RB, RC - W, ADD>(nt, K, g, gs, w, x, out + COLS - RC + W, ks);
+      row_block_products<XS, OS, RB, RC - W, ADD, kProductCols, TG>(nt, K, g, gs, w, x, out + COLS - RC + W, ks);
     }
   }
 }
 
 // out (ROWS x COLS, row stride OS) (+)= sum_t w_t g_t X_t for up to 4 terms: g_t ROWS x K (row stride
-// gs), X_t K x COLS (row stride XS).
-template <int ROWS, int COLS, int XS, int OS, bool ADD, class S>
+// gs; with TG, g_t^T for g_t K x ROWS), X_t K x COLS (row stride XS).
+template <int ROWS, int COLS, int XS, int OS, bool ADD, bool TG = false, class S>
 TG_HD void products(int nt, int K, const S* const* g, int gs, const S* w, const S* const* X, S* out) {
   constexpr int RB = kProductRows, RR = ROWS % RB;
   const S* gr[4];
   for (int r0 = 0; r0 < ROWS - RR; r0 += RB) {
-    for (int t = 0; t < nt; ++t) gr[t] = g[t] + gs * r0;
-    row_block_products<XS, OS, RB, COLS, ADD>(nt, K, gr, gs, w, X, out + OS * r0);
+    for (int t = 0; t < nt; ++t) gr[t] = g[t] + (TG ? r0 : gs * r0);
+    row_block_products<XS, OS, RB, COLS, ADD, kProductCols, TG>(nt, K, gr, gs, w, X, out + OS * r0);
   }
   if constexpr (RR > 0) {
-    for (int t = 0; t < nt; ++t) gr[t] = g[t] + gs * (ROWS - RR);
-    row_block_products<XS, OS, RR, COLS, ADD>(nt, K, gr, gs, w, X, out + OS * (ROWS - RR));
+    for (int t = 0; t < nt; ++t) gr[t] = g[t] + (TG ? ROWS - RR : gs * (ROWS - RR));
+    row_block_products<XS, OS, RR, COLS, ADD, kProductCols, TG>(nt, K, gr, gs, w, X, out + OS * (ROWS - RR));
   }
 }
 
 // The columns k of an NV x NV matrix that can be non-zero in rows [r0, r1) when it is zero between dofs
-// on different branches of the tree (d tau/dq, d tau/dqd): the rows' ancestors below r0 (dof_parent), then
+// on different branches of the tree (d tau/dq, d tau/dqd): the rows' ancestors below r0 (dof_ancestors), then
 // [r0, the end of their subtrees) (dofs are numbered depth first, dof_end). Into ks, ascending; returns
 // their count.
 template <class M, class S> TG_HD int related_columns(int r0, int r1, int* ks) {
@@ -100,10 +125,9 @@ template <class M, class S> TG_HD int related_columns(int r0, int r1, int* ks) {
   int end = r1;
   for (int r = r0; r < r1; ++r) {
     end = d.dof_end[r] > end ? d.dof_end[r] : end;
-    for (int j = d.dof_parent[r]; j >= 0; j = d.dof_parent[j]) {
-      if (j >= r0) continue;
-      if (mark[j]) break;  // and so are its ancestors
-      mark[j] = true;
+    for (const int j : d.dof_ancestors[r]) {
+      if (j < 0 || (j < r0 && mark[j])) break;  // a marked one's ancestors are marked
+      if (j < r0) mark[j] = true;
     }
   }
   int n = 0;
@@ -113,22 +137,25 @@ template <class M, class S> TG_HD int related_columns(int r0, int r1, int* ks) {
   return n;
 }
 
-// out (NV x COLS, row stride OS) (+)= sum_t w_t g_t X_t for up to 4 terms, each g_t NV x NV (row stride NV)
-// zero between dofs on different branches: each block of rows runs over its related columns alone.
-template <class M, int COLS, int XS, int OS, bool ADD, class S>
+// out (NV x COLS, row stride OS) (+)= sum_t w_t g_t X_t for up to 4 terms, each g_t NV x NV (row stride NV;
+// with TG, g_t^T) zero between dofs on different branches: each block of rows runs over its related columns
+// alone.
+template <class M, int COLS, int XS, int OS, bool ADD, bool TG = false, class S>
 TG_HD void tree_products(int nt, const S* const* g, const S* w, const S* const* X, S* out) {
   constexpr int NV = M::NV, RB = kProductRows, RR = NV % RB;
   int ks[NV];
   const S* gr[4];
   for (int r0 = 0; r0 < NV - RR; r0 += RB) {
     const int n = related_columns<M, S>(r0, r0 + RB, ks);
-    for (int t = 0; t < nt; ++t) gr[t] = g[t] + NV * r0;
-    row_block_products<XS, OS, RB, COLS, ADD>(nt, n, gr, NV, w, X, out + OS * r0, static_cast<const int*>(ks));
+    for (int t = 0; t < nt; ++t) gr[t] = g[t] + (TG ? r0 : NV * r0);
+    row_block_products<XS, OS, RB, COLS, ADD, kProductCols, TG>(nt, n, gr, NV, w, X, out + OS * r0,
+                                                                static_cast<const int*>(ks));
   }
   if constexpr (RR > 0) {
     const int n = related_columns<M, S>(NV - RR, NV, ks);
-    for (int t = 0; t < nt; ++t) gr[t] = g[t] + NV * (NV - RR);
-    row_block_products<XS, OS, RR, COLS, ADD>(nt, n, gr, NV, w, X, out + OS * (NV - RR), static_cast<const int*>(ks));
+    for (int t = 0; t < nt; ++t) gr[t] = g[t] + (TG ? NV - RR : NV * (NV - RR));
+    row_block_products<XS, OS, RR, COLS, ADD, kProductCols, TG>(nt, n, gr, NV, w, X, out + OS * (NV - RR),
+                                                                static_cast<const int*>(ks));
   }
 }
 

@@ -118,12 +118,14 @@ TG_HD void rnea_derivatives_setup(const Placements<M, S>& K, const S* qd, const 
 // (j included), per-column motions X, Y:
 //   row m, column j:  S_m^T (Yc_m X_j + B_m Y_j)                        (m below or at j)
 //   row m, column j:  S_m^T (Yc_j X_j + B_j Y_j [+ s_j x* F_j])          (m strictly above j)
-// Entries of unrelated branches are zero. HalfY takes Y / 2 for Y (exactly, without its storage).
-template <bool ForceTerm, bool HalfY, class M, class S, class Work>
+// Entries of unrelated branches are zero (left as they were without Zero, for a reader of the tree's
+// entries alone). HalfY takes Y / 2 for Y (exactly, without its storage).
+template <bool ForceTerm, bool HalfY, class M, class S, class Work, bool Zero = true>
 TG_HD void ancestor_pairs(const Work& W, const Sv<S>* X, const Sv<S>* Y, S* out) {
   const auto& d = data<M, S>();
   constexpr int NV = M::NV;
-  for (int k = 0; k < NV * NV; ++k) out[k] = S(0);
+  if constexpr (Zero)
+    for (int k = 0; k < NV * NV; ++k) out[k] = S(0);
   for (int i = 0; i < M::NB; ++i) {
     // Rows of joint i, columns of its ancestors and itself.
     for (int l = 0; l < d.nvj[i]; ++l) {
@@ -150,14 +152,16 @@ TG_HD void ancestor_pairs(const Work& W, const Sv<S>* X, const Sv<S>* Y, S* out)
   }
 }
 
-// tau (NV), dtau_dq and dtau_dqd (NV x NV, row-major) at the (q, qd, qdd, fext) W was set up at.
-template <class M, class S>
+// tau (NV), dtau_dq and dtau_dqd (NV x NV, row-major) at the (q, qd, qdd, fext) W was set up at; without
+// Zero, the entries between branches are left as they were.
+template <class M, class S, bool Zero = true>
 TG_HD void rnea_derivatives(const RneaDerivativesWork<M, S>& W, S* tau, S* dtau_dq, S* dtau_dqd) {
   const auto& d = data<M, S>();
+  using Work = RneaDerivativesWork<M, S>;
   for (int i = 0; i < M::NB; ++i)
     for (int l = 0; l < d.nvj[i]; ++l) tau[d.vi[i] + l] = dot(W.s[d.vi[i] + l], W.F[i]);
-  ancestor_pairs<true, false, M, S>(W, W.u, W.w, dtau_dq);
-  ancestor_pairs<false, false, M, S>(W, W.alpha, W.s, dtau_dqd);
+  ancestor_pairs<true, false, M, S, Work, Zero>(W, W.u, W.w, dtau_dq);
+  ancestor_pairs<false, false, M, S, Work, Zero>(W, W.alpha, W.s, dtau_dqd);
 }
 
 // lambda^T d tau / dq and lambda^T d tau / dqd (NV each) in O(n), the pairs above summed over their rows

@@ -1,20 +1,18 @@
 // The explicit Runge-Kutta steps in Munthe-Kaas's form (MuJoCo's mj_RungeKutta; torch_grid/integrators.py
 // holds the same in torch) and their tangent Jacobians, from each stage's inverse-dynamics derivatives.
 // Stage i (tableau a, weights b; every vector in the call's convention):
-//   theta_i = sum_j a_ij c_j,  q_i = q (+) dt theta_i,  v_i = qd + dt sum_j a_ij acc_j,  acc_i = FD(q_i, v_i, tau)
-//   c_i = dexp(dt theta_i)^-1 v_i   (the stage velocity carried to q's chart; v_i at a vector-space joint)
-// and the step q' = q (+) dt sum_j b_j c_j, qd' = qd + dt sum_j b_j acc_j. Along z = [dq; dqd; dtau] (each
-// derivative an NV x 3 NV row-major matrix), with D_q, D_v the stage's d tau/dq, d tau/dqd at acc_i and M
-// its mass matrix (FD's derivatives are -M^-1 [D_q D_v -I]):
-//   M dacc_i = [0 0 I] - D_q dq_i - D_v dv_i,   dv_i = [0 I 0] + dt sum_j a_ij dacc_j
-// At a vector-space joint's rows dc_j = dv_j, so that dq_i = [I 0 0] + dt sum_j a_ij dc_j there is
-//   dq_i = [I, dt c_i I, 0] + dt^2 sum_l (a a)_il dacc_l                  (c_i = sum_j a_ij)
-// and at a quaternion joint's (n x n blocks: Jq, Jv integrate's tangent Jacobians at dt theta_i, D dexp^-1's)
-//   dq_i = Jq [I 0 0] + dt Jv dtheta_i,  dtheta_i = sum_j a_ij dc_j,  dc_i = D_v dv_i + dt D_theta dtheta_i.
-// A stage thus costs products of D_q and D_v, zero between branches of the tree, with earlier dacc_l, and a
-// solve by M's L^T D L factor: never the dense M^-1 D. The step's rows: qd' = [0 I 0] + dt sum_l b_l dacc_l;
-// q' = [I, dt I, 0] + dt^2 sum_l (b a)_l dacc_l at a vector-space joint, Jq [I 0 0] + dt Jv sum_j b_j dc_j at
-// a quaternion joint (at the step's dt theta).
+//   u_i = dt sum_j a_ij c_j,  q_i = q (+) u_i,  v_i = qd + dt sum_j a_ij acc_j,  acc_i = FD(q_i, v_i, tau)
+//   c_i = dexp(u_i)^-1 v_i   (the stage velocity carried to q's chart; v_i at a vector-space joint)
+// and the step q' = q (+) u', u' = dt sum_j b_j c_j, qd' = qd + dt sum_j b_j acc_j. FD's derivatives are
+// -M^-1 [D_q D_v -I], with D_q, D_v the stage's d tau/dq, d tau/dqd at acc_i and M its mass matrix.
+// The Jacobians are taken in reverse: one adjoint column per output row (2 NV of them, against 3 NV input
+// directions), from the last stage to the first. With abar_i, cbar_i the adjoints of acc_i and c_i:
+//   mu = M^-1 abar_i,  taubar += mu,  qbar_i = -D_q^T mu,  vbar_i = -D_v^T mu + D_v'^T cbar_i,
+//   ubar_i = Jv^T qbar_i + D_u^T cbar_i,  qbar += Jq^T qbar_i,  qdbar += vbar_i,
+//   cbar_j += dt a_ij ubar_i,  abar_j += dt a_ij vbar_i   (j < i)
+// (Jq, Jv: integrate's tangent Jacobians at u_i; D_v', D_u: dexp^-1's along v and u; all the identity, or
+// zero for D_u, at a vector-space joint). A stage thus costs a solve by M's L^T D L factor and products of
+// D_q^T and D_v^T, zero between branches of the tree, with 2 NV columns: never the dense M^-1 D.
 #pragma once
 
 #include "crba.h"
@@ -27,7 +25,7 @@
 namespace tg {
 
 // ops.h (its workspace in its own frame)
-template <class M, class S, int C>
+template <class M, class S, int C, bool Zero = true>
 TG_HD void inverse_dynamics_derivatives(const Placements<M, S>& K, const S* qd, const S* qdd, const S* fext,
                                         const Conv<M, S, C>& cv, S* dtau_dq, S* dtau_dqd);
 
@@ -71,41 +69,54 @@ template <class T, int C> TG_HD void dexp_inverse_joint(int n, const T* theta, c
   }
 }
 
-// c = dexp(theta)^-1 x and its n x n derivatives along theta and x, by forward-mode differentiation of
-// the joint's closed form (2n passes over a dozen 3 x 3 products).
+// c = dexp(theta)^-1 x and its n x n derivatives along theta, by forward-mode differentiation of the joint's
+// closed form (a pass over a dozen 3 x 3 products per direction), and along x, the map itself (linear in x:
+// n plain evaluations). Pinocchio's free joint is linear in theta's translation rho too (through Q(rho, w)):
+// d c / d rho_k is the linear part of the map at theta = (e_k, w), x = (0, x_ang).
 template <class S, int C> TG_HD void dexp_inverse_jacobians(int n, const S* theta, const S* x, S* c, S* Dtheta, S* Dx) {
+  if (C == MJX && n == 6) {  // MuJoCo's free joint: its position is carried as it is, its rotation as a ball's
+    S Dt3[9], Dx3[9];
+    dexp_inverse_jacobians<S, C>(3, theta + 3, x + 3, c + 3, Dt3, Dx3);
+    for (int a = 0; a < 6; ++a)
+      for (int b = 0; b < 6; ++b) {
+        const bool ang = a >= 3 && b >= 3;
+        Dtheta[6 * a + b] = ang ? Dt3[3 * (a - 3) + b - 3] : S(0);
+        Dx[6 * a + b] = ang ? Dx3[3 * (a - 3) + b - 3] : S(a == b);
+      }
+    for (int m = 0; m < 3; ++m) c[m] = x[m];
+    return;
+  }
+  const int linear = C == PIN && n == 6 ? 3 : 0;
+  S e[6], col[6], t[6];
+  for (int k = 0; k < linear; ++k) {
+    for (int m = 0; m < 6; ++m) t[m] = m < 3 ? S(m == k) : theta[m], e[m] = m < 3 ? S(0) : x[m];
+    dexp_inverse_joint<S, C>(6, t, e, col);
+    for (int m = 0; m < 6; ++m) Dtheta[6 * m + k] = m < 3 ? col[m] : S(0);
+  }
   Dual<S> th[6], xx[6], out[6];
-  for (int k = 0; k < 2 * n; ++k) {
-    for (int m = 0; m < n; ++m) {
-      th[m] = Dual<S>(theta[m], S(k == m));
-      xx[m] = Dual<S>(x[m], S(k == n + m));
-    }
+  for (int k = linear; k < n; ++k) {
+    for (int m = 0; m < n; ++m) th[m] = Dual<S>(theta[m], S(k == m)), xx[m] = Dual<S>(x[m], S(0));
     dexp_inverse_joint<Dual<S>, C>(n, th, xx, out);
-    for (int m = 0; m < n; ++m) (k < n ? Dtheta[n * m + k] : Dx[n * m + k - n]) = out[m].d;
+    for (int m = 0; m < n; ++m) Dtheta[n * m + k] = out[m].d;
   }
   for (int m = 0; m < n; ++m) c[m] = out[m].v;
+  for (int k = 0; k < n; ++k) {
+    for (int m = 0; m < n; ++m) e[m] = S(m == k);
+    dexp_inverse_joint<S, C>(n, theta, e, col);
+    for (int m = 0; m < n; ++m) Dx[n * m + k] = col[m];
+  }
 }
 
-// Row r of the step's Jacobian [A | B] (2 NV x 3 NV, split at column 2 NV): row = w x + beta row (beta = 0
-// overwrites what the output held), and its copy out.
-template <int NV, class S> TG_HD void jacobian_row_update(S* A, S* B, int r, S w, const S* x, S beta) {
-  S* a = A + 2 * NV * r;
-  S* b = B + NV * r;
-  for (int c = 0; c < 2 * NV; ++c) a[c] = (beta != S(0) ? beta * a[c] : S(0)) + w * x[c];
-  for (int c = 0; c < NV; ++c) b[c] = (beta != S(0) ? beta * b[c] : S(0)) + w * x[2 * NV + c];
-}
-template <int NV, class S> TG_HD void jacobian_row(const S* A, const S* B, int r, S* out) {
-  for (int c = 0; c < 2 * NV; ++c) out[c] = A[2 * NV * r + c];
-  for (int c = 0; c < NV; ++c) out[2 * NV + c] = B[NV * r + c];
-}
-
-// out (n x COLS) (+)= sum_t w_t g_t X_t for a quaternion joint's n x n blocks g_t (n = 3 or 6).
-template <int COLS, bool ADD, class S>
-TG_HD void joint_rows(int n, int nt, const S* const* g, const S* w, const S* const* X, S* out) {
+// out (n x COLS) (+)= sum_t G_t^T X_t for a quaternion joint's n x n blocks G_t (n = 3 or 6) and n-row X_t.
+template <int COLS, class S>
+TG_HD void joint_adjoint(int n, int nt, const S* const* G, const S* const* X, S* out, bool add) {
+  const S one[4] = {S(1), S(1), S(1), S(1)};
   if (n == 6)
-    products<6, COLS, COLS, COLS, ADD>(nt, 6, g, 6, w, X, out);
+    add ? products<6, COLS, COLS, COLS, true, true>(nt, 6, G, 6, one, X, out)
+        : products<6, COLS, COLS, COLS, false, true>(nt, 6, G, 6, one, X, out);
   else
-    products<3, COLS, COLS, COLS, ADD>(nt, 3, g, 3, w, X, out);
+    add ? products<3, COLS, COLS, COLS, true, true>(nt, 3, G, 3, one, X, out)
+        : products<3, COLS, COLS, COLS, false, true>(nt, 3, G, 3, one, X, out);
 }
 
 // A stage's dynamics at cs (v, tau in Pinocchio's convention): acc = FD(q, v, tau), D_q and D_v at it and
@@ -125,171 +136,197 @@ TG_HD void rk_stage(const Conv<M, S, C>& cs, const S* v, const S* tau, const S* 
   cs.force_out(acc);
   ltdl_solve<M, S>(H, acc);
   const S* qdd = cs.velocity(acc, buf);  // G^T
-  inverse_dynamics_derivatives<M, S>(K, v, qdd, fext, cs, Dq, Dv);
+  inverse_dynamics_derivatives<M, S, C, false>(K, v, qdd, fext, cs, Dq, Dv);  // read on the tree's entries alone
   if (qdd != acc)
     for (int k = 0; k < NV; ++k) acc[k] = qdd[k];
   cs.acceleration_out(v, acc);
 }
 
+// y += x and, for k < nf, to[k] += w[k] x (written, not added, where fresh), in one pass over N entries.
+template <int N, class S>
+TG_HD void spread(const S* x, S* y, int nf, S* const* to, const S* w, const bool* fresh) {
+  if (nf == 0) {
+    for (int e = 0; e < N; ++e) y[e] += x[e];
+  } else if (fresh[0]) {
+    for (int e = 0; e < N; ++e) y[e] += x[e], to[0][e] = w[0] * x[e];
+  } else {
+    for (int e = 0; e < N; ++e) y[e] += x[e], to[0][e] += w[0] * x[e];
+  }
+  for (int k = 1; k < nf; ++k)
+    for (int e = 0; e < N; ++e) to[k][e] = (fresh[k] ? S(0) : to[k][e]) + w[k] * x[e];
+}
+
+// Stage i's adjoints (NV x 2 NV each, a column per output row, q' then qd'), from abar and cbar, its
+// acceleration's and carried velocity's:
+// mu = M^-1 abar (in place; on the last stage only the qd' columns, the q' ones being zero), taubar += mu;
+// qbar_i = -D_q^T mu (into U), qbar += Jq^T qbar_i; vbar_i = -D_v^T mu + D_v'^T cbar (in place of cbar),
+// qdbar += vbar_i; and for each earlier stage j it feeds (nf of them, dt a_ij in w), cbar_j += w ubar_i and
+// abar_j += w vbar_i (written, not added, where fresh), ubar_i = Jv^T qbar_i + D_u^T cbar. At a
+// vector-space joint Jq, Jv and D_v' are the identity and D_u zero, so qbar_i and vbar_i are spread as they
+// are, and a quaternion joint's rows mended.
+template <class M, class S, int C>
+TG_HD void rk_adjoint_stage(const S* q, const S* u, const S* v, const S* Dq, const S* Dv, const S* H, bool last,
+                            S* abar, S* cbar, S* U, int nf, S* const* fa, S* const* fc, const S* fw, const bool* fresh,
+                            S* qbar, S* qdbar, S* taubar) {
+  constexpr int NV = M::NV, K2 = 2 * NV, NA = NV * K2;
+  const auto& d = data<M, S>();
+  const S minus[1] = {S(-1)};
+  const S* gq[1] = {Dq};
+  const S* gv[1] = {Dv};
+  if (last) {
+    ltdl_solve_columns<M, K2, NV>(H, abar, NV, taubar);
+    for (int r = 0; r < NV; ++r)
+      for (int c = 0; c < NV; ++c) U[K2 * r + c] = S(0);
+    const S* X[1] = {abar + NV};
+    tree_products<M, NV, K2, K2, false, true>(1, gq, minus, X, U + NV);
+  } else {
+    ltdl_solve_rows<M, K2>(H, abar, taubar);
+    const S* X[1] = {abar};
+    tree_products<M, K2, K2, K2, false, true>(1, gq, minus, X, U);
+  }
+  spread<NA>(U, qbar, nf, fc, fw, fresh);
+  // a quaternion joint's rows: qbar += (Jq - I)^T qbar_i, cbar_j += w (ubar_i - qbar_i), cbar = D_v'^T cbar
+  for (int jn = 0; jn < M::NB; ++jn) {
+    S Jq[36], Jv[36], Du[36], Dx[36], c[6], qs[M::NQ], blk[6 * K2];
+    const int n = integrate_joint<M, S, C>(jn, q, u, qs, Jq, Jv), vi = d.vi[jn];
+    if (!n) continue;
+    dexp_inverse_jacobians<S, C>(n, u + vi, v + vi, c, Du, Dx);
+    S* const Ur = U + K2 * vi;
+    S* const Cr = cbar + K2 * vi;
+    for (int a = 0; a < n; ++a) Jq[n * a + a] -= S(1), Jv[n * a + a] -= S(1);
+    const S* g1[1] = {Jq};
+    const S* x1[1] = {Ur};
+    joint_adjoint<K2>(n, 1, g1, x1, qbar + K2 * vi, true);
+    const S* g2[2] = {Jv, Du};
+    const S* x2[2] = {Ur, Cr};
+    joint_adjoint<K2>(n, 2, g2, x2, blk, false);
+    for (int k = 0; k < nf; ++k)
+      for (int e = 0; e < n * K2; ++e) fc[k][K2 * vi + e] += fw[k] * blk[e];
+    const S* g3[1] = {Dx};
+    const S* x3[1] = {Cr};
+    joint_adjoint<K2>(n, 1, g3, x3, blk, false);
+    for (int e = 0; e < n * K2; ++e) Cr[e] = blk[e];
+  }
+  // vbar_i = cbar - D_v^T mu, in place
+  if (last) {
+    const S* X[1] = {abar + NV};
+    tree_products<M, NV, K2, K2, true, true>(1, gv, minus, X, cbar + NV);
+  } else {
+    const S* X[1] = {abar};
+    tree_products<M, K2, K2, K2, true, true>(1, gv, minus, X, cbar);
+  }
+  spread<NA>(cbar, qdbar, nf, fa, fw, fresh);
+}
+
 // The step and its Jacobians. cv at q, qd and tau in Pinocchio's convention (as the binding passes them).
-// Outputs: q_next (NQ), qd_next (NV), A (2 NV x 2 NV), B (2 NV x NV), in the convention; work: 8 NV x 3 NV,
-// dacc_0..3, then dc_0..2 (a quaternion joint's rows), then D_q, D_v and M's factor.
+// Outputs: q_next (NQ), qd_next (NV), A (2 NV x 2 NV), B (2 NV x NV), in the convention, A and B holding
+// their transposes (the adjoints of q, qd and tau) until the end. work (8 NV x 3 NV): each stage's D_q, D_v
+// and M's factor (NV x NV each), slots of pending adjoints abar_j, cbar_j (NV x 2 NV each; a stage's slot
+// differs from those of the stages it feeds: rk4's stage i feeds stage i - 1 alone, so two slots alternate;
+// rk3 has one a stage), then ubar_i and the step's Jv blocks.
 template <class M, class S, int C>
 TG_HD void rk_step(const Conv<M, S, C>& cv, const S* qd, const S* tau, const S* fext, S h, int scheme, S* q_next,
                    S* qd_next, S* A, S* B, S* work) {
-  constexpr int NV = M::NV, N3 = 3 * NV, D = NV * N3, NN = NV * NV;
+  constexpr int NV = M::NV, K2 = 2 * NV, NN = NV * NV, NA = NV * K2;
   const auto& d = data<M, S>();
   const RkTableau T = rk_tableau(scheme);
-  const int s = T.stages;
-  S* const dacc[4] = {work, work + D, work + 2 * D, work + 3 * D};
-  S* const dc[3] = {work + 4 * D, work + 5 * D, work + 6 * D};
-  S* const Dq = work + 7 * D;
-  S* const Dv = Dq + NN;
-  S* const H = Dv + NN;
-  S v0[NV], tau_c[NV], acc[4][NV], car[4][NV], v[NV], u[NV], qs[M::NQ], blk[6 * N3];
+  const int s = T.stages, nslots = s == 3 ? 3 : 2;
+  S* const slots = work + 3 * NN * s;
+  S* const U = slots + 2 * NA * nslots;
+  const auto slot = [&](int j) { return slots + 2 * NA * (s == 3 ? j : j % 2); };
+  S v0[NV], tau_c[NV], acc[4][NV], car[4][NV], u[4][NV], v[4][NV], qs[M::NQ], un[NV];
   for (int k = 0; k < NV; ++k) v0[k] = qd[k], tau_c[k] = tau[k];
   cv.velocity_out(v0);
   cv.force_out(tau_c);
-  // q' rows: [I, dt I, 0] at vector-space joints, zero at quaternion joints (where sum_j b_j dc_j builds up);
-  // qd' rows: [0 I 0]
-  for (int r = 0; r < 2 * NV; ++r) {
-    for (int c = 0; c < 2 * NV; ++c) A[2 * NV * r + c] = S(0);
-    for (int c = 0; c < NV; ++c) B[NV * r + c] = S(0);
-  }
-  for (int jn = 0; jn < M::NB; ++jn) {
-    const int t = d.jtype[jn];
-    if (t == FREE || t == BALL) continue;
-    for (int a = 0; a < d.nvj[jn]; ++a) {
-      const int r = d.vi[jn] + a;
-      A[2 * NV * r + r] = S(1);
-      A[2 * NV * r + NV + r] = h;
-    }
-  }
-  for (int r = 0; r < NV; ++r) A[2 * NV * (NV + r) + NV + r] = S(1);
+  // the stages' values and dynamics
   for (int i = 0; i < s; ++i) {
-    const double* ai = T.a[i];
-    // theta_i, v_i; then q_i, c_i and, at quaternion joints, dc_i = D_v dv_i + dt D_theta dtheta_i, onto the
-    // rows of q' (weight b_i) and kept for the later stages
-    double ci = 0, aa[4] = {0, 0, 0, 0}, ba = 0;  // sum_j a_ij, (a a)_il, (b a)_i
-    for (int j = 0; j < i; ++j) {
-      ci += ai[j];
-      for (int l = 0; l < j; ++l) aa[l] += ai[j] * T.a[j][l];
-    }
-    for (int m = i + 1; m < s; ++m) ba += T.b[m] * T.a[m][i];
     for (int k = 0; k < NV; ++k) {
       S th = S(0), ac = S(0);
-      for (int j = 0; j < i; ++j) th += S(ai[j]) * car[j][k], ac += S(ai[j]) * acc[j][k];
-      u[k] = h * th;
-      v[k] = v0[k] + h * ac;
+      for (int j = 0; j < i; ++j) th += S(T.a[i][j]) * car[j][k], ac += S(T.a[i][j]) * acc[j][k];
+      u[i][k] = h * th;
+      v[i][k] = v0[k] + h * ac;
     }
     for (int jn = 0; jn < M::NB; ++jn) {
-      S Jq[36], Jv[36], Dth[36], Dx[36];
-      const int n = integrate_joint<M, S, C>(jn, cv.q, u, qs, Jq, Jv), vi = d.vi[jn];
-      if (!n) {
-        for (int a = 0; a < d.nvj[jn]; ++a) car[i][vi + a] = v[vi + a];
-        continue;
-      }
-      dexp_inverse_jacobians<S, C>(n, u + vi, v + vi, car[i] + vi, Dth, Dx);
-      const S* g[4];
-      const S* X[4];
-      S w[4];
-      int nt = 0;
-      for (int j = 0; j < i; ++j)
-        if (ai[j] != 0) {
-          g[nt] = Dx, w[nt] = h * S(ai[j]), X[nt++] = dacc[j] + N3 * vi;
-          g[nt] = Dth, w[nt] = h * S(ai[j]), X[nt++] = dc[j] + N3 * vi;
-        }
-      joint_rows<N3, false>(n, nt, g, w, X, blk);
-      for (int a = 0; a < n; ++a) {
-        for (int b = 0; b < n; ++b) blk[N3 * a + NV + vi + b] += Dx[n * a + b];
-        if (i < s - 1)
-          for (int c = 0; c < N3; ++c) dc[i][N3 * (vi + a) + c] = blk[N3 * a + c];
-        if (T.b[i] != 0) jacobian_row_update<NV>(A, B, vi + a, S(T.b[i]), blk + N3 * a, S(1));
-      }
+      S Jq[36], Jv[36];
+      const int n = integrate_joint<M, S, C>(jn, cv.q, u[i], qs, Jq, Jv), vi = d.vi[jn];
+      if (n)
+        dexp_inverse_joint<S, C>(n, u[i] + vi, v[i] + vi, car[i] + vi);
+      else
+        for (int a = 0; a < d.nvj[jn]; ++a) car[i][vi + a] = v[i][vi + a];
     }
-    // the stage's dynamics
+    S* const Dq = work + 3 * NN * i;
     if (i == 0) {
-      rk_stage<M, S, C>(cv, qd, tau, fext, Dq, Dv, H, acc[0]);
+      rk_stage<M, S, C>(cv, qd, tau, fext, Dq, Dq + NN, Dq + 2 * NN, acc[0]);
     } else {
       const Conv<M, S, C> cs(qs);
       S vb[Conv<M, S, C>::active ? NV : 1], tb[Conv<M, S, C>::active ? NV : 1];
-      rk_stage<M, S, C>(cs, cs.velocity(v, vb), cs.force(tau_c, tb), fext, Dq, Dv, H, acc[i]);
+      rk_stage<M, S, C>(cs, cs.velocity(v[i], vb), cs.force(tau_c, tb), fext, Dq, Dq + NN, Dq + 2 * NN, acc[i]);
     }
-    // R = [0 0 I] - D_q dq_i - D_v dv_i into dacc_i: the identity blocks, each quaternion joint's columns of
-    // D_q times its rows of dq_i (then zeroed), the products with the earlier dacc_l; dacc_i = M^-1 R
-    S* const R = dacc[i];
-    for (int r = 0; r < NV; ++r)
-      for (int c = 0; c < NV; ++c) {
-        R[N3 * r + c] = -Dq[NV * r + c];
-        R[N3 * r + NV + c] = -(h * S(ci) * Dq[NV * r + c] + Dv[NV * r + c]);
-        R[N3 * r + 2 * NV + c] = S(r == c);
-      }
-    for (int jn = 0; jn < M::NB; ++jn) {
-      S Jq[36], Jv[36], P[NV * 6];  // P = D_q's columns of the joint times Jv
-      const int n = integrate_joint<M, S, C>(jn, cv.q, u, qs, Jq, Jv), vi = d.vi[jn];
-      if (!n) continue;
-      for (int r = 0; r < NV; ++r) {
-        S* dq = Dq + NV * r + vi;
-        for (int b = 0; b < n; ++b) {
-          S pq = S(0), pv = S(0);
-          for (int a = 0; a < n; ++a) pq += dq[a] * Jq[n * a + b], pv += dq[a] * Jv[n * a + b];
-          R[N3 * r + vi + b] += dq[b] - pq;  // in place of the identity blocks' D_q terms
-          R[N3 * r + NV + vi + b] += h * S(ci) * dq[b];
-          P[n * r + b] = pv;
-        }
-        for (int b = 0; b < n; ++b) dq[b] = S(0);
-      }
-      // - dt sum_j a_ij P dc_j at the joint's rows
-      const S* g[4];
-      const S* X[4];
-      S w[4];
-      int nt = 0;
-      for (int j = 0; j < i; ++j)
-        if (ai[j] != 0) g[nt] = P, w[nt] = -h * S(ai[j]), X[nt++] = dc[j] + N3 * vi;
-      if (nt) products<NV, N3, N3, N3, true>(nt, n, g, n, w, X, R);
-    }
-    {
-      const S* g[4];
-      const S* X[4];
-      S w[4];
-      int nt = 0;
-      for (int l = 0; l < i; ++l) {
-        if (aa[l] != 0) g[nt] = Dq, w[nt] = -h * h * S(aa[l]), X[nt++] = dacc[l];
-        if (ai[l] != 0) g[nt] = Dv, w[nt] = -h * S(ai[l]), X[nt++] = dacc[l];
-      }
-      if (nt) tree_products<M, N3, N3, N3, true>(nt, g, w, X, R);
-    }
-    ltdl_solve_rows<M, N3>(H, R);
-    // onto the rows of qd' (dt b_i) and of q' at vector-space joints (dt^2 (b a)_i)
-    const S wv = h * S(T.b[i]), wq = h * h * S(ba);
-    if (wv != S(0))
-      for (int r = 0; r < NV; ++r) jacobian_row_update<NV>(A, B, NV + r, wv, R + N3 * r, S(1));
-    if (wq != S(0))
-      for (int jn = 0; jn < M::NB; ++jn) {
-        const int t = d.jtype[jn];
-        if (t == FREE || t == BALL) continue;
-        for (int a = 0; a < d.nvj[jn]; ++a) jacobian_row_update<NV>(A, B, d.vi[jn] + a, wq, R + N3 * (d.vi[jn] + a), S(1));
-      }
   }
-  // q' = q (+) dt theta, theta = sum_j b_j c_j, its rows Jq [I 0 0] + dt Jv dtheta at quaternion joints (dtheta
-  // what their rows hold); qd' = qd + dt sum_j b_j acc_j
+  // the step: q' = q (+) u', qd' = qd + dt sum_j b_j acc_j
   for (int k = 0; k < NV; ++k) {
     S th = S(0), ac = S(0);
     for (int j = 0; j < s; ++j) th += S(T.b[j]) * car[j][k], ac += S(T.b[j]) * acc[j][k];
-    u[k] = h * th;
+    un[k] = h * th;
     qd_next[k] = v0[k] + h * ac;
   }
-  for (int jn = 0; jn < M::NB; ++jn) {
-    S Jq[36], Jv[36];
-    const int n = integrate_joint<M, S, C>(jn, cv.q, u, q_next, Jq, Jv), vi = d.vi[jn];
-    if (!n) continue;
-    for (int a = 0; a < n; ++a) jacobian_row<NV>(A, B, vi + a, blk + N3 * a);
-    for (int a = 0; a < n; ++a) {
-      jacobian_row_update<NV>(A, B, vi + a, h * Jv[n * a], blk, S(0));
-      for (int b = 1; b < n; ++b) jacobian_row_update<NV>(A, B, vi + a, h * Jv[n * a + b], blk + N3 * b, S(1));
-      for (int b = 0; b < n; ++b) A[2 * NV * (vi + a) + vi + b] += Jq[n * a + b];
-    }
+  // adjoints: qbar = Jq'^T on the q' columns, qdbar = I on the qd' ones (A's storage, as A^T), taubar (B's,
+  // as B^T)
+  S* const qbar = A;
+  S* const qdbar = A + NA;
+  S* const taubar = B;
+  for (int e = 0; e < 2 * NA; ++e) A[e] = S(0);
+  for (int e = 0; e < NA; ++e) taubar[e] = S(0);
+  for (int k = 0; k < NV; ++k) qdbar[K2 * k + NV + k] = S(1);
+  S* const Jvs = U + NA;  // the step's Jv at each quaternion joint, n x n after one another (at most 6 NV)
+  for (int jn = 0, o = 0; jn < M::NB; ++jn) {
+    S Jq[36];
+    const int n = integrate_joint<M, S, C>(jn, cv.q, un, q_next, Jq, Jvs + o), vi = d.vi[jn];
+    for (int a = 0; a < (n ? n : d.nvj[jn]); ++a)
+      for (int b = 0; b < (n ? n : d.nvj[jn]); ++b) qbar[K2 * (vi + a) + vi + b] = n ? Jq[n * b + a] : S(a == b);
+    o += n * n;
   }
+  bool fed[4] = {false, false, false, false};
+  for (int i = s - 1; i >= 0; --i) {
+    S* const abar = slot(i);
+    S* const cbar = abar + NA;
+    // the output's own terms: qd' = ... + dt b_i acc_i, u' = ... + dt b_i c_i
+    if (!fed[i])
+      for (int e = 0; e < 2 * NA; ++e) abar[e] = S(0);
+    const S hb = h * S(T.b[i]);
+    for (int k = 0; k < NV; ++k) abar[K2 * k + NV + k] += hb;
+    for (int jn = 0, o = 0; jn < M::NB; ++jn) {
+      const int t = d.jtype[jn], n = t == FREE ? 6 : t == BALL ? 3 : 0, vi = d.vi[jn];
+      for (int a = 0; a < (n ? n : d.nvj[jn]); ++a)
+        for (int b = 0; b < (n ? n : d.nvj[jn]); ++b) cbar[K2 * (vi + a) + vi + b] += hb * (n ? Jvs[o + n * b + a] : S(a == b));
+      o += n * n;
+    }
+    // the earlier stages it feeds: v_i = qd + dt sum_j a_ij acc_j, u_i = dt sum_j a_ij c_j
+    S* fa[2];
+    S* fc[2];
+    S fw[2];
+    bool fresh[2];
+    int nf = 0;
+    for (int j = 0; j < i; ++j)
+      if (T.a[i][j] != 0) {
+        fa[nf] = slot(j), fc[nf] = slot(j) + NA, fw[nf] = h * S(T.a[i][j]), fresh[nf++] = !fed[j];
+        fed[j] = true;
+      }
+    const S* const Dq = work + 3 * NN * i;
+    rk_adjoint_stage<M, S, C>(cv.q, u[i], v[i], Dq, Dq + NN, Dq + 2 * NN, i == s - 1, abar, cbar, U, nf, fa, fc, fw,
+                              fresh, qbar, qdbar, taubar);
+  }
+  // A and B from their transposes
+  for (int r = 0; r < K2; ++r)
+    for (int c = 0; c < r; ++c) {
+      const S x = A[K2 * r + c];
+      A[K2 * r + c] = A[K2 * c + r];
+      A[K2 * c + r] = x;
+    }
+  S* const Bt = slot(0);
+  for (int e = 0; e < NA; ++e) Bt[e] = taubar[e];
+  for (int r = 0; r < K2; ++r)
+    for (int k = 0; k < NV; ++k) B[NV * r + k] = Bt[K2 * k + r];
 }
 
 }  // namespace tg
