@@ -137,25 +137,44 @@ template <class M, class S> TG_HD int related_columns(int r0, int r1, int* ks) {
   return n;
 }
 
+// The related columns of every block of kProductRows rows (related_columns), found once for a kernel's many
+// tree products on a CPU; a GPU thread, whose blocks are single rows, finds each as it goes.
+template <class M, class S> struct TreeBlocks {
+  static constexpr int NV = M::NV, RB = kProductRows, NBLK = (NV + RB - 1) / RB;
+#ifdef __CUDA_ARCH__
+  TG_HD const int* columns(int b, int* buf, int& n) const {
+    n = related_columns<M, S>(RB * b, RB * b + RB < NV ? RB * b + RB : NV, buf);
+    return buf;
+  }
+#else
+  int count[NBLK], ks[NBLK][NV];
+  TreeBlocks() {
+    for (int b = 0; b < NBLK; ++b) count[b] = related_columns<M, S>(RB * b, RB * b + RB < NV ? RB * b + RB : NV, ks[b]);
+  }
+  const int* columns(int b, int*, int& n) const {
+    n = count[b];
+    return ks[b];
+  }
+#endif
+};
+
 // out (NV x COLS, row stride OS) (+)= sum_t w_t g_t X_t for up to 4 terms, each g_t NV x NV (row stride NV;
 // with TG, g_t^T) zero between dofs on different branches: each block of rows runs over its related columns
-// alone.
+// (tb's) alone.
 template <class M, int COLS, int XS, int OS, bool ADD, bool TG = false, class S>
-TG_HD void tree_products(int nt, const S* const* g, const S* w, const S* const* X, S* out) {
+TG_HD void tree_products(const TreeBlocks<M, S>& tb, int nt, const S* const* g, const S* w, const S* const* X, S* out) {
   constexpr int NV = M::NV, RB = kProductRows, RR = NV % RB;
-  int ks[NV];
+  int buf[NV], n;
   const S* gr[4];
   for (int r0 = 0; r0 < NV - RR; r0 += RB) {
-    const int n = related_columns<M, S>(r0, r0 + RB, ks);
+    const int* ks = tb.columns(r0 / RB, buf, n);
     for (int t = 0; t < nt; ++t) gr[t] = g[t] + (TG ? r0 : NV * r0);
-    row_block_products<XS, OS, RB, COLS, ADD, kProductCols, TG>(nt, n, gr, NV, w, X, out + OS * r0,
-                                                                static_cast<const int*>(ks));
+    row_block_products<XS, OS, RB, COLS, ADD, kProductCols, TG>(nt, n, gr, NV, w, X, out + OS * r0, ks);
   }
   if constexpr (RR > 0) {
-    const int n = related_columns<M, S>(NV - RR, NV, ks);
+    const int* ks = tb.columns(NV / RB, buf, n);
     for (int t = 0; t < nt; ++t) gr[t] = g[t] + (TG ? NV - RR : NV * (NV - RR));
-    row_block_products<XS, OS, RR, COLS, ADD, kProductCols, TG>(nt, n, gr, NV, w, X, out + OS * (NV - RR),
-                                                                static_cast<const int*>(ks));
+    row_block_products<XS, OS, RR, COLS, ADD, kProductCols, TG>(nt, n, gr, NV, w, X, out + OS * (NV - RR), ks);
   }
 }
 

@@ -165,9 +165,9 @@ TG_HD void spread(const S* x, S* y, int nf, S* const* to, const S* w, const bool
 // vector-space joint Jq, Jv and D_v' are the identity and D_u zero, so qbar_i and vbar_i are spread as they
 // are, and a quaternion joint's rows mended.
 template <class M, class S, int C>
-TG_HD void rk_adjoint_stage(const S* q, const S* u, const S* v, const S* Dq, const S* Dv, const S* H, bool last,
-                            S* abar, S* cbar, S* U, int nf, S* const* fa, S* const* fc, const S* fw, const bool* fresh,
-                            S* qbar, S* qdbar, S* taubar) {
+TG_HD void rk_adjoint_stage(const TreeBlocks<M, S>& tb, const S* q, const S* u, const S* v, const S* Dq, const S* Dv,
+                            const S* H, bool last, S* abar, S* cbar, S* U, int nf, S* const* fa, S* const* fc,
+                            const S* fw, const bool* fresh, S* qbar, S* qdbar, S* taubar) {
   constexpr int NV = M::NV, K2 = 2 * NV, NA = NV * K2;
   const auto& d = data<M, S>();
   const S minus[1] = {S(-1)};
@@ -178,11 +178,11 @@ TG_HD void rk_adjoint_stage(const S* q, const S* u, const S* v, const S* Dq, con
     for (int r = 0; r < NV; ++r)
       for (int c = 0; c < NV; ++c) U[K2 * r + c] = S(0);
     const S* X[1] = {abar + NV};
-    tree_products<M, NV, K2, K2, false, true>(1, gq, minus, X, U + NV);
+    tree_products<M, NV, K2, K2, false, true>(tb, 1, gq, minus, X, U + NV);
   } else {
     ltdl_solve_rows<M, K2>(H, abar, taubar);
     const S* X[1] = {abar};
-    tree_products<M, K2, K2, K2, false, true>(1, gq, minus, X, U);
+    tree_products<M, K2, K2, K2, false, true>(tb, 1, gq, minus, X, U);
   }
   spread<NA>(U, qbar, nf, fc, fw, fresh);
   // a quaternion joint's rows: qbar += (Jq - I)^T qbar_i, cbar_j += w (ubar_i - qbar_i), cbar = D_v'^T cbar
@@ -210,10 +210,10 @@ TG_HD void rk_adjoint_stage(const S* q, const S* u, const S* v, const S* Dq, con
   // vbar_i = cbar - D_v^T mu, in place
   if (last) {
     const S* X[1] = {abar + NV};
-    tree_products<M, NV, K2, K2, true, true>(1, gv, minus, X, cbar + NV);
+    tree_products<M, NV, K2, K2, true, true>(tb, 1, gv, minus, X, cbar + NV);
   } else {
     const S* X[1] = {abar};
-    tree_products<M, K2, K2, K2, true, true>(1, gv, minus, X, cbar);
+    tree_products<M, K2, K2, K2, true, true>(tb, 1, gv, minus, X, cbar);
   }
   spread<NA>(cbar, qdbar, nf, fa, fw, fresh);
 }
@@ -286,6 +286,7 @@ TG_HD void rk_step(const Conv<M, S, C>& cv, const S* qd, const S* tau, const S* 
       for (int b = 0; b < (n ? n : d.nvj[jn]); ++b) qbar[K2 * (vi + a) + vi + b] = n ? Jq[n * b + a] : S(a == b);
     o += n * n;
   }
+  const TreeBlocks<M, S> tb;
   bool fed[4] = {false, false, false, false};
   for (int i = s - 1; i >= 0; --i) {
     S* const abar = slot(i);
@@ -313,7 +314,7 @@ TG_HD void rk_step(const Conv<M, S, C>& cv, const S* qd, const S* tau, const S* 
         fed[j] = true;
       }
     const S* const Dq = work + 3 * NN * i;
-    rk_adjoint_stage<M, S, C>(cv.q, u[i], v[i], Dq, Dq + NN, Dq + 2 * NN, i == s - 1, abar, cbar, U, nf, fa, fc, fw,
+    rk_adjoint_stage<M, S, C>(tb, cv.q, u[i], v[i], Dq, Dq + NN, Dq + 2 * NN, i == s - 1, abar, cbar, U, nf, fa, fc, fw,
                               fresh, qbar, qdbar, taubar);
   }
   // A and B from their transposes
