@@ -77,13 +77,17 @@ def step_rows(robots: dict) -> list[str]:
         fdg = _per_sample_us(lambda: view.forward_dynamics_gradient(q, qd, tau), B)
         euler = _per_sample_us(lambda: view.step_derivatives(q, qd, tau, 0.01, "semi_implicit_euler"), B)
         rk4 = _per_sample_us(lambda: view.step_derivatives(q, qd, tau, 0.01, "rk4"), B)
+        pin, q_pin = robot.pin, robot.pin.random_configuration(B, generator=g)
+        fdg_pin = _per_sample_us(lambda: pin.forward_dynamics_gradient(q_pin, qd, tau), B)
+        rk4_pin = _per_sample_us(lambda: pin.step_derivatives(q_pin, qd, tau, 0.01, "rk4"), B)
         m = _mujoco_model(src, floating, mujoco.mjtIntegrator.mjINT_EULER)
         ref = _transition_fd_us(m, q[0].numpy())
         some = q[:64], qd[:64], tau[:64]
         closed = _per_sample_us(lambda: view.step_second_derivatives(*some, 0.01, "semi_implicit_euler"), 64, seconds=2.0)
         hessian = _per_sample_us(lambda: view.step_second_derivatives(*some, 0.01, "rk4"), 64, seconds=2.0)
         rows.append(f"| {name} | {fdg:.2f} | {euler:.2f} ({euler / fdg:.2f}x) | {rk4:.2f} ({rk4 / fdg:.2f}x) | "
-                    f"{ref:.1f} ({ref / euler:.0f}x ours) | {closed:.0f} | {hessian:.0f} |")
+                    f"{ref:.1f} ({ref / euler:.0f}x ours) | {closed:.0f} | {hessian:.0f} | "
+                    f"{rk4_pin:.2f} ({rk4_pin / fdg_pin:.2f}x) |")
         print(rows[-1], flush=True)
     torch.set_num_threads(threads)
     return rows
@@ -132,9 +136,11 @@ def step_section(robots: dict) -> str:
               "their ratio to it; MuJoCo's "
               "mjd_transitionFD per call on the same robot (Euler, forward differences, its default; motors on the "
               "joints) and how many of our samples it costs; step_second_derivatives per sample for semi-implicit "
-              "Euler and rk4 (closed form; the second-order chain rule through the stages), B = 64.\n\n"
+              "Euler and rk4 (closed form; the second-order chain rule through the stages), B = 64; and rk4's "
+              "step_derivatives in Pinocchio's convention with its ratio to forward_dynamics_gradient there.\n\n"
               "| robot | forward_dynamics_gradient | step_derivatives euler | step_derivatives rk4 | mjd_transitionFD | "
-              "step_second_derivatives euler | step_second_derivatives rk4 |\n|---|---|---|---|---|---|---|\n")
+              "step_second_derivatives euler | step_second_derivatives rk4 | step_derivatives rk4, pin |\n"
+              "|---|---|---|---|---|---|---|---|\n")
     iteration, horizon = ilqr_iteration_ms()
     return (header + "\n".join(step_rows(robots)) + "\n\n"
             f"examples/ilqr.py's go2 problem, 256 samples, horizon 50, semi-implicit Euler, one thread: one call of "
