@@ -62,10 +62,10 @@ def robot_header(model: RobotModel, namespace: str) -> str:
         if p >= 0:
             vend[p] = max(vend[p], vend[i])
     j = model.joints
-    # per dof, the dof before it on the path to the root (the previous of its joint, else the last of the
-    # nearest ancestor joint with dofs; -1 at the root): the sparsity of M's factor (kernels/ltdl.h); that
-    # chain itself, nearest first, padded with -1 (a kernel reads it without walking the chain, one load
-    # after another); and dof_end, the end of its descendants [k + 1, dof_end) (dofs are numbered depth first)
+    # per dof, its ancestor dofs, nearest first, padded with -1 (the previous of its joint, else the last of
+    # the nearest ancestor joint with dofs, and so on to the root): the sparsity of M's factor
+    # (kernels/ltdl.h) and of d tau/dq, read as a list rather than walked one dependent load at a time; and
+    # dof_end, the end of its descendants [k + 1, dof_end) (dofs are numbered depth first)
     dof_parent = []
     for i, x in enumerate(j):
         a = x.parent
@@ -101,7 +101,6 @@ def robot_header(model: RobotModel, namespace: str) -> str:
         ("int", "vi", vi),
         ("int", "nvj", [x.nv for x in j]),
         ("int", "vend", vend),
-        ("int", "dof_parent", dof_parent),
         ("int", "dof_end", [vend[i] for i, x in enumerate(j) for _ in range(x.nv)]),
         ("int", "dof_ancestors", dof_ancestors),
         ("int", "free_joint", [i for i, x in enumerate(j) if x.type == "free"] or [-1]),

@@ -21,12 +21,10 @@ namespace tg {
 
 // The register block: 6 x 16 on a CPU; one row of 16 on a GPU, whose thread holds far fewer registers
 // (larger blocks spilled more in forward_dynamics_external_force_gradient on G1).
-// A single row's products (the L^T D L solve's) take wider blocks on a CPU, where a few columns per inner
-// index would leave the loop's own work dominant.
 #ifdef __CUDA_ARCH__
-constexpr int kProductRows = 1, kProductCols = 16, kRowCols = 16;
+constexpr int kProductRows = 1, kProductCols = 16;
 #else
-constexpr int kProductRows = 6, kProductCols = 16, kRowCols = 16;
+constexpr int kProductRows = 6, kProductCols = 16;
 #endif
 
 // The inner index k of a block's products: every one of 0..K-1, or those of a list (`const int*`).
@@ -75,13 +73,12 @@ TG_HD_NOINLINE void block_products(int nt, int K, const S* const* g, int gs, con
   }
 }
 
-// An RB-row block over COLS columns: blocks of CB, then the rest in vector-sized pieces (8, 4,
+// An RB-row block over COLS columns: blocks of kProductCols, then the rest in vector-sized pieces (8, 4,
 // 2, 1), since an odd-width block is not vectorized.
-template <int XS, int OS, int RB, int COLS, bool ADD, int CB = kProductCols, bool TG = false, class S,
-          class Ks = AllColumns>
+template <int XS, int OS, int RB, int COLS, bool ADD, bool TG = false, class S, class Ks = AllColumns>
 TG_HD void row_block_products(int nt, int K, const S* const* g, int gs, const S* w, const S* const* X, S* out,
                               Ks ks = {}) {
-  constexpr int RC = COLS % CB;
+  constexpr int CB = kProductCols, RC = COLS % CB;
   const S* x[4];
   for (int c0 = 0; c0 < COLS - RC; c0 += CB) {
     for (int t = 0; t < nt; ++t) x[t] = X[t] + c0;
@@ -93,7 +90,7 @@ TG_HD void row_block_products(int nt, int K, const S* const* g, int gs, const S*
     block_products<XS, OS, RB, W, ADD, TG>(nt, K, g, gs, w, x, out + COLS - RC, ks);
     if constexpr (RC > W) {
       for (int t = 0; t < nt; ++t) x[t] += W;
-      row_block_products<XS, OS, RB, RC - W, ADD, kProductCols, TG>(nt, K, g, gs, w, x, out + COLS - RC + W, ks);
+      row_block_products<XS, OS, RB, RC - W, ADD, TG>(nt, K, g, gs, w, x, out + COLS - RC + W, ks);
     }
   }
 }
@@ -106,11 +103,11 @@ TG_HD void products(int nt, int K, const S* const* g, int gs, const S* w, const 
   const S* gr[4];
   for (int r0 = 0; r0 < ROWS - RR; r0 += RB) {
     for (int t = 0; t < nt; ++t) gr[t] = g[t] + (TG ? r0 : gs * r0);
-    row_block_products<XS, OS, RB, COLS, ADD, kProductCols, TG>(nt, K, gr, gs, w, X, out + OS * r0);
+    row_block_products<XS, OS, RB, COLS, ADD, TG>(nt, K, gr, gs, w, X, out + OS * r0);
   }
   if constexpr (RR > 0) {
     for (int t = 0; t < nt; ++t) gr[t] = g[t] + (TG ? ROWS - RR : gs * (ROWS - RR));
-    row_block_products<XS, OS, RR, COLS, ADD, kProductCols, TG>(nt, K, gr, gs, w, X, out + OS * (ROWS - RR));
+    row_block_products<XS, OS, RR, COLS, ADD, TG>(nt, K, gr, gs, w, X, out + OS * (ROWS - RR));
   }
 }
 
@@ -169,12 +166,12 @@ TG_HD void tree_products(const TreeBlocks<M, S>& tb, int nt, const S* const* g, 
   for (int r0 = 0; r0 < NV - RR; r0 += RB) {
     const int* ks = tb.columns(r0 / RB, buf, n);
     for (int t = 0; t < nt; ++t) gr[t] = g[t] + (TG ? r0 : NV * r0);
-    row_block_products<XS, OS, RB, COLS, ADD, kProductCols, TG>(nt, n, gr, NV, w, X, out + OS * r0, ks);
+    row_block_products<XS, OS, RB, COLS, ADD, TG>(nt, n, gr, NV, w, X, out + OS * r0, ks);
   }
   if constexpr (RR > 0) {
     const int* ks = tb.columns(NV / RB, buf, n);
     for (int t = 0; t < nt; ++t) gr[t] = g[t] + (TG ? NV - RR : NV * (NV - RR));
-    row_block_products<XS, OS, RR, COLS, ADD, kProductCols, TG>(nt, n, gr, NV, w, X, out + OS * (NV - RR), ks);
+    row_block_products<XS, OS, RR, COLS, ADD, TG>(nt, n, gr, NV, w, X, out + OS * (NV - RR), ks);
   }
 }
 
