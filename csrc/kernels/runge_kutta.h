@@ -41,38 +41,31 @@ TG_HD RkTableau rk_tableau(int scheme) {
   return {4, {{0, 0, 0}, {0.5, 0, 0}, {0, 0.5, 0}, {0, 0, 1}}, {1.0 / 6, 1.0 / 3, 1.0 / 3, 1.0 / 6}};
 }
 
-// Jr(w)^-1 y = y + [w] y / 2 + beta [w]^2 y, beta = (1 - (t/2) cot(t/2)) / t^2 (a series near t = 0).
-template <class T> TG_HD Vec3<T> right_jacobian_inverse(Vec3<T> w, Vec3<T> y) {
-  const T t2 = dot(w, w);
-  T beta;
-  if (t2 < T(1e-4)) {
-    beta = T(1) / T(12) + t2 / T(720) + t2 * t2 / T(30240);
-  } else {
-    const T half = sqrt(t2) / T(2);
-    beta = (T(1) - half * cos(half) / sin(half)) / t2;
-  }
+// Jr(w)^-1 y = y + [w] y / 2 + beta [w]^2 y (So3Coefficients' beta at w).
+template <class T> TG_HD Vec3<T> right_jacobian_inverse(Vec3<T> w, T beta, Vec3<T> y) {
   return y + T(0.5) * cross(w, y) + beta * cross(w, cross(w, y));
 }
 
 // dexp(theta)^-1 x at one quaternion joint (n = 3: ball; n = 6: free, R^3 x SO(3) in MuJoCo's
 // convention, SE(3) in Pinocchio's, where dexp^-1 = [[Jr^-1, -Jr^-1 Q Jr^-1], [0, Jr^-1]]).
 template <class T, int C> TG_HD void dexp_inverse_joint(int n, const T* theta, const T* x, T* out) {
-  const Vec3<T> w = load3(theta + n - 3), xa = right_jacobian_inverse(w, load3(x + n - 3));
+  const Vec3<T> w = load3(theta + n - 3);
+  const So3Coefficients<T> k = so3_coefficients(w);
+  const Vec3<T> xa = right_jacobian_inverse(w, k.beta, load3(x + n - 3));
   store3(xa, out + n - 3);
   if (n == 6) {
     if constexpr (C == MJX) {
       store3(load3(x), out);
     } else {
-      const Mat3<T> Q = se3_coupling(load3(theta), w, so3_coefficients(w));
-      store3(right_jacobian_inverse(w, load3(x) - mul(Q, xa)), out);
+      const Mat3<T> Q = se3_coupling(load3(theta), w, k);
+      store3(right_jacobian_inverse(w, k.beta, load3(x) - mul(Q, xa)), out);
     }
   }
 }
 
-// c = dexp(theta)^-1 x and its n x n derivatives along theta, by forward-mode differentiation of the joint's
-// closed form (a pass over a dozen 3 x 3 products per direction), and along x, the map itself (linear in x:
-// n plain evaluations). Pinocchio's free joint is linear in theta's translation rho too (through Q(rho, w)):
-// d c / d rho_k is the linear part of the map at theta = (e_k, w), x = (0, x_ang).
+// c = dexp(theta)^-1 x and its n x n derivatives: along x the map's matrix; along Pinocchio's free joint's
+// rho, -Jr^-1 L(w, Jr^-1 x_ang) (step.h); along w, forward-mode passes of the closed form (a dozen 3 x 3
+// products each).
 template <class S, int C> TG_HD void dexp_inverse_jacobians(int n, const S* theta, const S* x, S* c, S* Dtheta, S* Dx) {
   if (C == MJX && n == 6) {  // MuJoCo's free joint: its position is carried as it is, its rotation as a ball's
     S Dt3[9], Dx3[9];
@@ -86,24 +79,30 @@ template <class S, int C> TG_HD void dexp_inverse_jacobians(int n, const S* thet
     for (int m = 0; m < 3; ++m) c[m] = x[m];
     return;
   }
-  const int linear = C == PIN && n == 6 ? 3 : 0;
-  S e[6], col[6], t[6];
-  for (int k = 0; k < linear; ++k) {
-    for (int m = 0; m < 6; ++m) t[m] = m < 3 ? S(m == k) : theta[m], e[m] = m < 3 ? S(0) : x[m];
-    dexp_inverse_joint<S, C>(6, t, e, col);
-    for (int m = 0; m < 6; ++m) Dtheta[6 * m + k] = m < 3 ? col[m] : S(0);
+  const Vec3<S> w = load3(theta + n - 3);
+  const So3Coefficients<S> k = so3_coefficients(w);
+  const Mat3<S> Ji = so3_terms(w, S(0.5), k.beta);
+  for (int e = 0; e < n * n; ++e) Dx[e] = S(0);
+  put3(Dx, n, n - 3, n - 3, Ji);
+  if (n == 6) {
+    const Mat3<S> JQJ = mul(Ji, mul(se3_coupling(load3(theta), w, k), Ji));
+    put3(Dx, 6, 0, 0, Ji);
+    for (int r = 0; r < 3; ++r)
+      for (int m = 0; m < 3; ++m) Dx[6 * r + 3 + m] = -JQJ.m[3 * r + m];
+    const Mat3<S> JL = mul(Ji, se3_coupling_along_rho(w, mul(Ji, load3(x + 3)), k));
+    for (int r = 0; r < 3; ++r)
+      for (int m = 0; m < 3; ++m) Dtheta[6 * r + m] = -JL.m[3 * r + m], Dtheta[6 * (r + 3) + m] = S(0);
+  }
+  for (int a = 0; a < n; ++a) {
+    S sum = S(0);
+    for (int b = 0; b < n; ++b) sum += Dx[n * a + b] * x[b];
+    c[a] = sum;
   }
   Dual<S> th[6], xx[6], out[6];
-  for (int k = linear; k < n; ++k) {
+  for (int k = n - 3; k < n; ++k) {
     for (int m = 0; m < n; ++m) th[m] = Dual<S>(theta[m], S(k == m)), xx[m] = Dual<S>(x[m], S(0));
     dexp_inverse_joint<Dual<S>, C>(n, th, xx, out);
     for (int m = 0; m < n; ++m) Dtheta[n * m + k] = out[m].d;
-  }
-  for (int m = 0; m < n; ++m) c[m] = out[m].v;
-  for (int k = 0; k < n; ++k) {
-    for (int m = 0; m < n; ++m) e[m] = S(m == k);
-    dexp_inverse_joint<S, C>(n, theta, e, col);
-    for (int m = 0; m < n; ++m) Dx[n * m + k] = col[m];
   }
 }
 
@@ -166,7 +165,7 @@ TG_HD void spread(const S* x, S* y, int nf, S* const* to, const S* w, const bool
 // are, and a quaternion joint's rows mended.
 template <class M, class S, int C>
 TG_HD void rk_adjoint_stage(const TreeBlocks<M, S>& tb, const S* q, const S* u, const S* v, const S* Dq, const S* Dv,
-                            const S* H, bool last, S* abar, S* cbar, S* U, int nf, S* const* fa, S* const* fc,
+                            const S* H, bool first, bool last, S* abar, S* cbar, S* U, int nf, S* const* fa, S* const* fc,
                             const S* fw, const bool* fresh, S* qbar, S* qdbar, S* taubar) {
   constexpr int NV = M::NV, K2 = 2 * NV, NA = NV * K2;
   const auto& d = data<M, S>();
@@ -186,7 +185,8 @@ TG_HD void rk_adjoint_stage(const TreeBlocks<M, S>& tb, const S* q, const S* u, 
   }
   spread<NA>(U, qbar, nf, fc, fw, fresh);
   // a quaternion joint's rows: qbar += (Jq - I)^T qbar_i, cbar_j += w (ubar_i - qbar_i), cbar = D_v'^T cbar
-  for (int jn = 0; jn < M::NB; ++jn) {
+  // (nothing at the first stage: at u = 0 Jq, Jv and D_v' are the identity, and it feeds no stage)
+  for (int jn = 0; jn < (first ? 0 : M::NB); ++jn) {
     S Jq[36], Jv[36], Du[36], Dx[36], c[6], qs[M::NQ], blk[6 * K2];
     const int n = integrate_joint<M, S, C>(jn, q, u, qs, Jq, Jv), vi = d.vi[jn];
     if (!n) continue;
@@ -247,8 +247,7 @@ TG_HD void rk_step(const Conv<M, S, C>& cv, const S* qd, const S* tau, const S* 
       v[i][k] = v0[k] + h * ac;
     }
     for (int jn = 0; jn < M::NB; ++jn) {
-      S Jq[36], Jv[36];
-      const int n = integrate_joint<M, S, C>(jn, cv.q, u[i], qs, Jq, Jv), vi = d.vi[jn];
+      const int n = integrate_joint<M, S, C>(jn, cv.q, u[i], qs, nullptr, nullptr), vi = d.vi[jn];
       if (n)
         dexp_inverse_joint<S, C>(n, u[i] + vi, v[i] + vi, car[i] + vi);
       else
@@ -314,8 +313,8 @@ TG_HD void rk_step(const Conv<M, S, C>& cv, const S* qd, const S* tau, const S* 
         fed[j] = true;
       }
     const S* const Dq = work + 3 * NN * i;
-    rk_adjoint_stage<M, S, C>(tb, cv.q, u[i], v[i], Dq, Dq + NN, Dq + 2 * NN, i == s - 1, abar, cbar, U, nf, fa, fc, fw,
-                              fresh, qbar, qdbar, taubar);
+    rk_adjoint_stage<M, S, C>(tb, cv.q, u[i], v[i], Dq, Dq + NN, Dq + 2 * NN, i == 0, i == s - 1, abar, cbar, U, nf,
+                              fa, fc, fw, fresh, qbar, qdbar, taubar);
   }
   // A and B from their transposes
   for (int r = 0; r < K2; ++r)

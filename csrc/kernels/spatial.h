@@ -83,14 +83,15 @@ template <class S> TG_HD Mat3<S> axis_rotation(Vec3<S> a, S c, S s) {
            k * x * z - s * y, k * y * z + s * x, c + k * z * z}};
 }
 
-// Rotation of the quaternion (x, y, z, w), normalised first so any non-zero quaternion is valid. A
-// quaternion of zero or non-finite norm is the identity, as in MuJoCo's mj_normalizeQuat.
 // The unit vector along axis c.
 template <class S> TG_HD Vec3<S> unit3(int c) {
   Vec3<S> e = v3(S(0), S(0), S(0));
   e.x[c] = S(1);
   return e;
 }
+
+// Rotation of the quaternion (x, y, z, w), normalised first so any non-zero quaternion is valid. A
+// quaternion of zero or non-finite norm is the identity, as in MuJoCo's mj_normalizeQuat.
 
 template <class S> TG_HD Mat3<S> quat_rotation(S x, S y, S z, S w) {
   const S n2 = x * x + y * y + z * z + w * w;

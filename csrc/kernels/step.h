@@ -16,11 +16,13 @@
 
 namespace tg {
 
-// SO(3)'s coefficients at the angle t = |u|, by their Taylor series near 0 (truncation ~ t^6).
+// SO(3)'s coefficients at the angle t = |u|, by their Taylor series near 0 (truncation ~ t^6), else from one
+// sine and cosine of t / 2.
 template <class S> struct So3Coefficients {
   S sin_half, cos_half;  // sin(t/2) / t, cos(t/2): exp3(u) = [sin_half u; cos_half] (xyzw)
   S a, b;                // (1 - cos t) / t^2, (t - sin t) / t^3
   S c2, c3;              // (t^2 + 2 cos t - 2) / (2 t^4), (2 t - 3 sin t + t cos t) / (2 t^5)
+  S beta;                // (1 - (t/2) cot(t/2)) / t^2: Jr(u)^-1 = I + [u] / 2 + beta [u]^2
 };
 
 template <class S> TG_HD So3Coefficients<S> so3_coefficients(Vec3<S> u) {
@@ -28,10 +30,12 @@ template <class S> TG_HD So3Coefficients<S> so3_coefficients(Vec3<S> u) {
   if (t2 < S(1e-4))
     return {S(0.5) - t2 / S(48) + t4 / S(3840), S(1) - t2 / S(8) + t4 / S(384),
             S(0.5) - t2 / S(24) + t4 / S(720), S(1) / S(6) - t2 / S(120) + t4 / S(5040),
-            S(1) / S(24) - t2 / S(720) + t4 / S(40320), S(1) / S(120) - t2 / S(2520) + t4 / S(120960)};
-  const S t = sqrt(t2), s = sin(t), c = cos(t);
-  return {sin(t / S(2)) / t, cos(t / S(2)), (S(1) - c) / t2, (t - s) / (t2 * t), (t2 + S(2) * c - S(2)) / (S(2) * t4),
-          (S(2) * t - S(3) * s + t * c) / (S(2) * t4 * t)};
+            S(1) / S(24) - t2 / S(720) + t4 / S(40320), S(1) / S(120) - t2 / S(2520) + t4 / S(120960),
+            S(1) / S(12) + t2 / S(720) + t4 / S(30240)};
+  const S t = sqrt(t2), sh = sin(t / S(2)), ch = cos(t / S(2));
+  const S s = S(2) * sh * ch, c = S(1) - S(2) * sh * sh;  // sin t, cos t
+  return {sh / t, ch, S(2) * sh * sh / t2, (t - s) / (t2 * t), (t2 + S(2) * c - S(2)) / (S(2) * t4),
+          (S(2) * t - S(3) * s + t * c) / (S(2) * t4 * t), (S(1) - t * ch / (S(2) * sh)) / t2};
 }
 
 template <class S> TG_HD Mat3<S> lincomb3(S x, const Mat3<S>& A, S y, const Mat3<S>& B) {
@@ -67,6 +71,19 @@ template <class S> TG_HD Mat3<S> se3_coupling(Vec3<S> rho, Vec3<S> w, const So3C
   return lincomb3(S(1), lincomb3(S(0.5), P, k.b, first), S(1), lincomb3(k.c2, second, k.c3, third));
 }
 
+// L(w, y) with Q(rho, w) y = L(w, y) rho (Q is linear in rho): each P = [-rho] of Q's terms, applied to the
+// vector z after it, is [z] rho, so with y1 = W y, y2 = W y1 and S_m = [y_m],
+// L = S0 / 2 + b S1 + c2 S2 + W (b S0 + (b - 3 c2) S1 + c3 S2 + W (c2 S0 + c3 S1)).
+template <class S> TG_HD Mat3<S> se3_coupling_along_rho(Vec3<S> w, Vec3<S> y, const So3Coefficients<S>& k) {
+  const Mat3<S> W = skew(S(-1) * w);
+  const Vec3<S> y1 = mul(W, y), y2 = mul(W, y1);
+  const Mat3<S> S0 = skew(y), S1 = skew(y1), S2 = skew(y2);
+  const Mat3<S> inner = mul(W, lincomb3(k.c2, S0, k.c3, S1));
+  const Mat3<S> outer = lincomb3(k.b, S0, S(1), lincomb3(k.b - S(3) * k.c2, S1, k.c3, S2));
+  const Mat3<S> own = lincomb3(S(0.5), S0, S(1), lincomb3(k.b, S1, k.c2, S2));
+  return lincomb3(S(1), own, S(1), mul(W, lincomb3(S(1), outer, S(1), inner)));
+}
+
 // n x n block (n = 3 or 6, row-major, stride n) from 3 x 3 blocks at (r, c).
 template <class S> TG_HD void put3(S* X, int n, int r, int c, const Mat3<S>& B) {
   for (int i = 0; i < 3; ++i)
@@ -74,7 +91,7 @@ template <class S> TG_HD void put3(S* X, int n, int r, int c, const Mat3<S>& B) 
 }
 
 // Joint i's part of q' = q (+) u (q in Pinocchio's layout, q' in the convention's) and, at a
-// quaternion joint, its n x n blocks Jq, Jv (n = 3 or 6; returns n, 0 at the other joints).
+// quaternion joint, its n x n blocks Jq, Jv unless Jq is null (n = 3 or 6; returns n, 0 at the other joints).
 template <class M, class S, int C> TG_HD int integrate_joint(int i, const S* q, const S* u, S* q_next, S* Jq, S* Jv) {
   const auto& d = data<M, S>();
   const int qi = d.qi[i], vi = d.vi[i], t = d.jtype[i];
@@ -93,25 +110,29 @@ template <class M, class S, int C> TG_HD int integrate_joint(int i, const S* q, 
   store3(k.sin_half * w, e);
   e[3] = k.cos_half;
   quat_mul(quat, e, turned);
-  const Mat3<S> Rt = transpose3(quat_rotation(e[0], e[1], e[2], e[3])), Jr = so3_terms(w, -k.a, k.b);
-  for (int r = 0; r < n * n; ++r) Jq[r] = Jv[r] = S(0);
-  put3(Jq, n, n - 3, n - 3, Rt);
-  put3(Jv, n, n - 3, n - 3, Jr);
+  Mat3<S> Rt, Jr;
+  if (Jq) {
+    Rt = transpose3(quat_rotation(e[0], e[1], e[2], e[3])), Jr = so3_terms(w, -k.a, k.b);
+    for (int r = 0; r < n * n; ++r) Jq[r] = Jv[r] = S(0);
+    put3(Jq, n, n - 3, n - 3, Rt);
+    put3(Jv, n, n - 3, n - 3, Jr);
+  }
   if (t == FREE) {
     const Vec3<S> p = load3(q + qi), ul = load3(u + vi);
     if constexpr (C == MJX) {
       store3(p + ul, q_next + qi);
-      put3(Jq, 6, 0, 0, identity3<S>());
-      put3(Jv, 6, 0, 0, identity3<S>());
+      if (Jq) put3(Jq, 6, 0, 0, identity3<S>()), put3(Jv, 6, 0, 0, identity3<S>());
     } else {  // M exp6(u): p + R V u_lin, the quaternion kept in the input's hemisphere as Pinocchio's
       const Vec3<S> Vu = mul(so3_terms(w, k.a, k.b), ul);
       store3(p + mul(quat_rotation(quat[0], quat[1], quat[2], quat[3]), Vu), q_next + qi);
       if (e[3] < S(0))
         for (int c = 0; c < 4; ++c) turned[c] = -turned[c];
-      put3(Jq, 6, 0, 0, Rt);
-      put3(Jq, 6, 0, 3, mul(Rt, skew(S(-1) * Vu)));
-      put3(Jv, 6, 0, 0, Jr);
-      put3(Jv, 6, 0, 3, se3_coupling(ul, w, k));
+      if (Jq) {
+        put3(Jq, 6, 0, 0, Rt);
+        put3(Jq, 6, 0, 3, mul(Rt, skew(S(-1) * Vu)));
+        put3(Jv, 6, 0, 0, Jr);
+        put3(Jv, 6, 0, 3, se3_coupling(ul, w, k));
+      }
     }
   }
   S* out = q_next + qa;
