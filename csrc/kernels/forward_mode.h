@@ -67,6 +67,66 @@ template <class S> TG_HD Dual<S> atan2(const Dual<S>& y, const Dual<S>& x) {
   return {atan2(y.v, x.v), (x.v * y.d - y.v * x.d) / (x.v * x.v + y.v * y.v)};
 }
 
+// A value and its derivatives along N directions: N forward-mode passes in one, where a small closed form
+// is differentiated along each of a few inputs (runge_kutta.h's dexp^-1 along a joint's rotation).
+template <class S, int N> struct Jet {
+  S v, d[N];
+  Jet() = default;
+  template <class T, class = std::enable_if_t<std::is_arithmetic_v<T>>>
+  TG_HD constexpr Jet(T value) : v(static_cast<S>(value)), d{} {}
+
+  TG_HD friend Jet operator-(const Jet& a) {
+    Jet r;
+    r.v = -a.v;
+    for (int k = 0; k < N; ++k) r.d[k] = -a.d[k];
+    return r;
+  }
+  TG_HD friend Jet operator+(const Jet& a, const Jet& b) {
+    Jet r;
+    r.v = a.v + b.v;
+    for (int k = 0; k < N; ++k) r.d[k] = a.d[k] + b.d[k];
+    return r;
+  }
+  TG_HD friend Jet operator-(const Jet& a, const Jet& b) {
+    Jet r;
+    r.v = a.v - b.v;
+    for (int k = 0; k < N; ++k) r.d[k] = a.d[k] - b.d[k];
+    return r;
+  }
+  TG_HD friend Jet operator*(const Jet& a, const Jet& b) {
+    Jet r;
+    r.v = a.v * b.v;
+    for (int k = 0; k < N; ++k) r.d[k] = a.d[k] * b.v + a.v * b.d[k];
+    return r;
+  }
+  TG_HD friend Jet operator/(const Jet& a, const Jet& b) {
+    Jet r;
+    r.v = a.v / b.v;
+    for (int k = 0; k < N; ++k) r.d[k] = (a.d[k] - r.v * b.d[k]) / b.v;
+    return r;
+  }
+  TG_HD Jet& operator+=(const Jet& b) { return *this = *this + b; }
+  TG_HD Jet& operator-=(const Jet& b) { return *this = *this - b; }
+  TG_HD friend bool operator<(const Jet& a, const Jet& b) { return a.v < b.v; }
+  TG_HD friend bool operator>(const Jet& a, const Jet& b) { return a.v > b.v; }
+};
+
+template <class S, int N> struct BaseScalar<Jet<S, N>> { using type = S; };
+
+// f(a) from f(a.v) and f'(a.v)
+template <class S, int N> TG_HD Jet<S, N> jet_chain(const Jet<S, N>& a, S f, S df) {
+  Jet<S, N> r;
+  r.v = f;
+  for (int k = 0; k < N; ++k) r.d[k] = df * a.d[k];
+  return r;
+}
+template <class S, int N> TG_HD Jet<S, N> sqrt(const Jet<S, N>& a) {
+  const S r = sqrt(a.v);
+  return jet_chain(a, r, S(0.5) / r);
+}
+template <class S, int N> TG_HD Jet<S, N> sin(const Jet<S, N>& a) { return jet_chain(a, sin(a.v), cos(a.v)); }
+template <class S, int N> TG_HD Jet<S, N> cos(const Jet<S, N>& a) { return jet_chain(a, cos(a.v), -sin(a.v)); }
+
 // The flattened sizes of an op's tensor inputs or outputs, known at compile time.
 template <int... N> struct Sizes {
   static constexpr int count = sizeof...(N);

@@ -64,8 +64,8 @@ template <class T, int C> TG_HD void dexp_inverse_joint(int n, const T* theta, c
 }
 
 // c = dexp(theta)^-1 x and its n x n derivatives: along x the map's matrix; along Pinocchio's free joint's
-// rho, -Jr^-1 L(w, Jr^-1 x_ang) (step.h); along w, forward-mode passes of the closed form (a dozen 3 x 3
-// products each).
+// rho, -Jr^-1 L(w, Jr^-1 x_ang) (step.h); along w, one forward-mode pass of the closed form (a dozen 3 x 3
+// products) carrying the three directions.
 template <class S, int C> TG_HD void dexp_inverse_jacobians(int n, const S* theta, const S* x, S* c, S* Dtheta, S* Dx) {
   if (C == MJX && n == 6) {  // MuJoCo's free joint: its position is carried as it is, its rotation as a ball's
     S Dt3[9], Dx3[9];
@@ -98,12 +98,14 @@ template <class S, int C> TG_HD void dexp_inverse_jacobians(int n, const S* thet
     for (int b = 0; b < n; ++b) sum += Dx[n * a + b] * x[b];
     c[a] = sum;
   }
-  Dual<S> th[6], xx[6], out[6];
-  for (int k = n - 3; k < n; ++k) {
-    for (int m = 0; m < n; ++m) th[m] = Dual<S>(theta[m], S(k == m)), xx[m] = Dual<S>(x[m], S(0));
-    dexp_inverse_joint<Dual<S>, C>(n, th, xx, out);
-    for (int m = 0; m < n; ++m) Dtheta[n * m + k] = out[m].d;
+  Jet<S, 3> th[6], xx[6], out[6];
+  for (int m = 0; m < n; ++m) {
+    th[m] = Jet<S, 3>(theta[m]), xx[m] = Jet<S, 3>(x[m]);
+    if (m >= n - 3) th[m].d[m - (n - 3)] = S(1);
   }
+  dexp_inverse_joint<Jet<S, 3>, C>(n, th, xx, out);
+  for (int m = 0; m < n; ++m)
+    for (int k = 0; k < 3; ++k) Dtheta[n * m + n - 3 + k] = out[m].d[k];
 }
 
 // out (n x COLS) (+)= sum_t G_t^T X_t for a quaternion joint's n x n blocks G_t (n = 3 or 6) and n-row X_t.
