@@ -57,8 +57,7 @@ template <class T, int C> TG_HD void dexp_inverse_joint(int n, const T* theta, c
     if constexpr (C == MJX) {
       store3(load3(x), out);
     } else {
-      const Mat3<T> Q = se3_coupling(load3(theta), w, k);
-      store3(right_jacobian_inverse(w, k.beta, load3(x) - mul(Q, xa)), out);
+      store3(right_jacobian_inverse(w, k.beta, load3(x) - se3_coupling_times(load3(theta), w, k, xa)), out);
     }
   }
 }

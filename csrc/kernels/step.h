@@ -71,6 +71,18 @@ template <class S> TG_HD Mat3<S> se3_coupling(Vec3<S> rho, Vec3<S> w, const So3C
   return lincomb3(S(1), lincomb3(S(0.5), P, k.b, first), S(1), lincomb3(k.c2, second, k.c3, third));
 }
 
+// Q(rho, w) y by cross products from the right (P z = -rho x z, W z = -w x z), where only its product with
+// one vector is needed.
+template <class S> TG_HD Vec3<S> se3_coupling_times(Vec3<S> rho, Vec3<S> w, const So3Coefficients<S>& k, Vec3<S> y) {
+  const Vec3<S> r = S(-1) * rho, m = S(-1) * w;
+  const Vec3<S> Py = cross(r, y), Wy = cross(m, y), WPy = cross(m, Py), PWy = cross(r, Wy);
+  const Vec3<S> WPWy = cross(m, PWy), WWy = cross(m, Wy);
+  const Vec3<S> first = WPy + PWy + WPWy;
+  const Vec3<S> second = cross(m, WPy) + cross(r, WWy) - S(3) * WPWy;
+  const Vec3<S> third = cross(m, cross(r, WWy)) + cross(m, WPWy);
+  return S(0.5) * Py + k.b * first + k.c2 * second + k.c3 * third;
+}
+
 // L(w, y) with Q(rho, w) y = L(w, y) rho (Q is linear in rho): each P = [-rho] of Q's terms, applied to the
 // vector z after it, is [z] rho, so with y1 = W y, y2 = W y1 and S_m = [y_m],
 // L = S0 / 2 + b S1 + c2 S2 + W (b S0 + (b - 3 c2) S1 + c3 S2 + W (c2 S0 + c3 S1)).
