@@ -92,7 +92,6 @@ template <class S> TG_HD Vec3<S> unit3(int c) {
 
 // Rotation of the quaternion (x, y, z, w), normalised first so any non-zero quaternion is valid. A
 // quaternion of zero or non-finite norm is the identity, as in MuJoCo's mj_normalizeQuat.
-
 template <class S> TG_HD Mat3<S> quat_rotation(S x, S y, S z, S w) {
   const S n2 = x * x + y * y + z * z + w * w;
   if (!(n2 > S(0) && n2 < S(INFINITY))) return identity3<S>();
