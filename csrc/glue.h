@@ -29,6 +29,7 @@
 #include "batch.h"
 
 #ifdef TG_WITH_CUDA
+#include <c10/cuda/CUDACachingAllocator.h>
 #include <c10/cuda/CUDAGuard.h>
 #include <c10/cuda/CUDAStream.h>
 #include <cuda_runtime_api.h>
@@ -260,11 +261,13 @@ class Call {
 
   // The kernel's scratch of shape (*trailing) per sample: on CUDA a new output like any other; on the
   // CPU each thread's block of the streamed buffer, never copied out (the tensor returned is one block
-  // expanded over the batch).
+  // expanded over the batch). It starts zeroed: the Runge-Kutta step reads entries of its workspace that
+  // it never writes as zeros (the streamed buffer is zeroed once and keeps its layout; as_double's is
+  // zeroed again for each chunk, whose layout moves).
   at::Tensor workspace(std::initializer_list<int64_t> trailing) {
     if (device_.is_cuda()) {
       workspace_ |= 1 << n_out_;
-      return output(trailing);
+      return output(trailing).zero_();
     }
     std::vector<int64_t> shape = batch_shape_;
     shape.insert(shape.end(), trailing.begin(), trailing.end());
@@ -310,23 +313,80 @@ class Call {
 
  private:
 #ifdef TG_WITH_CUDA
-  // Before a kernel's first launch, its local memory (stack) is checked against what the device
-  // would reserve for it: every resident thread gets that much, for the life of the process.
+  // Before a kernel's first launch on a device, its local memory (stack) is checked against what the
+  // device would reserve for it (every resident thread gets that much, for the life of the process)
+  // and reserved (reserve_stack). That first launch may not be captured in a CUDA graph: the device's
+  // properties, the kernel's attributes and the reservation are calls a capture does not record.
   void launch(CudaFn fn) {
     const c10::cuda::CUDAGuard guard(device_);
-    const Device d = device(device_.index());
-    const CudaAttributes a = attributes(fn);
-    constexpr int64_t kPerThreadLimit = int64_t(512) << 10;  // the hardware's local memory per thread
-    const int64_t resident = int64_t(d.threads_per_sm) * d.sms;
-    const int64_t budget = local_budget(d);
-    TORCH_CHECK(a.local_bytes <= kPerThreadLimit, op_, ": this robot's kernel needs ", a.local_bytes,
-                " bytes of local memory per CUDA thread, above the device's limit of ", kPerThreadLimit);
-    TORCH_CHECK(a.local_bytes * resident <= budget, op_, ": this robot's kernel needs ", a.local_bytes,
-                " bytes of local memory per CUDA thread; for ", resident, " resident threads the device would reserve ",
-                (a.local_bytes * resident) >> 20, " MiB, above the budget of ", budget >> 20,
-                " MiB (TORCH_GRID_CUDA_LOCAL_MEMORY_MB; default a quarter of the device memory)");
-    const int err = fn(batch_, c10::cuda::getCurrentCUDAStream().stream(), d.sms, nullptr);
+    const cudaStream_t stream = c10::cuda::getCurrentCUDAStream().stream();
+    if (!launched(fn, device_.index())) {
+      cudaStreamCaptureStatus capture = cudaStreamCaptureStatusNone;
+      const cudaError_t err = cudaStreamIsCapturing(stream, &capture);
+      TORCH_CHECK(err == cudaSuccess, op_, ": cannot query the stream's capture status: ", cudaGetErrorString(err));
+      TORCH_CHECK(capture == cudaStreamCaptureStatusNone, op_, ": the first launch of this kernel on ", device_,
+                  " cannot be captured in a CUDA graph (it reserves the kernel's local memory): call the op once, "
+                  "outside the capture, before capturing it");
+      const Device d = device(device_.index());
+      const CudaAttributes a = attributes(fn);
+      constexpr int64_t kPerThreadLimit = int64_t(512) << 10;  // the hardware's local memory per thread
+      const int64_t resident = int64_t(d.threads_per_sm) * d.sms;
+      const int64_t budget = local_budget(d);
+      TORCH_CHECK(a.local_bytes <= kPerThreadLimit, op_, ": this robot's kernel needs ", a.local_bytes,
+                  " bytes of local memory per CUDA thread, above the device's limit of ", kPerThreadLimit);
+      TORCH_CHECK(a.local_bytes * resident <= budget, op_, ": this robot's kernel needs ", a.local_bytes,
+                  " bytes of local memory per CUDA thread; for ", resident, " resident threads the device would reserve ",
+                  (a.local_bytes * resident) >> 20, " MiB, above the budget of ", budget >> 20,
+                  " MiB (TORCH_GRID_CUDA_LOCAL_MEMORY_MB; default a quarter of the device memory)");
+      reserve_stack(device_.index(), a.local_bytes);
+    }
+    const int err = fn(batch_, stream, device(device_.index()).sms, nullptr);
     TORCH_CHECK(err == 0, op_, ": CUDA kernel launch failed: ", cudaGetErrorString(static_cast<cudaError_t>(err)));
+    mark_launched(fn, device_.index());
+  }
+  // Whether fn has been launched on the device (by any call site) in this process.
+  static std::mutex& launched_mutex() {
+    static std::mutex mutex;
+    return mutex;
+  }
+  static std::vector<std::pair<CudaFn, int>>& launched_list() {
+    static std::vector<std::pair<CudaFn, int>> list;
+    return list;
+  }
+  static bool launched(CudaFn fn, int index) {
+    std::lock_guard<std::mutex> lock(launched_mutex());
+    const auto& list = launched_list();
+    return std::find(list.begin(), list.end(), std::make_pair(fn, index)) != list.end();
+  }
+  static void mark_launched(CudaFn fn, int index) {
+    std::lock_guard<std::mutex> lock(launched_mutex());
+    auto& list = launched_list();
+    if (std::find(list.begin(), list.end(), std::make_pair(fn, index)) == list.end()) list.emplace_back(fn, index);
+  }
+  // The driver grows the device's local memory to a kernel's need at its first launch and keeps it for
+  // the process (G1's largest kernel: about 16 GB). Memory that torch's caching allocator holds is
+  // invisible to the driver, so that launch could fail for want of memory torch would give back: the
+  // per-thread stack limit is raised here, beforehand, retried once after torch's cache is emptied.
+  void reserve_stack(int index, int64_t bytes) {
+    static std::mutex mutex;
+    static std::unordered_map<int, int64_t> reserved;  // device -> per-thread bytes reserved
+    std::lock_guard<std::mutex> lock(mutex);
+    int64_t& have = reserved[index];
+    if (bytes <= have) return;
+    size_t limit = 0;
+    cudaError_t err = cudaDeviceGetLimit(&limit, cudaLimitStackSize);
+    if (err == cudaSuccess && static_cast<int64_t>(limit) < bytes) {
+      err = cudaDeviceSetLimit(cudaLimitStackSize, static_cast<size_t>(bytes));
+      if (err == cudaErrorMemoryAllocation) {
+        (void)cudaGetLastError();  // clears the error
+        c10::cuda::CUDACachingAllocator::emptyCache();
+        err = cudaDeviceSetLimit(cudaLimitStackSize, static_cast<size_t>(bytes));
+      }
+    }
+    if (err != cudaSuccess) (void)cudaGetLastError();
+    TORCH_CHECK(err == cudaSuccess, op_, ": cannot reserve ", bytes, " bytes of local memory per CUDA thread: ",
+                cudaGetErrorString(err));
+    have = bytes;
   }
   // What a launch needs of a device, read once per device.
   struct Device {
@@ -469,6 +529,7 @@ class Call {
     for (int64_t s0 = begin; s0 < end; s0 += chunk) {
       const int64_t n = std::min(chunk, end - s0);
       double* next = buffer.data();
+      if (workspace_ && s0 != begin) std::fill(buffer.begin(), buffer.end(), 0.0);  // see workspace()
       d.n = n;
       for (int k = 0; k < n_in_; ++k) {
         if (!batch_.in[k]) continue;

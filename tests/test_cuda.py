@@ -16,7 +16,7 @@ from torch_grid import codegen
 from torch_grid.build import CSRC
 from torch_grid.ops import OPS
 
-from test_autograd import FUNCTIONS
+from functions import FUNCTIONS
 
 NVCC = shutil.which("nvcc") or (os.environ.get("CUDA_HOME") and str(Path(os.environ["CUDA_HOME"]) / "bin" / "nvcc"))
 needs_nvcc = pytest.mark.skipif(not NVCC or not Path(NVCC).exists(), reason="nvcc is not installed")

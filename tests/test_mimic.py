@@ -18,7 +18,7 @@ import torch
 
 import torch_grid
 from oracles import rel_err
-from test_autograd import FUNCTIONS
+from functions import FUNCTIONS
 
 # A gripper on an arm: finger_right mimics finger_left (prismatic, multiplier -1, offset 0.01);
 # thumb mimics the wrist, its parent joint (revolute, multiplier 0.5, offset -0.2).

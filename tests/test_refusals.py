@@ -7,7 +7,8 @@ import pytest
 import torch
 from torch.autograd import forward_ad
 
-from test_autograd import FUNCTIONS, _states
+from functions import FUNCTIONS
+from test_autograd import _states
 
 
 def _flat(out) -> torch.Tensor:

@@ -19,6 +19,7 @@ from typing import Callable
 
 import torch
 
+from .constants import constant
 from .model import RobotModel
 from .mujoco_second_order import crba_vjp as mujoco_crba_vjp
 from .ops import FORWARD_MODE_BACKWARD, OPS, OpSpec
@@ -337,7 +338,7 @@ def _end_effector_pose(ops, model, needs, grads, output, q, frames, convention):
     w = E(rpy) d(rpy)/dt, so the rpy gradient maps to w through E^-T."""
     grad = grads[0]
     weights = torch.zeros(*q.shape[:-1], len(model.frames), 6, dtype=q.dtype, device=q.device)
-    index = torch.tensor(frames, device=q.device)
+    index = constant(tuple(frames), torch.long, q.device)
     w_ang = rpy_rate_transpose_solve(output[..., 3:], grad[..., 3:])
     weights = weights.index_add(-2, index, torch.cat([grad[..., :3], w_ang], dim=-1))
     return tangent_to_ambient(model, q, ops.frames_vjp(q, weights, convention), convention), None, None

@@ -119,6 +119,8 @@ def _compile_glue(root: Path, cuda: bool, key: str, entry: Path) -> None:
     start = time.monotonic()
     print(f"torch_grid: building the torch glue ({'CPU + CUDA' if cuda else 'CPU'}, once for this torch and compiler)",
           file=sys.stderr, flush=True)
+    if cuda and not (cpp_extension.CUDA_HOME and _is_toolkit(Path(cpp_extension.CUDA_HOME))):
+        cpp_extension.CUDA_HOME = str(cuda_home())  # torch's guess holds no headers (see cuda_home)
     with _staging(root, entry) as tmp, _ticker("the torch glue", start):
         source = codegen.write_glue_source(tmp)
         openmp = ["-fopenmp"] if torch.backends.openmp.is_available() else []
@@ -139,6 +141,8 @@ def _glue_key(cuda: bool) -> str:
         h.update((CSRC / name).read_bytes())
     h.update(f"cuda={cuda} openmp={torch.backends.openmp.is_available()}".encode())
     h.update(_compiler_version(os.environ.get("CXX", "c++")).encode())
+    if cuda:
+        h.update(_compiler_version(_nvcc()).encode())
     h.update(torch.__version__.encode())
     return h.hexdigest()
 
@@ -166,17 +170,23 @@ def _compile_robot(root: Path, model: RobotModel, mujoco: bool, cuda: bool, name
         src.mkdir()
         units = codegen.write_robot_sources(model, mujoco, cuda, namespace, src)
         include = [f"-I{CSRC}", f"-I{src}"]
-        jobs = []
+        jobs, objects, prebuilt = [], [], 0
         for unit in units:
             obj = tmp / f"{unit.stem}{'_cuda' if unit.suffix == '.cu' else ''}.o"
+            objects.append(str(obj))
             if unit.suffix == ".cu":
+                if _take_prebuilt(unit, obj):
+                    prebuilt += 1
+                    continue
                 cmd = [_nvcc(), *_nvcc_flags(), *include, "-c", str(unit), "-o", str(obj)]
             else:
                 cmd = [os.environ.get("CXX", "c++"), *_cxx_flags(unit.stem), *include, "-c", str(unit), "-o", str(obj)]
             jobs.append((unit.name, cmd, obj))
+        if prebuilt:
+            print(f"torch_grid: {prebuilt} CUDA units of {model.name!r} prebuilt (TORCH_GRID_PREBUILT)", file=sys.stderr,
+                  flush=True)
         jobs.sort(key=lambda job: _UNIT_ORDER.get(Path(job[0]).stem.rsplit("_", 1)[0], len(_UNIT_ORDER)))
         _run_parallel(model.name, jobs, start)
-        objects = [str(obj) for _, _, obj in jobs]
         if cuda:
             link = [_nvcc(), "-shared", *objects, "-o", str(tmp / library)]
         else:
@@ -184,6 +194,52 @@ def _compile_robot(root: Path, model: RobotModel, mujoco: bool, cuda: bool, name
         _run_parallel(model.name, [("link", link, tmp / library)], start)
         (tmp / "complete").write_text(_digest(tmp / library))
     print(f"torch_grid: built {model.name!r} in {time.monotonic() - start:.0f} s", file=sys.stderr, flush=True)
+
+
+# -- prebuilt CUDA objects ----------------------------------------------------------------------------
+# A CUDA unit takes minutes to compile (a few robots' worth exceeds what a short-lived GPU machine
+# can spend), and needs no GPU: its object can be compiled elsewhere for the machine's arch and found
+# there in $TORCH_GRID_PREBUILT under the digest of everything it is compiled from, so a stale object
+# (other sources, flags or nvcc release) is never taken: that unit is compiled as usual.
+
+# csrc files a CUDA unit never includes (they need torch's headers)
+_TORCH_SIDE = ("glue.h", "register.h")
+
+
+def cuda_unit_digest(unit: Path) -> str:
+    """The digest of a generated CUDA unit's object: its text, the generated headers beside it, the
+    kernel headers, nvcc's flags and release."""
+    h = hashlib.sha256()
+    h.update(unit.read_bytes())
+    for name in ("robot.h", "op_args.h", "bindings.h"):
+        h.update((unit.parent / name).read_bytes())
+    for path in sorted(CSRC.rglob("*")):
+        if path.is_file() and path.name not in _TORCH_SIDE and "__pycache__" not in path.parts:
+            h.update(path.relative_to(CSRC).as_posix().encode())
+            h.update(path.read_bytes())
+    h.update(" ".join(_nvcc_flags()).encode())
+    h.update(_nvcc_release().encode())
+    return h.hexdigest()
+
+
+def _nvcc_release() -> str:
+    version = _compiler_version(_nvcc())
+    release = [part.strip() for line in version.splitlines() for part in line.split(",") if part.strip().startswith("release")]
+    return release[0] if release else version
+
+
+def _take_prebuilt(unit: Path, obj: Path) -> bool:
+    """Copy the unit's prebuilt object to `obj` if $TORCH_GRID_PREBUILT holds one for its digest."""
+    directory = os.environ.get("TORCH_GRID_PREBUILT")
+    if not directory:
+        return False
+    found = Path(directory) / f"{cuda_unit_digest(unit)}.o"
+    if not found.is_file():
+        print(f"torch_grid: no prebuilt object for {unit.name} in TORCH_GRID_PREBUILT={directory} (its sources, flags or "
+              "nvcc changed since): compiling it", file=sys.stderr, flush=True)
+        return False
+    shutil.copyfile(found, obj)
+    return True
 
 
 # The longest units first, so that the last ones to finish on a few cores are short.
@@ -360,18 +416,53 @@ def _compiler_version(compiler: str) -> str:
 
 
 def _nvcc() -> str:
-    from torch.utils.cpp_extension import CUDA_HOME
+    home = cuda_home()
+    if home is None:
+        raise RuntimeError("torch_grid: no CUDA toolkit found (a folder with bin/nvcc and include/cuda_runtime.h): "
+                           "set CUDA_HOME to it")
+    return str(home / "bin" / "nvcc")
 
-    return str(Path(CUDA_HOME) / "bin" / "nvcc")
+
+@lru_cache(maxsize=None)
+def cuda_home() -> Path | None:
+    """The CUDA toolkit: the first of $CUDA_HOME, $CUDA_PATH, torch's own guess, the toolkit that the
+    `nvcc` on the PATH runs and /usr/local/cuda that holds both bin/nvcc and include/cuda_runtime.h.
+    torch guesses the folder above `nvcc`, which is wrong where `nvcc` is a wrapper script outside the
+    toolkit; nvcc's dry run names the toolkit it runs from (its TOP)."""
+    from shutil import which
+
+    from torch.utils import cpp_extension
+
+    candidates = [os.environ.get("CUDA_HOME"), os.environ.get("CUDA_PATH"), cpp_extension.CUDA_HOME]
+    nvcc = which("nvcc")
+    if nvcc:
+        try:
+            dry = subprocess.run([nvcc, "--dryrun", "-x", "cu", "-c", os.devnull, "-o", os.devnull], capture_output=True,
+                                 text=True, timeout=30).stderr
+        except (OSError, subprocess.TimeoutExpired):
+            dry = ""
+        candidates += [line.split("=", 1)[1].strip() for line in dry.splitlines() if line.startswith("#$ TOP=")]
+        candidates.append(str(Path(nvcc).resolve().parent.parent))
+    candidates.append("/usr/local/cuda")
+    for candidate in candidates:
+        if candidate and _is_toolkit(Path(candidate)):
+            return Path(candidate).resolve()
+    return None
+
+
+def _is_toolkit(path: Path) -> bool:
+    return (path / "bin" / "nvcc").is_file() and (path / "include" / "cuda_runtime.h").is_file()
 
 
 @lru_cache(maxsize=None)
 def _cuda_available() -> bool:
     if not torch.cuda.is_available():
         return False
-    from torch.utils.cpp_extension import CUDA_HOME
-
-    return CUDA_HOME is not None and (Path(CUDA_HOME) / "bin" / "nvcc").exists()
+    if cuda_home() is None:
+        print("torch_grid: a CUDA device is present but no CUDA toolkit was found (set CUDA_HOME to the folder with "
+              "bin/nvcc and include/cuda_runtime.h): building CPU kernels only", file=sys.stderr, flush=True)
+        return False
+    return True
 
 
 def _digest(path: Path) -> str:

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import torch
 
+from .constants import scalar_or_tensor
 from .conventions import quaternion_rotation, unit_quaternion
 from .func import dual, transforming
 from .tangent import broadcast_batch
@@ -397,8 +398,7 @@ def _q_right(rho: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
 
 def _dt(dt, v: torch.Tensor) -> torch.Tensor:
     """dt as (..., 1) against v's batch."""
-    dt = torch.as_tensor(dt, dtype=v.dtype, device=v.device)
-    return dt.unsqueeze(-1)
+    return scalar_or_tensor(dt, v.dtype, v.device).unsqueeze(-1)
 
 
 def _angular(kind: str, vi: int) -> int:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import torch
 
+from .constants import scalar_or_tensor
 from .configuration import _dt, check_dt, d_dexp_inverse_blocks, d_integrate_blocks, dexp_inverse, tangent_map
 from .func import dual, transforming
 from .rk_hessian import combine as _combine
@@ -164,7 +165,7 @@ CHUNK = 256
 def _flattened(q, qd, tau, dt, f_ext) -> tuple[torch.Size, list]:
     """(the broadcast batch shape, [q, qd, tau, dt, f_ext] with that batch flattened to one dimension);
     dt becomes a (n,) tensor, an absent f_ext stays None."""
-    dt = torch.as_tensor(dt, dtype=qd.dtype, device=qd.device)
+    dt = scalar_or_tensor(dt, qd.dtype, qd.device)
     batch = torch.broadcast_shapes(q.shape[:-1], qd.shape[:-1], tau.shape[:-1], dt.shape,
                                    () if f_ext is None else f_ext.shape[:-2])
     n = batch.numel()
@@ -212,6 +213,8 @@ def _with_rows(x: torch.Tensor, rows: dict) -> torch.Tensor:
 
 
 def _split(dq: torch.Tensor, dv: torch.Tensor, nv: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """(A, B) from the rows d(q')/dz, d(qd')/dz, z = [dq; dqd; dtau]."""
-    rows = torch.cat([dq, dv], dim=-2)
+    """(A, B) from the rows d(q')/dz, d(qd')/dz, z = [dq; dqd; dtau], broadcast to their common batch shape
+    (explicit Euler's d(q')/dz, without a quaternion joint, is the same for every sample: unbatched)."""
+    batch = torch.broadcast_shapes(dq.shape[:-2], dv.shape[:-2])
+    rows = torch.cat([dq.expand(*batch, *dq.shape[-2:]), dv.expand(*batch, *dv.shape[-2:])], dim=-2)
     return rows[..., :2 * nv], rows[..., 2 * nv:]

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import torch
 
+from .constants import constant
 from .conventions import quaternion_rotation, unit_quaternion
 from .model import RobotModel
 
@@ -90,7 +91,7 @@ def tangent_directions(model: RobotModel, q: torch.Tensor, convention: int) -> t
             flat += [(j.angular + k) * nq + c for c in range(ixyz.start, ixyz.stop)] + [(j.angular + k) * nq + iw]
             values += [0.5 * (w * e + torch.cross(xyz, e, dim=-1)), -0.5 * xyz[..., k:k + 1]]
     t = torch.zeros(*q.shape[:-1], model.nv * nq, dtype=q.dtype, device=q.device)
-    index = torch.tensor(flat, dtype=torch.long, device=q.device)
+    index = constant(tuple(flat), torch.long, q.device)
     return t.index_copy(-1, index, torch.cat(values, dim=-1)).unflatten(-1, (model.nv, nq))
 
 
@@ -185,7 +186,12 @@ def _bracket_constants(free: bool, convention: int) -> list:
     return c
 
 
-_BRACKET = {(free, convention): _bracket_constants(free, convention) for free in (True, False) for convention in (0, 1)}
+def _nested_tuple(x):
+    return tuple(_nested_tuple(y) for y in x) if isinstance(x, list) else x
+
+
+_BRACKET = {(free, convention): _nested_tuple(_bracket_constants(free, convention)) for free in (True, False)
+            for convention in (0, 1)}
 
 
 def has_brackets(model: RobotModel) -> bool:
@@ -212,10 +218,10 @@ def _brackets(model: RobotModel, block, shape, like: torch.Tensor, convention: i
     indices, parts = [], []
     for j in layout(model).quaternions:
         n = 6 if j.free else 3
-        c = torch.tensor(_BRACKET[j.free, convention], dtype=like.dtype, device=like.device)
+        c = constant(_BRACKET[j.free, convention], like.dtype, like.device)
         indices += range(j.vi, j.vi + n)
         parts.append(torch.einsum("...jm,kjm->...k", block(j.vi, n), c))
     out = torch.zeros(shape, dtype=like.dtype, device=like.device)
     if not parts:
         return out
-    return out.index_copy(-1, torch.tensor(indices, dtype=torch.long, device=like.device), torch.cat(parts, dim=-1))
+    return out.index_copy(-1, constant(tuple(indices), torch.long, like.device), torch.cat(parts, dim=-1))

@@ -1,0 +1,200 @@
+"""The stages of bench/gpu_check.py that are about the device rather than one function: streams, CUDA
+graphs, torch.compile, the examples, the local-memory reservation and budget refusal, and the calls
+that compute-sanitizer and ncu watch."""
+from __future__ import annotations
+
+import os
+
+import torch
+
+from gpu_correctness import F64_TOL, GRAD_TOL, Checks, Skip, compare, on, states, tensors, value_calls
+
+
+def streams(checks: Checks, robot, device: torch.device) -> None:
+    """A call on a side stream, and several streams at once, give the default stream's results."""
+    if device.type != "cuda":
+        checks.run("side stream", lambda: Skip("CUDA only"))
+        return
+    view = robot.pin
+    q, qd, x, _ = on(states(view, 4096, seed=4), device)
+    ref = view.forward_dynamics_gradient(q, qd, x)
+
+    def side():
+        stream = torch.cuda.Stream()
+        stream.wait_stream(torch.cuda.current_stream())
+        with torch.cuda.stream(stream):
+            out = view.forward_dynamics_gradient(q, qd, x)
+        torch.cuda.current_stream().wait_stream(stream)
+        return compare(out, ref, F64_TOL, device)
+    checks.run("side stream", side)
+
+    def several():
+        outs, pool = [], [torch.cuda.Stream() for _ in range(4)]
+        for k, stream in enumerate(pool):
+            stream.wait_stream(torch.cuda.current_stream())
+            with torch.cuda.stream(stream):
+                outs.append(view.forward_dynamics_gradient(q[k::4], qd[k::4], x[k::4]))
+        for stream in pool:
+            torch.cuda.current_stream().wait_stream(stream)
+        return compare([torch.stack([o[i] for o in outs], 1).flatten(0, 1) for i in range(3)], ref, F64_TOL, device)
+    checks.run("four streams", several)
+
+
+def graphs(checks: Checks, robot, device: torch.device) -> None:
+    """A kernel's first launch inside a capture is refused by name; after a warm-up, a captured
+    forward_dynamics, rk4 step and its derivatives replay on new inputs to the eager results."""
+    if device.type != "cuda":
+        checks.run("graph capture", lambda: Skip("CUDA only"))
+        return
+    view = robot.pin
+    q, qd, x, _ = on(states(view, 256, seed=5), device)
+
+    def first_launch_refused():
+        graph = torch.cuda.CUDAGraph()
+        try:
+            with torch.cuda.graph(graph):
+                view.crba(q)
+        except RuntimeError as e:
+            return None if "cannot be captured" in str(e) and "crba" in str(e) else f"unexpected error: {e}"
+        return "a kernel's first launch was captured without an error"
+    checks.run("graph first launch refused", first_launch_refused)
+
+    def step(a, b, c):
+        return (view.forward_dynamics(a, b, c), *view.step(a, b, c, 0.01, "rk4"),
+                *view.step_derivatives(a, b, c, 0.01, "rk4"))
+
+    def replay():
+        static = [t.clone() for t in (q, qd, x)]
+        side = torch.cuda.Stream()
+        side.wait_stream(torch.cuda.current_stream())
+        with torch.cuda.stream(side):
+            for _ in range(2):
+                step(*static)
+        torch.cuda.current_stream().wait_stream(side)
+        graph = torch.cuda.CUDAGraph()
+        with torch.cuda.graph(graph):
+            out = step(*static)
+        fresh = on(states(view, 256, seed=6), device)
+        for s, t in zip(static, fresh):
+            s.copy_(t)
+        graph.replay()
+        torch.cuda.synchronize()
+        return compare(out, step(*fresh), F64_TOL, device)
+    checks.run("graph capture and replay", replay)
+
+
+def compiled(checks: Checks, robot, device: torch.device) -> None:
+    """torch.compile(fullgraph=True) of a short rollout, forward and backward, against eager."""
+    view = robot.pin
+    q, qd, x, _ = on(states(view, 32, seed=7), device)
+
+    def rollout(a, b, c):
+        for _ in range(3):
+            a, b = view.step(a, b, c, 0.01, "semi_implicit_euler")
+        return view.forward_kinematics(a)[0].square().sum() + b.square().sum()
+
+    def run(fn):
+        leaves = [t.clone().requires_grad_(True) for t in (q, qd, x)]
+        loss = fn(*leaves)
+        return [loss.detach(), *torch.autograd.grad(loss, leaves)]
+    torch._dynamo.reset()
+    checks.run("torch.compile(fullgraph=True) rollout",
+               lambda: compare(run(torch.compile(rollout, fullgraph=True)), run(rollout), GRAD_TOL, device))
+
+
+def examples(checks: Checks, device: torch.device) -> None:
+    """examples/ilqr.py (both tasks) and the policy rollout's training on the device equal the CPU."""
+    import ilqr
+    import policy_rollout
+
+    quiet = lambda *_: None  # noqa: E731
+    for task in ("reach", "balance"):
+        run = getattr(ilqr, task)
+        checks.run(f"examples/ilqr.py {task}", lambda run=run: compare(
+            torch.tensor(run(str(device), batch=8, T=20, iterations=2, log=quiet)),
+            torch.tensor(run("cpu", batch=8, T=20, iterations=2, log=quiet)), 1e-9))
+
+    def policy(dev):
+        import torch_grid
+
+        torch.manual_seed(0)
+        robot = torch_grid.load("iiwa14")
+        frame, nv, batch = robot.nframes - 1, robot.nv, 16
+        g = torch.Generator().manual_seed(0)
+        q0 = robot.random_configuration(batch, generator=g)
+        target = robot.pin.forward_kinematics(q0)[0][:, frame] + 0.2 * torch.randn(batch, 3, dtype=torch.float64, generator=g)
+        net = torch.nn.Sequential(torch.nn.Linear(2 * nv + 3, 32), torch.nn.Tanh(), torch.nn.Linear(32, nv)).double()
+        net = net.to(dev)
+        optimizer = torch.optim.Adam(net.parameters(), lr=3e-3)
+        rollout = policy_rollout.make_rollout(robot, frame, steps=10)
+        losses = []
+        for _ in range(3):
+            optimizer.zero_grad()
+            loss = rollout(net, q0.to(dev), torch.zeros(batch, nv, dtype=torch.float64, device=dev), target.to(dev))
+            loss.backward()
+            optimizer.step()
+            losses.append(loss.detach().cpu())
+        return torch.stack(losses)
+    checks.run("examples/policy_rollout.py training", lambda: compare(policy(device), policy("cpu"), 1e-9))
+
+
+def reservation(checks: Checks, robot, device: torch.device) -> None:
+    """In a fresh process: the local-memory budget refusal names the op; then the largest kernel's
+    first launch succeeds after torch's allocator has cached most of the free memory."""
+    if device.type != "cuda":
+        checks.run("local memory budget refusal", lambda: Skip("CUDA only"))
+        return
+    view = robot.pin
+    q, qd, x, _ = on(states(view, 64, seed=8), device)
+
+    def refused():
+        os.environ["TORCH_GRID_CUDA_LOCAL_MEMORY_MB"] = "1"
+        try:
+            view.forward_dynamics_gradient(q, qd, x)
+        except RuntimeError as e:
+            text = str(e)
+            return None if "forward_dynamics_gradient" in text and "TORCH_GRID_CUDA_LOCAL_MEMORY_MB" in text \
+                else f"unexpected error: {text[:300]}"
+        finally:
+            del os.environ["TORCH_GRID_CUDA_LOCAL_MEMORY_MB"]
+        return "a kernel above the budget was launched"
+    checks.run("local memory budget refusal", refused)
+
+    def reserve():
+        free, total = torch.cuda.mem_get_info()
+        hoard = torch.empty(int(free * 0.9), dtype=torch.uint8, device=device)
+        del hoard  # cached by torch's allocator, invisible to the driver
+        cached = torch.cuda.memory_reserved()
+        out = view.step_derivatives(q, qd, x, 0.01, "rk4")  # the largest kernel's first launch
+        torch.cuda.synchronize()
+        after, _ = torch.cuda.mem_get_info()
+        print(f"INFO reservation: {free / 2**30:.1f} GiB free before, torch cached {cached / 2**30:.1f} GiB; after the "
+              f"first rk4 launch torch holds {torch.cuda.memory_reserved() / 2**30:.1f} GiB, the device has "
+              f"{after / 2**30:.1f} GiB free", flush=True)
+        return compare(out, view.step_derivatives(*on((q, qd, x), "cpu"), 0.01, "rk4"), F64_TOL, device)
+    checks.run("first launch of the largest kernel after torch cached the free memory", reserve)
+
+
+def small_calls(robot, device: torch.device) -> None:
+    """One small call of every function (every kernel family, both conventions, float64 and float32),
+    for compute-sanitizer to watch."""
+    for view in (robot.pin, robot.mujoco):
+        for dtype in (torch.float64, torch.float32):
+            inputs = on(states(view, 3, seed=9), device, dtype)
+            for call in value_calls(robot).values():
+                tensors(call(view, *inputs))
+            leaves = [t.clone().requires_grad_(True) for t in inputs]
+            for name in ("inverse_dynamics", "forward_dynamics", "crba", "frame_jacobian", "coriolis_matrix"):
+                out = tensors(value_calls(robot, second_order=False)[name](view, *leaves))
+                torch.autograd.grad(out, leaves, [torch.ones_like(o) for o in out], allow_unused=True)
+    if device.type == "cuda":
+        torch.cuda.synchronize()
+
+
+def profiled_call(robot, device: torch.device) -> None:
+    """Two calls of forward_dynamics_gradient at N = 65536 (ncu profiles the second)."""
+    view = robot.pin
+    q, qd, x, _ = on(states(view, 65536, seed=10), device)
+    for _ in range(2):
+        view.forward_dynamics_gradient(q, qd, x)
+    torch.cuda.synchronize()

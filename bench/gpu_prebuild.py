@@ -1,0 +1,93 @@
+"""Prepare what bench/gpu_check.py needs on a GPU machine that cannot build or parse it in time.
+
+    python bench/gpu_prebuild.py [--out .gpu] [--arch sm_90] [--robots iiwa14 go2 g1 humanoid gripper]
+
+writes bench/gpu/models/<robot>.json, each robot of the check as a saved model (torch_grid.load reads
+it without Pinocchio or MuJoCo), and into --out:
+  - prebuilt.tar.xz: the objects of every CUDA unit of those robots, compiled by nvcc for --arch, each
+    named by its digest (torch_grid.build.cuda_unit_digest). With TORCH_GRID_PREBUILT pointing at the
+    unpacked folder and TORCH_GRID_CUDA_ARCH=--arch, a build takes an object only where the digest of
+    the unit it generates matches, so a stale object is never used: that unit is compiled there.
+No GPU is needed. Objects already in --out/prebuilt are kept (compiled once per digest).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tarfile
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+sys.path.insert(0, str(HERE))
+
+from gpu_models import MODELS, MODELS_DIR, model_of  # noqa: E402
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", default=str(HERE.parent / ".gpu"))
+    parser.add_argument("--arch", default="sm_90")
+    parser.add_argument("--robots", nargs="+", default=list(MODELS))
+    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
+    args = parser.parse_args(argv)
+    os.environ["TORCH_GRID_CUDA_ARCH"] = args.arch  # before the flags are read
+
+    from torch_grid import build, codegen
+    from torch_grid.model import RobotModel
+
+    out = Path(args.out)
+    objects = out / "prebuilt"
+    MODELS_DIR.mkdir(parents=True, exist_ok=True)
+    objects.mkdir(parents=True, exist_ok=True)
+    wanted: set[str] = set()
+    with tempfile.TemporaryDirectory(prefix="torch_grid_prebuild_") as tmp:
+        jobs = []
+        for name in args.robots:
+            saved = MODELS_DIR / f"{name}.json"
+            model_of(name).save(saved)
+            kernel = RobotModel.load(saved).kernel_model  # what the GPU machine will read
+            src = Path(tmp) / name
+            src.mkdir()
+            namespace = build.op_namespace(kernel, True)
+            for unit in codegen.write_robot_sources(kernel, True, True, namespace, src):
+                if unit.suffix != ".cu":
+                    continue
+                target = objects / f"{build.cuda_unit_digest(unit)}.o"
+                wanted.add(target.name)
+                if not target.exists():
+                    jobs.append((f"{name}/{unit.name}", unit, target))
+        print(f"{len(jobs)} CUDA units to compile, {len(wanted) - len(jobs)} already prebuilt", flush=True)
+        start = time.monotonic()
+
+        def compile_unit(job):
+            label, unit, target = job
+            partial = target.with_suffix(".partial")
+            cmd = [build._nvcc(), *build._nvcc_flags(), f"-I{build.CSRC}", f"-I{unit.parent}", "-c", str(unit),
+                   "-o", str(partial)]
+            result = subprocess.run(cmd, capture_output=True, text=True)
+            if result.returncode:
+                raise RuntimeError(f"nvcc failed on {label}:\n{result.stderr[-4000:]}")
+            partial.rename(target)
+            print(f"  {label} ({time.monotonic() - start:.0f} s)", flush=True)
+
+        with ThreadPoolExecutor(max_workers=args.jobs) as pool:
+            list(pool.map(compile_unit, jobs))
+    for stale in objects.glob("*.o"):
+        if stale.name not in wanted:
+            stale.unlink()
+    archive = out / "prebuilt.tar.xz"
+    with tarfile.open(archive, "w:xz") as tar:
+        for name in sorted(wanted):
+            tar.add(objects / name, arcname=name)
+    print(f"{archive}: {archive.stat().st_size / 2**20:.1f} MiB, {len(wanted)} objects")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
