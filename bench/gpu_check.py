@@ -52,8 +52,11 @@ def _robot(name: str):
 
 
 def run_stage(stage: str, robot: str | None, cpu: bool, threads: int) -> int:
+    import faulthandler
+
     import torch
 
+    faulthandler.enable()  # a crash prints the Python stack
     torch.set_num_threads(threads)
     device = torch.device("cpu" if cpu else "cuda")
     import gpu_correctness as correctness
@@ -69,7 +72,7 @@ def run_stage(stage: str, robot: str | None, cpu: bool, threads: int) -> int:
     elif stage == "values":
         errors: dict[str, float] = {}
         correctness.values(checks, _robot(robot), device, 7, errors)
-        for key, err in sorted(errors.items(), key=lambda kv: -kv[1])[:8]:
+        for key, err in sorted(errors.items(), key=lambda kv: -kv[1]):
             print(f"INFO {robot} float32 error {key}: {err:.2e}", flush=True)
     elif stage == "batches":
         sizes = [1, 7, 33] if cpu else [1, 7, 255, 5000]
@@ -83,6 +86,8 @@ def run_stage(stage: str, robot: str | None, cpu: bool, threads: int) -> int:
         gpu_device.graphs(checks, _robot("go2"), device)
         gpu_device.compiled(checks, _robot("iiwa14"), device)
         gpu_device.examples(checks, device)
+    elif stage == "refusal":
+        gpu_device.refusal(checks, _robot("g1"), device)
     elif stage == "reservation":
         gpu_device.reservation(checks, _robot("g1"), device)
     elif stage == "figures":
@@ -114,14 +119,14 @@ def run_stage(stage: str, robot: str | None, cpu: bool, threads: int) -> int:
 def _meta(cpu: bool) -> dict:
     import torch
 
-    commit = "unknown"
-    try:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
-                                timeout=10).stdout.strip() or commit
-    except (OSError, subprocess.TimeoutExpired):
-        pass
-    if commit == "unknown" and (ROOT / ".gpu" / "commit").exists():
-        commit = (ROOT / ".gpu" / "commit").read_text().strip()
+    # .gpu/commit, written beside the prebuilt objects, names the commit a copied working tree came from
+    commit = (ROOT / ".gpu" / "commit").read_text().strip() if (ROOT / ".gpu" / "commit").exists() else "unknown"
+    if commit == "unknown":
+        try:
+            commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                                    timeout=10).stdout.strip() or commit
+        except (OSError, subprocess.TimeoutExpired):
+            pass
     device = "CPU" if cpu else torch.cuda.get_device_name()
     return {"device": device, "torch": torch.__version__, "commit": commit}
 
@@ -222,7 +227,8 @@ def main(argv: list[str] | None = None) -> int:
 
     robots = [r for r in args.robots if (MODELS_DIR / f"{r}.json").exists()]
     threads = ["--threads", str(max(1, cores // workers))]
-    blocking = {"CUDA_LAUNCH_BLOCKING": "1"}
+    # launches synchronous, so that a fault names its op; outputs poisoned, so that an unwritten entry shows
+    blocking = {"CUDA_LAUNCH_BLOCKING": "1", "TORCH_GRID_POISON_OUTPUTS": "1"}
     # 1. builds: the glue once, then every robot at once
     stage("build iiwa14", ["--stage", "build", "--robot", "iiwa14"], 300)
     parallel([(f"build {r}", ["--stage", "build", "--robot", r], 300, {}) for r in robots if r != "iiwa14"])
@@ -230,37 +236,38 @@ def main(argv: list[str] | None = None) -> int:
     jobs = [(f"{kind} {r}", ["--stage", kind, "--robot", r, *threads], 240, blocking) for kind in PER_ROBOT for r in robots]
     jobs += [("device", ["--stage", "device", *threads], 240, blocking)]
     if "g1" in robots:
-        jobs.append(("reservation", ["--stage", "reservation", *threads], 120, {}))
+        jobs += [(kind, ["--stage", kind, *threads], 120, {}) for kind in ("refusal", "reservation")]
     parallel([j for j in jobs if j[0].split()[0] not in args.skip])
-    # 3. figures, alone on the machine
+    # 3. tools, then 4. the figures, alone on the machine
+    if not args.cpu:
+        _tools(stage, log, out, args.skip)
     if "figures" not in args.skip:
         stage("figures", ["--stage", "figures", "--robot", robots[0]], 300 if not args.cpu else 120)
-    # 4. tools
-    if not args.cpu:
-        _tools(stage, log, out, robots)
     return _summary(log, out, outputs, failures, args.cpu)
 
 
-def _tools(stage, log: Log, out: Path, robots: list[str]) -> None:
+def _tools(stage, log: Log, out: Path, skip: list[str]) -> None:
     from torch_grid.build import cuda_home
 
     home = cuda_home()
     tool = lambda name: str(home / "bin" / name) if home and (home / "bin" / name).exists() else name  # noqa: E731
-    text = stage("resources", ["--stage", "resources"], 60)
-    (out / "resources.txt").write_text(text)
+    if "resources" not in skip:
+        (out / "resources.txt").write_text(stage("resources", ["--stage", "resources"], 60))
     sanitizer = []
     for kind in ("memcheck", "initcheck"):
-        text = stage(f"compute-sanitizer {kind}", ["--stage", "sanitized_calls", "--robot", "go2"], 150,
-                     wrapper=[tool("compute-sanitizer"), "--tool", kind, "--error-exitcode", "9", "--print-limit", "20"])
-        sanitizer.append(f"==== {kind}\n{text}")
+        if kind not in skip:
+            text = stage(f"compute-sanitizer {kind}", ["--stage", "sanitized_calls", "--robot", "go2"], 90,
+                         wrapper=[tool("compute-sanitizer"), "--tool", kind, "--error-exitcode", "9", "--print-limit", "20"])
+            sanitizer.append(f"==== {kind}\n{text}")
+        if kind == "memcheck" and "ncu" not in skip:
+            metrics = ",".join(["sm__warps_active.avg.pct_of_peak_sustained_active", "sm__maximum_warps_per_active_cycle_pct",
+                                "launch__registers_per_thread", "launch__occupancy_limit_registers", "launch__block_size",
+                                "launch__grid_size", "gpu__time_duration.sum"])
+            text = stage("ncu", ["--stage", "profiled_call"], 60,
+                         wrapper=[tool("ncu"), "--clock-control", "none", "--target-processes", "all", "-k",
+                                  "regex:batch_kernel", "--launch-skip", "1", "--launch-count", "1", "--metrics", metrics])
+            (out / "ncu.txt").write_text(text)
     (out / "sanitizer.log").write_text("\n".join(sanitizer))
-    metrics = ",".join(["sm__warps_active.avg.pct_of_peak_sustained_active", "sm__maximum_warps_per_active_cycle_pct",
-                        "launch__registers_per_thread", "launch__occupancy_limit_registers", "launch__block_size",
-                        "launch__grid_size", "gpu__time_duration.sum"])
-    text = stage("ncu", ["--stage", "profiled_call"], 120,
-                 wrapper=[tool("ncu"), "--clock-control", "none", "--target-processes", "all", "-k", "regex:batch_kernel",
-                          "--launch-skip", "1", "--launch-count", "1", "--metrics", metrics])
-    (out / "ncu.txt").write_text(text)
 
 
 def _summary(log: Log, out: Path, outputs: dict[str, str], failures: list[str], cpu: bool) -> int:

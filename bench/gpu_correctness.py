@@ -24,7 +24,19 @@ F64_TOL = 1e-12
 GRAD_TOL = 1e-10
 # float32 on CUDA (float arithmetic) against the float64 CPU build on the same float32 inputs. The CPU
 # build's float32 is float64 rounded, so this is float32's own error.
+# Their error is relative to each output's largest entry, so it grows with how far the entries spread:
+# derivatives (through M^-1 and differences of large terms) more than values, second derivatives most.
 F32_TOL = 1e-5
+F32_TOL_FIRST = 1e-4
+F32_TOL_SECOND = 5e-4
+
+
+def f32_tolerance(name: str) -> float:
+    if any(k in name for k in ("second", "hessian")):
+        return F32_TOL_SECOND
+    if any(k in name for k in ("gradient", "derivatives", "dccrba", "horizon", "cmm", "d_integrate", "d_difference")):
+        return F32_TOL_FIRST
+    return F32_TOL
 
 
 class Checks:
@@ -193,7 +205,8 @@ def values(checks: Checks, robot, device: torch.device, batch: int, errors: dict
                 if why:
                     return why
                 errors[f"{conv} {name}"] = err = relative_error(got, ref32)
-                return None if err <= F32_TOL else f"float32 relative error {err:.2e} > {F32_TOL:.0e}"
+                tol = f32_tolerance(name)
+                return None if err <= tol else f"float32 relative error {err:.2e} > {tol:.0e}"
             checks.run(f"{conv} float32 {name}", f32)
 
 

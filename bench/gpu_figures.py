@@ -142,8 +142,10 @@ def resources(libraries: dict[str, str], threads_per_block: int = 128) -> str:
         return "cuobjdump not found\n"
     lines = [f"{'robot':10s} {'kernel':52s} {'scalar':6s} {'conv':6s} {'regs':>4s} {'stack B':>8s} {'occupancy':>9s}"]
     for robot, library in libraries.items():
-        dump = subprocess.run([cuobjdump, "--dump-resource-usage", library], capture_output=True, text=True).stdout
-        found = re.findall(r"Function (\S+):\s*REG:(\d+)\s+STACK:(\d+)", dump)
+        dump = subprocess.run([cuobjdump, "--dump-resource-usage", library], capture_output=True, text=True)
+        found = re.findall(r"Function (_Z\w+):?[\s\S]{0,200}?REG:(\d+)[\s\S]{0,80}?STACK:(\d+)", dump.stdout)
+        if not found:
+            lines.append(f"{robot}: no kernel read from cuobjdump's output: {(dump.stdout + dump.stderr)[:1500]!r}")
         names = [m[0] for m in found]
         if filt and names:
             names = subprocess.run([filt], input="\n".join(names), capture_output=True, text=True).stdout.splitlines()

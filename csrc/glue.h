@@ -13,6 +13,7 @@
 #include <algorithm>
 #include <cstdlib>
 #include <cstring>
+#include <limits>
 #if defined(__linux__)
 #include <sys/mman.h>
 #include <unistd.h>
@@ -253,10 +254,30 @@ class Call {
     shape.insert(shape.end(), trailing.begin(), trailing.end());
     TORCH_CHECK(n_out_ < kMaxOut, op_, ": more than ", kMaxOut, " outputs");
     at::Tensor t = empty(shape, at::TensorOptions().dtype(dtype_).device(device_));
+    if (poisoned()) t.fill_(std::numeric_limits<double>::quiet_NaN());
     const int k = n_out_++;
     batch_.out[k] = t.data_ptr();
     batch_.out_stride[k] = numel(trailing);
     return t;
+  }
+
+  // TORCH_GRID_POISON_OUTPUTS=1 (a test of the kernels): every output starts as NaN, never as zeros or
+  // an earlier call's values, so an entry a kernel leaves unwritten shows; workspaces start zeroed, as
+  // their kernels expect.
+  static bool poisoned() {
+    static const bool on = [] {
+      const char* env = std::getenv("TORCH_GRID_POISON_OUTPUTS");
+      return env && *env && std::strcmp(env, "0") != 0;
+    }();
+    return on;
+  }
+  // The buffer slots of d's outputs for n samples set to NaN (workspaces to zero), when poisoned.
+  void poison_slots(const Batch& d, int64_t n) const {
+    if (!poisoned()) return;
+    for (int k = 0; k < n_out_; ++k)
+      if (batch_.out[k])
+        std::fill_n(static_cast<double*>(d.out[k]), batch_.out_stride[k] * n,
+                    workspace_ >> k & 1 ? 0.0 : std::numeric_limits<double>::quiet_NaN());
   }
 
   // The kernel's scratch of shape (*trailing) per sample: on CUDA a new output like any other; on the
@@ -314,18 +335,21 @@ class Call {
  private:
 #ifdef TG_WITH_CUDA
   // Before a kernel's first launch on a device, its local memory (stack) is checked against what the
-  // device would reserve for it (every resident thread gets that much, for the life of the process)
-  // and reserved (reserve_stack). That first launch may not be captured in a CUDA graph: the device's
-  // properties, the kernel's attributes and the reservation are calls a capture does not record.
+  // device would reserve for it: every resident thread gets that much, for the life of the process. The
+  // driver grows the device's local memory at that launch (G1's largest kernel: about 16 GB); memory
+  // torch's caching allocator holds is invisible to it, so a launch that fails for want of memory is
+  // retried once after torch's cache is emptied. That first launch may not be captured in a CUDA graph
+  // (a capture records no growth, and the device's properties and the kernel's attributes are read then).
   void launch(CudaFn fn) {
     const c10::cuda::CUDAGuard guard(device_);
     const cudaStream_t stream = c10::cuda::getCurrentCUDAStream().stream();
-    if (!launched(fn, device_.index())) {
+    const bool first = !launched(fn, device_.index());
+    if (first) {
       cudaStreamCaptureStatus capture = cudaStreamCaptureStatusNone;
       const cudaError_t err = cudaStreamIsCapturing(stream, &capture);
       TORCH_CHECK(err == cudaSuccess, op_, ": cannot query the stream's capture status: ", cudaGetErrorString(err));
       TORCH_CHECK(capture == cudaStreamCaptureStatusNone, op_, ": the first launch of this kernel on ", device_,
-                  " cannot be captured in a CUDA graph (it reserves the kernel's local memory): call the op once, "
+                  " cannot be captured in a CUDA graph (it grows the device's local memory): call the op once, "
                   "outside the capture, before capturing it");
       const Device d = device(device_.index());
       const CudaAttributes a = attributes(fn);
@@ -338,11 +362,15 @@ class Call {
                   " bytes of local memory per CUDA thread; for ", resident, " resident threads the device would reserve ",
                   (a.local_bytes * resident) >> 20, " MiB, above the budget of ", budget >> 20,
                   " MiB (TORCH_GRID_CUDA_LOCAL_MEMORY_MB; default a quarter of the device memory)");
-      reserve_stack(device_.index(), a.local_bytes);
     }
-    const int err = fn(batch_, stream, device(device_.index()).sms, nullptr);
+    const int sms = device(device_.index()).sms;
+    int err = fn(batch_, stream, sms, nullptr);
+    if (first && err == cudaErrorMemoryAllocation) {
+      c10::cuda::CUDACachingAllocator::emptyCache();
+      err = fn(batch_, stream, sms, nullptr);
+    }
     TORCH_CHECK(err == 0, op_, ": CUDA kernel launch failed: ", cudaGetErrorString(static_cast<cudaError_t>(err)));
-    mark_launched(fn, device_.index());
+    if (first) mark_launched(fn, device_.index());
   }
   // Whether fn has been launched on the device (by any call site) in this process.
   static std::mutex& launched_mutex() {
@@ -362,31 +390,6 @@ class Call {
     std::lock_guard<std::mutex> lock(launched_mutex());
     auto& list = launched_list();
     if (std::find(list.begin(), list.end(), std::make_pair(fn, index)) == list.end()) list.emplace_back(fn, index);
-  }
-  // The driver grows the device's local memory to a kernel's need at its first launch and keeps it for
-  // the process (G1's largest kernel: about 16 GB). Memory that torch's caching allocator holds is
-  // invisible to the driver, so that launch could fail for want of memory torch would give back: the
-  // per-thread stack limit is raised here, beforehand, retried once after torch's cache is emptied.
-  void reserve_stack(int index, int64_t bytes) {
-    static std::mutex mutex;
-    static std::unordered_map<int, int64_t> reserved;  // device -> per-thread bytes reserved
-    std::lock_guard<std::mutex> lock(mutex);
-    int64_t& have = reserved[index];
-    if (bytes <= have) return;
-    size_t limit = 0;
-    cudaError_t err = cudaDeviceGetLimit(&limit, cudaLimitStackSize);
-    if (err == cudaSuccess && static_cast<int64_t>(limit) < bytes) {
-      err = cudaDeviceSetLimit(cudaLimitStackSize, static_cast<size_t>(bytes));
-      if (err == cudaErrorMemoryAllocation) {
-        (void)cudaGetLastError();  // clears the error
-        c10::cuda::CUDACachingAllocator::emptyCache();
-        err = cudaDeviceSetLimit(cudaLimitStackSize, static_cast<size_t>(bytes));
-      }
-    }
-    if (err != cudaSuccess) (void)cudaGetLastError();
-    TORCH_CHECK(err == cudaSuccess, op_, ": cannot reserve ", bytes, " bytes of local memory per CUDA thread: ",
-                cudaGetErrorString(err));
-    have = bytes;
   }
   // What a launch needs of a device, read once per device.
   struct Device {
@@ -480,11 +483,12 @@ class Call {
     const int64_t chunk = std::max<int64_t>(1, std::min<int64_t>(16, (int64_t(4) << 10) / per_sample));
     std::vector<double> buffer(static_cast<size_t>(per_sample * chunk));
     Batch d = batch_;
-    d.zeroed = true;
+    d.zeroed = !poisoned();
     output_slots(d, buffer.data(), chunk);
     for (int64_t s0 = begin; s0 < end; s0 += chunk) {
       const int64_t n = std::min(chunk, end - s0);
       d.n = n;
+      poison_slots(d, n);
       for (int k = 0; k < n_in_; ++k)
         if (batch_.in[k]) d.in[k] = static_cast<const double*>(batch_.in[k]) + s0 * batch_.in_stride[k];
       fn(d, 0, n);
@@ -542,6 +546,7 @@ class Call {
         next += size * samples;
       }
       output_slots(d, next, n);
+      poison_slots(d, n);
       fn(d, 0, n);
       for (int k = 0; k < n_out_; ++k) {
         if (!batch_.out[k] || workspace_ >> k & 1) continue;

@@ -171,7 +171,7 @@ UNIT_TOL = 1e-9
 
 def inertia_about_origin(mass: float, com, inertia) -> list[float]:
     """Rotational inertia (row-major 3x3) about the joint frame origin: I_c - m [c]x^2."""
-    c2 = sum(x * x for x in com)
+    c2 = com[0] * com[0] + com[1] * com[1] + com[2] * com[2]  # in this order on every Python (3.12's sum() compensates)
     return [inertia[3 * r + k] + mass * ((c2 if r == k else 0.0) - com[r] * com[k]) for r in range(3) for k in range(3)]
 
 
