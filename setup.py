@@ -31,7 +31,7 @@ setup(
     python_requires=">=3.9",
     packages=find_packages(include=["torch_grid", "torch_grid.*"]),
     package_data={"torch_grid": ["robots/*.urdf", "robots/*.xml", "robots/*.json", "robots/NOTICE"]},
-    install_requires=["torch>=2.4", "ninja"],
+    install_requires=["torch>=2.11", "ninja"],  # tested: 2.11 (CUDA 13.0 build) and 2.13
     extras_require={
         "pin": ["pin>=3.4"],
         "mujoco": ["mujoco>=3.2"],

@@ -126,6 +126,17 @@ def call_overhead(robot, device: torch.device, meta: dict) -> None:
         print("FIGURE " + json.dumps(record), flush=True)
 
 
+def _kernel_of(mangled: str) -> tuple[str, str, str] | None:
+    """(kernel struct, scalar, convention) of a mangled tg::batch_kernel<tg::bind::K, Robot, S, C> name."""
+    bind = re.search(r"4bind(\d+)", mangled)
+    tail = re.search(r"E([df])Li(\d)EEEvNS_5BatchE$", mangled)
+    if "batch_kernel" not in mangled or not bind or not tail:
+        return None
+    start = bind.end()
+    return (mangled[start:start + int(bind.group(1))], "double" if tail.group(1) == "d" else "float",
+            "mjx" if tail.group(2) == "1" else "pin")
+
+
 def _cuda_tool(name: str) -> str | None:
     from torch_grid.build import cuda_home
 
@@ -137,7 +148,7 @@ def _cuda_tool(name: str) -> str | None:
 def resources(libraries: dict[str, str], threads_per_block: int = 128) -> str:
     """Each CUDA kernel's registers and stack as compiled into the loaded libraries, and the occupancy
     they allow at threads_per_block (a register file of 65536, 64 warps an SM, 32 blocks an SM)."""
-    cuobjdump, filt = _cuda_tool("cuobjdump"), _cuda_tool("cu++filt")
+    cuobjdump = _cuda_tool("cuobjdump")
     if not cuobjdump:
         return "cuobjdump not found\n"
     lines = [f"{'robot':10s} {'kernel':52s} {'scalar':6s} {'conv':6s} {'regs':>4s} {'stack B':>8s} {'occupancy':>9s}"]
@@ -146,18 +157,16 @@ def resources(libraries: dict[str, str], threads_per_block: int = 128) -> str:
         found = re.findall(r"Function (_Z\w+):?[\s\S]{0,200}?REG:(\d+)[\s\S]{0,80}?STACK:(\d+)", dump.stdout)
         if not found:
             lines.append(f"{robot}: no kernel read from cuobjdump's output: {(dump.stdout + dump.stderr)[:1500]!r}")
-        names = [m[0] for m in found]
-        if filt and names:
-            names = subprocess.run([filt], input="\n".join(names), capture_output=True, text=True).stdout.splitlines()
-        for name, (_, regs, stack) in zip(names, found):
-            kernel = re.search(r"bind::(\w+), [\w:]+, (float|double), (\d)>", name)
+        for name, regs, stack in found:
+            kernel = _kernel_of(name)
             if not kernel:
+                lines.append(f"{robot}: {name} (not a batch kernel) REG {regs} STACK {stack}")
                 continue
+            op, scalar, conv = kernel
             regs_i = int(regs)
             warps_per_block = threads_per_block // 32
             per_warp = ((max(regs_i, 1) * 32 + 255) // 256) * 256
             blocks = min(32, (65536 // per_warp) // warps_per_block, 64 // warps_per_block)
             occupancy = blocks * warps_per_block / 64
-            lines.append(f"{robot:10s} {kernel.group(1):52s} {kernel.group(2):6s} {'mjx' if kernel.group(3) == '1' else 'pin':6s} "
-                         f"{regs_i:4d} {int(stack):8d} {occupancy:9.3f}")
+            lines.append(f"{robot:10s} {op:52s} {scalar:6s} {conv:6s} {regs_i:4d} {int(stack):8d} {occupancy:9.3f}")
     return "\n".join(lines) + "\n"

@@ -65,10 +65,20 @@ def report(model: RobotModel, dtypes: tuple[str, ...] = ("float64",), arch: str 
 
         with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
             logs = list(pool.map(compile_unit, units))
-    return sorted(_parse("\n".join(logs)), key=lambda k: (k.op, k.dtype, k.convention))
+    log = "\n".join(logs)
+    called = out_of_line_functions(log)
+    if called:
+        raise RuntimeError("these device functions are called, not inlined, by the robot's CUDA kernels: "
+                           f"{', '.join(called)}. A recursive one's frames go beyond the stack ptxas counts, on a "
+                           "call stack of the driver's default size (1 KB), which they overflow: make it not recursive")
+    return sorted(_parse(log), key=lambda k: (k.op, k.dtype, k.convention))
 
 
-_KERNELS = {op.kernel: op.name for op in OPS.values()}
+def out_of_line_functions(log: str) -> list[str]:
+    """The device functions of ptxas's report other than the kernels and CUDA's own (its slow path of
+    trigonometry for huge arguments): functions the kernels call rather than inline."""
+    names = set(re.findall(r"Function properties for (\w+)", log))
+    return sorted(_demangle(sorted(n for n in names if "batch_kernel" not in n and not n.startswith("__internal"))))
 
 
 def _parse(log: str) -> list[KernelUsage]:

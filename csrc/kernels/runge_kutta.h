@@ -64,20 +64,9 @@ template <class T, int C> TG_HD void dexp_inverse_joint(int n, const T* theta, c
 
 // c = dexp(theta)^-1 x and its n x n derivatives: along x the map's matrix; along Pinocchio's free joint's
 // rho, -Jr^-1 L(w, Jr^-1 x_ang) (step.h); along w, one forward-mode pass of the closed form (a dozen 3 x 3
-// products) carrying the three directions.
-template <class S, int C> TG_HD void dexp_inverse_jacobians(int n, const S* theta, const S* x, S* c, S* Dtheta, S* Dx) {
-  if (C == MJX && n == 6) {  // MuJoCo's free joint: its position is carried as it is, its rotation as a ball's
-    S Dt3[9], Dx3[9];
-    dexp_inverse_jacobians<S, C>(3, theta + 3, x + 3, c + 3, Dt3, Dx3);
-    for (int a = 0; a < 6; ++a)
-      for (int b = 0; b < 6; ++b) {
-        const bool ang = a >= 3 && b >= 3;
-        Dtheta[6 * a + b] = ang ? Dt3[3 * (a - 3) + b - 3] : S(0);
-        Dx[6 * a + b] = ang ? Dx3[3 * (a - 3) + b - 3] : S(a == b);
-      }
-    for (int m = 0; m < 3; ++m) c[m] = x[m];
-    return;
-  }
+// products) carrying the three directions. A ball joint (n = 3) or Pinocchio's free joint (n = 6):
+// dexp_inverse_jacobians below adds MuJoCo's free joint.
+template <class S, int C> TG_HD void dexp_inverse_jacobians_lie(int n, const S* theta, const S* x, S* c, S* Dtheta, S* Dx) {
   const Vec3<S> w = load3(theta + n - 3);
   const So3Coefficients<S> k = so3_coefficients(w);
   const Mat3<S> Ji = so3_terms(w, S(0.5), k.beta);
@@ -105,6 +94,25 @@ template <class S, int C> TG_HD void dexp_inverse_jacobians(int n, const S* thet
   dexp_inverse_joint<Jet<S, 3>, C>(n, th, xx, out);
   for (int m = 0; m < n; ++m)
     for (int k = 0; k < 3; ++k) Dtheta[n * m + n - 3 + k] = out[m].d[k];
+}
+
+// dexp_inverse_jacobians_lie, and MuJoCo's free joint: its position carried as it is, its rotation as a
+// ball's. (Not by recursion: a recursive function is not inlined on a GPU, and its frames go on a call
+// stack of the driver's default size, which they overflowed.)
+template <class S, int C> TG_HD void dexp_inverse_jacobians(int n, const S* theta, const S* x, S* c, S* Dtheta, S* Dx) {
+  if (C == MJX && n == 6) {
+    S Dt3[9], Dx3[9];
+    dexp_inverse_jacobians_lie<S, C>(3, theta + 3, x + 3, c + 3, Dt3, Dx3);
+    for (int a = 0; a < 6; ++a)
+      for (int b = 0; b < 6; ++b) {
+        const bool ang = a >= 3 && b >= 3;
+        Dtheta[6 * a + b] = ang ? Dt3[3 * (a - 3) + b - 3] : S(0);
+        Dx[6 * a + b] = ang ? Dx3[3 * (a - 3) + b - 3] : S(a == b);
+      }
+    for (int m = 0; m < 3; ++m) c[m] = x[m];
+    return;
+  }
+  dexp_inverse_jacobians_lie<S, C>(n, theta, x, c, Dtheta, Dx);
 }
 
 // out (n x COLS) (+)= sum_t G_t^T X_t for a quaternion joint's n x n blocks G_t (n = 3 or 6) and n-row X_t.

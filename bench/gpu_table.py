@@ -1,0 +1,55 @@
+"""Markdown tables of a GPU check's figures (bench/gpu/results.json), for bench/RESULTS.md.
+
+    python bench/gpu_table.py [bench/gpu/results.json]
+"""
+from __future__ import annotations
+
+import json
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+# GRiD's published per-sample times (RTX 5090, float32, data on the GPU, microseconds; N = 256 unless
+# noted): (robot, op) -> (figure, N)
+GRID = {("iiwa14", "inverse_dynamics"): (0.045, 256), ("iiwa14", "forward_dynamics"): (0.092, 256),
+        ("iiwa14", "inverse_dynamics_gradient"): (0.030, 1024), ("iiwa14", "forward_dynamics_gradient"): (0.185, 256),
+        ("g1", "inverse_dynamics"): (0.253, 256), ("g1", "forward_dynamics"): (0.800, 256), ("g1", "crba"): (0.420, 256),
+        ("g1", "forward_dynamics_gradient"): (1.49, 256), ("g1", "inverse_dynamics_gradient"): (0.625, 1024),
+        ("g1", "inverse_dynamics_second_order"): (12.8, 256)}
+
+
+def tables(records: list[dict]) -> str:
+    sizes = sorted({r["batch"] for r in records if not r["op"].startswith("call_overhead")})
+    by = defaultdict(dict)
+    gpu = next((r["device"] for r in records if not r["device"].startswith("CPU")), "GPU")
+    for r in records:
+        where = "cpu" if r["device"].startswith("CPU") else "gpu"
+        by[(r["robot"], r["op"], r["dtype"])][(where, r["batch"])] = r["us_per_sample"]
+    out = []
+    for dtype in ("float64", "float32"):
+        out.append(f"\n{dtype}, µs per sample, {gpu} (CUDA events) / the CPU build on the machine's 16 threads; "
+                   "GRiD: its published RTX 5090 float32 figure at the N given\n")
+        out.append("| robot | op | " + " | ".join(f"N = {n}" for n in sizes) + " | GRiD |")
+        out.append("|---|---|" + "---|" * (len(sizes) + 1))
+        for (robot, op, dt), cells in sorted(by.items()):
+            if dt != dtype or op.startswith("call_overhead"):
+                continue
+            row = [f"{_f(cells.get(('gpu', n)))} / {_f(cells.get(('cpu', n)))}" for n in sizes]
+            grid = GRID.get((robot, op))
+            out.append(f"| {robot} | {op} | " + " | ".join(row) + f" | {f'{grid[0]} (N = {grid[1]})' if grid else ''} |")
+    calls = [r for r in records if r["op"].startswith("call_overhead")]
+    if calls:
+        out.append("\nA batch-of-one call through Robot on CUDA (iiwa14 inverse_dynamics, host wall time): "
+                   + "; ".join(f"{r['op']}: {r['us_per_sample']:.1f} µs" for r in calls))
+    return "\n".join(out) + "\n"
+
+
+def _f(x) -> str:
+    if x is None:
+        return "–"
+    return f"{x:.3g}" if x < 100 else f"{x:.0f}"
+
+
+if __name__ == "__main__":
+    path = Path(sys.argv[1] if len(sys.argv) > 1 else Path(__file__).resolve().parent / "gpu" / "results.json")
+    print(tables(json.loads(path.read_text())))
