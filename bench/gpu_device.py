@@ -10,13 +10,20 @@ import torch
 from gpu_correctness import F64_TOL, GRAD_TOL, Checks, Skip, compare, on, states, tensors, value_calls
 
 
+def _cuda_only(checks: Checks, name: str, robot, device: torch.device, batch: int, seed: int):
+    """(view, q, qd, x) of the robot's Pinocchio view on the device; None (the check skipped) on a CPU."""
+    if device.type != "cuda":
+        checks.run(name, lambda: Skip("CUDA only"))
+        return None
+    view = robot.pin
+    return (view, *on(states(view, batch, seed)[:3], device))
+
+
 def streams(checks: Checks, robot, device: torch.device) -> None:
     """A call on a side stream, and several streams at once, give the default stream's results."""
-    if device.type != "cuda":
-        checks.run("side stream", lambda: Skip("CUDA only"))
+    if not (found := _cuda_only(checks, "side stream", robot, device, 4096, 4)):
         return
-    view = robot.pin
-    q, qd, x, _ = on(states(view, 4096, seed=4), device)
+    view, q, qd, x = found
     ref = view.forward_dynamics_gradient(q, qd, x)
 
     def side():
@@ -140,11 +147,9 @@ def examples(checks: Checks, device: torch.device) -> None:
 
 def refusal(checks: Checks, robot, device: torch.device) -> None:
     """In a fresh process: a kernel above the local-memory budget is refused, naming the op."""
-    if device.type != "cuda":
-        checks.run("local memory budget refusal", lambda: Skip("CUDA only"))
+    if not (found := _cuda_only(checks, "local memory budget refusal", robot, device, 64, 8)):
         return
-    view = robot.pin
-    q, qd, x, _ = on(states(view, 64, seed=8), device)
+    view, q, qd, x = found
 
     def refused():
         os.environ["TORCH_GRID_CUDA_LOCAL_MEMORY_MB"] = "1"
@@ -165,11 +170,9 @@ def refusal(checks: Checks, robot, device: torch.device) -> None:
 def reservation(checks: Checks, robot, device: torch.device) -> None:
     """In a fresh process: the largest kernel's first launch succeeds after torch's allocator has
     cached most of the free memory (the launch is retried once after torch's cache is emptied)."""
-    if device.type != "cuda":
-        checks.run("first launch after torch cached the free memory", lambda: Skip("CUDA only"))
+    if not (found := _cuda_only(checks, "first launch after torch cached the free memory", robot, device, 64, 8)):
         return
-    view = robot.pin
-    q, qd, x, _ = on(states(view, 64, seed=8), device)
+    view, q, qd, x = found
 
     def reserve():
         free, total = torch.cuda.mem_get_info()
