@@ -208,6 +208,7 @@ def main(argv: list[str] | None = None) -> int:
     log(f"TORCH_GRID_CACHE={env.get('TORCH_GRID_CACHE', '(default)')}")
     outputs: dict[str, str] = {}
     failures: list[str] = []
+    crashed: list[tuple] = []  # stages that died of a segmentation fault, rerun under cuda-gdb for a native stack
 
     def stage(label: str, args_: list[str], limit: float, extra_env: dict | None = None, wrapper=()) -> str:
         left = deadline - time.monotonic()
@@ -219,6 +220,8 @@ def main(argv: list[str] | None = None) -> int:
         outputs[label] = text
         if status.startswith("timed out") or (status != "ok" and "FAIL " not in text):
             failures.append(f"{label}: {status}")
+        if status == f"exit {-signal.SIGSEGV}" and not wrapper and not args.cpu:
+            crashed.append((label, args_, extra_env))
         return text
 
     def parallel(jobs: list[tuple[str, list[str], float, dict]]) -> None:
@@ -238,6 +241,10 @@ def main(argv: list[str] | None = None) -> int:
     if "g1" in robots:
         jobs += [(kind, ["--stage", kind, *threads], 120, {}) for kind in ("refusal", "reservation")]
     parallel([j for j in jobs if j[0].split()[0] not in args.skip])
+    for label, args_, extra_env in crashed[:2]:
+        text, _ = _spawn(args_ + common, {**env, **(extra_env or {})}, min(90, max(deadline - time.monotonic(), 1)), log,
+                         f"{label} under cuda-gdb", ["cuda-gdb", "-q", "-batch", "-ex", "run", "-ex", "bt", "--args"])
+        print(text[-3000:], flush=True)
     # 3. tools, then 4. the figures, alone on the machine
     if not args.cpu:
         _tools(stage, log, out, args.skip)
@@ -255,10 +262,12 @@ def _tools(stage, log: Log, out: Path, skip: list[str]) -> None:
         (out / "resources.txt").write_text(stage("resources", ["--stage", "resources"], 60))
     sanitizer = []
     for kind in ("memcheck", "initcheck"):
-        if kind not in skip:
-            text = stage(f"compute-sanitizer {kind}", ["--stage", "sanitized_calls", "--robot", "go2"], 90,
+        for robot in ("go2", "humanoid") if kind == "memcheck" else ("go2",):
+            if kind in skip:
+                continue
+            text = stage(f"compute-sanitizer {kind} {robot}", ["--stage", "sanitized_calls", "--robot", robot], 90,
                          wrapper=[tool("compute-sanitizer"), "--tool", kind, "--error-exitcode", "9", "--print-limit", "20"])
-            sanitizer.append(f"==== {kind}\n{text}")
+            sanitizer.append(f"==== {kind} {robot}\n{text}")
         if kind == "memcheck" and "ncu" not in skip:
             metrics = ",".join(["sm__warps_active.avg.pct_of_peak_sustained_active", "sm__maximum_warps_per_active_cycle_pct",
                                 "launch__registers_per_thread", "launch__occupancy_limit_registers", "launch__block_size",
