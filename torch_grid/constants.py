@@ -13,10 +13,11 @@ from torch.utils import _python_dispatch
 
 def constant(values: tuple, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     """The tensor of `values` (a flat or nested tuple), made once per dtype and device and then shared:
-    never write to it. While a trace records it (torch.compile, a fake or functional mode, any dispatch
-    mode) it is made afresh: a tensor of the trace must not outlive it."""
+    never write to it. Inside a trace (torch.compile, a fake or functional mode, any dispatch mode) or a
+    torch.func transform it is made afresh: a tensor made there must not outlive it."""
     if (torch.compiler.is_compiling() or torch._guards.detect_fake_mode() is not None
-            or _python_dispatch._get_current_dispatch_mode() is not None):
+            or _python_dispatch._get_current_dispatch_mode() is not None
+            or torch._C._functorch.get_interpreter_stack()):
         return torch.tensor(values, dtype=dtype, device=device)
     return _constant(values, dtype, torch.device(device))
 

@@ -81,6 +81,9 @@ def out_of_line_functions(log: str) -> list[str]:
     return sorted(_demangle(sorted(n for n in names if "batch_kernel" not in n and not n.startswith("__internal"))))
 
 
+_KERNELS = {op.kernel: op.name for op in OPS.values()}
+
+
 def _parse(log: str) -> list[KernelUsage]:
     """Read ptxas's 'Function properties' and 'Used N registers' lines of each batch_kernel."""
     mangled = re.findall(r"Function properties for (_Z\w*batch_kernel\w*)\n\s*(\d+) bytes stack frame, (\d+) bytes spill "
