@@ -254,10 +254,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _tools(stage, log: Log, out: Path, skip: list[str]) -> None:
-    from torch_grid.build import cuda_home
+    from gpu_figures import _cuda_tool
 
-    home = cuda_home()
-    tool = lambda name: str(home / "bin" / name) if home and (home / "bin" / name).exists() else name  # noqa: E731
+    tool = lambda name: _cuda_tool(name) or name  # noqa: E731
     if "resources" not in skip:
         (out / "resources.txt").write_text(stage("resources", ["--stage", "resources"], 60))
     sanitizer = []

@@ -213,12 +213,20 @@ def cuda_unit_digest(unit: Path) -> str:
     h.update(unit.read_bytes())
     for name in ("robot.h", "op_args.h", "bindings.h"):
         h.update((unit.parent / name).read_bytes())
+    h.update(_kernel_headers_digest().encode())
+    h.update(" ".join(_nvcc_flags()).encode())
+    h.update(_nvcc_release().encode())
+    return h.hexdigest()
+
+
+@lru_cache(maxsize=None)
+def _kernel_headers_digest() -> str:
+    """The csrc files a CUDA unit may include, read once per process."""
+    h = hashlib.sha256()
     for path in sorted(CSRC.rglob("*")):
         if path.is_file() and path.name not in _TORCH_SIDE and "__pycache__" not in path.parts:
             h.update(path.relative_to(CSRC).as_posix().encode())
             h.update(path.read_bytes())
-    h.update(" ".join(_nvcc_flags()).encode())
-    h.update(_nvcc_release().encode())
     return h.hexdigest()
 
 

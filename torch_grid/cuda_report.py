@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from . import codegen
-from .build import CSRC, _nvcc_flags, op_namespace
+from .build import CSRC, _nvcc, _nvcc_flags, op_namespace
 from .model import RobotModel
 from .ops import OPS
 
@@ -47,7 +47,7 @@ def report(model: RobotModel, dtypes: tuple[str, ...] = ("float64",), arch: str 
            nvcc: str | None = None, families: tuple[str, ...] | None = None) -> list[KernelUsage]:
     """Compile the robot's CUDA kernels of the given dtypes (and op families, all by default) with
     ptxas verbose output and return the resources of each (op, dtype, convention)."""
-    nvcc = nvcc or _find_nvcc()
+    nvcc = nvcc or _nvcc()
     namespace = op_namespace(model, True)
     with tempfile.TemporaryDirectory(prefix="torch_grid_cuda_report_") as tmp:
         src = Path(tmp)
@@ -105,16 +105,6 @@ def _demangle(names: list[str]) -> list[str]:
         return []
     out = subprocess.run(["c++filt"], input="\n".join(names), capture_output=True, text=True, check=True).stdout
     return out.splitlines()
-
-
-def _find_nvcc() -> str:
-    from shutil import which
-
-    for candidate in (os.environ.get("CUDA_HOME") and str(Path(os.environ["CUDA_HOME"]) / "bin" / "nvcc"), which("nvcc"),
-                      "/usr/local/cuda/bin/nvcc"):
-        if candidate and Path(candidate).exists():
-            return candidate
-    raise RuntimeError("nvcc not found: install the CUDA toolkit or set CUDA_HOME")
 
 
 def main(argv: list[str] | None = None) -> int:
