@@ -1,6 +1,6 @@
-"""No silently wrong result: forward-mode AD refuses with the op's name, and a free-flyer quaternion
-of zero or non-finite norm reads as the identity (MuJoCo's mj_normalizeQuat) in every function and
-gradient, in both conventions."""
+"""No silently wrong result: forward-mode AD refuses with the op's name; a free-flyer quaternion of
+zero norm (below MuJoCo's mjMINVAL) reads as the identity (mj_normalizeQuat) in every function and
+gradient, in both conventions, and one with a NaN or infinite entry is NaN wherever it matters."""
 from __future__ import annotations
 
 import pytest
@@ -15,11 +15,8 @@ def _flat(out) -> torch.Tensor:
     return torch.cat([x.flatten(1) for x in (out if isinstance(out, tuple) else (out,))], 1)
 
 
-@pytest.mark.parametrize("convention", ["pin", "mujoco"])
-@pytest.mark.parametrize("bad", [0.0, float("nan"), float("inf")])
-def test_degenerate_quaternion_reads_as_identity(robots, convention, bad):
-    robot = robots["go2"]
-    view = getattr(robot, convention)
+def _base_quaternions(robot, convention: str, value: float) -> tuple[torch.Tensor, ...]:
+    """(q, q at the identity quaternion, q with the quaternion (value, 0, 0, 0) in xyzw order)."""
     q, qd, x, f = _states(robot, 3, 4, convention)
     w = 3 if convention == "mujoco" else 6
     identity = q.clone()
@@ -27,12 +24,38 @@ def test_degenerate_quaternion_reads_as_identity(robots, convention, bad):
     identity[..., w] = 1.0
     degenerate = q.clone()
     degenerate[..., 3:7] = 0.0
-    degenerate[..., 4] = bad  # 0: the zero quaternion; nan / inf: a non-finite norm
+    degenerate[..., 4] = value
+    return q, identity, degenerate, qd, x, f
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+@pytest.mark.parametrize("tiny", [0.0, 1e-16])
+def test_zero_quaternion_reads_as_identity(robots, convention, tiny):
+    robot = robots["go2"]
+    view = getattr(robot, convention)
+    _, identity, degenerate, qd, x, f = _base_quaternions(robot, convention, tiny)
     for name, (call, arity) in FUNCTIONS.items():
         got = _flat(call(view, robot, *(degenerate, qd, x, f)[:arity]))
         ref = _flat(call(view, robot, *(identity, qd, x, f)[:arity]))
-        assert torch.isfinite(got).all(), f"{name}: non-finite output for a quaternion with {bad}"
+        assert torch.isfinite(got).all(), f"{name}: non-finite output for a quaternion of norm {tiny}"
         assert torch.allclose(got, ref, rtol=1e-12, atol=1e-12), f"{name}: differs from the identity quaternion"
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+def test_nonfinite_quaternion_is_nan_in_every_function(robots, convention, bad):
+    """Every entry that the base orientation changes is non-finite (a diverged state is never read as a
+    rotation); one that it leaves alone (Pinocchio's local velocities, M's zeros) keeps its value."""
+    robot = robots["go2"]
+    view = getattr(robot, convention)
+    q, identity, degenerate, qd, x, f = _base_quaternions(robot, convention, bad)
+    for name, (call, arity) in FUNCTIONS.items():
+        got = _flat(call(view, robot, *(degenerate, qd, x, f)[:arity]))
+        ref = _flat(call(view, robot, *(identity, qd, x, f)[:arity]))
+        turned = _flat(call(view, robot, *(q, qd, x, f)[:arity]))
+        finite, moved = torch.isfinite(got), ~torch.isclose(ref, turned, rtol=1e-12, atol=1e-12)
+        assert not (finite & moved).any(), f"{name}: a finite entry for a quaternion with {bad}"
+        assert torch.allclose(got[finite], ref[finite], rtol=1e-12, atol=1e-12), name
 
 
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])

@@ -39,25 +39,32 @@ def ball_joints(model) -> list[int]:
     return [qi for j, qi in zip(model.joints, model.q_index) if j.type == "ball"]
 
 
+QUAT_MIN_NORM = 1e-15  # MuJoCo's mjMINVAL: below it mj_normalizeQuat (and the kernels) read the identity
+
+
 def unit_quaternion(quat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """(quat / |quat|, |quat|) for (..., 4) xyzw quaternions, each (..., 4) and (..., 1). A quaternion
-    of zero or non-finite norm reads as the identity of norm 1, as MuJoCo's mj_normalizeQuat does."""
+    of norm below QUAT_MIN_NORM (zero) reads as the identity of norm 1, as MuJoCo's mj_normalizeQuat
+    does; one with a NaN or infinite entry is NaN in every component, and so is its gradient, so that a
+    diverged state stays visible (mj_normalizeQuat leaves a NaN too)."""
     norm = quat.norm(dim=-1, keepdim=True)
-    valid = (norm > 0) & torch.isfinite(norm)
+    zero = norm < QUAT_MIN_NORM
     identity = torch.zeros_like(quat)
     identity[..., 3] = 1
-    return torch.where(valid, quat / torch.where(valid, norm, 1), identity), torch.where(valid, norm, 1)
+    # quat / inf would leave finite zeros beside an infinite entry's NaN, and a finite gradient
+    scale = torch.where(zero, 1, torch.where(torch.isfinite(norm), norm, torch.nan))
+    return torch.where(zero, identity, quat / scale), torch.where(zero, 1, norm)
 
 
 def base_rotation(q_pin: torch.Tensor) -> torch.Tensor:
-    """(..., 3, 3) rotation of the normalised base quaternion q_pin[..., 3:7] (xyzw); the identity for
-    a quaternion of zero or non-finite norm."""
+    """(..., 3, 3) rotation of the normalised base quaternion q_pin[..., 3:7] (xyzw), as
+    quaternion_rotation."""
     return quaternion_rotation(q_pin[..., 3:7])
 
 
 def quaternion_rotation(quat: torch.Tensor) -> torch.Tensor:
     """(..., 3, 3) rotation of the normalised (..., 4) xyzw quaternion; the identity for a quaternion of
-    zero or non-finite norm."""
+    norm below QUAT_MIN_NORM, NaN for one with a NaN or infinite entry (unit_quaternion)."""
     x, y, z, w = unit_quaternion(quat)[0].unbind(-1)
     rows = [
         1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),

@@ -131,9 +131,9 @@ def tangent_to_ambient(model: RobotModel, q: torch.Tensor, g: torch.Tensor, conv
     """Gradient along the tangent space (..., nv) -> gradient in the coordinates of q (..., nq).
 
     A quaternion Q turns by the local rotation dw = 2 vec(conj(Q/|Q|) (x) dQ) / |Q|, whose transpose
-    maps the angular gradient to dQ. A zero or non-finite quaternion reads as the identity (the
-    kernels do the same): its gradient is the one at the identity, so that an optimiser started
-    there moves off it.
+    maps the angular gradient to dQ. A quaternion of norm below MuJoCo's mjMINVAL (zero) reads as
+    the identity (the kernels do the same): its gradient is the one at the identity, so that an
+    optimiser started there moves off it; one with a NaN or infinite entry gives NaN.
     """
     lay = layout(model)
     if not lay.quaternions:

@@ -90,11 +90,19 @@ template <class S> TG_HD Vec3<S> unit3(int c) {
   return e;
 }
 
+// MuJoCo's mjMINVAL: a quaternion of smaller norm reads as the identity, as in mj_normalizeQuat.
+constexpr double QUAT_MIN_NORM = 1e-15;
+
 // Rotation of the quaternion (x, y, z, w), normalised first so any non-zero quaternion is valid. A
-// quaternion of zero or non-finite norm is the identity, as in MuJoCo's mj_normalizeQuat.
+// quaternion of norm below QUAT_MIN_NORM (zero) is the identity, as in MuJoCo's mj_normalizeQuat; one
+// with a NaN or infinite entry is NaN throughout, so that a diverged state is never read as a rotation.
 template <class S> TG_HD Mat3<S> quat_rotation(S x, S y, S z, S w) {
   const S n2 = x * x + y * y + z * z + w * w;
-  if (!(n2 > S(0) && n2 < S(INFINITY))) return identity3<S>();
+  if (n2 < S(QUAT_MIN_NORM * QUAT_MIN_NORM)) return identity3<S>();
+  if (!(n2 < S(INFINITY))) {
+    const S nan = n2 * S(NAN);  // NaN in a dual number's tangent too
+    return {{nan, nan, nan, nan, nan, nan, nan, nan, nan}};
+  }
   // The unit-quaternion formula with its factor 2 replaced by 2 / |q|^2: no square root.
   const S k = S(2) / n2;
   return {{S(1) - k * (y * y + z * z), k * (x * y - z * w), k * (x * z + y * w),

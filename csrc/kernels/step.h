@@ -115,10 +115,12 @@ template <class M, class S, int C> TG_HD int integrate_joint(int i, const S* q, 
   const Vec3<S> w = load3(u + vi + n - 3);
   const So3Coefficients<S> k = so3_coefficients(w);
   S quat[4], e[4], turned[4];
-  // read normalised; zero or non-finite norm reads as the identity, as mj_normalizeQuat and quat_rotation do
+  // read normalised as quat_rotation reads it: a norm below QUAT_MIN_NORM is the identity, a NaN or
+  // infinite one NaN in every component (q / inf would leave finite zeros beside an infinite entry's NaN)
   const S norm = sqrt(q[qa] * q[qa] + q[qa + 1] * q[qa + 1] + q[qa + 2] * q[qa + 2] + q[qa + 3] * q[qa + 3]);
-  const bool valid = norm > S(0) && norm < S(INFINITY);
-  for (int c = 0; c < 4; ++c) quat[c] = valid ? q[qa + c] / norm : S(c == 3);
+  const bool zero = norm < S(QUAT_MIN_NORM);
+  const S scale = norm < S(INFINITY) ? norm : norm * S(NAN);
+  for (int c = 0; c < 4; ++c) quat[c] = zero ? S(c == 3) : q[qa + c] / scale;
   store3(k.sin_half * w, e);
   e[3] = k.cos_half;
   quat_mul(quat, e, turned);
