@@ -31,7 +31,10 @@ setup(
     python_requires=">=3.9",
     packages=find_packages(include=["torch_grid", "torch_grid.*"]),
     package_data={"torch_grid": ["robots/*.urdf", "robots/*.xml", "robots/*.json", "robots/NOTICE"]},
-    install_requires=["torch>=2.11", "ninja"],  # tested: 2.11 (CUDA 13.0 build) and 2.13
+    # torch: tested 2.11 (CUDA 13.0 build) and 2.13; its C++ extension builder brings setuptools.
+    # numpy: imported with the package (MuJoCo model conversion). ninja: builds each robot's kernels.
+    # Pinocchio and MuJoCo are imported only to read a URDF, an MJCF or their model objects: the extras.
+    install_requires=["torch>=2.11", "numpy", "ninja"],
     extras_require={
         "pin": ["pin>=3.4"],
         "mujoco": ["mujoco>=3.2"],

@@ -9,6 +9,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import warnings
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -221,6 +222,31 @@ def validate(model: RobotModel) -> None:
     _check_mimics(model)
 
 
+def check_triangle_inequality(model: RobotModel, strict: bool = False) -> None:
+    """Warn, or raise ValueError where `strict`, naming every body whose principal moments of inertia
+    about the centre of mass break the triangle inequality (one larger than the sum of the other two),
+    in one message for the whole model.
+
+    No distribution of mass has such an inertia, but it is still symmetric positive semi-definite: the
+    dynamics are well defined (Pinocchio computes them) and published URDFs carry some. So `validate`,
+    which runs on every model built, leaves it alone, and `load` calls this once per robot."""
+    links = _link_names(model)
+    broken = []
+    for i, j in enumerate(model.joints):
+        low, mid, high = _symmetric_eigenvalues(j.inertia)
+        if high > low + mid + INERTIA_RTOL * _origin_inertia_trace(j):
+            broken.append(f"{_body_label(j, links.get(i))} has principal moments ({low:.9g}, {mid:.9g}, {high:.9g}): "
+                          f"{high:.9g} > {low:.9g} + {mid:.9g}")
+    if not broken:
+        return
+    message = ("inertia about the centre of mass must satisfy the triangle inequality (no rigid body has a principal "
+               f"moment larger than the sum of the other two), but {'; '.join(broken)}")
+    if strict:
+        raise ValueError(message)
+    warnings.warn(f"{message}. The dynamics are computed with these inertias as given, as Pinocchio does; "
+                  "load(..., strict_inertia=True) refuses them", stacklevel=3)  # at load's caller
+
+
 def _check_mimics(model: RobotModel) -> None:
     """Each mimic couples a one-dof joint to another one-dof joint, once, and following the masters
     ends at an independent joint (no cycle)."""
@@ -257,9 +283,14 @@ def _link_names(model: RobotModel) -> dict[int, str]:
     return names
 
 
+def _body_label(j: Joint, link: str | None) -> str:
+    """How messages name a body: by its joint, and by its link where the source file names one."""
+    return f"joint {j.name!r}" if link is None else f"joint {j.name!r} (link {link!r})"
+
+
 def _check_joint(j: Joint, link: str | None) -> None:
     who = f"joint {j.name!r}"
-    body = who if link is None else f"{who} (link {link!r})"
+    body = _body_label(j, link)
     _check_vector(f"{who}: axis", j.axis, 3)
     _check_placement(who, j.rotation, j.translation)
     for limit in ("lower", "upper"):
@@ -286,8 +317,7 @@ def _check_joint(j: Joint, link: str | None) -> None:
 
 
 def _check_inertia(body: str, j: Joint) -> None:
-    """Symmetric, positive semi-definite, and principal moments that satisfy the triangle inequality
-    (each at most the sum of the other two), as for any distribution of mass."""
+    """Symmetric and positive semi-definite (the triangle inequality is `check_triangle_inequality`'s)."""
     inertia = j.inertia
     tol = INERTIA_RTOL * _origin_inertia_trace(j)
     for r, k in ((0, 1), (0, 2), (1, 2)):
@@ -296,13 +326,9 @@ def _check_inertia(body: str, j: Joint) -> None:
             raise ValueError(f"{body}: inertia must be symmetric, got I{rk}={inertia[3 * r + k]!r} "
                              f"but I{kr}={inertia[3 * k + r]!r}")
     low, mid, high = _symmetric_eigenvalues(inertia)
-    moments = f"principal moments ({low:.9g}, {mid:.9g}, {high:.9g})"
     if low < -tol:
-        raise ValueError(f"{body}: inertia about the centre of mass must be positive semi-definite, got {moments}")
-    if high > low + mid + tol:
-        raise ValueError(f"{body}: inertia about the centre of mass has {moments}, which break the triangle "
-                         f"inequality: {high:.9g} > {low:.9g} + {mid:.9g} (no rigid body has a principal "
-                         "moment larger than the sum of the other two)")
+        raise ValueError(f"{body}: inertia about the centre of mass must be positive semi-definite, got principal "
+                         f"moments ({low:.9g}, {mid:.9g}, {high:.9g})")
 
 
 def _check_moves_inertia(joints: tuple[Joint, ...]) -> None:
