@@ -71,11 +71,12 @@ using CudaFn = int (*)(const Batch& b, void* stream, int sms, CudaAttributes* at
 struct OpKernels {
   CpuFn cpu[2][2];
   CudaFn cuda[2][2];
+  int64_t grain;  // the fewest samples worth a CPU thread (ops.py: cpu_grain)
 };
 
 // What a robot library exports (one C symbol, named after its op namespace): its sizes and one
 // OpKernels per op, in the order of the op table whose signature it carries.
-constexpr int kTableAbi = 2;
+constexpr int kTableAbi = 3;
 struct RobotTable {
   int abi;
   const char* op_signature;  // hash of the op table the library was generated from

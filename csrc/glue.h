@@ -325,11 +325,11 @@ class Call {
     const auto range = s == 0 ? &Call::as_double
                        : workspace_ || n_ * out_per_sample() * int64_t(sizeof(double)) > kStreamBytes ? &Call::streamed
                                                                                                       : &Call::direct;
-    if (n_ == 1) {  // a single sample: no thread pool
-      (this->*range)(fn, 0, 1);
-      return;
-    }
-    at::parallel_for(0, n_, 16, [this, fn, range](int64_t begin, int64_t end) { (this->*range)(fn, begin, end); });
+    // As many threads as get kernels.grain samples each, the least work worth waking one for (ops.py: cpu_grain).
+    const int64_t threads = std::max<int64_t>(1, std::min<int64_t>(at::get_num_threads(), n_ / kernels.grain));
+    at::parallel_for(0, threads, 1, [this, fn, range, threads](int64_t first, int64_t last) {
+      for (int64_t t = first; t < last; ++t) (this->*range)(fn, n_ * t / threads, n_ * (t + 1) / threads);
+    });
   }
 
  private:

@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .model import RobotModel, inertia_about_origin
-from .ops import CONTRACTED, OPS, Arg, OpSpec, op_signature
+from .ops import CONTRACTED, OPS, Arg, OpSpec, cpu_grain, op_signature
 
 _JTYPE = {"free": 0, "revolute": 1, "continuous": 1, "prismatic": 2, "ball": 3}
 _KERNEL_SIZE = {"nv": "M::NV", "nq": "M::NQ", "nframes": "M::NF", "nbodies": "M::NB", "nparams": "10 * M::NB"}
@@ -200,7 +200,7 @@ def kernel_unit(model: RobotModel, mujoco: bool, namespace: str, family: str, sc
 
 
 def table_unit(model: RobotModel, mujoco: bool, cuda: bool, namespace: str) -> str:
-    """The robot's tg::RobotTable: sizes and every op's kernels, exported under one C symbol."""
+    """The robot's tg::RobotTable: sizes and every op's kernels and CPU grain, exported under one C symbol."""
     decls, entries = [], []
     for op in OPS.values():
         slots, convs = {}, conventions(model, mujoco and op.mujoco_twin)
@@ -218,7 +218,7 @@ def table_unit(model: RobotModel, mujoco: bool, cuda: bool, namespace: str) -> s
             return "{" + ", ".join("{" + ", ".join(slots.get((device, suffix, cname), "nullptr") for _, cname in _CONVENTIONS)
                                    + "}" for _, suffix in _SCALARS) + "}"
 
-        entries.append(f"    {{{grid('cpu')}, {grid('cuda')}}},  // {op.name}")
+        entries.append(f"    {{{grid('cpu')}, {grid('cuda')}, {cpu_grain(op, model)}}},  // {op.name}")
     flags = f"{int(model.conventions_differ)}, {int(mujoco)}, {int(cuda)}"
     return _unit(["batch.h"], [
         f"namespace {namespace} {{", *decls,

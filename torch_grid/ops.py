@@ -6,6 +6,7 @@ let torch.compile propagate shapes (registered here), and argument checking in `
 from __future__ import annotations
 
 import hashlib
+import math
 from dataclasses import dataclass
 
 import torch
@@ -288,6 +289,44 @@ def register_fakes(namespace: str, model: RobotModel) -> None:
     """Shape-only implementations of every op of one robot build, for torch.compile and meta tensors."""
     for spec in OPS.values():
         torch.library.register_fake(f"{namespace}::{spec.name}")(_fake(spec, model))
+
+# How a CPU batch is split across threads (csrc/glue.h, Call::run): by work, not by samples. A thread is given
+# at least cpu_grain samples, CPU_THREAD_NS of the op's estimated work, well above what waking it costs (a few
+# µs on an idle core; a fixed 16 samples a thread woke one for 12 µs of go2's inverse_dynamics). The estimate
+# of a value op: its time per sample on one thread measured on go2 (µs; nv = 18, float64, B = 256), scaled to
+# another robot by nv / 18; 1 µs for an op not listed. A few x off is close enough (iiwa14's measured times
+# are within 0.4-2.6x of the scaled ones, and an estimate too low only keeps a small batch on fewer threads).
+CPU_THREAD_NS = 50e3
+CPU_SAMPLE_US = {
+    "inverse_dynamics": 0.76, "forward_dynamics": 2.9, "crba": 0.69, "crba_vjp": 2.1, "mass_product_vjp": 1.1,
+    "minv": 1.9, "generalized_gravity": 0.74, "nonlinear_effects": 0.75, "energy": 0.40, "com": 0.21,
+    "jacobian_com": 0.28, "ccrba": 0.58, "forward_kinematics": 0.65, "end_effector_pose": 0.25,
+    "frame_jacobian": 0.084, "frame_jacobian_vjp": 0.12, "frame_kinematic_hessian": 0.43, "frame_jacobian_dot": 0.11,
+    "inverse_dynamics_vjp": 1.7, "inverse_dynamics_vjp_full": 1.8, "inertia_solve": 1.1, "body_velocities": 0.34,
+    "frames_vjp": 0.59, "inverse_dynamics_gradient": 3.6, "inverse_dynamics_second_order": 34,
+    "inverse_dynamics_gradient_vjp": 25, "inverse_dynamics_gradient_tangent": 40, "forward_dynamics_gradient": 6.8,
+    "step_derivatives": 7.7, "rk_step_derivatives": 50, "inverse_dynamics_external_force_gradient": 0.83,
+    "forward_dynamics_external_force_gradient": 3.8, "osc_inertia": 2.5, "cmm_time_variation": 2.1, "dccrba": 2.1,
+    "coriolis_matrix": 2.2, "inverse_dynamics_regressor": 3.1, "kinetic_energy_regressor": 0.40,
+    "potential_energy_regressor": 0.20, "forward_dynamics_parameter_gradient": 7.4,
+}
+
+
+def cpu_sample_ns(op: OpSpec, model: RobotModel) -> float:
+    """The estimated time of one sample of `op` on one CPU thread, in ns (CPU_SAMPLE_US). A forward-mode op
+    runs its value op's kernel on dual numbers, about 4x its time per lane: one lane in a Jacobian-vector
+    product, one per input coordinate in a backward."""
+    value = OPS[op.forward_mode_of or op.jvp_of] if op.derived else op
+    lanes = 1
+    if op.forward_mode_of:
+        sizes = model_sizes(model)
+        lanes = sum(math.prod(sizes.get(d, d) for d in a.trailing) for a in value.tensor_args)
+    return 1e3 * CPU_SAMPLE_US.get(value.name, 1.0) * model.nv / 18 * (4 * lanes if op.derived else 1)
+
+
+def cpu_grain(op: OpSpec, model: RobotModel) -> int:
+    """The fewest samples of `op` a CPU thread is given: CPU_THREAD_NS of estimated work."""
+    return max(1, math.ceil(CPU_THREAD_NS / cpu_sample_ns(op, model)))
 
 
 def _fake(spec: OpSpec, model: RobotModel):
