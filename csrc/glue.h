@@ -242,6 +242,11 @@ class Call {
     TORCH_CHECK(s >= 2 && s <= 4, op_, ": ", name, " must be 2 (midpoint), 3 (rk3) or 4 (rk4), got ", s);
     push_int(s);
   }
+  void passive(int64_t p, const char* name) {
+    TORCH_CHECK(p >= 0 && p <= 2, op_, ": ", name, " must be 0 (none), 1 (explicit) or 2 (damping implicit in the "
+                "Euler step), got ", p);
+    push_int(p);
+  }
   // The inputs a backward op differentiates: bit i for the i-th of its n differentiable inputs.
   void mask(int64_t m, const char* name, int n) {
     TORCH_CHECK(m >= 0 && m < (int64_t(1) << n), op_, ": ", name, " must be a bit mask of ", n, " inputs, got ", m);

@@ -35,3 +35,63 @@ TREES = """
   </worldbody>
 </mujoco>
 """
+
+# Joint damping and springs on every kind of root: a planar root (slide x, slide z, hinge y, as
+# dm_control's cheetah) with damped and sprung legs, and a free body carrying a damped ball joint then a
+# damped, sprung hinge. Motors of gear 1 on the hinges and slides, so that mjd_transitionFD's B is
+# d/dtau there.
+DAMPED_PLANAR = """
+<mujoco model="damped_planar">
+  <option gravity="0 0 -9.81"/>
+  <worldbody>
+    <body name="torso" pos="0 0 0.7">
+      <joint name="rootx" type="slide" axis="1 0 0" damping="0.4"/>
+      <joint name="rootz" type="slide" axis="0 0 1" stiffness="3" springref="0.2"/>
+      <joint name="rooty" type="hinge" axis="0 1 0" damping="0.7"/>
+      <geom type="capsule" fromto="-0.5 0 0 0.5 0 0" size="0.046"/>
+      <body name="bthigh" pos="-0.5 0 0">
+        <joint name="bthigh" type="hinge" axis="0 1 0" damping="6" stiffness="240" springref="0.3"/>
+        <geom type="capsule" fromto="0 0 0 0.1 0 -0.13" size="0.046"/>
+        <body name="bshin" pos="0.16 0 -0.25">
+          <joint name="bshin" type="hinge" axis="0 1 0" damping="4.5" stiffness="180" armature="0.02"/>
+          <geom type="capsule" fromto="0 0 0 -0.14 0 -0.07" size="0.046"/>
+        </body>
+      </body>
+      <body name="fthigh" pos="0.5 0 0">
+        <joint name="fthigh" type="hinge" axis="0 1 0" damping="4.5" stiffness="180" springref="-0.2"/>
+        <geom type="capsule" fromto="0 0 0 -0.07 0 -0.12" size="0.046"/>
+      </body>
+    </body>
+  </worldbody>
+  <actuator>
+    <motor joint="bthigh"/><motor joint="bshin"/><motor joint="fthigh"/>
+  </actuator>
+</mujoco>
+"""
+
+DAMPED_FLOATING = """
+<mujoco model="damped_floating">
+  <option gravity="0.1 0 -9.81"/>
+  <worldbody>
+    <body name="base" pos="0 0 1" quat="0.9 0.1 0.2 0.3">
+      <freejoint name="root"/>
+      <geom type="box" size="0.2 0.15 0.1" density="500"/>
+      <body name="arm" pos="0.2 0 0">
+        <joint name="shoulder" type="ball" damping="0.8"/>
+        <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.04"/>
+        <body name="forearm" pos="0.3 0 0">
+          <joint name="elbow" type="hinge" axis="0 1 0.2" damping="1.2" stiffness="5" springref="0.4"/>
+          <geom type="capsule" fromto="0 0 0 0.25 0 0" size="0.035"/>
+        </body>
+      </body>
+      <body name="slider" pos="-0.2 0 0">
+        <joint name="slide" type="slide" axis="0 0 1" damping="2" stiffness="8"/>
+        <geom type="sphere" size="0.08"/>
+      </body>
+    </body>
+  </worldbody>
+  <actuator>
+    <motor joint="elbow"/><motor joint="slide"/>
+  </actuator>
+</mujoco>
+"""

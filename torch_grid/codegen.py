@@ -112,6 +112,11 @@ def robot_header(model: RobotModel, namespace: str) -> str:
         ("T", "Io", [inertia_about_origin(x.mass, x.com, x.inertia) for x in j]),
         ("T", "com", [list(x.com) for x in j]),
         ("T", "armature", [x.armature for x in j for _ in range(x.nv)]),
+        # joint damping and springs per dof (kernels/passive.h); a spring's coordinate, -1 on a free or ball dof
+        ("T", "damping", [x.damping for x in j for _ in range(x.nv)]),
+        ("T", "stiffness", [x.stiffness if x.nv == 1 else 0.0 for x in j for _ in range(x.nv)]),
+        ("T", "springref", [x.springref if x.nv == 1 else 0.0 for x in j for _ in range(x.nv)]),
+        ("int", "dof_qi", [qi[i] if x.nv == 1 else -1 for i, x in enumerate(j) for _ in range(x.nv)]),
         ("int", "fparent", [f.parent for f in model.frames]),
         ("T", "fR", [list(f.rotation) for f in model.frames]),
         ("T", "fp", [list(f.translation) for f in model.frames]),
@@ -145,6 +150,7 @@ struct Robot {{
   static constexpr int NB = {nb}, NQ = {model.nq}, NV = {model.nv}, NF = {len(model.frames)}, ND = {max(depth) + 1};
   static constexpr int NFREE = {sum(x.type == 'free' for x in model.joints)};  // free joints (tree roots)
   static constexpr bool BALLS = {'true' if any(x.type == 'ball' for x in model.joints) else 'false'};
+  static constexpr bool PASSIVE = {'true' if any(x.damping or x.stiffness for x in model.joints) else 'false'};
   // The constants as float or double (tg::data<M, S>() picks the kernel's own precision).
   template <class T> TG_HD static const RobotData<T>& data() {{
     if constexpr (sizeof(T) == sizeof(double)) {{
@@ -284,6 +290,8 @@ def op_args_header(table: dict[str, OpSpec] = OPS) -> str:
                 fields.append(f"  int {a.name};  // integrator: 0 euler, 1 semi-implicit euler")
             elif a.kind == "tableau":
                 fields.append(f"  int {a.name};  // Runge-Kutta scheme: 2 midpoint, 3 rk3, 4 rk4")
+            elif a.kind == "passive":
+                fields.append(f"  int {a.name};  // joint damping and springs: 0 none, 1 explicit, 2 damping implicit (Euler)")
             elif a.kind == "frames":
                 fields.append(f"  const int* {a.name};  // frame indices\n  int n_{a.name};")
             elif a.is_tensor:
@@ -371,7 +379,7 @@ def glue_unit() -> str:
 
 def _params(op: OpSpec) -> str:
     ctype = {"frame": "int64_t", "frames": "at::IntArrayRef", "reference": "int64_t", "mask": "int64_t",
-             "scheme": "int64_t", "tableau": "int64_t"}
+             "scheme": "int64_t", "tableau": "int64_t", "passive": "int64_t"}
     params = [(f"const {'std::optional<at::Tensor>' if a.optional else 'at::Tensor'}& {a.name}" if a.is_tensor
                else f"{ctype[a.kind]} {a.name}") for a in op.args]
     return ", ".join(params + ["int64_t convention"])

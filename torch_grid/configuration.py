@@ -205,7 +205,9 @@ def d_dexp_inverse_blocks(space: Space, theta: torch.Tensor, v: torch.Tensor, co
         if outer:
             jac = _reverse_jacobian(carried, t_b, v_b)
         else:
-            jac = torch.func.vmap(torch.func.jacfwd(carried))(t_b.reshape(-1, n), v_b.reshape(-1, n))
+            # contiguous: forward AD cannot write tangents into a broadcast (stride-0) batch
+            jac = torch.func.vmap(torch.func.jacfwd(carried))(t_b.reshape(-1, n).contiguous(),
+                                                               v_b.reshape(-1, n).contiguous())
         blocks.append((vi, jac.reshape(*theta.shape[:-1], n, n), _dexp_inverse_block(kind, t_b, convention)))
     return blocks
 

@@ -2,7 +2,9 @@
 
 Integrators, with a = forward_dynamics(q, qd, tau, f_ext) and (+) the configuration space's integrate:
   euler                qd' = qd + dt a(q, qd),   q' = q (+) dt qd
-  semi_implicit_euler  qd' = qd + dt a(q, qd),   q' = q (+) dt qd'        (MuJoCo's mjINT_EULER)
+  semi_implicit_euler  qd' = qd + dt a(q, qd),   q' = q (+) dt qd'        (MuJoCo's mjINT_EULER; with the
+                       joints' damping D included and the model's eulerdamp on, as MuJoCo's default,
+                       (M + dt D) a = tau + passive - bias: the damping implicit, as mj_Euler)
   midpoint, rk3, rk4   explicit Runge-Kutta in Munthe-Kaas's form, as MuJoCo 4's mj_RungeKutta
                        (mjINT_RK4): stage i sits at q_i = q (+) theta_i, theta_i = dt sum_j A_ij w_j,
                        qd_i = qd + dt sum_j A_ij a_j, where w_j = dexp(theta_j)^-1 qd_j is stage j's
@@ -11,7 +13,8 @@ Integrators, with a = forward_dynamics(q, qd, tau, f_ext) and (+) the configurat
                        qd' = qd + dt sum_j B_j a_j (euler is the one-stage case).
 The Jacobians are along the tangent spaces (the state deviation [dq; dqd], as Crocoddyl's Fx, Fu and
 MuJoCo's mjd_transitionFD A, B), by the chain rule through the stages: forward_dynamics_gradient at
-each stage, the configuration space's d_integrate and the derivatives of dexp^-1. Everything is torch
+each stage (passive.py's damped_acceleration_gradient for the implicit damping), the configuration
+space's d_integrate and the derivatives of dexp^-1. Everything is torch
 over the robot's ops, so autograd differentiates step itself to second order; (q', qd', A, B) also come
 from one kernel per call (csrc/kernels/step.h for the Euler schemes, csrc/kernels/runge_kutta.h for
 Runge-Kutta), which runs when nothing differentiates them.
@@ -23,9 +26,11 @@ import torch
 from .constants import scalar_or_tensor
 from .configuration import _dt, check_dt, d_dexp_inverse_blocks, d_integrate_blocks, dexp_inverse, tangent_map
 from .func import dual, transforming
+from .passive import damped_acceleration, damped_acceleration_gradient
 from .rk_hessian import combine as _combine
 from .rk_hessian import rk_step_hessian
 from .step_hessian import euler_step_hessian
+from .step_op import compiled_step
 
 # (A rows below the diagonal, B) of each Runge-Kutta scheme
 TABLEAUS = {
@@ -47,11 +52,17 @@ class StepFunctions:
     def step(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dt, integrator: str = "semi_implicit_euler",
              f_ext: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """(q', qd') `(..., nq)`, `(..., nv)`: one step of dt (a number or a (...,) tensor) with tau (and
-        f_ext) held over it; integrator one of INTEGRATORS."""
+        f_ext) held over it; integrator one of INTEGRATORS. The joints' passive forces, when included, act
+        at every stage; semi_implicit_euler takes their damping implicitly where the model's eulerdamp is
+        on (MuJoCo's Euler step, `load(..., eulerdamp=...)`)."""
         _check("step", integrator, q, qd, tau, dt)
+        if torch.compiler.is_compiling():  # one opaque op in the graph rather than the composition's nodes
+            return compiled_step(self, q, qd, tau, dt, integrator, f_ext)
         h = _dt(dt, qd)
         if integrator == "semi_implicit_euler":
-            qd_next = qd + h * self.forward_dynamics(q, qd, tau, f_ext)
+            damped = self._robot._implicit_damping
+            qd_next = qd + h * (damped_acceleration(self, q, qd, tau, h, f_ext) if damped
+                                else self.forward_dynamics(q, qd, tau, f_ext))
             return self.integrate(q, qd_next, dt), qd_next
         rows, weights = TABLEAUS[integrator]
         space, convention = self._robot._space, self._convention
@@ -76,11 +87,13 @@ class StepFunctions:
         _check(op, integrator, q, qd, tau, dt)
         if self._robot._coupling is None and not _differentiated(q, qd, tau, dt, f_ext):
             h = _dt(dt, qd)
+            passive = _passive_code(self._robot, integrator)
             if integrator in FUSED:
-                q_next, qd_next, A, B = self._kernel_call("step_derivatives", q, qd, tau, f_ext, h, FUSED[integrator])
+                q_next, qd_next, A, B = self._kernel_call("step_derivatives", q, qd, tau, f_ext, h, FUSED[integrator],
+                                                          passive)
             else:  # the stages' derivatives in a workspace: one per CPU thread, one per sample on CUDA
                 q_next, qd_next, A, B, _ = self._kernel_call("rk_step_derivatives", q, qd, tau, f_ext, h,
-                                                             RK_FUSED[integrator])
+                                                             RK_FUSED[integrator], passive)
             return q_next, qd_next, A.flatten(-4, -3).flatten(-2), B.flatten(-3, -2)
         return _in_chunks(lambda *args: self._step_derivatives(*args, integrator), q, qd, tau, dt, f_ext)
 
@@ -96,8 +109,11 @@ class StepFunctions:
 
         def stage(qi, vi, dq, dv):
             """a at a stage and its derivative, from the stage's own (dq, dqd); None: the start."""
-            a = self.forward_dynamics(qi, vi, tau, f_ext)
-            da_dq, da_dv, da_dtau = self.forward_dynamics_gradient(qi, vi, tau, f_ext)
+            if integrator == "semi_implicit_euler" and self._robot._implicit_damping:
+                a, da_dq, da_dv, da_dtau = damped_acceleration_gradient(self, qi, vi, tau, h, f_ext)
+            else:
+                a = self.forward_dynamics(qi, vi, tau, f_ext)
+                da_dq, da_dv, da_dtau = self.forward_dynamics_gradient(qi, vi, tau, f_ext)
             if dq is None:
                 return a, torch.cat([da_dq, da_dv, da_dtau], dim=-1)
             da = da_dq @ dq + da_dv @ dv
@@ -181,6 +197,14 @@ def _in_chunks(fn, q, qd, tau, dt, f_ext):
         return fn(q, qd, tau, dt, f_ext)
     pieces = [fn(*(None if x is None else x[s:s + CHUNK] for x in flat)) for s in range(0, n, CHUNK)]
     return tuple(torch.cat(parts).reshape(*batch, *parts[0].shape[1:]) for parts in zip(*pieces))
+
+
+def _passive_code(robot, integrator: str) -> int:
+    """The step kernels' `passive` argument: 0 the passive forces left out, 1 explicit, 2 the damping implicit
+    in the semi-implicit Euler step (MuJoCo's mj_Euler)."""
+    if not robot._with_passive:
+        return 0
+    return 2 if integrator == "semi_implicit_euler" and robot._implicit_damping else 1
 
 
 def _differentiated(*args) -> bool:

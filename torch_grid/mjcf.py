@@ -97,6 +97,7 @@ def from_mujoco(m, name: str | None = None) -> RobotModel:
         name=name or names.model() or "robot",
         joints=tuple(Joint(**{k: v for k, v in j.items() if k != "inertia"}, **j["inertia"].fields()) for j in joints),
         frames=tuple(frames), gravity=_tuple(gravity),
+        eulerdamp=not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP),
     )
 
 

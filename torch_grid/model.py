@@ -83,6 +83,9 @@ class RobotModel:
     frames: tuple[Frame, ...]
     gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
     mimics: tuple[Mimic, ...] = ()
+    # MuJoCo's Euler step (semi_implicit_euler) takes the joint damping implicitly: (M + dt D) qdd = ... (mj_Euler;
+    # an MJCF's <flag eulerdamp="disable"/> turns it off). Read by the step, not the kernels' constants.
+    eulerdamp: bool = True
     _hash: str = field(default="", compare=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -110,7 +113,7 @@ class RobotModel:
     @property
     def kernel_model(self) -> "RobotModel":
         """The same tree with every joint independent: what the kernels are generated from."""
-        return replace(self, mimics=()) if self.mimics else self
+        return replace(self, mimics=(), eulerdamp=True) if self.mimics or not self.eulerdamp else self
 
     @property
     def conventions_differ(self) -> bool:
@@ -136,6 +139,8 @@ class RobotModel:
     def to_dict(self) -> dict:
         d = asdict(self)
         d.pop("_hash")
+        if d["eulerdamp"]:  # the default: a description without it reads the same
+            d.pop("eulerdamp")
         d["format"] = FORMAT_VERSION
         return d
 
@@ -149,7 +154,8 @@ class RobotModel:
         joints = tuple(Joint(**{k: _tuple(v) for k, v in j.items()}) for j in d["joints"])
         frames = tuple(Frame(**{k: _tuple(v) for k, v in f.items()}) for f in d["frames"])
         mimics = tuple(Mimic(**m) for m in d.get("mimics", ()))
-        return cls(name=d["name"], joints=joints, frames=frames, gravity=tuple(d["gravity"]), mimics=mimics)
+        return cls(name=d["name"], joints=joints, frames=frames, gravity=tuple(d["gravity"]), mimics=mimics,
+                   eulerdamp=bool(d.get("eulerdamp", True)))
 
     def save(self, path: str | Path) -> None:
         Path(path).write_text(json.dumps(self.to_dict(), indent=1, sort_keys=True))

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import torch
 
-from .configuration import difference, integrate
+from .conventions import quaternion_rotation, unit_quaternion
 
 
 class MPCDynamics(torch.nn.Module):
@@ -44,17 +44,38 @@ class MPCDynamics(torch.nn.Module):
 
 def chart_maps(view, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """(d q (+) e / d e at e = 0 (..., nq, nv), d difference(q, q + d) / d d at d = 0 (..., nv, nq)):
-    between the tangent at q and q's own coordinates, by forward-mode AD of integrate and difference."""
+    between the tangent at q and q's own coordinates, in closed form. The identity on scalar joints; on a
+    quaternion a (unit, xyzw; |q| its norm): a (x) [e / 2; 0] out and 2 Im(a* (x) d) / |q| in (the
+    normalisation's derivative lies along a, which Im(a* (x) .) does not see); a free joint's position
+    moves by R e_lin in Pinocchio's convention (exp6), by e_lin in MuJoCo's."""
     space, convention = view._robot._space, view._convention
-    flat = q.reshape(-1, q.shape[-1])
-    zero_v = torch.zeros(space.nv, dtype=q.dtype, device=q.device)
-    zero_q = torch.zeros(space.nq, dtype=q.dtype, device=q.device)
+    out = torch.zeros(*q.shape[:-1], space.nq, space.nv, dtype=q.dtype, device=q.device)
+    into = torch.zeros(*q.shape[:-1], space.nv, space.nq, dtype=q.dtype, device=q.device)
+    order = [1, 2, 3, 0] if convention else [0, 1, 2, 3]  # xyzw's components in q's layout
+    for kind, qi, vi in zip(space.kinds, space.qi, space.vi):
+        if kind == "scalar":
+            out[..., qi, vi] = into[..., vi, qi] = 1
+            continue
+        qa, va = (qi + 3, vi + 3) if kind == "free" else (qi, vi)
+        raw = q[..., qa:qa + 4][..., order]
+        a, norm = unit_quaternion(raw)
+        av, aw = a[..., :3], a[..., 3:].unsqueeze(-1)
+        eye = torch.eye(3, dtype=q.dtype, device=q.device)
+        turn = torch.cat([aw * eye + _skew(av), -av.unsqueeze(-2)], dim=-2) / 2  # (4, 3), xyzw rows
+        back = torch.cat([aw * eye - _skew(av), -av.unsqueeze(-1)], dim=-1) * (2 / norm.unsqueeze(-1))  # (3, 4)
+        idx = [qa + o for o in order]  # q's index of each xyzw component
+        out[..., idx, va:va + 3] = turn
+        into[..., va:va + 3, idx] = back
+        if kind == "free":
+            R = quaternion_rotation(raw)
+            out[..., qi:qi + 3, vi:vi + 3] = eye if convention else R
+            into[..., vi:vi + 3, qi:qi + 3] = eye if convention else R.mT
+    return out, into
 
-    def push(qi):
-        return torch.func.jacfwd(lambda e: integrate(space, qi, e, 1.0, convention))(zero_v)
 
-    def pull(qi):
-        return torch.func.jacfwd(lambda d: difference(space, qi, qi + d, convention))(zero_q)
-
-    out, into = torch.func.vmap(push)(flat), torch.func.vmap(pull)(flat)
-    return out.reshape(*q.shape[:-1], space.nq, space.nv), into.reshape(*q.shape[:-1], space.nv, space.nq)
+def _skew(w: torch.Tensor) -> torch.Tensor:
+    """(..., 3, 3): w x ."""
+    zero = torch.zeros_like(w[..., 0])
+    x, y, z = w.unbind(-1)
+    return torch.stack([torch.stack([zero, -z, y], -1), torch.stack([z, zero, -x], -1),
+                        torch.stack([-y, x, zero], -1)], dim=-2)

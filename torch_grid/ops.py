@@ -19,7 +19,7 @@ from .model import RobotModel
 # rotated (the acceleration with a term of the op's velocity); the others are the same in both.
 TENSOR_KINDS = {"configuration": ("nq",), "velocity": ("nv",), "acceleration": ("nv",), "force": ("nv",),
                 "body_forces": ("nbodies", 6), "frame_weights": ("nframes", 6), "plain": None}
-INTEGER_KINDS = ("frame", "frames", "reference", "mask", "scheme", "tableau")
+INTEGER_KINDS = ("frame", "frames", "reference", "mask", "scheme", "tableau", "passive")
 # Output kinds, and the reframe each gets in the MuJoCo convention, applied by the generated binding:
 # force G x; acceleration G (x + base term); congruence G X G^T (nv x nv); columns X G^T (k x nv);
 # force_rows G X (nv x k); plain: none. "twin": the kernel reframes it itself, by a hand-derived formula.
@@ -83,7 +83,7 @@ class OpSpec:
         return any(o.kind == "twin" for o in self.outputs)
 
     def schema(self) -> str:
-        types = {"frame": "int", "frames": "int[]", "reference": "int", "mask": "int", "scheme": "int", "tableau": "int"}
+        types = {"frame": "int", "frames": "int[]", "reference": "int", "mask": "int", "scheme": "int", "tableau": "int", "passive": "int"}
         params = [f"Tensor{'?' if a.optional else ''} {a.name}" if a.is_tensor else f"{types[a.kind]} {a.name}"
                   for a in self.args]
         outs = ", ".join("Tensor" for _ in self.outputs)
@@ -103,6 +103,8 @@ def model_sizes(model: RobotModel) -> dict[str, int]:
 Q, QD, QDD, TAU = Arg("q", "configuration"), Arg("qd", "velocity"), Arg("qdd", "acceleration"), Arg("tau", "force")
 FEXT = Arg("f_ext", "body_forces", True)
 FRAME, REFERENCE = Arg("frame", "frame"), Arg("reference", "reference")
+# the joints' damping and springs in a step: 0 left out, 1 explicit, 2 with the damping implicit in the Euler step
+PASSIVE = Arg("passive", "passive")
 NV, NVxNV, NV3 = ("nv",), ("nv", "nv"), ("nv", "nv", "nv")
 _VALUE_OPS = (
         OpSpec("inverse_dynamics", "InverseDynamics", (Q, QD, QDD, FEXT), (Out("tau", "force", NV),)),
@@ -154,11 +156,12 @@ _VALUE_OPS = (
         OpSpec("forward_dynamics_gradient", "ForwardDynamicsGradient", (Q, QD, TAU, FEXT),
                (Out("dqdd_dq", "twin", NVxNV), Out("dqdd_dqd", "twin", NVxNV), Out("dqdd_dtau", "twin", NVxNV)),
                "derivatives"),
-        OpSpec("step_derivatives", "StepDerivatives", (Q, QD, TAU, FEXT, Arg("dt", "plain", shape=(1,)), Arg("scheme", "scheme")),
+        OpSpec("step_derivatives", "StepDerivatives",
+               (Q, QD, TAU, FEXT, Arg("dt", "plain", shape=(1,)), Arg("scheme", "scheme"), PASSIVE),
                (Out("q_next", "twin", ("nq",)), Out("qd_next", "twin", NV), Out("A", "twin", (2, "nv", 2, "nv")),
                 Out("B", "twin", (2, "nv", "nv"))), "derivatives"),
         OpSpec("rk_step_derivatives", "RkStepDerivatives",
-               (Q, QD, TAU, FEXT, Arg("dt", "plain", shape=(1,)), Arg("scheme", "tableau")),
+               (Q, QD, TAU, FEXT, Arg("dt", "plain", shape=(1,)), Arg("scheme", "tableau"), PASSIVE),
                (Out("q_next", "twin", ("nq",)), Out("qd_next", "twin", NV), Out("A", "twin", (2, "nv", 2, "nv")),
                 Out("B", "twin", (2, "nv", "nv")), Out("work", "workspace", (8, "nv", 3, "nv"))), "derivatives"),
         OpSpec("inverse_dynamics_external_force_gradient", "InverseDynamicsExternalForceGradient", (Q,),
@@ -284,12 +287,6 @@ def check_table(table: dict[str, OpSpec]) -> None:
 
 check_table(OPS)
 
-
-def register_fakes(namespace: str, model: RobotModel) -> None:
-    """Shape-only implementations of every op of one robot build, for torch.compile and meta tensors."""
-    for spec in OPS.values():
-        torch.library.register_fake(f"{namespace}::{spec.name}")(_fake(spec, model))
-
 # How a CPU batch is split across threads (csrc/glue.h, Call::run): by work, not by samples. A thread is given
 # at least cpu_grain samples, CPU_THREAD_NS of the op's estimated work, well above what waking it costs (a few
 # µs on an idle core; a fixed 16 samples a thread woke one for 12 µs of go2's inverse_dynamics). The estimate
@@ -327,6 +324,12 @@ def cpu_sample_ns(op: OpSpec, model: RobotModel) -> float:
 def cpu_grain(op: OpSpec, model: RobotModel) -> int:
     """The fewest samples of `op` a CPU thread is given: CPU_THREAD_NS of estimated work."""
     return max(1, math.ceil(CPU_THREAD_NS / cpu_sample_ns(op, model)))
+
+
+def register_fakes(namespace: str, model: RobotModel) -> None:
+    """Shape-only implementations of every op of one robot build, for torch.compile and meta tensors."""
+    for spec in OPS.values():
+        torch.library.register_fake(f"{namespace}::{spec.name}")(_fake(spec, model))
 
 
 def _fake(spec: OpSpec, model: RobotModel):

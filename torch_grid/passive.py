@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import torch
 
+from .fd_second_order import second_order
 from .model import RobotModel
 
 
@@ -29,6 +30,7 @@ class PassiveForces:
                 stiffness[iv], springref[iv] = joint.stiffness, joint.springref
         self.nv = nv
         self.any = bool(damping.any() or stiffness.any())
+        self.damps = bool(damping.any())
         self._q_index, self._v_index = torch.tensor(q_index, dtype=torch.long), torch.tensor(v_index, dtype=torch.long)
         self._coefficients = (damping, stiffness, springref)
         self._cache: dict[tuple[torch.dtype, torch.device], tuple[torch.Tensor, ...]] = {}
@@ -52,3 +54,44 @@ class PassiveForces:
         q_dof = torch.zeros(*q.shape[:-1], self.nv, dtype=q.dtype, device=q.device)
         q_dof = q_dof.index_copy(-1, v_index, q.index_select(-1, q_index))
         return -(damping * qd + stiffness * (q_dof - springref))
+
+
+# -- MuJoCo's Euler step with the damping implicit (mj_Euler) ------------------------------------------------
+# The velocity update solves (M + dt D) qdd = tau + p - b(q, qd), D the joints' damping, p the passive forces.
+# Differentiating ID(q, qd, qdd) - p + dt D qdd = tau at that qdd, with H = M + dt D:
+#   dqdd/dx = -H^-1 (dID/dx - dp/dx),   dqdd/dtau = H^-1,
+# and, ID being linear in qdd and p linear, the second derivatives are forward dynamics' closed form with
+# H^-1 in place of M^-1 (fd_second_order.py). `view` is a robot or one of its views.
+
+def damped_factor(view, q: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
+    """The Cholesky factor (..., nv, nv) of H = M(q) + dt D; h the step (..., 1)."""
+    damping = view._robot._passive.coefficients(q)[0]
+    return torch.linalg.cholesky(view.crba(q) + torch.diag_embed(h * damping))
+
+
+def damped_acceleration(view, q, qd, tau, h, f_ext=None) -> torch.Tensor:
+    """qdd (..., nv) of (M + dt D) qdd = tau + p - b(q, qd); h the step (..., 1)."""
+    rhs = tau - view.inverse_dynamics(q, qd, torch.zeros_like(qd), f_ext)  # tau + p - b
+    return torch.cholesky_solve(rhs.unsqueeze(-1), damped_factor(view, q, h)).squeeze(-1)
+
+
+def damped_acceleration_gradient(view, q, qd, tau, h, f_ext=None) -> tuple[torch.Tensor, ...]:
+    """(qdd (..., nv), dqdd/dq, dqdd/dqd, dqdd/dtau (..., nv, nv) each) of damped_acceleration."""
+    L = damped_factor(view, q, h)
+    rhs = tau - view.inverse_dynamics(q, qd, torch.zeros_like(qd), f_ext)
+    qdd = torch.cholesky_solve(rhs.unsqueeze(-1), L).squeeze(-1)
+    dq, dqd = view.inverse_dynamics_gradient(q, qd, qdd, f_ext)  # of ID - p
+    nv = qd.shape[-1]
+    batch = torch.broadcast_shapes(L.shape[:-2], dq.shape[:-2], dqd.shape[:-2])
+    eye = torch.eye(nv, dtype=qd.dtype, device=qd.device).expand(*batch, nv, nv)
+    rhs = torch.cat([-dq.expand(*batch, nv, nv), -dqd.expand(*batch, nv, nv), eye], dim=-1)
+    dq, dqd, dtau = torch.cholesky_solve(rhs, L.expand(*batch, nv, nv)).split(nv, dim=-1)
+    return qdd, dq, dqd, dtau
+
+
+def damped_acceleration_second_order(view, q, qd, tau, h, f_ext=None) -> tuple:
+    """(qdd, (dqdd/dq, dqdd/dqd, dqdd/dtau), the four second-derivative tensors of
+    forward_dynamics_second_order's layout) of damped_acceleration, H^-1 in place of M^-1."""
+    qdd, dq, dqd, dtau = damped_acceleration_gradient(view, q, qd, tau, h, f_ext)
+    second = view.inverse_dynamics_second_order(q, qd, qdd, f_ext)
+    return qdd, (dq, dqd, dtau), second_order(second, dq, dqd, dtau)

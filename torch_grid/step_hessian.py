@@ -18,15 +18,19 @@ from __future__ import annotations
 import torch
 
 from .configuration import _dt, d_integrate_blocks, d_integrate_v_block
+from .passive import damped_acceleration_second_order
 
 
 def euler_step_hessian(view, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dt, f_ext, semi: bool) -> torch.Tensor:
     """(..., 2 nv, 3 nv, 3 nv): step_second_derivatives of euler (semi False) or semi_implicit_euler."""
     space, convention, nv = view._robot._space, view._convention, qd.shape[-1]
     h = _dt(dt, qd)
-    a = view.forward_dynamics(q, qd, tau, f_ext)
-    G = torch.cat(view.forward_dynamics_gradient(q, qd, tau, f_ext), dim=-1)
-    second = view.forward_dynamics_second_order(q, qd, tau, f_ext)
+    if semi and view._robot._implicit_damping:  # MuJoCo's Euler step: (M + dt D) a = tau + p - b
+        a, G, second = damped_acceleration_second_order(view, q, qd, tau, h, f_ext)
+    else:
+        a, G = view.forward_dynamics(q, qd, tau, f_ext), view.forward_dynamics_gradient(q, qd, tau, f_ext)
+        second = view.forward_dynamics_second_order(q, qd, tau, f_ext)
+    G = torch.cat(G, dim=-1)
     batch = torch.broadcast_shapes(second[0].shape[:-3], h.shape[:-1])
     hh = h.reshape(*h.shape[:-1], 1, 1, 1)
     # written in place: the tensor is 2 nv (3 nv)^2 numbers per sample (6 MB on a humanoid)
@@ -95,7 +99,9 @@ def _scaled_acceleration_hessian(second, hh: torch.Tensor, out: torch.Tensor) ->
 def _jacobian_of_j_r(kind: str, u: torch.Tensor, convention: int) -> torch.Tensor:
     """dJ[m, a, b] = d J_r(u)[m, a] / du_b, (..., n, n, n), by forward-mode AD of the closed form."""
     n = u.shape[-1]
-    jac = torch.func.vmap(torch.func.jacfwd(lambda x: d_integrate_v_block(kind, x, convention)))(u.reshape(-1, n))
+    # contiguous: forward AD cannot write tangents into a broadcast (stride-0) batch
+    jac = torch.func.vmap(torch.func.jacfwd(lambda x: d_integrate_v_block(kind, x, convention)))(
+        u.reshape(-1, n).contiguous())
     return jac.reshape(*u.shape[:-1], n, n, n)
 
 

@@ -14,6 +14,7 @@
 #include "ltdl.h"
 #include "minv.h"
 #include "op_args.h"
+#include "passive.h"
 #include "products.h"
 #include "regressors.h"
 #include "rnea.h"
@@ -278,13 +279,71 @@ template <class M, class S> struct ForwardDynamicsGradient {
   }
 };
 
+// (M + dt D) qdd = tau + p - b(q, qd): the acceleration of MuJoCo's Euler step, the joint damping D taken
+// implicitly (mj_Euler), p the passive forces (passive.h). Differentiating ID(q, qd, qdd) + dt D qdd - p = tau
+// at that qdd, with H = M + dt D: dqdd/dx = -H^-1 (dID/dx - dp/dx), dqdd/dtau = H^-1. H is factored in the
+// convention (H_c = G H G^T, D being zero on free joints), as a Runge-Kutta stage's M (rk_stage).
+// dqdd/dq, dqdd/dqd, dqdd/dtau (NV x NV each, in the convention) and qdd (in Pinocchio's).
+template <class M, class S, int C>
+TG_HD void damped_dynamics_gradient(const Placements<M, S>& K, const Conv<M, S, C>& cv, const S* q, const S* qd,
+                                    const S* tau, const S* fext, S h, S* dq, S* dqd, S* dtau, S* qdd) {
+  constexpr int NV = M::NV;
+  const auto& d = data<M, S>();
+  S H[NV * NV], f[NV], zero[NV], buf[Conv<M, S, C>::active ? NV : 1];
+  crba<M, S>(K, H);
+  cv.congruence_out(H);
+  for (int k = 0; k < NV; ++k) H[(NV + 1) * k] += h * S(d.damping[k]);
+  ltdl_factor<M, S>(H);
+  // f = tau + p - b, then H_c^-1 G f = G qdd
+  for (int k = 0; k < NV; ++k) zero[k] = S(0);
+  rnea<M, S>(K, qd, zero, fext, f);
+  for (int k = 0; k < NV; ++k) f[k] = tau[k] - f[k];
+  add_passive<M, S>(q, qd, f);
+  cv.force_out(f);
+  ltdl_solve<M, S>(H, f);
+  const S* a = cv.velocity(f, buf);  // G^T
+  for (int k = 0; k < NV; ++k) qdd[k] = a[k];
+  // the derivatives: -H^-1 (dID/dx + [K D]), and H^-1 from the identity's columns
+  inverse_dynamics_derivatives<M, S>(K, qd, qdd, fext, cv, dq, dqd);
+  add_passive_diagonals<M, S>(dq, dqd);
+  for (int r = 0; r < NV; ++r)
+    for (int c = 0; c < NV; ++c) dtau[NV * r + c] = S(r == c), dq[NV * r + c] = -dq[NV * r + c], dqd[NV * r + c] = -dqd[NV * r + c];
+  ltdl_solve_rows<M, NV>(H, dq);
+  ltdl_solve_rows<M, NV>(H, dqd);
+  ltdl_solve_rows<M, NV>(H, dtau);
+}
+
+// forward_dynamics_gradient at FD(q, qd, tau + p) with passive (1) and dq -= M^-1 K, dqd -= M^-1 D (passive.h);
+// without (0), at tau.
+template <class M, class S, int C>
+TG_HD void passive_dynamics_gradient(const Placements<M, S>& K, const Conv<M, S, C>& cv, const S* q, const S* qd,
+                                     const S* tau, const S* fext, int passive, S* dq, S* dqd, S* dtau, S* qdd) {
+  S tau_p[M::NV];
+  for (int k = 0; k < M::NV; ++k) tau_p[k] = tau[k];
+  if (passive) add_passive<M, S>(q, qd, tau_p);
+  forward_dynamics_gradient<M, S>(K, qd, tau_p, fext, cv, dq, dqd, dtau, qdd);
+  if (passive) add_passive_columns<M, S>(dtau, dq, dqd);
+}
+
 // One Euler step (scheme 0: explicit, 1: semi-implicit) and its Jacobians (step.h): G is computed
-// into the rows of q', which euler_step reads before it overwrites them.
+// into the rows of q', which euler_step reads before it overwrites them. With the passive forces
+// (passive 1), G is that of FD(q, qd, tau + p); with the damping implicit (passive 2), that of
+// damped_dynamics_gradient. A robot without damping or springs compiles neither.
 template <class M, class S> struct StepDerivatives {
   template <int C> TG_HD static void run(const StepDerivativesArgs<S>& a, const Conv<M, S, C>& cv) {
     constexpr int NV = M::NV;
     S qdd[NV], v[NV];
-    forward_dynamics_gradient<M, S>(Placements<M, S>(a.q), a.qd, a.tau, a.f_ext, cv, a.A, a.A + NV * NV, a.B, qdd);
+    const Placements<M, S> K(a.q);
+    S* const dq = a.A;
+    S* const dqd = a.A + NV * NV;
+    if constexpr (M::PASSIVE) {
+      if (a.passive == 2)
+        damped_dynamics_gradient<M, S>(K, cv, a.q, a.qd, a.tau, a.f_ext, a.dt[0], dq, dqd, a.B, qdd);
+      else
+        passive_dynamics_gradient<M, S>(K, cv, a.q, a.qd, a.tau, a.f_ext, a.passive, dq, dqd, a.B, qdd);
+    } else {
+      forward_dynamics_gradient<M, S>(K, a.qd, a.tau, a.f_ext, cv, dq, dqd, a.B, qdd);
+    }
     for (int k = 0; k < NV; ++k) v[k] = a.qd[k];
     cv.velocity_out(v);
     cv.acceleration_out(a.qd, qdd);
@@ -296,7 +355,8 @@ template <class M, class S> struct StepDerivatives {
 // stages' derivatives in the workspace.
 template <class M, class S> struct RkStepDerivatives {
   template <int C> TG_HD static void run(const RkStepDerivativesArgs<S>& a, const Conv<M, S, C>& cv) {
-    rk_step<M, S, C>(cv, a.qd, a.tau, a.f_ext, a.dt[0], a.scheme, a.q_next, a.qd_next, a.A, a.B, a.work);
+    rk_step<M, S, C>(cv, a.qd, a.tau, a.f_ext, a.dt[0], a.scheme, M::PASSIVE && a.passive, a.q_next, a.qd_next, a.A,
+                     a.B, a.work);
   }
 };
 

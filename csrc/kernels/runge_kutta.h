@@ -18,6 +18,7 @@
 #include "crba.h"
 #include "forward_mode.h"
 #include "ltdl.h"
+#include "passive.h"
 #include "products.h"
 #include "rnea.h"
 #include "step.h"
@@ -129,9 +130,10 @@ TG_HD void joint_adjoint(int n, int nt, const S* const* G, const S* const* X, S*
 
 // A stage's dynamics at cs (v, tau in Pinocchio's convention): acc = FD(q, v, tau), D_q and D_v at it and
 // the L^T D L factor of M (ltdl.h), all in the convention: M_c = G M G^T, so that
-// M_c^-1 G (tau - bias) = G qdd.
+// M_c^-1 G (tau - bias) = G qdd. With passive, tau + p and the derivatives of ID - p (passive.h).
 template <class M, class S, int C>
-TG_HD void rk_stage(const Conv<M, S, C>& cs, const S* v, const S* tau, const S* fext, S* Dq, S* Dv, S* H, S* acc) {
+TG_HD void rk_stage(const Conv<M, S, C>& cs, const S* v, const S* tau, const S* fext, bool passive, S* Dq, S* Dv, S* H,
+                    S* acc) {
   constexpr int NV = M::NV;
   const Placements<M, S> K(cs.q);
   S zero[NV], buf[Conv<M, S, C>::active ? NV : 1];
@@ -141,10 +143,12 @@ TG_HD void rk_stage(const Conv<M, S, C>& cs, const S* v, const S* tau, const S* 
   for (int k = 0; k < NV; ++k) zero[k] = S(0);
   rnea<M, S>(K, v, zero, fext, acc);
   for (int k = 0; k < NV; ++k) acc[k] = tau[k] - acc[k];
+  if (passive) add_passive<M, S>(cs.q, v, acc);
   cs.force_out(acc);
   ltdl_solve<M, S>(H, acc);
   const S* qdd = cs.velocity(acc, buf);  // G^T
   inverse_dynamics_derivatives<M, S, C, false>(K, v, qdd, fext, cs, Dq, Dv);  // read on the tree's entries alone
+  if (passive) add_passive_diagonals<M, S>(Dq, Dv);
   if (qdd != acc)
     for (int k = 0; k < NV; ++k) acc[k] = qdd[k];
   cs.acceleration_out(v, acc);
@@ -234,8 +238,8 @@ TG_HD void rk_adjoint_stage(const TreeBlocks<M, S>& tb, const S* q, const S* u, 
 // differs from those of the stages it feeds: rk4's stage i feeds stage i - 1 alone, so two slots alternate;
 // rk3 has one a stage), then ubar_i and the step's Jv blocks.
 template <class M, class S, int C>
-TG_HD void rk_step(const Conv<M, S, C>& cv, const S* qd, const S* tau, const S* fext, S h, int scheme, S* q_next,
-                   S* qd_next, S* A, S* B, S* work) {
+TG_HD void rk_step(const Conv<M, S, C>& cv, const S* qd, const S* tau, const S* fext, S h, int scheme, bool passive,
+                   S* q_next, S* qd_next, S* A, S* B, S* work) {
   constexpr int NV = M::NV, K2 = 2 * NV, NN = NV * NV, NA = NV * K2;
   const auto& d = data<M, S>();
   const RkTableau T = rk_tableau(scheme);
@@ -264,11 +268,12 @@ TG_HD void rk_step(const Conv<M, S, C>& cv, const S* qd, const S* tau, const S* 
     }
     S* const Dq = work + 3 * NN * i;
     if (i == 0) {
-      rk_stage<M, S, C>(cv, qd, tau, fext, Dq, Dq + NN, Dq + 2 * NN, acc[0]);
+      rk_stage<M, S, C>(cv, qd, tau, fext, passive, Dq, Dq + NN, Dq + 2 * NN, acc[0]);
     } else {
       const Conv<M, S, C> cs(qs);
       S vb[Conv<M, S, C>::active ? NV : 1], tb[Conv<M, S, C>::active ? NV : 1];
-      rk_stage<M, S, C>(cs, cs.velocity(v[i], vb), cs.force(tau_c, tb), fext, Dq, Dq + NN, Dq + 2 * NN, acc[i]);
+      rk_stage<M, S, C>(cs, cs.velocity(v[i], vb), cs.force(tau_c, tb), fext, passive, Dq, Dq + NN, Dq + 2 * NN,
+                        acc[i]);
     }
   }
   // the step: q' = q (+) u', qd' = qd + dt sum_j b_j acc_j
