@@ -129,7 +129,7 @@ def _costs(view, robot, q, qd, x):
     ones = torch.ones((), dtype=q.dtype, device=q.device)
     target = torch.eye(4, dtype=q.dtype, device=q.device)
     target[:3, 3] = torch.tensor([0.1, -0.2, 0.3])
-    return [("state_cost", {"q_ref": view.neutral_configuration(q.dtype, q.device), "qd_ref": 0.5 * qd.flip(0),
+    return [("state_cost", {"q_ref": view.neutral_configuration(dtype=q.dtype, device=q.device), "qd_ref": 0.5 * qd.flip(0),
                             "weights": ones.expand(2 * nv) * 2.0}),
             ("control_cost", {"tau_ref": 0.1 * x.flip(0), "weights": ones.expand(nv) * 0.5}),
             ("frame_translation_cost", {"frame": frame, "target": target[:3, 3], "weights": ones.expand(3)}),

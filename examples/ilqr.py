@@ -18,6 +18,8 @@ import torch
 
 import torch_grid
 
+STEP_SIZES = (1.0, 0.5, 0.25, 0.1)  # the line search's, largest first
+
 
 def rollout(view, q0, qd0, U, dt, integrator):
     """States (q (B, T+1, nq), qd (B, T+1, nv)) under the controls U (B, T, nv)."""
@@ -36,13 +38,32 @@ def total_cost(view, Q, V, U, running, terminal):
     return knots.sum(-1) + sum(getattr(view, name)(Q[:, -1], V[:, -1], **kw)[0] for name, kw in terminal)
 
 
-def ilqr(view, q0, qd0, U, dt, running, terminal, iterations, integrator="semi_implicit_euler", log=print):
-    """Minimise the cost over U (B, T, nv); returns the controls and the mean cost per iteration."""
-    nv, T = view._robot.nv, U.shape[1]
+def ilqr(view, q0, qd0, U, dt, running, terminal, iterations, integrator="semi_implicit_euler", rtol=1e-6, gtol=1e-4,
+         log=print):
+    """Minimise each sample's cost over its controls U (B, T, nv), for at most `iterations` iterations.
+
+    Every iteration logs the mean cost and the step sizes the line search accepted. A sample has
+    converged when its relative cost decrease falls below rtol, or its Newton step (the feedforward
+    update, relative to the controls) below gtol; it has stalled when, not converged, the line search
+    finds no decrease at any step size. The loop stops when every sample has converged or stalled, or
+    at the iteration limit, and its last line says which.
+
+    Args:
+        view: the robot's functions in one convention (robot.pin or robot.mujoco).
+        q0 (B, nq), qd0 (B, nv): the initial states; U (B, T, nv): the initial controls.
+        running: T -> [(cost name, keyword arguments)] of the knots; terminal: the same at the last state.
+        rtol, gtol: the convergence tolerances above; log: takes each line of the report.
+    Returns:
+        the controls (B, T, nv) and the mean cost before the first iteration and after each (floats).
+    """
+    nv, T = view.nv, U.shape[1]
     Q, V = rollout(view, q0, qd0, U, dt, integrator)
     costs = [total_cost(view, Q, V, U, running, terminal)]
     log(f"iteration  0   mean cost {costs[0].mean():.6g}")
     reg = 1e-6
+    converged = torch.zeros_like(costs[0], dtype=torch.bool)
+    stalled = torch.zeros_like(converged)
+    decrease = torch.full_like(costs[0], float("inf"))
     for it in range(1, iterations + 1):
         h = view.horizon(Q[:, :-1], V[:, :-1], U, dt, integrator, costs=running(T))
         # terminal value function
@@ -63,10 +84,13 @@ def ilqr(view, q0, qd0, U, dt, running, terminal, iterations, integrator="semi_i
             Vx = Qx + (K[t].mT @ Qu.unsqueeze(-1)).squeeze(-1)
             Vxx = Qxx + K[t].mT @ Qux
             Vxx = 0.5 * (Vxx + Vxx.mT)
-        # forward pass under the feedback policy, backtracking per sample until every one improves
+        # the gradient scaled by Quu^-1, relative to the controls (Tassa's iLQG measure): ~0 at a minimum
+        newton = (torch.stack(k, dim=1).abs() / (U.abs() + 1)).amax(dim=(1, 2))
+        # forward pass under the feedback policy, backtracking per sample until every one improves;
+        # `accepted` holds each sample's step size, 0 where none lowered its cost
         best = (U, Q, V, costs[-1])
-        done = torch.zeros_like(costs[-1], dtype=torch.bool)
-        for alpha in (1.0, 0.5, 0.25, 0.1):
+        accepted = torch.zeros_like(costs[-1])
+        for alpha in STEP_SIZES:
             qs, vs, new_U = [q0], [qd0], []
             for t in range(T):
                 dx = torch.cat([view.difference(Q[:, t], qs[-1]), vs[-1] - V[:, t]], dim=-1)
@@ -76,15 +100,48 @@ def ilqr(view, q0, qd0, U, dt, running, terminal, iterations, integrator="semi_i
                 vs.append(v)
             trial = (torch.stack(new_U, dim=1), torch.stack(qs, dim=1), torch.stack(vs, dim=1))
             c = total_cost(view, trial[1], trial[2], trial[0], running, terminal)
-            take = (c < best[3]) & ~done
+            take = (c < best[3]) & (accepted == 0)
             best = tuple(torch.where(take.view(-1, *[1] * (x.dim() - 1)), x, b) for x, b in zip(trial + (c,), best))
-            done = done | take
-            if done.all():
+            accepted = torch.where(take, alpha, accepted)
+            if (accepted > 0).all():
                 break
+        decrease = (costs[-1] - best[3]) / costs[-1].abs().clamp_min(torch.finfo(U.dtype).tiny)
         U, Q, V = best[:3]
         costs.append(best[3])
-        log(f"iteration {it:2d}   mean cost {costs[-1].mean():.6g}")
+        converged |= (newton < gtol) | ((accepted > 0) & (decrease < rtol))
+        stalled |= (accepted == 0) & ~converged
+        drop = 1 - costs[-1].mean() / costs[-2].mean()
+        log(f"iteration {it:2d}   mean cost {costs[-1].mean():.6g}   relative decrease {drop:.2e}   "
+            f"{describe_steps(accepted)}")
+        if (converged | stalled).all():
+            break
+    log(outcome(len(costs) - 1, converged, stalled, decrease, rtol, gtol))
     return U, [c.mean().item() for c in costs]
+
+
+def describe_steps(accepted):
+    """The step sizes the line search accepted and, for each, how many samples: 'step (samples): 1 (3), 0.5 (1)'."""
+    counts = torch.unique(accepted, return_counts=True)
+    parts = [f"{alpha:g} ({n})" if alpha > 0 else f"line search failed ({n})"
+             for alpha, n in sorted(zip(*(x.tolist() for x in counts)), reverse=True)]
+    return "step (samples): " + ", ".join(parts)
+
+
+def outcome(iterations, converged, stalled, decrease, rtol, gtol):
+    """The final line: converged, stalled, or stopped at the iteration limit."""
+    n, done = converged.numel(), int(converged.sum())
+    stuck, active = int((stalled & ~converged).sum()), ~(converged | stalled)
+    after = f"after {iterations} iteration{'' if iterations == 1 else 's'}"
+    if done == n:
+        return (f"converged {after}: every sample's relative cost decrease fell below "
+                f"rtol = {rtol:g} or its Newton step below gtol = {gtol:g}")
+    stuck_text = (f"the line search found no decrease for {stuck} of {n} samples (step sizes "
+                  f"{', '.join(f'{a:g}' for a in STEP_SIZES)})")
+    if not active.any():
+        return f"stalled {after}: {stuck_text}; {done} converged"
+    return (f"stopped at the iteration limit ({iterations}): {int(active.sum())} of {n} samples still decreasing, by "
+            f"up to {decrease[active].max():.3g} relative (rtol = {rtol:g}); {done} converged"
+            + (f"; {stuck_text}" if stuck else ""))
 
 
 def reach(device="cpu", batch=16, T=50, iterations=10, log=print):

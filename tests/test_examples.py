@@ -42,8 +42,33 @@ def test_horizon_is_the_per_knot_calls(robots):
 
 @pytest.mark.parametrize("problem", ["reach", "balance"])
 def test_ilqr_example_lowers_the_cost(problem):
-    costs = getattr(ilqr, problem)(batch=4, T=30, iterations=4, log=lambda *_: None)
+    """The cost falls; every iteration reports the step sizes accepted, and the last line the outcome."""
+    lines = []
+    costs = getattr(ilqr, problem)(batch=4, T=30, iterations=4, log=lines.append)
     assert all(b <= a for a, b in zip(costs, costs[1:])) and costs[-1] < 0.5 * costs[0]
+    iterations = [line for line in lines if line.startswith("iteration")]
+    assert len(iterations) == len(costs) and all("step (samples): " in line for line in iterations[1:])
+    if problem == "balance":  # close to its linearization: converged within the four iterations
+        assert len(costs) < 5 and lines[-1].startswith("converged after")
+    else:
+        assert lines[-1].startswith(("converged after", "stopped at the iteration limit (4)"))
+
+
+def test_ilqr_example_reports_a_stalled_line_search(monkeypatch):
+    """A trial cost that never falls (here made so): the line search fails for every sample and iLQR stops."""
+    total_cost, calls = ilqr.total_cost, []
+
+    def rising(*args, **kwargs):
+        calls.append(None)
+        return total_cost(*args, **kwargs) + 1e9 * (len(calls) > 1)  # every trial above the first rollout's cost
+
+    monkeypatch.setattr(ilqr, "total_cost", rising)
+    lines = []
+    costs = ilqr.reach(batch=2, T=5, iterations=3, log=lines.append)
+    assert len(costs) == 2 and costs[1] == costs[0]
+    assert lines[-2].endswith("step (samples): line search failed (2)")
+    assert lines[-1] == ("stalled after 1 iteration: the line search found no decrease for 2 of 2 samples "
+                         "(step sizes 1, 0.5, 0.25, 0.1); 0 converged")
 
 
 def test_policy_example_learns_and_compiles():

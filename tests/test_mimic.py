@@ -101,6 +101,17 @@ def test_layout(gripper):
         robot.crba(torch.zeros(full.nq, dtype=torch.float64))
 
 
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+def test_batched_neutral_configuration(gripper, convention):
+    """(*batch_shape, nq) in reduced coordinates: the uncoupled robot's neutral without the mimic joints'."""
+    robot, full, _ = gripper
+    q, q_full = (getattr(r, convention).neutral_configuration(2, 3) for r in (robot, full))
+    assert q.shape == (2, 3, robot.nq)
+    base = 7 if robot.floating_base else 0
+    kept = [base + k for k, name in enumerate(full.joint_names[1 if base else 0:]) if name in robot.joint_names]
+    assert torch.equal(q, q_full[..., list(range(base)) + kept])
+
+
 def test_matches_pinocchio_mimic_model(gripper):
     robot, _, pm = gripper
     pd = pm.createData()

@@ -3,6 +3,7 @@ in Pinocchio's or MuJoCo's convention."""
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import replace as _replace
 from pathlib import Path
 
 from . import conventions
@@ -11,13 +12,20 @@ from .build import build as _build
 from .build import release_kept_blocks
 from .costs import log_barrier, quadratic_barrier
 from .integrators import INTEGRATORS
-from .model import Frame, Joint, RobotModel, with_armature
+from .model import Frame, Joint, RobotModel, check_triangle_inequality, with_armature
 from .parse import BUNDLED, from_pinocchio, source_to_model
-from .robot import Robot
+from .robot import Robot, RobotView
 
-__all__ = ["load", "Robot", "RobotModel", "Joint", "Frame", "conventions", "from_pinocchio", "BUNDLED", "INTEGRATORS",
-           "log_barrier", "quadratic_barrier", "empty_cache"]
+__all__ = ["load", "Robot", "RobotView", "RobotModel", "Joint", "Frame", "conventions", "from_pinocchio", "BUNDLED",
+           "INTEGRATORS", "log_barrier", "quadratic_barrier", "empty_cache"]
 __version__ = "0.1.0"
+
+
+def __dir__() -> list[str]:
+    """dir(torch_grid): __all__ and __version__; the submodules and the helpers load() imports are not
+    part of the public face."""
+    return sorted([*__all__, "__version__"])
+
 
 _AUTOGRAD_DONE: set[str] = set()
 
@@ -34,8 +42,8 @@ def empty_cache() -> int:
 
 
 def load(source, *, floating_base: bool | None = None, convention: str = "pin", enable_mujoco_kernels: bool = True,
-         armature: Mapping[str, float] | None = None, passive_forces: bool | None = None, mimic: bool = False,
-         cache_dir: str | Path | None = None) -> Robot:
+         armature: Mapping[str, float] | None = None, passive_forces: bool | None = None, eulerdamp: bool | None = None,
+         mimic: bool = False, strict_inertia: bool = False, cache_dir: str | Path | None = None) -> Robot:
     """Build (or reuse from the cache) a robot's kernels and return its `Robot`.
 
     source: a bundled robot name ("iiwa14", "go2"), a URDF path or XML string, an MJCF path or
@@ -55,19 +63,35 @@ def load(source, *, floating_base: bool | None = None, convention: str = "pin", 
     joints' damping and stiffness (Robot.passive_forces, MuJoCo's qfrc_passive). None follows the
     source: an MJCF's are included, as mj_forward and mj_inverse do; a URDF or pinocchio.Model has
     none, as Pinocchio's algorithms ignore them.
+    eulerdamp: whether semi_implicit_euler takes the joints' damping implicitly, as MuJoCo's Euler
+    integrator does (mj_Euler): qd' = qd + dt (M + dt D)^-1 (tau + passive - bias), D the damping. None
+    follows the source: an MJCF's flag (on unless it has <flag eulerdamp="disable"/>), on otherwise.
+    It changes nothing on a model without damping or whose passive forces are left out.
     mimic: a URDF's mimic joints are independent joints by default (pinocchio.buildModelFromUrdf's
     default; a warning says so); True couples them, q_mimic = multiplier q_master + offset, in
     reduced coordinates (nq, nv and joint_names count the independent joints only), as
     pinocchio.buildModelFromUrdf(..., mimic=True): every function is the uncoupled one projected by
     the constant G = d q_full / d q (M -> G^T M G, tau -> G^T tau, J -> J G), and forward dynamics
     and M^-1 solve with the reduced M.
+    strict_inertia: a body whose principal moments of inertia break the triangle inequality (one larger
+    than the sum of the other two: no mass distribution has them, but the inertia is still positive
+    semi-definite, and Pinocchio simulates it) gets a warning naming it by default; True refuses it
+    with ValueError. Inertias that are negative, not finite or not positive semi-definite, and joints
+    that move no mass, are always refused.
     cache_dir: where compiled kernels are kept (default $TORCH_GRID_CACHE or ~/.cache/torch_grid).
     """
     if not isinstance(enable_mujoco_kernels, bool):
         raise TypeError(f"enable_mujoco_kernels must be True or False, got {enable_mujoco_kernels!r}")
     if passive_forces is not None and not isinstance(passive_forces, bool):
         raise TypeError(f"passive_forces must be None, True or False, got {passive_forces!r}")
+    if eulerdamp is not None and not isinstance(eulerdamp, bool):
+        raise TypeError(f"eulerdamp must be None, True or False, got {eulerdamp!r}")
+    if not isinstance(strict_inertia, bool):
+        raise TypeError(f"strict_inertia must be True or False, got {strict_inertia!r}")
     model = source_to_model(source, floating_base, mimic)
+    check_triangle_inequality(model, strict=strict_inertia)
+    if eulerdamp is not None and eulerdamp != model.eulerdamp:
+        model = _replace(model, eulerdamp=eulerdamp)
     if armature is not None:
         model = with_armature(model, armature)
     if convention not in ("pin", "pinocchio", "mujoco", "mjx"):

@@ -58,6 +58,9 @@ def op_namespace(model: RobotModel, mujoco: bool) -> str:
 
 def build(model: RobotModel, *, mujoco: bool, cache_dir: str | Path | None = None) -> str:
     """Build (or reuse) the kernels of `model` and return the op namespace they are registered in."""
+    if model.nbodies == 0:  # refused before any build starts or says it is building
+        raise ValueError(f"robot {model.name!r} has no moving joint: expected at least one joint that is not fixed, "
+                         "got none (load(urdf, floating_base=True) mounts a URDF on a free joint)")
     namespace = op_namespace(model, mujoco)
     with _LOCK:
         if namespace in _REGISTERED:

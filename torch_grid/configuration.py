@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import torch
 
+from .arguments import _check_tensor
 from .constants import scalar_or_tensor
 from .conventions import quaternion_rotation, unit_quaternion
 from .func import dual, transforming
@@ -255,8 +256,6 @@ class ConfigurationFunctions:
         return d_difference(self._robot._space, *self._checked("d_difference", q0, q1), self._convention)
 
     def _checked(self, op: str, q: torch.Tensor, x: torch.Tensor, dt=1.0) -> tuple[torch.Tensor, torch.Tensor]:
-        from .robot import _check_tensor  # robot.py imports this module
-
         space = self._robot._space
         second = ("v", (space.nv,)) if op.endswith("integrate") else ("q1", (space.nq,))
         _check_tensor(op, "q0" if second[0] == "q1" else "q", q, (space.nq,), q)

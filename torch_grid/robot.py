@@ -11,23 +11,25 @@ from typing import Sequence
 import torch
 
 from . import mujoco_second_order
-from .autograd import rpy_rate_solve
+from .arguments import _batch_shape, _check_tensor, _checked, _forward_mode, _reference
 from .configuration import ConfigurationFunctions, Space
 from .costs import CostFunctions
 from .horizon import HorizonFunctions
 from .integrators import StepFunctions
-from .func import FORWARD_MODE, FuncOps, dual, transforming
+from .func import FORWARD_MODE, FuncOps
 from .mimic import Coupling
 from .model import RobotModel, inertia_about_origin
 from .ops import OPS, model_sizes
+from .fd_second_order import second_order
 from .passive import PassiveForces
+from .step_op import step_op
+from .pose import PoseDerivatives
 
 _CPU, _CUDA = torch._C.DispatchKeySet(torch._C.DispatchKey.CPU), torch._C.DispatchKeySet(torch._C.DispatchKey.CUDA)
 CONVENTIONS = {"pin": 0, "pinocchio": 0, "mujoco": 1, "mjx": 1}
-REFERENCES = {"world": 0, "local": 1, "local_world_aligned": 2}
 
 
-class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFunctions):
+class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFunctions, PoseDerivatives):
     """The rigid-body functions, evaluated in one convention (`_convention`, 0 pin or 1 mujoco).
 
     Tensors may have any leading batch shape; batch shapes of the arguments broadcast. All tensor
@@ -36,6 +38,25 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
 
     _robot: "Robot"
     _convention: int
+
+    # -- description: the robot's, the same in every convention ------------------------------------
+    name = property(lambda self: self._robot.model.name, doc="The robot's name.")
+    nq = property(lambda self: (self._robot._coupling or self._robot.model).nq,
+                  doc="Configuration size (a continuous joint has one angle; mimic joints coupled by load(..., "
+                      "mimic=True) have none).")
+    nv = property(lambda self: (self._robot._coupling or self._robot.model).nv, doc="Velocity size.")
+    nbodies = property(lambda self: self._robot.model.nbodies, doc="Moving bodies (one per joint).")
+    nframes = property(lambda self: len(self._robot.model.frames), doc="Number of frames: len(frame_names).")
+    floating_base = property(lambda self: self._robot.model.floating_base,
+                             doc="Whether the first joint is a free joint (q starts with a position and a quaternion, "
+                                 "qd with a 6-d velocity).")
+    joint_names = property(lambda self: (self._robot._coupling.joint_names if self._robot._coupling else
+                                         [j.name for j in self._robot.model.joints]),
+                           doc="The joints whose coordinates make up q and qd, in order.")
+    frame_names = property(lambda self: [f.name for f in self._robot.model.frames],
+                           doc="The frames, in the order of forward_kinematics' outputs; a function's `frame` "
+                               "argument is one of these names or its index.")
+    robot = property(lambda self: self._robot, doc="The Robot these functions belong to (a Robot's is itself).")
 
     def inverse_dynamics(self, q, qd, qdd, f_ext=None) -> torch.Tensor:
         """Joint forces tau (..., nv) = M qdd + C qd + g - J^T f_ext (- passive_forces, when included).
@@ -183,22 +204,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         """
         qdd = self.forward_dynamics(q, qd, tau, f_ext)
         z_q, z_qd, minv = self.forward_dynamics_gradient(q, qd, tau, f_ext)
-        second = self.inverse_dynamics_second_order(q, qd, qdd, f_ext)
-        traced = torch.compiler.is_compiling() or transforming()
-        if traced or (torch.is_grad_enabled() and any(t.requires_grad for t in second)):
-            return _fd_second_order(*second, z_q, z_qd, minv)
-        # Chunks of samples, written over the inverse-dynamics tensors (kept blocks, already mapped):
-        # whole-batch temporaries of nv^3 per sample would each be mapped and zeroed afresh.
-        nv = minv.shape[-1]
-        flat = [t.reshape(-1, nv, nv, nv) for t in second]
-        z_q, z_qd, minv = (t.expand(*second[0].shape[:-3], nv, nv).reshape(-1, nv, nv) for t in (z_q, z_qd, minv))
-        step = max(1, (1 << 20) // (8 * nv ** 3))
-        for s in range(0, flat[0].shape[0], step):
-            rows = slice(s, s + step)
-            results = _fd_second_order(*(t[rows] for t in flat), z_q[rows], z_qd[rows], minv[rows])
-            for t, r in zip(flat, results):
-                t[rows] = r
-        return second
+        return second_order(self.inverse_dynamics_second_order(q, qd, qdd, f_ext), z_q, z_qd, minv)
 
     def _differs(self) -> bool:
         """Whether this view is MuJoCo's convention of a robot on which it differs from Pinocchio's."""
@@ -212,43 +218,6 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         if coupling is None:
             return self._robot._passive(q, qd)
         return coupling.rows(self._robot._passive(coupling.q(q), coupling.v(qd)), -1)
-
-    def end_effector_pose_gradient(self, q, frames: Sequence[str | int]) -> torch.Tensor:
-        """d end_effector_pose / dq along the tangent, (..., len(frames), 6, nv): [xyz; rpy] rows.
-
-        xyz rows are the LOCAL_WORLD_ALIGNED linear Jacobian rows; rpy rows are E^-1 J_angular with
-        E the rpy rate matrix (singular at pitch = +-pi/2, as rpy itself).
-        """
-        if isinstance(frames, (str, int)):
-            raise TypeError(f"end_effector_pose_gradient: frames must be a list of frame names or indices, got {frames!r}")
-        rpy = self.end_effector_pose(q, frames)[..., 3:]
-        J = torch.stack([self.frame_jacobian(q, f, "local_world_aligned") for f in frames], dim=-3)
-        return torch.cat([J[..., :3, :], rpy_rate_solve(rpy, J[..., 3:, :])], dim=-2)
-
-    def end_effector_pose_hessian(self, q, frames: Sequence[str | int]) -> torch.Tensor:
-        """Second derivative of end_effector_pose along the tangent, (..., len(frames), 6, nv, nv):
-        [..., r, j, k] = d/dq_k (end_effector_pose_gradient)[..., r, j]. xyz rows are the linear rows of
-        the LOCAL_WORLD_ALIGNED kinematic Hessian; rpy rows differentiate E^-1 J_angular, with E the
-        rpy rate matrix: E^-1 (dJ_angular/dq_k - dE/dq_k E^-1 J_angular)."""
-        if isinstance(frames, (str, int)):
-            raise TypeError(f"end_effector_pose_hessian: frames must be a list of frame names or indices, got {frames!r}")
-        rpy = self.end_effector_pose(q, frames)[..., 3:]
-        J = torch.stack([self.frame_jacobian(q, f, "local_world_aligned") for f in frames], dim=-3)
-        H = torch.stack([self.frame_kinematic_hessian(q, f, "local_world_aligned") for f in frames], dim=-4)
-        G = rpy_rate_solve(rpy, J[..., 3:, :])  # the rpy rows of the gradient
-        p, y = rpy[..., 1], rpy[..., 2]
-        cp, sp, cy, sy = torch.cos(p), torch.sin(p), torch.cos(y), torch.sin(y)
-        zero = torch.zeros_like(p)
-        dE_dp = torch.stack([torch.stack([-cy * sp, zero, zero], -1), torch.stack([-sy * sp, zero, zero], -1),
-                             torch.stack([-cp, zero, zero], -1)], dim=-2)
-        dE_dy = torch.stack([torch.stack([-sy * cp, -cy, zero], -1), torch.stack([cy * cp, -sy, zero], -1),
-                             torch.stack([zero, zero, zero], -1)], dim=-2)
-        # dE/dq_k = dE/dp dp/dq_k + dE/dy dy/dq_k, (..., 3, 3, nv)
-        dE = dE_dp.unsqueeze(-1) * G[..., 1:2, :].unsqueeze(-2) + dE_dy.unsqueeze(-1) * G[..., 2:3, :].unsqueeze(-2)
-        inner = H[..., 3:, :, :] - torch.einsum("...abk,...bj->...ajk", dE, G)
-        nv = J.shape[-1]
-        rot = rpy_rate_solve(rpy, inner.flatten(-2)).unflatten(-1, (nv, nv))
-        return torch.cat([H[..., :3, :, :], rot], dim=-3)
 
     def inverse_dynamics_external_force_gradient(self, q) -> torch.Tensor:
         """d inverse_dynamics / d f_ext (..., nv, nbodies, 6) = -J_k^T, J_k body k's Jacobian in its joint frame."""
@@ -339,21 +308,39 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
             rows.append([j.mass, *(j.mass * c for c in j.com), I[0], I[1], I[4], I[2], I[5], I[8]])
         return torch.tensor(rows, dtype=dtype, device=device).reshape(-1)
 
-    def neutral_configuration(self, dtype: torch.dtype = torch.float64, device="cpu") -> torch.Tensor:
-        """(nq,) zero joint positions, identity ball orientations and, for a floating base, the identity
-        orientation at the origin."""
+    def neutral_configuration(self, *batch_shape: int, dtype: torch.dtype = torch.float64,
+                              device="cpu") -> torch.Tensor:
+        """Zero joint positions, identity ball orientations and, for a floating base, the identity
+        orientation at the origin, in this view's convention (quaternion order).
+
+        Args:
+            *batch_shape: leading batch sizes (none: a single configuration).
+            dtype, device: of the result (keyword arguments).
+        Returns:
+            (*batch_shape, nq), every row the same configuration.
+        """
+        batch_shape = _batch_shape("neutral_configuration", batch_shape)
         model = self._robot.model
-        q = torch.zeros(model.nq, dtype=dtype, device=device)
+        q = torch.zeros(*batch_shape, model.nq, dtype=dtype, device=device)
         for joint, qi in zip(model.joints, model.q_index):
             if joint.type in ("free", "ball"):
                 quat = qi + (3 if joint.type == "free" else 0)
-                q[quat if self._convention else quat + 3] = 1.0  # w, first in MuJoCo's wxyz, last in xyzw
+                q[..., quat if self._convention else quat + 3] = 1.0  # w, first in MuJoCo's wxyz, last in xyzw
         return self._reduced(q)
 
     def random_configuration(self, *batch_shape: int, dtype: torch.dtype = torch.float64, device="cpu",
                              generator: torch.Generator | None = None) -> torch.Tensor:
-        """(*batch_shape, nq) joints uniform within their limits ([-pi, pi] or [-1, 1] when unbounded),
-        a base position in [-1, 1]^3 and uniformly random unit quaternions (free and ball joints)."""
+        """Joints uniform within their limits ([-pi, pi] or [-1, 1] when unbounded), a base position in
+        [-1, 1]^3 and uniformly random unit quaternions (free and ball joints), in this view's convention.
+
+        Args:
+            *batch_shape: leading batch sizes (none: a single configuration).
+            dtype, device: of the result (keyword arguments); drawn in float64 on the CPU.
+            generator: the CPU torch.Generator to draw from (None: torch's default).
+        Returns:
+            (*batch_shape, nq).
+        """
+        batch_shape = _batch_shape("random_configuration", batch_shape)
         model, cols = self._robot.model, []
         for joint in model.joints:
             if joint.type in ("free", "ball"):
@@ -413,15 +400,26 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         return op.default.redispatch(keyset, *args, self._convention)
 
 
-class _View(_Functions):
-    """The robot's functions in a fixed convention; holds no state of its own (thread-safe)."""
+class RobotView(_Functions):
+    """A robot's functions in one fixed convention: `robot.pin` (Pinocchio's) or `robot.mujoco` (MuJoCo's).
+
+    It has every function of its Robot and the robot's sizes and names (nq, nv, nbodies, nframes,
+    joint_names, frame_names, floating_base, name), `convention` and `robot`, the Robot itself. A view
+    holds no state of its own: it is cheap to make and safe to share between threads.
+    """
 
     def __init__(self, robot: "Robot", convention: int):
+        """Made by `robot.pin` and `robot.mujoco`; convention: 0 (Pinocchio's) or 1 (MuJoCo's)."""
         self._robot = robot
         self._convention = convention
 
+    @property
+    def convention(self) -> str:
+        """This view's convention: "pin" or "mujoco"."""
+        return "mujoco" if self._convention else "pin"
+
     def __repr__(self) -> str:
-        return f"<{self._robot.name} functions, {'mujoco' if self._convention else 'pin'} convention>"
+        return f"<{self._robot.name} functions, {self.convention} convention>"
 
 
 class Robot(_Functions):
@@ -433,6 +431,7 @@ class Robot(_Functions):
 
     def __init__(self, model: RobotModel, namespace: str, convention: str = "pin", mujoco_kernels: bool = True,
                  passive_forces: bool = True):
+        self._robot = self  # the description properties read it, joint_names below among them
         self.model = model
         self._coupling = Coupling(model) if model.mimics else None
         types = {j.name: j.type for j in model.joints}
@@ -443,6 +442,8 @@ class Robot(_Functions):
                              "supported")
         self._include_passive = passive_forces
         self._with_passive = passive_forces and self._passive.any
+        # semi_implicit_euler's velocity update solves with M + dt D (mj_Euler), where D is not zero
+        self._implicit_damping = self._with_passive and model.eulerdamp and self._passive.damps
         self._ops = getattr(torch.ops, namespace)
         self._func = FuncOps(self._ops, model.kernel_model)
         self._enable_mujoco_kernels = mujoco_kernels
@@ -452,25 +453,12 @@ class Robot(_Functions):
         # op -> (position, trailing shape) of each tensor argument, for the checks of every call
         self._tensor_args = {name: [(k, torch.Size(sizes.get(d, d) for d in a.trailing))
                                     for k, a in enumerate(spec.args) if a.is_tensor] for name, spec in OPS.items()}
-        self._robot = self
         self.convention = convention
-
-    # -- description -----------------------------------------------------------------------
-    name = property(lambda self: self.model.name)
-    nq = property(lambda self: (self._coupling or self.model).nq,
-                  doc="Configuration size (a continuous joint has one angle; mimic joints coupled by load(..., "
-                      "mimic=True) have none).")
-    nv = property(lambda self: (self._coupling or self.model).nv, doc="Velocity size.")
-    nbodies = property(lambda self: self.model.nbodies, doc="Moving bodies (one per joint).")
-    nframes = property(lambda self: len(self.model.frames))
-    floating_base = property(lambda self: self.model.floating_base)
-    joint_names = property(lambda self: self._coupling.joint_names if self._coupling else [j.name for j in self.model.joints],
-                           doc="The joints whose coordinates make up q and qd, in order.")
-    frame_names = property(lambda self: [f.name for f in self.model.frames])
+        step_op(self)  # the step's op for torch.compile, defined here rather than inside a trace
 
     @property
     def convention(self) -> str:
-        """Default convention of this handle's functions: "pin" or "mujoco"."""
+        """Default convention of this handle's functions: "pin" or "mujoco" (settable)."""
         return "mujoco" if self._convention else "pin"
 
     @convention.setter
@@ -478,12 +466,17 @@ class Robot(_Functions):
         self._convention = self._convention_code(value)
 
     @property
-    def pin(self) -> _View:
-        return _View(self, 0)
+    def pin(self) -> RobotView:
+        """The robot's functions in Pinocchio's convention, whatever `convention` is (a RobotView)."""
+        return RobotView(self, 0)
 
     @property
-    def mujoco(self) -> _View:
-        return _View(self, self._convention_code("mujoco"))
+    def mujoco(self) -> RobotView:
+        """The robot's functions in MuJoCo's convention, whatever `convention` is (a RobotView).
+
+        Raises ValueError for a robot with a free or ball joint loaded with enable_mujoco_kernels=False.
+        """
+        return RobotView(self, self._convention_code("mujoco"))
 
     def frame_index(self, frame: str | int, argument: str = "frame") -> int:
         """Index in frame_names of a frame given by name or index."""
@@ -537,80 +530,3 @@ def _restore(model_json: str, convention: str, enable_mujoco_kernels: bool, pass
 
     return load(RobotModel.from_dict(json.loads(model_json)), convention=convention,
                 enable_mujoco_kernels=enable_mujoco_kernels, passive_forces=passive_forces)
-
-
-def _check_tensor(op: str, name: str, x, trailing: tuple[int, ...], q) -> None:
-    if not isinstance(x, torch.Tensor):
-        raise TypeError(f"{op}: {name} must be a torch.Tensor, got {type(x).__name__}")
-    if x.dtype not in (torch.float32, torch.float64):
-        raise TypeError(f"{op}: {name} must be float32 or float64, got {x.dtype}")
-    if x is not q and x.dtype != q.dtype:
-        raise TypeError(f"{op}: {name} has dtype {x.dtype} but q has {q.dtype}; all tensors must share one dtype")
-    if x is not q and x.device != q.device:
-        raise ValueError(f"{op}: {name} is on {x.device} but q is on {q.device}; all tensors must share one device")
-    if x.dim() < len(trailing) or tuple(x.shape[x.dim() - len(trailing):]) != trailing:
-        want = ", ".join(["..."] + [str(t) for t in trailing])
-        raise ValueError(f"{op}: {name} must have shape ({want}), got {tuple(x.shape)}")
-
-
-def _fd_second_order(d2q, d2qd, dqdqd, dM, z_q, z_qd, minv):
-    """forward_dynamics_second_order's closed form from the inverse-dynamics tensors at qdd = FD and
-    forward_dynamics_gradient: one large matrix product per sample for each O(nv^4) term."""
-    nv, neg_minv = minv.shape[-1], -minv
-    dMt = dM.transpose(-1, -2).contiguous()  # [i, j, m] = dM[i, m, j]
-
-    def right(x, z):  # sum_m x[i, j, m] z[m, k]
-        return (x.flatten(-3, -2) @ z).unflatten(-2, (nv, nv))
-
-    def solve(x):  # -M^-1 along the first axis
-        return (neg_minv @ x.flatten(-2)).unflatten(-1, (nv, nv))
-
-    along_j = right(dMt, z_q)  # sum_m dM[i, m, j] Z[m, k]
-    d2qdd_dq2 = d2q + along_j + along_j.transpose(-1, -2)
-    d2qdd_dqdqd = dqdqd + right(dMt, z_qd)
-    # [i, j, k] = sum_b (-M^-1 dM)[i, b, k] M^-1[b, j], M^-1 symmetric
-    d2qdd_dtaudq = right(solve(dM).transpose(-1, -2), minv).transpose(-1, -2)
-    return solve(d2qdd_dq2), solve(d2qd), solve(d2qdd_dqdqd), d2qdd_dtaudq
-
-
-def _forward_mode(args, stack=None) -> bool:
-    """Whether forward-mode AD sees the call: a torch.func jvp transform (in `stack`, torch.func's
-    interpreter stack, read when not given), or a forward_ad dual argument (never while torch.compile
-    traces, which runs the kernels)."""
-    if torch.compiler.is_compiling():
-        return False
-    if stack is None:
-        stack = torch._C._functorch.get_interpreter_stack()
-    return (bool(stack) and any(i.key() == torch._C._functorch.TransformType.Jvp for i in stack)) or dual(args)
-
-
-def _reference(reference) -> int:
-    ref = REFERENCES.get(reference.lower()) if isinstance(reference, str) else None
-    if ref is None:
-        raise ValueError(f"reference must be one of {sorted(REFERENCES)}, got {reference!r}")
-    return ref
-
-
-def _checked(op: str, tensor_args, args) -> list:
-    """The arguments checked (each error names the argument, what was expected and what was received),
-    with every tensor expanded to the broadcast of their leading batch shapes."""
-    names = [a.name for a in OPS[op].args]
-    q = args[0]
-    for k, trailing in tensor_args:
-        if args[k] is not None:
-            _check_tensor(op, names[k], args[k], tuple(trailing), q)
-    shapes = {k: tuple(args[k].shape[: args[k].dim() - len(trailing)]) for k, trailing in tensor_args
-              if args[k] is not None}
-    # torch's broadcasting rule on the batch shapes (torch.broadcast_shapes costs tens of µs)
-    batch = [1] * max(len(s) for s in shapes.values())
-    for shape in shapes.values():
-        for axis, size in enumerate(shape, len(batch) - len(shape)):
-            if size != batch[axis] and size != 1 and batch[axis] != 1:
-                listed = ", ".join(f"{names[k]} {s}" for k, s in shapes.items())
-                raise ValueError(f"{op}: the leading batch shapes do not broadcast: {listed}")
-            batch[axis] = size if size != 1 else batch[axis]
-    args = list(args)
-    for k, trailing in tensor_args:
-        if args[k] is not None and shapes[k] != tuple(batch):
-            args[k] = args[k].expand(*batch, *trailing)
-    return args

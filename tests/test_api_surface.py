@@ -1,0 +1,106 @@
+"""The public face: torch_grid's names, the documented Robot and RobotView, the views' sizes, the samplers'
+batch shapes, a model without a moving joint refused before any build."""
+from __future__ import annotations
+
+import logging
+import pydoc
+import re
+from pathlib import Path
+
+import pytest
+import torch
+
+import torch_grid
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+def test_dir_shows_the_public_names_only():
+    public = [name for name in dir(torch_grid) if not name.startswith("_")]
+    assert public and set(public) <= set(torch_grid.__all__)
+    for name in torch_grid.__all__:
+        assert hasattr(torch_grid, name), name
+    assert "Mapping" not in dir(torch_grid) and "annotations" not in dir(torch_grid)
+
+
+def test_every_public_attribute_is_documented():
+    for cls in (torch_grid.Robot, torch_grid.RobotView):
+        assert cls.__doc__.strip()
+        undocumented = [n for n in dir(cls) if not n.startswith("_") and not (getattr(cls, n).__doc__ or "").strip()]
+        assert not undocumented, f"{cls.__name__}: {undocumented}"
+    for name in ("frame_names", "nframes", "floating_base", "pin", "mujoco"):
+        assert getattr(torch_grid.Robot, name).__doc__.strip(), name
+
+
+def test_help_of_a_view_shows_the_public_class_and_its_functions(robots):
+    robot = robots["iiwa14"]
+    assert type(robot.pin) is torch_grid.RobotView and type(robot.mujoco) is torch_grid.RobotView
+    text = pydoc.render_doc(robot.pin, renderer=pydoc.plaintext)
+    assert "class RobotView" in text and "_View" not in text
+    for function in ("inverse_dynamics", "forward_dynamics_gradient", "neutral_configuration", "step", "horizon"):
+        assert f"{function}(self" in text, function
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+def test_a_view_has_the_robots_sizes(robots, convention):
+    robot = robots["go2"]
+    view = getattr(robot, convention)
+    assert view.robot is robot and view.convention == convention
+    for name in ("nq", "nv", "nbodies", "nframes", "joint_names", "frame_names", "floating_base", "name"):
+        assert getattr(view, name) == getattr(robot, name), name
+    assert (view.nq, view.nv, view.nbodies) == (19, 18, 13)
+    with pytest.raises(AttributeError):
+        view.convention = "pin"  # a view's convention is fixed; the Robot's default is settable
+
+
+def test_the_examples_use_the_public_surface_only():
+    for path in EXAMPLES.glob("*.py"):
+        private = re.findall(r"\w+\._\w+", path.read_text())
+        assert not private, f"{path.name} reads {private}"
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+def test_neutral_configuration_takes_a_batch_shape(robots, convention):
+    view = getattr(robots["go2"], convention)
+    single = view.neutral_configuration()
+    assert single.shape == (view.nq,) and single.dtype == torch.float64
+    quaternion = [0.0, 0, 0, 1] if convention == "pin" else [1.0, 0, 0, 0]
+    assert single[3:7].tolist() == quaternion
+    for batch in [(5,), (2, 3), (0,)]:
+        q = view.neutral_configuration(*batch)
+        assert q.shape == (*batch, view.nq) and torch.equal(q, single.expand(*batch, view.nq))
+    q = view.neutral_configuration(4, dtype=torch.float32, device="cpu")
+    assert q.dtype == torch.float32 and torch.equal(q, single.float().expand(4, view.nq))
+    q[0, 2] = 0.3  # a fresh tensor per call, each row its own memory
+    assert q[1, 2] == 0 and view.neutral_configuration()[2] == 0
+
+
+@pytest.mark.parametrize("sampler", ["neutral_configuration", "random_configuration"])
+def test_samplers_refuse_a_positional_dtype(robots, sampler):
+    view = robots["iiwa14"].pin
+    with pytest.raises(TypeError, match=rf"{sampler}: batch_shape must be non-negative integers \(dtype=, device= "
+                                        r"are keyword arguments\), got torch.float32"):
+        getattr(view, sampler)(torch.float32)
+    with pytest.raises(TypeError, match=rf"{sampler}: batch_shape must be non-negative integers .*got -1"):
+        getattr(view, sampler)(2, -1)
+
+
+STATUE = """<robot name="statue">
+  <link name="base"><inertial><mass value="1"/><inertia ixx="0.1" iyy="0.1" izz="0.1" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <link name="head"><inertial><mass value="1"/><inertia ixx="0.1" iyy="0.1" izz="0.1" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <joint name="neck" type="fixed"><parent link="base"/><child link="head"/><origin xyz="0 0 1"/></joint>
+</robot>"""
+
+
+def test_a_model_without_a_moving_joint_is_refused_before_any_build(tmp_path, capfd, caplog):
+    """The build announces itself on stderr (print): a refused model prints nothing and builds nothing."""
+    path = tmp_path / "statue.urdf"
+    path.write_text(STATUE)
+    cache = tmp_path / "cache"
+    with caplog.at_level(logging.DEBUG):
+        with pytest.raises(ValueError, match="has no moving joint: expected at least one joint that is not fixed"):
+            torch_grid.load(str(path), cache_dir=cache)
+    out, err = capfd.readouterr()
+    assert "building" not in out + err and not err.strip()
+    assert not caplog.records
+    assert not cache.exists()

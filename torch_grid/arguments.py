@@ -1,0 +1,80 @@
+"""Argument checks of a robot's functions: each error names the argument, what was expected and what
+was received. The robot's functions (robot.py) call these; this module imports none of them."""
+from __future__ import annotations
+
+import numbers
+
+import torch
+
+from .func import dual
+from .ops import OPS
+
+REFERENCES = {"world": 0, "local": 1, "local_world_aligned": 2}
+
+
+def _check_tensor(op: str, name: str, x, trailing: tuple[int, ...], q) -> None:
+    """Refuse `x` unless it is a float32 or float64 tensor of shape (..., *trailing) with q's dtype and device."""
+    if not isinstance(x, torch.Tensor):
+        raise TypeError(f"{op}: {name} must be a torch.Tensor, got {type(x).__name__}")
+    if x.dtype not in (torch.float32, torch.float64):
+        raise TypeError(f"{op}: {name} must be float32 or float64, got {x.dtype}")
+    if x is not q and x.dtype != q.dtype:
+        raise TypeError(f"{op}: {name} has dtype {x.dtype} but q has {q.dtype}; all tensors must share one dtype")
+    if x is not q and x.device != q.device:
+        raise ValueError(f"{op}: {name} is on {x.device} but q is on {q.device}; all tensors must share one device")
+    if x.dim() < len(trailing) or tuple(x.shape[x.dim() - len(trailing):]) != trailing:
+        want = ", ".join(["..."] + [str(t) for t in trailing])
+        raise ValueError(f"{op}: {name} must have shape ({want}), got {tuple(x.shape)}")
+
+
+def _checked(op: str, tensor_args, args) -> list:
+    """The arguments checked (each error names the argument, what was expected and what was received),
+    with every tensor expanded to the broadcast of their leading batch shapes."""
+    names = [a.name for a in OPS[op].args]
+    q = args[0]
+    for k, trailing in tensor_args:
+        if args[k] is not None:
+            _check_tensor(op, names[k], args[k], tuple(trailing), q)
+    shapes = {k: tuple(args[k].shape[: args[k].dim() - len(trailing)]) for k, trailing in tensor_args
+              if args[k] is not None}
+    # torch's broadcasting rule on the batch shapes (torch.broadcast_shapes costs tens of µs)
+    batch = [1] * max(len(s) for s in shapes.values())
+    for shape in shapes.values():
+        for axis, size in enumerate(shape, len(batch) - len(shape)):
+            if size != batch[axis] and size != 1 and batch[axis] != 1:
+                listed = ", ".join(f"{names[k]} {s}" for k, s in shapes.items())
+                raise ValueError(f"{op}: the leading batch shapes do not broadcast: {listed}")
+            batch[axis] = size if size != 1 else batch[axis]
+    args = list(args)
+    for k, trailing in tensor_args:
+        if args[k] is not None and shapes[k] != tuple(batch):
+            args[k] = args[k].expand(*batch, *trailing)
+    return args
+
+
+def _batch_shape(op: str, batch_shape: tuple) -> tuple[int, ...]:
+    """A sampler's `*batch_shape`: non-negative integers (dtype and device are keyword arguments)."""
+    for size in batch_shape:
+        if isinstance(size, bool) or not isinstance(size, numbers.Integral) or size < 0:
+            raise TypeError(f"{op}: batch_shape must be non-negative integers (dtype=, device= are keyword "
+                            f"arguments), got {size!r} in {batch_shape!r}")
+    return tuple(int(size) for size in batch_shape)
+
+
+def _forward_mode(args, stack=None) -> bool:
+    """Whether forward-mode AD sees the call: a torch.func jvp transform (in `stack`, torch.func's
+    interpreter stack, read when not given), or a forward_ad dual argument (never while torch.compile
+    traces, which runs the kernels)."""
+    if torch.compiler.is_compiling():
+        return False
+    if stack is None:
+        stack = torch._C._functorch.get_interpreter_stack()
+    return (bool(stack) and any(i.key() == torch._C._functorch.TransformType.Jvp for i in stack)) or dual(args)
+
+
+def _reference(reference) -> int:
+    """The code of a frame Jacobian's reference frame, given by name (REFERENCES)."""
+    ref = REFERENCES.get(reference.lower()) if isinstance(reference, str) else None
+    if ref is None:
+        raise ValueError(f"reference must be one of {sorted(REFERENCES)}, got {reference!r}")
+    return ref
