@@ -10,7 +10,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # make `import oracles` work from any rootdir
 
 import oracles  # noqa: E402
-from mjcf_models import TREES  # noqa: E402
+from mjcf_models import DAMPED_FLOATING, DAMPED_PLANAR, TREES  # noqa: E402
 
 _ERD = oracles.erd_dir()
 
@@ -23,7 +23,7 @@ ROBOT_SPECS = {
 }
 FLOATING = {name: oracles.BUNDLED_FLOATING.get(src, False) if fb is None else fb for name, (src, fb) in ROBOT_SPECS.items()}
 # name -> MJCF text: robots whose MuJoCo oracle is the MJCF itself (no Pinocchio model)
-MJCF_SPECS = {"trees": TREES}
+MJCF_SPECS = {"trees": TREES, "damped_planar": DAMPED_PLANAR, "damped_floating": DAMPED_FLOATING}
 
 
 class LazyCache:
@@ -46,7 +46,7 @@ def _load_robot(name):
 
     if name in MJCF_SPECS:
         with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", "the MJCF model has contacts")
+            warnings.filterwarnings("ignore", "the MJCF model has")  # contacts, actuators: not modelled
             return torch_grid.load(MJCF_SPECS[name])
     src, fb = ROBOT_SPECS[name]
     return torch_grid.load(src, floating_base=fb)
@@ -68,6 +68,13 @@ def _mj_sim(name):
 @pytest.fixture(scope="session")
 def robots():
     return LazyCache(_load_robot)
+
+
+@pytest.fixture(scope="session")
+def step_roots(robots):
+    """A robot of each kind of root for the step tests: a fixed arm, a planar and a free root (damped and
+    sprung MJCF models)."""
+    return {"fixed": robots["iiwa14"], "planar": robots["damped_planar"], "free": robots["damped_floating"]}
 
 
 @pytest.fixture(scope="session")

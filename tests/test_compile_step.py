@@ -2,23 +2,11 @@
 root and the integrator, and a compiled rollout's values and gradients equal the eager ones."""
 from __future__ import annotations
 
-import warnings
-
 import pytest
 import torch
 
-import torch_grid
-from mjcf_models import DAMPED_FLOATING, DAMPED_PLANAR
 from oracles import rel_err
 from torch_grid.integrators import INTEGRATORS
-
-
-@pytest.fixture(scope="module")
-def roots(robots):
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", "the MJCF model has")
-        return {"fixed": robots["iiwa14"], "planar": torch_grid.load(DAMPED_PLANAR),
-                "free": torch_grid.load(DAMPED_FLOATING)}
 
 
 def _state(view, nv, batch, seed):
@@ -29,11 +17,11 @@ def _state(view, nv, batch, seed):
 
 
 @pytest.mark.parametrize("root", ["fixed", "planar", "free"])
-def test_a_traced_step_is_a_few_ops(roots, root):
+def test_a_traced_step_is_a_few_ops(step_roots, root):
     """torch._dynamo.explain of one step: at most 25 graph nodes (the step op and the argument handling,
     where the composition is a couple of hundred) and no graph break, for every integrator, both
     conventions, with external forces."""
-    robot = roots[root]
+    robot = step_roots[root]
     for convention in ("pin", "mujoco"):
         view = getattr(robot, convention)
         q, qd, tau = _state(view, robot.nv, 4, 0)
@@ -45,11 +33,11 @@ def test_a_traced_step_is_a_few_ops(roots, root):
 
 
 @pytest.mark.parametrize("root,integrator,step", [("free", "semi_implicit_euler", 0.01), ("planar", "rk4", 0.001)])
-def test_compiled_rollout_is_the_eager_one(roots, root, integrator, step):
+def test_compiled_rollout_is_the_eager_one(step_roots, root, integrator, step):
     """A 5-step rollout of a linear policy with external forces, compiled with fullgraph=True: the cost
     and its gradients (policy weights, initial state, forces, a tensor dt) equal the eager ones, and a
     second batch size reuses the compiled step (dynamic shapes)."""
-    robot = roots[root]
+    robot = step_roots[root]
     view = robot.mujoco
     policy = torch.nn.Linear(robot.nq + robot.nv, robot.nv).double()
     with torch.no_grad():  # a gentle feedback: the rollout stays finite on the stiff springs

@@ -4,26 +4,14 @@ step_derivatives, step_second_derivatives and horizon, each sample equal to the 
 sample alone (the kernel path, nothing requiring grad)."""
 from __future__ import annotations
 
-import warnings
-
 import pytest
 import torch
 
-import torch_grid
-from mjcf_models import DAMPED_FLOATING, DAMPED_PLANAR
 from oracles import rel_err
 from torch_grid.integrators import INTEGRATORS
 
 # the leading batch shapes of (q, qd, tau)
 SHAPES = {"unbatched": ((), (), ()), "batched": ((3,), (3,), (3,)), "broadcast": ((3,), (1,), ())}
-
-
-@pytest.fixture(scope="module")
-def roots(robots):
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", "the MJCF model has")
-        return {"fixed": robots["iiwa14"], "planar": torch_grid.load(DAMPED_PLANAR),
-                "free": torch_grid.load(DAMPED_FLOATING)}
 
 
 def _inputs(view, nv, shapes, seed):
@@ -41,8 +29,8 @@ def _sample(x, batch, k):
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
 @pytest.mark.parametrize("shape", list(SHAPES))
 @pytest.mark.parametrize("root", ["fixed", "planar", "free"])
-def test_step_grid(roots, root, shape, convention):
-    robot = roots[root]
+def test_step_grid(step_roots, root, shape, convention):
+    robot = step_roots[root]
     view = getattr(robot, convention)
     q, qd, tau = _inputs(view, robot.nv, SHAPES[shape], 17)
     batch = torch.broadcast_shapes(q.shape[:-1], qd.shape[:-1], tau.shape[:-1])

@@ -23,13 +23,13 @@ MJ_INTEGRATORS = {"semi_implicit_euler": mujoco.mjtIntegrator.mjINT_EULER, "rk4"
 
 
 @pytest.fixture(scope="module")
-def damped():
+def damped(robots):
     """name -> (robot with MuJoCo's default eulerdamp, robot with it off, the MjModel text)."""
     out = {}
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", "the MJCF model has")
         for name, text in MODELS.items():
-            out[name] = (torch_grid.load(text), torch_grid.load(text, eulerdamp=False), text)
+            out[name] = (robots[f"damped_{name}"], torch_grid.load(text, eulerdamp=False), text)
     return out
 
 

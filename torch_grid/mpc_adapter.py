@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import torch
 
+from .configuration import _skew
 from .conventions import quaternion_rotation, unit_quaternion
 
 
@@ -71,11 +72,3 @@ def chart_maps(view, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
             out[..., qi:qi + 3, vi:vi + 3] = eye if convention else R
             into[..., vi:vi + 3, qi:qi + 3] = eye if convention else R.mT
     return out, into
-
-
-def _skew(w: torch.Tensor) -> torch.Tensor:
-    """(..., 3, 3): w x ."""
-    zero = torch.zeros_like(w[..., 0])
-    x, y, z = w.unbind(-1)
-    return torch.stack([torch.stack([zero, -z, y], -1), torch.stack([z, zero, -x], -1),
-                        torch.stack([-y, x, zero], -1)], dim=-2)

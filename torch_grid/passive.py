@@ -71,15 +71,19 @@ def damped_factor(view, q: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
 
 def damped_acceleration(view, q, qd, tau, h, f_ext=None) -> torch.Tensor:
     """qdd (..., nv) of (M + dt D) qdd = tau + p - b(q, qd); h the step (..., 1)."""
+    return _damped_solve(view, q, qd, tau, h, f_ext)[1]
+
+
+def _damped_solve(view, q, qd, tau, h, f_ext) -> tuple[torch.Tensor, torch.Tensor]:
+    """(H's Cholesky factor, qdd)."""
+    L = damped_factor(view, q, h)
     rhs = tau - view.inverse_dynamics(q, qd, torch.zeros_like(qd), f_ext)  # tau + p - b
-    return torch.cholesky_solve(rhs.unsqueeze(-1), damped_factor(view, q, h)).squeeze(-1)
+    return L, torch.cholesky_solve(rhs.unsqueeze(-1), L).squeeze(-1)
 
 
 def damped_acceleration_gradient(view, q, qd, tau, h, f_ext=None) -> tuple[torch.Tensor, ...]:
     """(qdd (..., nv), dqdd/dq, dqdd/dqd, dqdd/dtau (..., nv, nv) each) of damped_acceleration."""
-    L = damped_factor(view, q, h)
-    rhs = tau - view.inverse_dynamics(q, qd, torch.zeros_like(qd), f_ext)
-    qdd = torch.cholesky_solve(rhs.unsqueeze(-1), L).squeeze(-1)
+    L, qdd = _damped_solve(view, q, qd, tau, h, f_ext)
     dq, dqd = view.inverse_dynamics_gradient(q, qd, qdd, f_ext)  # of ID - p
     nv = qd.shape[-1]
     batch = torch.broadcast_shapes(L.shape[:-2], dq.shape[:-2], dqd.shape[:-2])
