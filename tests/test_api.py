@@ -236,6 +236,32 @@ def test_meta_tensors_propagate_shapes(robots):
     assert A.shape == (7, 3, 6, robot.nv) and h.shape == (7, 3, 6)
 
 
+def test_fake_shapes_broadcast_as_the_kernels(robots):
+    """Every op's fake implementation (torch.compile's shapes) broadcasts the inputs' leading dimensions as
+    the kernels do: q unbatched with the other tensors batched, and the other way round."""
+    from torch_grid.ops import OPS, model_sizes
+
+    robot = robots["go2"]
+    ops, sizes = robot._ops, model_sizes(robot._func._model)
+    integers = {"frame": 1, "frames": [1, 2], "reference": 0, "scheme": 1, "tableau": 4, "passive": 0}
+    g = torch.Generator().manual_seed(0)
+    q0 = robot.random_configuration(generator=g)
+    mask = lambda spec: (1 << sum(b.is_tensor for b in OPS[spec.forward_mode_of].args)) - 1  # noqa: E731 every gradient
+    for spec in OPS.values():
+        for q_batch, batch in (((), (2, 3)), ((2, 3), (3,))):
+            args = [q0.expand(*q_batch, robot.nq)]
+            for a in spec.args[1:]:
+                if a.is_tensor:
+                    args.append(0.1 * torch.randn(*batch, *(sizes.get(d, d) for d in a.trailing), dtype=torch.float64,
+                                                  generator=g))
+                else:
+                    args.append(mask(spec) if a.kind == "mask" else integers[a.kind])
+            real = getattr(ops, spec.name)(*args, 0)
+            fake = getattr(ops, spec.name)(*[x.to("meta") if isinstance(x, torch.Tensor) else x for x in args], 0)
+            real, fake = (real, fake) if isinstance(real, tuple) else ((real,), (fake,))
+            assert [x.shape for x in fake] == [x.shape for x in real], (spec.name, q_batch, batch)
+
+
 def test_torch_compile_fullgraph_matches_eager(robots):
     robot = robots["go2"]
     q, qd = _state(robot, 16)

@@ -65,3 +65,47 @@ def test_compiled_rollout_is_the_eager_one(step_roots, root, integrator, step):
         assert all(torch.isfinite(x).all() for x in results[0])
         for ours, ref in zip(results[1], results[0]):
             assert rel_err(ours, ref) <= 1e-10
+
+
+@pytest.mark.parametrize("root,integrator", [("free", "rk4"), ("planar", "semi_implicit_euler")])
+def test_compiled_step_under_torch_func_is_the_eager_one(step_roots, root, integrator):
+    """Compiled, the step under vmap (the op's vmap rule: vmapped and shared inputs, and a backward through
+    it), torch.func.grad, jacrev, jvp and forward-mode dual tensors (the composition: the op has no rule for
+    those) equals the eager step, where a step op without those rules returned a wrong tangent."""
+    from torch.autograd import forward_ad
+
+    robot = step_roots[root]
+    view = robot.mujoco
+    q, qd, tau = _state(view, robot.nv, 3, 7)
+    f_ext = 0.1 * torch.randn(robot.nbodies, 6, dtype=torch.float64, generator=torch.Generator().manual_seed(8))
+    t = torch.randn_like(tau)
+
+    def step(q, qd, tau):
+        return view.step(q, qd, tau, 0.005, integrator, f_ext)
+
+    def dual(q, qd, tau):
+        with forward_ad.dual_level():
+            out = step(q, qd, forward_ad.make_dual(tau, t))
+            return [forward_ad.unpack_dual(x) for x in out]
+
+    def vmap_backward(q, qd, tau):
+        shared = tau[0].detach().requires_grad_()
+        out = torch.func.vmap(step, in_dims=(None, 0, None))(q[0], qd, shared)
+        return torch.autograd.grad((out[0].sin().sum() + out[1].sin().sum()), shared)
+
+    transforms = {
+        "vmap": lambda q, qd, tau: torch.func.vmap(step)(q, qd, tau),
+        "vmap shared": lambda q, qd, tau: torch.func.vmap(step, in_dims=(None, 0, None))(q[0], qd, tau[0]),
+        "vmap backward": vmap_backward,
+        "grad": lambda q, qd, tau: torch.func.grad(lambda x: step(q, qd, x)[1].sin().sum())(tau),
+        "jacrev": lambda q, qd, tau: torch.func.jacrev(lambda x, y: step(x, qd, y), argnums=(0, 1))(q, tau),
+        "jvp": lambda q, qd, tau: torch.func.jvp(lambda x: step(q, qd, x), (tau,), (t,)),
+        "dual": dual,
+    }
+    for name, fn in transforms.items():
+        torch._dynamo.reset()
+        eager = torch.utils._pytree.tree_leaves(fn(q, qd, tau.clone()))
+        compiled = torch.utils._pytree.tree_leaves(torch.compile(fn)(q, qd, tau.clone()))
+        assert len(compiled) == len(eager)
+        for ours, ref in zip(compiled, eager):
+            assert rel_err(ours, ref) <= 1e-12, name

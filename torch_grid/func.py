@@ -14,6 +14,8 @@ from __future__ import annotations
 from typing import Callable
 
 import torch
+from torch._C._functorch import TransformType
+from torch._functorch.pyfunctorch import coerce_cinterpreter
 from torch.autograd import forward_ad
 
 from .autograd import BACKWARDS, COMPOSED_BACKWARD, backward_formula, mass_product_jvp, repeat
@@ -25,7 +27,21 @@ from .tangent import tangent_to_ambient
 
 def transforming() -> bool:
     """Whether a torch.func transform is active (then ops go through FuncOps)."""
-    return bool(torch._C._functorch.get_interpreter_stack())
+    return top_transform() is not None
+
+
+def traced_transform() -> bool:
+    """While torch.compile traces: whether the ops are to go through FuncOps, that is, a torch.func transform
+    other than vmap is innermost, or a forward-mode dual level is open (the compiler does not see a dual
+    argument's tangent, so the level, not the argument, decides)."""
+    return top_transform() not in (None, TransformType.Vmap) or forward_ad._current_level >= 0
+
+
+def top_transform() -> TransformType | None:
+    """The innermost active torch.func transform (Vmap, Grad, Jvp, ...), or None; in the functorch calls
+    that torch.compile traces (the interpreter stack itself it cannot)."""
+    top = torch._C._functorch.peek_interpreter_stack()
+    return coerce_cinterpreter(top).key() if isinstance(top, torch._C._functorch.CInterpreter) else None
 
 
 def dual(args) -> bool:

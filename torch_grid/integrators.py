@@ -22,6 +22,7 @@ Runge-Kutta), which runs when nothing differentiates them.
 from __future__ import annotations
 
 import torch
+from torch.autograd import forward_ad
 
 from .constants import scalar_or_tensor
 from .configuration import _dt, check_dt, d_dexp_inverse_blocks, d_integrate_blocks, dexp_inverse, tangent_map
@@ -30,7 +31,7 @@ from .passive import damped_acceleration, damped_acceleration_gradient
 from .rk_hessian import combine as _combine
 from .rk_hessian import rk_step_hessian
 from .step_hessian import euler_step_hessian
-from .step_op import compiled_step
+from .step_op import compiled_step, opaque
 
 # (A rows below the diagonal, B) of each Runge-Kutta scheme
 TABLEAUS = {
@@ -56,8 +57,10 @@ class StepFunctions:
         at every stage; semi_implicit_euler takes their damping implicitly where the model's eulerdamp is
         on (MuJoCo's Euler step, `load(..., eulerdamp=...)`)."""
         _check("step", integrator, q, qd, tau, dt)
-        if torch.compiler.is_compiling():  # one opaque op in the graph rather than the composition's nodes
+        if torch.compiler.is_compiling() and opaque():  # one op, not the composition's nodes
             return compiled_step(self, q, qd, tau, dt, integrator, f_ext)
+        if torch.compiler.is_compiling() and forward_ad._current_level >= 0:
+            return _step_eagerly(self, q, qd, tau, dt, integrator, f_ext)
         h = _dt(dt, qd)
         if integrator == "semi_implicit_euler":
             damped = self._robot._implicit_damping
@@ -242,3 +245,10 @@ def _split(dq: torch.Tensor, dv: torch.Tensor, nv: int) -> tuple[torch.Tensor, t
     batch = torch.broadcast_shapes(dq.shape[:-2], dv.shape[:-2])
     rows = torch.cat([dq.expand(*batch, *dq.shape[-2:]), dv.expand(*batch, *dv.shape[-2:])], dim=-2)
     return rows[..., :2 * nv], rows[..., 2 * nv:]
+
+
+@torch.compiler.disable
+def _step_eagerly(view, q, qd, tau, dt, integrator: str, f_ext):
+    """The step under an open forward-mode dual level while torch.compile traces: eagerly, as a whole
+    (a compiled graph drops the tangents of dual tensors it receives, so none may reach one)."""
+    return view.step(q, qd, tau, dt, integrator, f_ext)

@@ -343,7 +343,10 @@ def _fake(spec: OpSpec, model: RobotModel):
                 raise RuntimeError(f"{spec.name}: {spec.args[k].name} must have the device and dtype of q "
                                    f"({q.device}, {q.dtype}), got {x.device}, {x.dtype}")
         nsel = len(args[0]) if spec.name == "end_effector_pose" else 0
-        batch = tuple(q.shape[:-1])
+        # As the glue: the tensor arguments' leading dimensions broadcast (q unbatched, x batched)
+        batch = tuple(torch.broadcast_shapes(*(
+            x.shape[:x.dim() - len(spec.args[k].trailing)] for k, x in zip(tensors, (q, *(args[k - 1] for k in tensors[1:])))
+            if x is not None)))
         outs = [q.new_empty(s[len(batch):]).expand(s) if o.kind == "workspace" and q.device.type == "cpu"
                 else q.new_empty(s) for o, s in zip(spec.outputs, spec.output_shapes(model, batch, nsel))]
         return outs[0] if len(outs) == 1 else tuple(outs)

@@ -16,7 +16,7 @@ from .configuration import ConfigurationFunctions, Space
 from .costs import CostFunctions
 from .horizon import HorizonFunctions
 from .integrators import StepFunctions
-from .func import FORWARD_MODE, FuncOps
+from .func import FORWARD_MODE, FuncOps, traced_transform
 from .mimic import Coupling
 from .model import RobotModel, inertia_about_origin
 from .ops import OPS, model_sizes
@@ -374,6 +374,9 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         robot = self._robot
         op = getattr(robot._ops, name)
         if torch.compiler.is_compiling():
+            if traced_transform():
+                return _func_call_eagerly(robot._func, name, *_checked(name, robot._tensor_args[name], args),
+                                          self._convention)
             return op(*_checked(name, robot._tensor_args[name], args), self._convention)
         stack = torch._C._functorch.get_interpreter_stack()
         forward = _forward_mode(args, stack)
@@ -530,3 +533,11 @@ def _restore(model_json: str, convention: str, enable_mujoco_kernels: bool, pass
 
     return load(RobotModel.from_dict(json.loads(model_json)), convention=convention,
                 enable_mujoco_kernels=enable_mujoco_kernels, passive_forces=passive_forces)
+
+
+@torch.compiler.disable
+def _func_call_eagerly(func: FuncOps, name: str, *args):
+    """An op under torch.func's grad or jvp, or on forward-mode dual tensors, while torch.compile traces:
+    through its autograd.Function, run eagerly (torch.compile traces neither that Function's transforms
+    nor the op's registered autograd under them: the op alone would fail, or return a wrong tangent)."""
+    return func.call(name, *args)

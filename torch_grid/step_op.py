@@ -6,8 +6,10 @@ hundred graph nodes per step (the quaternion joints' integrate, the passive forc
 rollout of many steps takes minutes to compile. There the step is instead one custom op per robot,
 opaque to the compiler: its value is the step's kernel path and its backward a second op, the
 vector-Jacobian product of the same composition (autograd run inside it, eagerly: the ops' own backward
-kernels, O(n) per sample). torch.compile differentiates a graph once; for a double backward (a
-Hessian-vector product) step is called eagerly.
+kernels, O(n) per sample). Both ops have a vmap rule (one broadcast call). torch.compile differentiates
+a graph once; for a double backward (a Hessian-vector product) step is called eagerly. A custom op has
+no forward-mode rule and no torch.func.grad rule, so inside torch.func.grad, jvp or jacfwd, or on
+forward-mode dual tensors, a traced step is the composition again (`opaque`).
 
 The ops are defined once per robot configuration (kernels, passive forces, eulerdamp), in the
 namespace "torch_grid_step".
@@ -16,8 +18,20 @@ from __future__ import annotations
 
 import torch
 
+from .func import traced_transform
+
 NAMESPACE = "torch_grid_step"
 _ROBOTS: dict[str, object] = {}
+# The trailing (per-sample) dimensions of the ops' tensor arguments, in order: q, qd, tau, dt, f_ext, and the
+# vector-Jacobian product's cotangents of q' and qd'.
+_TRAILING = (1, 1, 1, 0, 2, 1, 1)
+
+
+def opaque() -> bool:
+    """Whether a step traced by torch.compile can be the step op: no torch.func transform is active but
+    vmap (the op's rule then asks again one level down) and no forward-mode dual level is open (the op has
+    rules for backward and vmap only)."""
+    return not traced_transform()
 
 
 def compiled_step(view, q, qd, tau, dt, integrator: str, f_ext):
@@ -89,6 +103,22 @@ def step_op(robot):
 
     step.register_autograd(backward, setup_context=setup_context)
     step_vjp.register_autograd(no_double_backward, setup_context=lambda ctx, inputs, output: None)
+
+    @step.register_vmap
+    def _(info, in_dims, q, qd, tau, dt, f_ext, integrator, convention):
+        q, qd, tau, dt, f_ext = _vmapped(info.batch_size, in_dims, (q, qd, tau, dt, f_ext))
+        if opaque():
+            return step(q, qd, tau, dt, f_ext, integrator, convention), (0, 0)
+        return _view(key, convention).step(q, qd, tau, dt, integrator, f_ext), (0, 0)  # under a transform below
+
+    @step_vjp.register_vmap
+    def _(info, in_dims, q, qd, tau, dt, f_ext, grad_q, grad_qd, integrator, convention):
+        inputs = (q, qd, tau, dt, f_ext, grad_q, grad_qd)
+        grads = step_vjp(*_vmapped(info.batch_size, in_dims, inputs), integrator, convention)
+        # each input's gradient with its own per-sample shape, behind the vmapped dimension
+        shapes = [x.shape if d is None else x.shape[:d] + x.shape[d + 1:] for x, d in zip(_present(*inputs[:5]), in_dims)]
+        return tuple(g.reshape(info.batch_size, *shape) for g, shape in zip(grads, shapes)), (0,) * 5
+
     return step
 
 
@@ -115,6 +145,22 @@ def _grad(outputs, leaves: list, cotangents) -> list[torch.Tensor]:
             continue
         g = next(grads)
         out.append(torch.zeros_like(x) if g is None else g.contiguous())
+    return out
+
+
+def _vmapped(size: int, in_dims, args) -> list:
+    """vmap's arguments for one broadcast call: the vmapped dimension of every tensor first (expanded
+    where an argument is not vmapped, so that each vmapped sample has its own gradient), then singleton
+    dimensions that align the arguments' own batch dimensions to the right, as torch broadcasts."""
+    ranks = [x.dim() - (d is not None) - t for x, d, t in zip(args, in_dims, _TRAILING) if x is not None]
+    rank = max(ranks)
+    out = []
+    for x, d, t in zip(args, in_dims, _TRAILING):
+        if x is None:
+            out.append(x)
+            continue
+        x = x.unsqueeze(0).expand(size, *x.shape) if d is None else x.movedim(d, 0)
+        out.append(x.reshape(size, *[1] * (rank - (x.dim() - 1 - t)), *x.shape[1:]))
     return out
 
 
