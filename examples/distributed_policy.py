@@ -52,28 +52,35 @@ def train(rank: int, world_size: int, robot: str = "iiwa14", *, device: str = "c
         torch.cuda.set_device(int(os.environ.get("LOCAL_RANK", rank)))
     dist.init_process_group("nccl" if cuda else "gloo", rank=rank, world_size=world_size)
     try:
-        target_device = torch.device("cuda", torch.cuda.current_device()) if cuda else torch.device("cpu")
-        model = torch_grid.load(robot)
-        q0, qd0, target = (x.to(target_device) for x in rank_batch(model, rank, batch))
-        # DDP broadcasts rank 0's initial weights, then all-reduces (averages) the gradients in backward
-        policy = DistributedDataParallel(make_policy(model.nv).to(target_device),
-                                         device_ids=[target_device.index] if cuda else None)
-        optimizer = torch.optim.Adam(policy.parameters(), lr=lr)
-        rollout = make_rollout(model, model.nframes - 1, steps=steps)
-        losses = []
-        for update in range(updates):
-            optimizer.zero_grad()
-            loss = rollout(policy, q0, qd0, target)
-            loss.backward()
-            optimizer.step()
-            mean = loss.detach().clone()
-            dist.all_reduce(mean)  # only to report the loss over all the batches: training does not need it
-            losses.append(mean.item() / world_size)
-            if rank == 0:
-                log(f"update {update:3d}   loss {losses[-1]:.6f}")
-        return losses, [p.detach().cpu() for p in policy.module.parameters()]
+        # the DDP module is gone when _train returns, before the group: a DDP module that outlives its
+        # group can deadlock torch's gloo backend as it is freed (its reducer joins the group's threads)
+        return _train(rank, world_size, robot, cuda, updates, batch, steps, lr, log)
     finally:
         dist.destroy_process_group()
+
+
+def _train(rank: int, world_size: int, robot: str, cuda: bool, updates: int, batch: int, steps: int, lr: float,
+           log) -> tuple[list[float], list[torch.Tensor]]:
+    device = torch.device("cuda", torch.cuda.current_device()) if cuda else torch.device("cpu")
+    model = torch_grid.load(robot)
+    q0, qd0, target = (x.to(device) for x in rank_batch(model, rank, batch))
+    # DDP broadcasts rank 0's initial weights, then all-reduces (averages) the gradients in backward
+    policy = DistributedDataParallel(make_policy(model.nv).to(device), device_ids=[device.index] if cuda else None)
+    optimizer = torch.optim.Adam(policy.parameters(), lr=lr)
+    rollout = make_rollout(model, model.nframes - 1, steps=steps)
+    losses = []
+    for update in range(updates):
+        optimizer.zero_grad()
+        loss = rollout(policy, q0, qd0, target)
+        loss.backward()
+        optimizer.step()
+        mean = loss.detach().clone()
+        dist.all_reduce(mean)  # only to report the loss over all the batches: training does not need it
+        losses.append(mean.item() / world_size)
+        if rank == 0:
+            log(f"update {update:3d}   loss {losses[-1]:.6f}")
+    dist.barrier()  # every collective done before the DDP module is freed
+    return losses, [p.detach().cpu() for p in policy.module.parameters()]
 
 
 def _spawned(rank: int, world_size: int, options: dict) -> None:
