@@ -42,6 +42,10 @@ setup(
         "test": ["pytest>=8", "pin==4.1.0", "mujoco==4.0.0", "example-robot-data==6.0.0", "cmeel-eigen==3.4.1"],
         # bench/pinocchio_cpp.py compiles against Pinocchio's headers, which need these two too
         "bench": ["pin==4.1.0", "example-robot-data==6.0.0", "cmeel-eigen==3.4.1", "cmeel-urdfdom-headers==3.0.0"],
+        # the Sphinx build of docs/ (sphinx-build -W): Markdown pages, the API reference, the gallery, whose
+        # scripts plot with matplotlib and render with MuJoCo offscreen
+        "docs": ["sphinx==9.0.4", "myst-parser==5.2.0", "sphinx-gallery==0.22.1", "furo==2025.12.19",
+                 "matplotlib==3.11.2", "mujoco==4.0.0"],
     },
     cmdclass={"build_py": BuildPyWithSources},
 )
