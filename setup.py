@@ -1,23 +1,10 @@
 """torch_grid installs as pure Python: kernels are generated and compiled per robot at first use,
 so installing compiles nothing and needs no torch in the build environment."""
-import shutil
 from pathlib import Path
 
 from setuptools import find_packages, setup
-from setuptools.command.build_py import build_py
 
 ROOT = Path(__file__).parent
-
-
-class BuildPyWithSources(build_py):
-    """Ship csrc/ inside the package for regular (non-editable) installs."""
-
-    def run(self):
-        super().run()
-        target = Path(self.build_lib) / "torch_grid" / "csrc"
-        if target.exists():
-            shutil.rmtree(target)
-        shutil.copytree(ROOT / "csrc", target)
 
 
 setup(
@@ -30,7 +17,9 @@ setup(
     license="BSD-3-Clause",
     python_requires=">=3.9",
     packages=find_packages(include=["torch_grid", "torch_grid.*"]),
-    package_data={"torch_grid": ["robots/*.urdf", "robots/*.xml", "robots/*.json", "robots/NOTICE"]},
+    # the bundled robots, and the C++ sources every robot's kernels are generated and compiled against
+    package_data={"torch_grid": ["robots/*.urdf", "robots/*.xml", "robots/*.json", "robots/NOTICE", "csrc/*.h",
+                                 "csrc/*.cuh", "csrc/kernels/*.h", "csrc/kernels/*.cuh"]},
     # torch: tested 2.11 (CUDA 13.0 build) and 2.13; its C++ extension builder brings setuptools.
     # numpy: imported with the package (MuJoCo model conversion). ninja: builds each robot's kernels.
     # Pinocchio and MuJoCo are imported only to read a URDF, an MJCF or their model objects: the extras.
@@ -47,5 +36,4 @@ setup(
         "docs": ["sphinx==9.0.4", "myst-parser==5.2.0", "sphinx-gallery==0.22.1", "furo==2025.12.19",
                  "matplotlib==3.11.2", "mujoco==4.0.0"],
     },
-    cmdclass={"build_py": BuildPyWithSources},
 )

@@ -11,7 +11,7 @@ import time
 import torch
 
 import torch_grid
-from torch_grid.integrators import INTEGRATORS
+from torch_grid.step.integrators import INTEGRATORS
 
 
 def _ops_per_step(view, batch: int = 4) -> dict[str, int]:

@@ -32,8 +32,8 @@ HERE = Path(__file__).resolve().parent
 ERD = Path(sys.prefix) / "lib" / f"python{sys.version_info[0]}.{sys.version_info[1]}" / "site-packages" / \
     "cmeel.prefix" / "share" / "example-robot-data" / "robots"
 ROBOTS = {
-    "iiwa14": (str(torch_grid.parse.ROBOTS_DIR / "iiwa14.urdf"), False, "iiwa14"),
-    "go2": (str(torch_grid.parse.ROBOTS_DIR / "go2.urdf"), True, "go2"),
+    "iiwa14": (str(torch_grid.model.parse.ROBOTS_DIR / "iiwa14.urdf"), False, "iiwa14"),
+    "go2": (str(torch_grid.model.parse.ROBOTS_DIR / "go2.urdf"), True, "go2"),
     "g1": (str(ERD / "g1_description" / "urdf" / "g1_29dof_rev_1_0.urdf"), True, None),
 }
 B = 4096
@@ -73,7 +73,7 @@ def _load_seconds(source: str, floating: bool | None, cache: str) -> float:
 def glue_build_time() -> tuple[float, str]:
     """Seconds to build the torch glue into an empty cache, and that cache (kept for build_times)."""
     cache = tempfile.mkdtemp(prefix="torch_grid_bench_")
-    script = "from torch_grid import build; build._load_glue(build._cache_root(None), build._cuda_available())"
+    script = "from torch_grid.ops import build; build._load_glue(build._cache_root(None), build._cuda_available())"
     start = time.perf_counter()
     subprocess.run([sys.executable, "-c", script], env=dict(os.environ, TORCH_GRID_CACHE=cache), check=True,
                    capture_output=True)
@@ -111,10 +111,10 @@ def call_overhead(number: int = 20000) -> list[tuple[str, float]]:
 
 def cuda_stack(name: str = "g1") -> list[str]:
     """Per-thread stack and registers of every float64 CUDA kernel (sm_90), both conventions."""
-    from torch_grid import cuda_report
+    from torch_grid.ops import cuda_report
 
     src, floating, bundled = ROBOTS[name]
-    model = torch_grid.parse.source_to_model(bundled or src, floating)
+    model = torch_grid.model.parse.source_to_model(bundled or src, floating)
     rows = ["| op | convention | registers | stack (bytes) | spill stores / loads (bytes) |", "|---|---|---|---|---|"]
     for u in cuda_report.report(model, ("float64",)):
         rows.append(f"| {u.op} | {u.convention} | {u.registers} | {u.stack} | {u.spill_stores} / {u.spill_loads} |")
@@ -347,7 +347,7 @@ def main() -> None:
     text += ("\n\nCall overhead: one small call, µs (best of 7 x 20000; iiwa14, float64, CPU).\n\n| call | µs |\n|---|---|\n"
              + "\n".join(f"| {call} | {us:.2f} |" for call, us in overhead) + "\n")
     if args.cuda:
-        text += ("\n## CUDA per-thread resources, G1 humanoid (float64, sm_90)\n\nFrom `python -m torch_grid.cuda_report` "
+        text += ("\n## CUDA per-thread resources, G1 humanoid (float64, sm_90)\n\nFrom `python -m torch_grid.ops.cuda_report` "
                  "(ptxas, no GPU needed): local memory a GPU reserves for every resident thread; budget 64 KiB.\n\n"
                  + "\n".join(cuda_stack()) + "\n")
     shutil.rmtree(glue_cache, ignore_errors=True)

@@ -105,7 +105,7 @@ def run_stage(stage: str, robot: str | None, cpu: bool, threads: int) -> int:
     elif stage == "profiled_call":
         gpu_device.profiled_call(_robot("go2"), device)
     elif stage == "resources":
-        from torch_grid.build import _REGISTERED, op_namespace
+        from torch_grid.ops.build import _REGISTERED, op_namespace
 
         libraries = {name: _REGISTERED[op_namespace(_robot(name).model.kernel_model, True)]
                      for name in ("iiwa14", "go2", "g1", "humanoid", "gripper") if (MODELS_DIR / f"{name}.json").exists()}

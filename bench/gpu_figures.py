@@ -138,7 +138,7 @@ def _kernel_of(mangled: str) -> tuple[str, str, str] | None:
 
 
 def _cuda_tool(name: str) -> str | None:
-    from torch_grid.build import cuda_home
+    from torch_grid.ops.build import cuda_home
 
     home = cuda_home()
     found = shutil.which(name) or (str(home / "bin" / name) if home and (home / "bin" / name).exists() else None)

@@ -20,7 +20,7 @@ MODELS = {
 
 def model_of(name: str):
     """The RobotModel of one robot of MODELS."""
-    from torch_grid.parse import source_to_model
+    from torch_grid.model.parse import source_to_model
 
     if name in ("iiwa14", "go2", "humanoid"):
         return source_to_model(name, None)

@@ -5,7 +5,7 @@
 writes bench/gpu/models/<robot>.json, each robot of the check as a saved model (torch_grid.load reads
 it without Pinocchio or MuJoCo), and into --out:
   - prebuilt.tar.xz: the objects of every CUDA unit of those robots, compiled by nvcc for --arch, each
-    named by its digest (torch_grid.build.cuda_unit_digest). With TORCH_GRID_PREBUILT pointing at the
+    named by its digest (torch_grid.ops.build.cuda_unit_digest). With TORCH_GRID_PREBUILT pointing at the
     unpacked folder and TORCH_GRID_CUDA_ARCH=--arch, a build takes an object only where the digest of
     the unit it generates matches, so a stale object is never used: that unit is compiled there.
 No GPU is needed. Objects already in --out/prebuilt are kept (compiled once per digest).
@@ -38,8 +38,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     os.environ["TORCH_GRID_CUDA_ARCH"] = args.arch  # before the flags are read
 
-    from torch_grid import build, codegen
-    from torch_grid.model import RobotModel
+    from torch_grid.ops import build, codegen
+    from torch_grid.model.description import RobotModel
 
     out = Path(args.out)
     objects = out / "prebuilt"
@@ -68,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
         def compile_unit(job):
             label, unit, target = job
             partial = target.with_suffix(".partial")
-            cmd = [build._nvcc(), *build._nvcc_flags(), f"-I{build.CSRC}", f"-I{unit.parent}", "-c", str(unit),
+            cmd = [build.find_nvcc(), *build.nvcc_flags(), f"-I{build.CSRC}", f"-I{unit.parent}", "-c", str(unit),
                    "-o", str(partial)]
             result = subprocess.run(cmd, capture_output=True, text=True)
             if result.returncode:

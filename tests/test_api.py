@@ -239,7 +239,7 @@ def test_meta_tensors_propagate_shapes(robots):
 def test_fake_shapes_broadcast_as_the_kernels(robots):
     """Every op's fake implementation (torch.compile's shapes) broadcasts the inputs' leading dimensions as
     the kernels do: q unbatched with the other tensors batched, and the other way round."""
-    from torch_grid.ops import OPS, model_sizes
+    from torch_grid.ops.table import OPS, model_sizes
 
     robot = robots["go2"]
     ops, sizes = robot._ops, model_sizes(robot._func._model)

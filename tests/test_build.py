@@ -16,7 +16,7 @@ import pytest
 import torch
 
 import torch_grid
-from torch_grid import build
+from torch_grid.ops import build
 
 PENDULUM = """<robot name="pendulum{tag}">
   <link name="base"/>
@@ -187,8 +187,8 @@ def test_op_table_limits_are_checked_when_it_is_built():
     import dataclasses
     import re
 
-    from torch_grid import ops
-    from torch_grid.build import CSRC
+    from torch_grid.ops import table as ops
+    from torch_grid.ops.build import CSRC
 
     header = (CSRC / "batch.h").read_text()
     assert f"kMaxIn = {ops.MAX_TENSOR_INPUTS}, kMaxOut = {ops.MAX_OUTPUTS}," in header
@@ -221,7 +221,9 @@ def test_kernels_bind_arguments_by_name(tmp_path, rename):
 
     import pinocchio as pin
 
-    from torch_grid import codegen, ops, parse
+    from torch_grid.model import parse
+    from torch_grid.ops import codegen
+    from torch_grid.ops import table as ops
 
     table = dict(ops.OPS)
     if rename:

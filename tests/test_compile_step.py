@@ -1,4 +1,4 @@
-"""torch.compile of the plant step: one op per step in the graph (torch_grid/step_op.py), whatever the
+"""torch.compile of the plant step: one op per step in the graph (torch_grid/step/compiled.py), whatever the
 root and the integrator, and a compiled rollout's values and gradients equal the eager ones."""
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from oracles import rel_err
-from torch_grid.integrators import INTEGRATORS
+from torch_grid.step.integrators import INTEGRATORS
 
 
 def _state(view, nv, batch, seed):

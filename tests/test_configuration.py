@@ -1,4 +1,4 @@
-"""integrate, difference and their Jacobians (torch_grid/configuration.py) against Pinocchio's Lie
+"""integrate, difference and their Jacobians (torch_grid/space/lie.py) against Pinocchio's Lie
 groups (pin.integrate, difference, dIntegrate, dDifference) and MuJoCo's mj_integratePos,
 mj_differentiatePos, mjd_quatIntegrate and mjd_subQuat; autograd through them to second order.
 The functions need no kernels: most tests run them on a Space; one goes through a built robot."""
@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from test_quaternion_joints import BALLS, pin_ball_model, random_qpos
-from torch_grid.configuration import Space, d_difference, d_integrate, difference, integrate
+from torch_grid.space.lie import Space, d_difference, d_integrate, difference, integrate
 
 TOL = 1e-10  # Pinocchio and MuJoCo evaluate the same formulas in another order (log near pi)
 # rotation scales: generic, beyond pi (the short way back), tiny and zero (the Taylor branches)

@@ -1,4 +1,4 @@
-"""Costs and barriers (torch_grid/costs.py): gradients against central differences along the tangent
+"""Costs and barriers (torch_grid/optim/costs.py): gradients against central differences along the tangent
 spaces, the Gauss-Newton Hessian against the exact one where the residual vanishes, the placement
 residual against Pinocchio's log6, autograd through the values, the barriers' pieces."""
 from __future__ import annotations
@@ -10,7 +10,7 @@ import torch
 
 import torch_grid
 from oracles import rel_err
-from torch_grid.configuration import _rotation
+from torch_grid.space.lie import _rotation
 
 
 def _cases(view, robot, q, qd, at_zero: bool):
@@ -105,7 +105,7 @@ def test_control_cost_and_barriers():
     g = torch.Generator().manual_seed(4)
     x, ref, w = (torch.randn(2, 5, dtype=torch.float64, generator=g) for _ in range(3))
     w = w.abs()
-    robot_free = torch_grid.costs.CostFunctions()
+    robot_free = torch_grid.optim.costs.CostFunctions()
     value, grad, hess = robot_free.control_cost(x, ref, w)
     assert torch.allclose(value, 0.5 * (w * (x - ref) ** 2).sum(-1)) and torch.allclose(grad, w * (x - ref))
     assert torch.equal(hess, torch.diag_embed(w))

@@ -12,9 +12,9 @@ import pytest
 import torch
 
 import torch_grid
-from torch_grid import codegen
-from torch_grid.build import CSRC
-from torch_grid.ops import OPS
+from torch_grid.ops import codegen
+from torch_grid.ops.build import CSRC
+from torch_grid.ops.table import OPS
 
 from functions import FUNCTIONS
 
@@ -62,8 +62,8 @@ def test_cuda_stack_budget_on_a_humanoid(erd_robots_dir):
     """Per-thread local memory of every float64 CUDA kernel of the G1 humanoid (floating, both
     conventions), compiled for sm_90 as a build compiles it: at most 64 KiB, and the core kernels at
     most half of what they took before their workspaces were cut."""
-    from torch_grid import cuda_report
-    from torch_grid.parse import source_to_model
+    from torch_grid.ops import cuda_report
+    from torch_grid.model.parse import source_to_model
 
     model = source_to_model(str(erd_robots_dir / "g1_description" / "urdf" / "g1_29dof_rev_1_0.urdf"), True)
     usages = cuda_report.report(model, ("float64",), "sm_90", NVCC)

@@ -173,7 +173,7 @@ def test_mujoco_regressors(robots, mj_sims, name):
 def test_forward_dynamics_parameter_gradient_vs_finite_differences(robots, tmp_path):
     """Perturb one body's dynamic parameters in the model itself, rebuild, and difference qdd."""
     import torch_grid
-    from torch_grid.model import Joint, RobotModel
+    from torch_grid.model.description import Joint, RobotModel
 
     robot = robots["go2"]
     body = robot.nbodies - 1

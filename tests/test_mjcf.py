@@ -13,7 +13,7 @@ import pytest
 import torch
 
 import torch_grid
-from torch_grid.parse import source_to_model
+from torch_grid.model.parse import source_to_model
 
 MODEL = """
 <mujoco model="zoo">
@@ -317,7 +317,7 @@ def test_bundled_humanoid_matches_mujoco(tmp_path):
     """The bundled MJCF robot (multi-hinge bodies, armature, damping, springs), loaded by name from its
     JSON, against MuJoCo compiling its XML."""
     robot = torch_grid.load("humanoid", convention="mujoco", cache_dir=tmp_path)
-    m = rigid_only(mujoco.MjModel.from_xml_path(str(torch_grid.parse.ROBOTS_DIR / "humanoid.xml")))
+    m = rigid_only(mujoco.MjModel.from_xml_path(str(torch_grid.model.parse.ROBOTS_DIR / "humanoid.xml")))
     assert robot.joint_names == [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(m.njnt)]
     d = mujoco.MjData(m)
     for qpos, qvel, qacc in states(m, 2, seed=8):

@@ -13,8 +13,8 @@ import pytest
 import torch
 
 import torch_grid
-from torch_grid.model import Mimic, RobotModel
-from torch_grid.parse import ROBOTS_DIR, source_to_model
+from torch_grid.model.description import Mimic, RobotModel
+from torch_grid.model.parse import ROBOTS_DIR, source_to_model
 
 ARM_MJCF = """
 <mujoco model="arm">

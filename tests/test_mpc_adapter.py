@@ -1,4 +1,4 @@
-"""torch_grid.mpc_adapter.MPCDynamics with mpc.pytorch (GradMethods.ANALYTIC): its R, S are the
+"""torch_grid.optim.mpc_adapter.MPCDynamics with mpc.pytorch (GradMethods.ANALYTIC): its R, S are the
 Jacobians of its forward in x's own coordinates (against autograd, with non-unit quaternions), they
 have a backward, and mpc.pytorch's solve and its gradients with them equal those with AUTO_DIFF."""
 from __future__ import annotations
@@ -8,7 +8,7 @@ import torch
 from mpc import mpc
 
 from oracles import rel_err
-from torch_grid.mpc_adapter import MPCDynamics
+from torch_grid.optim.mpc_adapter import MPCDynamics
 
 
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])

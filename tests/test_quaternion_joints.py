@@ -146,7 +146,7 @@ def test_layout(balls):
 def test_ambient_direction_is_the_tangent_matrix_product(balls, convention):
     """tangent.ambient_direction (a tangent vector pushed to q's coordinates) against the product with the
     explicit nv x nq matrix of tangent_directions, at non-unit quaternions, with u's batch broadcast."""
-    from torch_grid.tangent import ambient_direction, tangent_directions
+    from torch_grid.space.tangent import ambient_direction, tangent_directions
 
     robot, _ = balls
     view = robot.mujoco if convention else robot.pin

@@ -18,7 +18,7 @@ from pinocchio_cpp_oracle import rnea_second_order
 from mjcf_models import TREES
 from test_mjcf import MODEL as ZOO
 from test_quaternion_joints import pin_ball_model
-from torch_grid.tangent import tangent_to_ambient
+from torch_grid.space.tangent import tangent_to_ambient
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ import textwrap
 import torch
 
 import torch_grid
-from torch_grid.build import op_namespace
+from torch_grid.ops.build import op_namespace
 
 
 def _check_same(a, b, q):

@@ -1,4 +1,4 @@
-"""The plant step and its Jacobians (torch_grid/integrators.py): against MuJoCo's mj_step (Euler and
+"""The plant step and its Jacobians (torch_grid/step/integrators.py): against MuJoCo's mj_step (Euler and
 RK4), the same schemes written with Pinocchio's aba and integrate, Crocoddyl's semi-implicit Euler
 derivatives written with Pinocchio, and central differences; autograd through step to second order."""
 from __future__ import annotations
@@ -11,7 +11,7 @@ import torch
 from torch.autograd import forward_ad
 
 from oracles import rel_err
-from torch_grid.integrators import INTEGRATORS, RK_FUSED, TABLEAUS
+from torch_grid.step.integrators import INTEGRATORS, RK_FUSED, TABLEAUS
 
 MJ_INTEGRATORS = {"semi_implicit_euler": mujoco.mjtIntegrator.mjINT_EULER, "rk4": mujoco.mjtIntegrator.mjINT_RK4}
 
@@ -345,7 +345,7 @@ def test_runge_kutta_hessian_in_pieces(robots, monkeypatch):
     """rk4's step Hessian over a batch in pieces (here of four samples and then two, sharing one set of
     buffers) equals the whole batch's, in its leading shape of two dimensions, with a per-sample dt; an
     empty batch gives an empty Hessian."""
-    import torch_grid.rk_hessian as rk_hessian
+    import torch_grid.step.rk_hessian as rk_hessian
 
     robot = robots["go2"]
     nv = robot.nv
@@ -444,7 +444,7 @@ def test_large_batches_go_in_pieces(robots, monkeypatch):
     """Under autograd (the torch composition) a batch above integrators.CHUNK samples is split (here at 2)
     and put back in its shape: the same A, B as one piece, with a per-sample dt and a leading batch of two
     dimensions."""
-    import torch_grid.integrators as integrators
+    import torch_grid.step.integrators as integrators
 
     robot = robots["go2"]
     g = torch.Generator().manual_seed(9)

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from oracles import rel_err
-from torch_grid.integrators import INTEGRATORS
+from torch_grid.step.integrators import INTEGRATORS
 
 # the leading batch shapes of (q, qd, tau)
 SHAPES = {"unbatched": ((), (), ()), "batched": ((3,), (3,), (3,)), "broadcast": ((3,), (1,), ())}

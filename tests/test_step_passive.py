@@ -15,8 +15,8 @@ import torch_grid
 from mjcf_models import DAMPED_FLOATING, DAMPED_PLANAR
 from oracles import rel_err
 from test_step import _mj_step_differences
-from torch_grid.integrators import INTEGRATORS
-from torch_grid.mpc_adapter import MPCDynamics
+from torch_grid.step.integrators import INTEGRATORS
+from torch_grid.optim.mpc_adapter import MPCDynamics
 
 MODELS = {"planar": DAMPED_PLANAR, "floating": DAMPED_FLOATING}
 MJ_INTEGRATORS = {"semi_implicit_euler": mujoco.mjtIntegrator.mjINT_EULER, "rk4": mujoco.mjtIntegrator.mjINT_RK4}

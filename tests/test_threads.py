@@ -7,8 +7,8 @@ import pytest
 import torch
 
 import torch_grid
-from torch_grid import codegen
-from torch_grid.ops import CPU_SAMPLE_US, CPU_THREAD_NS, OPS, cpu_grain, cpu_sample_ns
+from torch_grid.ops import codegen
+from torch_grid.ops.table import CPU_SAMPLE_US, CPU_THREAD_NS, OPS, cpu_grain, cpu_sample_ns
 
 BATCHES = (1, 7, 64, 1000)
 

@@ -10,8 +10,8 @@ import pinocchio as pin
 import pytest
 
 import torch_grid
-from torch_grid.model import Frame, Joint, RobotModel, check_triangle_inequality
-from torch_grid.parse import ROBOTS_DIR, source_to_model
+from torch_grid.model.description import Frame, Joint, RobotModel, check_triangle_inequality
+from torch_grid.model.parse import ROBOTS_DIR, source_to_model
 
 URDF = """<robot name="arm">
   <link name="base"/>

@@ -6,15 +6,15 @@ from collections.abc import Mapping
 from dataclasses import replace as _replace
 from pathlib import Path
 
-from . import conventions
-from .autograd import register_autograd
-from .build import build as _build
-from .build import release_kept_blocks
-from .costs import log_barrier, quadratic_barrier
-from .integrators import INTEGRATORS
-from .model import Frame, Joint, RobotModel, check_triangle_inequality, with_armature
-from .parse import BUNDLED, from_pinocchio, source_to_model
+from .model.description import Frame, Joint, RobotModel, check_triangle_inequality, with_armature
+from .model.parse import BUNDLED, from_pinocchio, source_to_model
+from .ops.autograd import register_autograd
+from .ops.build import build as _build
+from .ops.build import release_kept_blocks
+from .optim.costs import log_barrier, quadratic_barrier
 from .robot import Robot, RobotView
+from .space import conventions
+from .step.integrators import INTEGRATORS
 
 __all__ = ["load", "Robot", "RobotView", "RobotModel", "Joint", "Frame", "conventions", "from_pinocchio", "BUNDLED",
            "INTEGRATORS", "log_barrier", "quadratic_barrier", "empty_cache"]

@@ -10,23 +10,54 @@ from typing import Sequence
 
 import torch
 
-from . import mujoco_second_order
-from .arguments import _batch_shape, _check_tensor, _checked, _forward_mode, _reference
-from .configuration import ConfigurationFunctions, Space
-from .costs import CostFunctions
-from .horizon import HorizonFunctions
-from .integrators import StepFunctions
-from .func import FORWARD_MODE, FuncOps, traced_transform
-from .mimic import Coupling
-from .model import RobotModel, inertia_about_origin
-from .ops import OPS, model_sizes
-from .fd_second_order import second_order
-from .passive import PassiveForces
-from .step_op import step_op
-from .pose import PoseDerivatives
+from .model.description import RobotModel, inertia_about_origin
+from .ops import mujoco_second_order
+from .ops.arguments import check_batch_shape, check_dt, check_tensor, checked, forward_mode, reference_code
+from .ops.fd_second_order import second_order
+from .ops.func import FORWARD_MODE, FuncOps, traced_transform
+from .ops.mimic import Coupling
+from .ops.pose import PoseDerivatives
+from .ops.table import OPS, model_sizes
+from .optim.costs import CostFunctions
+from .optim.horizon import HorizonFunctions
+from .space import lie
+from .space.lie import Space
+from .step.compiled import step_op
+from .step.integrators import StepFunctions
+from .step.passive import PassiveForces
 
 _CPU, _CUDA = torch._C.DispatchKeySet(torch._C.DispatchKey.CPU), torch._C.DispatchKeySet(torch._C.DispatchKey.CUDA)
 CONVENTIONS = {"pin": 0, "pinocchio": 0, "mujoco": 1, "mjx": 1}
+
+
+class ConfigurationFunctions:
+    """The configuration-space functions of a robot's views (space/lie.py), their arguments checked (mixed
+    into _Functions, which provides `_robot` with its `_space`, and `_convention`)."""
+
+    def integrate(self, q: torch.Tensor, v: torch.Tensor, dt=1.0) -> torch.Tensor:
+        """(..., nq): q (+) v dt, Pinocchio's integrate or MuJoCo's mj_integratePos; q (..., nq), v (..., nv),
+        dt a number or a (...,) tensor."""
+        return lie.integrate(self._robot._space, *self._configuration_checked("integrate", q, v, dt), dt, self._convention)
+
+    def difference(self, q0: torch.Tensor, q1: torch.Tensor) -> torch.Tensor:
+        """(..., nv): v with q0 (+) v = q1, Pinocchio's difference or MuJoCo's mj_differentiatePos (dt = 1)."""
+        return lie.difference(self._robot._space, *self._configuration_checked("difference", q0, q1), self._convention)
+
+    def d_integrate(self, q: torch.Tensor, v: torch.Tensor, dt=1.0) -> tuple[torch.Tensor, torch.Tensor]:
+        """(d/dq, d/dv) of integrate along the tangent spaces, each (..., nv, nv) (Pinocchio's dIntegrate)."""
+        return lie.d_integrate(self._robot._space, *self._configuration_checked("d_integrate", q, v, dt), dt, self._convention)
+
+    def d_difference(self, q0: torch.Tensor, q1: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(d/dq0, d/dq1) of difference along the tangent spaces, each (..., nv, nv) (Pinocchio's dDifference)."""
+        return lie.d_difference(self._robot._space, *self._configuration_checked("d_difference", q0, q1), self._convention)
+
+    def _configuration_checked(self, op: str, q: torch.Tensor, x: torch.Tensor, dt=1.0) -> tuple[torch.Tensor, torch.Tensor]:
+        space = self._robot._space
+        second = ("v", (space.nv,)) if op.endswith("integrate") else ("q1", (space.nq,))
+        check_tensor(op, "q0" if second[0] == "q1" else "q", q, (space.nq,), q)
+        check_tensor(op, second[0], x, second[1], q)
+        check_dt(op, dt, q, x)
+        return q, x
 
 
 class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFunctions, PoseDerivatives):
@@ -126,13 +157,13 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         reference: "local_world_aligned" (frame origin, world axes), "local" (frame axes) or
         "world" (spatial velocity at the world origin).
         """
-        return self._call("frame_jacobian", q, self._robot.frame_index(frame, "frame"), _reference(reference))
+        return self._call("frame_jacobian", q, self._robot.frame_index(frame, "frame"), reference_code(reference))
 
     def frame_kinematic_hessian(self, q, frame: str | int, reference: str = "local_world_aligned") -> torch.Tensor:
         """Kinematic Hessian (..., 6, nv, nv) of a frame: H[..., :, j, k] = d J[..., :, j] / dq_k along the
         tangent, J = frame_jacobian(q, frame, reference) (Pinocchio's getFrameKinematicHessian).
         In the MuJoCo convention, d/dq_k of its Jacobian (qvel's frame) along mj_integratePos's tangent."""
-        index, ref = self._robot.frame_index(frame, "frame"), _reference(reference)
+        index, ref = self._robot.frame_index(frame, "frame"), reference_code(reference)
         if self._differs():
             return mujoco_second_order.frame_kinematic_hessian(self._robot, q, index, ref)
         return self._call("frame_kinematic_hessian", q, index, ref)
@@ -140,7 +171,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
     def frame_jacobian_dot(self, q, qd, frame: str | int, reference: str = "local_world_aligned") -> torch.Tensor:
         """Time derivative (..., 6, nv) of frame_jacobian at velocity qd (Pinocchio's
         getFrameJacobianTimeVariation); in MuJoCo's convention, of its Jacobian with qvel fixed."""
-        return self._call("frame_jacobian_dot", q, qd, self._robot.frame_index(frame, "frame"), _reference(reference))
+        return self._call("frame_jacobian_dot", q, qd, self._robot.frame_index(frame, "frame"), reference_code(reference))
 
     def body_velocities(self, q, qd) -> torch.Tensor:
         """Spatial velocity [linear; angular] (..., nbodies, 6) of each body, in its joint frame."""
@@ -185,7 +216,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         base d2tau_dq2 is not symmetric in j, k. Passive forces are linear in q and qd: no term here.
         In the MuJoCo convention, the derivatives of its first derivatives along mj_integratePos's tangent,
         qvel and qacc held fixed in MuJoCo's frame; with free joints, composed in torch from Pinocchio's
-        tensors (torch_grid/mujoco_second_order.py).
+        tensors (torch_grid/ops/mujoco_second_order.py).
         """
         if self._differs():
             return mujoco_second_order.inverse_dynamics_second_order_mujoco(self._robot, q, qd, qdd, f_ext)
@@ -221,13 +252,13 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
 
     def inverse_dynamics_external_force_gradient(self, q) -> torch.Tensor:
         """d inverse_dynamics / d f_ext (..., nv, nbodies, 6) = -J_k^T, J_k body k's Jacobian in its joint frame."""
-        if _forward_mode((q,)):
+        if forward_mode((q,)):
             return -self._body_jacobians(q)
         return self._call("inverse_dynamics_external_force_gradient", q)
 
     def forward_dynamics_external_force_gradient(self, q) -> torch.Tensor:
         """d forward_dynamics / d f_ext (..., nv, nbodies, 6) = M^-1 J_k^T."""
-        if _forward_mode((q,)):
+        if forward_mode((q,)):
             return (self.minv(q) @ self._body_jacobians(q).flatten(-2)).unflatten(-1, (self._robot.nbodies, 6))
         return self._call("forward_dynamics_external_force_gradient", q)
 
@@ -248,10 +279,10 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         if dofs < 6:
             raise ValueError(f"osc_inertia: frame {robot.frame_names[index]!r} is moved by {dofs} dofs; its operational-"
                              "space inertia exists only for a frame with full 6-dof mobility")
-        if _forward_mode((q,)):  # composed of ops that have a forward mode (the kernel has none)
+        if forward_mode((q,)):  # composed of ops that have a forward mode (the kernel has none)
             J = self.frame_jacobian(q, index, reference)
             return torch.linalg.inv(J @ self.minv(q) @ J.mT)
-        return self._call("osc_inertia", q, index, _reference(reference))
+        return self._call("osc_inertia", q, index, reference_code(reference))
 
     def cmm_time_variation(self, q, qd) -> torch.Tensor:
         """Time derivative dA/dt (..., 6, nv) of the centroidal momentum matrix (Pinocchio's
@@ -268,7 +299,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         along the tangent (as dccrba). Column j of A is the momentum at qd = e_j, so this is
         dccrba at each unit velocity: nv times its cost."""
         nv = self._robot.nv
-        _check_tensor("centroidal_map_gradient", "q", q, (self._robot.nq,), q)
+        check_tensor("centroidal_map_gradient", "q", q, (self._robot.nq,), q)
         unit = torch.eye(nv, dtype=q.dtype, device=q.device)
         dh = self.dccrba(q.unsqueeze(-2).expand(*q.shape[:-1], nv, q.shape[-1]), unit.expand(*q.shape[:-1], nv, nv))
         return dh.movedim(-3, -2)
@@ -293,7 +324,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
 
     def forward_dynamics_parameter_gradient(self, q, qd, tau) -> torch.Tensor:
         """d forward_dynamics / d inertial_parameters (..., nv, 10 nbodies) = -M^-1 Y at qdd = FD."""
-        if _forward_mode((q, qd, tau)):  # composed of ops that have a forward mode (the kernel has none)
+        if forward_mode((q, qd, tau)):  # composed of ops that have a forward mode (the kernel has none)
             return -(self.minv(q) @ self.inverse_dynamics_regressor(q, qd, self.forward_dynamics(q, qd, tau)))
         if self._robot._with_passive:
             tau = tau + self._robot._passive(q, qd)
@@ -319,7 +350,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         Returns:
             (*batch_shape, nq), every row the same configuration.
         """
-        batch_shape = _batch_shape("neutral_configuration", batch_shape)
+        batch_shape = check_batch_shape("neutral_configuration", batch_shape)
         model = self._robot.model
         q = torch.zeros(*batch_shape, model.nq, dtype=dtype, device=device)
         for joint, qi in zip(model.joints, model.q_index):
@@ -340,7 +371,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         Returns:
             (*batch_shape, nq).
         """
-        batch_shape = _batch_shape("random_configuration", batch_shape)
+        batch_shape = check_batch_shape("random_configuration", batch_shape)
         model, cols = self._robot.model, []
         for joint in model.joints:
             if joint.type in ("free", "ball"):
@@ -367,7 +398,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         coupling = self._robot._coupling
         if coupling is None:
             return self._kernel_call(name, *args)
-        return coupling.call(self._kernel_call, name, _checked(name, coupling.tensor_args[name], args))
+        return coupling.call(self._kernel_call, name, checked(name, coupling.tensor_args[name], args))
 
     def _kernel_call(self, name: str, *args):
         """Op `name` of the kernels (every joint independent), in this view's convention."""
@@ -375,19 +406,19 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         op = getattr(robot._ops, name)
         if torch.compiler.is_compiling():
             if traced_transform():
-                return _func_call_eagerly(robot._func, name, *_checked(name, robot._tensor_args[name], args),
+                return _func_call_eagerly(robot._func, name, *checked(name, robot._tensor_args[name], args),
                                           self._convention)
-            return op(*_checked(name, robot._tensor_args[name], args), self._convention)
+            return op(*checked(name, robot._tensor_args[name], args), self._convention)
         stack = torch._C._functorch.get_interpreter_stack()
-        forward = _forward_mode(args, stack)
+        forward = forward_mode(args, stack)
         if forward and name not in FORWARD_MODE:
             # without this check forward mode would return zero tangents
             raise NotImplementedError(f"torch_grid: {name} has no forward-mode derivative (torch.func.jvp, jacfwd, "
                                       "hessian, torch.autograd.forward_ad); use reverse mode (backward, torch.func.jacrev)")
         if stack or forward:  # each op through an autograd.Function that torch.func and forward AD transform
-            return robot._func.call(name, *_checked(name, robot._tensor_args[name], args), self._convention)
+            return robot._func.call(name, *checked(name, robot._tensor_args[name], args), self._convention)
         if torch.is_grad_enabled() and torch._C._any_requires_grad(*args):
-            return op(*_checked(name, robot._tensor_args[name], args), self._convention)
+            return op(*checked(name, robot._tensor_args[name], args), self._convention)
         # Nothing to differentiate: go straight to the CPU or CUDA kernel, past the (Python) autograd
         # kernel that is most of a small call's cost, and let the glue check the arguments and broadcast
         # their batch shapes. Only when it refuses them are they checked here, to word the error (the
@@ -395,11 +426,11 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         q = args[0]
         keyset = (_CPU if q.is_cpu else _CUDA if q.is_cuda else None) if isinstance(q, torch.Tensor) else None
         if keyset is None:
-            return op(*_checked(name, robot._tensor_args[name], args), self._convention)
+            return op(*checked(name, robot._tensor_args[name], args), self._convention)
         try:
             return op.default.redispatch(keyset, *args, self._convention)
         except RuntimeError:
-            args = _checked(name, robot._tensor_args[name], args)
+            args = checked(name, robot._tensor_args[name], args)
         return op.default.redispatch(keyset, *args, self._convention)
 
 

@@ -7,12 +7,12 @@ import numbers
 import torch
 
 from .func import dual
-from .ops import OPS
+from .table import OPS
 
 REFERENCES = {"world": 0, "local": 1, "local_world_aligned": 2}
 
 
-def _check_tensor(op: str, name: str, x, trailing: tuple[int, ...], q) -> None:
+def check_tensor(op: str, name: str, x, trailing: tuple[int, ...], q) -> None:
     """Refuse `x` unless it is a float32 or float64 tensor of shape (..., *trailing) with q's dtype and device."""
     if not isinstance(x, torch.Tensor):
         raise TypeError(f"{op}: {name} must be a torch.Tensor, got {type(x).__name__}")
@@ -27,14 +27,14 @@ def _check_tensor(op: str, name: str, x, trailing: tuple[int, ...], q) -> None:
         raise ValueError(f"{op}: {name} must have shape ({want}), got {tuple(x.shape)}")
 
 
-def _checked(op: str, tensor_args, args) -> list:
+def checked(op: str, tensor_args, args) -> list:
     """The arguments checked (each error names the argument, what was expected and what was received),
     with every tensor expanded to the broadcast of their leading batch shapes."""
     names = [a.name for a in OPS[op].args]
     q = args[0]
     for k, trailing in tensor_args:
         if args[k] is not None:
-            _check_tensor(op, names[k], args[k], tuple(trailing), q)
+            check_tensor(op, names[k], args[k], tuple(trailing), q)
     shapes = {k: tuple(args[k].shape[: args[k].dim() - len(trailing)]) for k, trailing in tensor_args
               if args[k] is not None}
     # torch's broadcasting rule on the batch shapes (torch.broadcast_shapes costs tens of µs)
@@ -52,7 +52,7 @@ def _checked(op: str, tensor_args, args) -> list:
     return args
 
 
-def _batch_shape(op: str, batch_shape: tuple) -> tuple[int, ...]:
+def check_batch_shape(op: str, batch_shape: tuple) -> tuple[int, ...]:
     """A sampler's `*batch_shape`: non-negative integers (dtype and device are keyword arguments)."""
     for size in batch_shape:
         if isinstance(size, bool) or not isinstance(size, numbers.Integral) or size < 0:
@@ -61,7 +61,7 @@ def _batch_shape(op: str, batch_shape: tuple) -> tuple[int, ...]:
     return tuple(int(size) for size in batch_shape)
 
 
-def _forward_mode(args, stack=None) -> bool:
+def forward_mode(args, stack=None) -> bool:
     """Whether forward-mode AD sees the call: a torch.func jvp transform (in `stack`, torch.func's
     interpreter stack, read when not given), or a forward_ad dual argument (never while torch.compile
     traces, which runs the kernels)."""
@@ -72,9 +72,25 @@ def _forward_mode(args, stack=None) -> bool:
     return (bool(stack) and any(i.key() == torch._C._functorch.TransformType.Jvp for i in stack)) or dual(args)
 
 
-def _reference(reference) -> int:
+def reference_code(reference) -> int:
     """The code of a frame Jacobian's reference frame, given by name (REFERENCES)."""
     ref = REFERENCES.get(reference.lower()) if isinstance(reference, str) else None
     if ref is None:
         raise ValueError(f"reference must be one of {sorted(REFERENCES)}, got {reference!r}")
     return ref
+
+
+def check_dt(op: str, dt, q: torch.Tensor, *others: torch.Tensor) -> None:
+    """dt must be a real number, or a tensor of q's dtype and device whose shape broadcasts with the batch
+    shape of q and the others."""
+    if isinstance(dt, torch.Tensor):
+        if dt.dtype != q.dtype or dt.device != q.device:
+            raise TypeError(f"{op}: dt must have q's dtype and device ({q.dtype}, {q.device}), got {dt.dtype}, "
+                            f"{dt.device}")
+        try:
+            torch.broadcast_shapes(dt.shape, *(x.shape[:-1] for x in (q, *others) if isinstance(x, torch.Tensor)))
+        except RuntimeError:
+            raise ValueError(f"{op}: dt must be a number or a tensor of the batch shape, got shape {tuple(dt.shape)} "
+                             f"with q {tuple(q.shape)}") from None
+    elif not isinstance(dt, numbers.Real) or isinstance(dt, bool):
+        raise TypeError(f"{op}: dt must be a number or a tensor, got {type(dt).__name__}")

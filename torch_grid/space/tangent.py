@@ -13,9 +13,9 @@ from dataclasses import dataclass
 
 import torch
 
+from ..model.description import RobotModel
 from .constants import constant
 from .conventions import quaternion_rotation, unit_quaternion
-from .model import RobotModel
 
 
 @dataclass(frozen=True)

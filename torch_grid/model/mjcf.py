@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .model import Frame, Joint, RobotModel
+from .description import Frame, Joint, RobotModel
 
 
 def from_mjcf(text: str, path: Path | None, name: str | None) -> RobotModel:

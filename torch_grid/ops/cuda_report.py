@@ -1,6 +1,6 @@
 """Per-thread resources of a robot's CUDA kernels, measured by the compiler (no GPU needed).
 
-    python -m torch_grid.cuda_report SOURCE [--floating-base] [--dtype float64] [--arch sm_90] [--budget BYTES]
+    python -m torch_grid.ops.cuda_report SOURCE [--floating-base] [--dtype float64] [--arch sm_90] [--budget BYTES]
 
 compiles every CUDA kernel of the robot (both conventions) with nvcc for `--arch` and prints one
 line per kernel: op, dtype, convention, registers, local memory (stack frame) bytes, spill bytes;
@@ -19,10 +19,10 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..model.description import RobotModel
 from . import codegen
-from .build import CSRC, _nvcc, _nvcc_flags, op_namespace
-from .model import RobotModel
-from .ops import OPS
+from .build import CSRC, find_nvcc, nvcc_flags, op_namespace
+from .table import OPS
 
 DEFAULT_BUDGET = 64 * 1024  # bytes of stack per thread
 _DTYPES = {"float32": "f32", "float64": "f64"}
@@ -47,14 +47,14 @@ def report(model: RobotModel, dtypes: tuple[str, ...] = ("float64",), arch: str 
            nvcc: str | None = None, families: tuple[str, ...] | None = None) -> list[KernelUsage]:
     """Compile the robot's CUDA kernels of the given dtypes (and op families, all by default) with
     ptxas verbose output and return the resources of each (op, dtype, convention)."""
-    nvcc = nvcc or _nvcc()
+    nvcc = nvcc or find_nvcc()
     namespace = op_namespace(model, True)
     with tempfile.TemporaryDirectory(prefix="torch_grid_cuda_report_") as tmp:
         src = Path(tmp)
         units = [u for u in codegen.write_robot_sources(model, True, True, namespace, src)
                  if u.suffix == ".cu" and any(u.stem.endswith("_" + _DTYPES[d]) for d in dtypes)
                  and (families is None or u.stem.rsplit("_", 1)[0] in families)]
-        flags = [f for f in _nvcc_flags() if not f.startswith("-arch")] + [f"-arch={arch}", "-Xptxas", "-v"]
+        flags = [f for f in nvcc_flags() if not f.startswith("-arch")] + [f"-arch={arch}", "-Xptxas", "-v"]
 
         def compile_unit(unit: Path) -> str:
             cmd = [nvcc, *flags, f"-I{CSRC}", f"-I{src}", "-c", str(unit), "-o", str(unit.with_suffix(".o"))]
@@ -108,9 +108,9 @@ def _demangle(names: list[str]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from .parse import source_to_model
+    from ..model.parse import source_to_model
 
-    parser = argparse.ArgumentParser(prog="python -m torch_grid.cuda_report", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m torch_grid.ops.cuda_report", description=__doc__.splitlines()[0])
     parser.add_argument("source", help="a bundled robot name, URDF or MJCF path, or saved model (.json)")
     parser.add_argument("--floating-base", action="store_true", help="add a free-flyer root")
     parser.add_argument("--dtype", choices=[*_DTYPES, "both"], default="float64")

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import torch
 
-from .configuration import _dexp_inverse_block, _left_jacobian_inverse, _log3, block_diagonal
+from ..space.lie import block_diagonal, dexp_inverse_block, left_jacobian_inverse, log3
 
 
 class CostFunctions:
@@ -49,10 +49,10 @@ class CostFunctions:
         R, p = rotations[..., index, :, :], positions[..., index, :]
         R_ref, p_ref = target[..., :3, :3], target[..., :3, 3]
         R_rel = R_ref.mT @ R
-        w = _log3(_quaternion_of(R_rel))
+        w = log3(_quaternion_of(R_rel))
         p_rel = R_ref.mT @ (p - p_ref).unsqueeze(-1)
-        r = torch.cat([(_left_jacobian_inverse(w) @ p_rel).squeeze(-1), w], dim=-1)
-        jacobian = _dexp_inverse_block("free", r, 0) @ self.frame_jacobian(q, index, "local")
+        r = torch.cat([(left_jacobian_inverse(w) @ p_rel).squeeze(-1), w], dim=-1)
+        jacobian = dexp_inverse_block("free", r, 0) @ self.frame_jacobian(q, index, "local")
         return _weighted(r, _state_rows(jacobian, qd), _checked_weights("frame_placement_cost", weights, 6))
 
     def com_cost(self, q, qd, target, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -17,9 +17,9 @@ from dataclasses import replace
 from pathlib import Path
 
 from . import mjcf
-from .model import Frame, Joint, Mimic, RobotModel
+from .description import Frame, Joint, Mimic, RobotModel
 
-ROBOTS_DIR = Path(__file__).parent / "robots"
+ROBOTS_DIR = Path(__file__).parent.parent / "robots"
 BUNDLED = {"iiwa14": False, "go2": True, "humanoid": True}  # name -> floating base by default
 
 _REVOLUTE = {"JointModelRX": (1.0, 0.0, 0.0), "JointModelRY": (0.0, 1.0, 0.0), "JointModelRZ": (0.0, 0.0, 1.0)}

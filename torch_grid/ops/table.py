@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import torch
 
-from .model import RobotModel
+from ..model.description import RobotModel
 
 # Tensor argument kinds: their trailing shape (None: the argument's own `shape`). The kind also says
 # how the MuJoCo convention's input becomes Pinocchio's, which every kernel computes in: the

@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import torch
 
-from .configuration import _apply, _dexp_inverse_block, d_integrate_blocks, dexp_inverse
-from .step_hessian import _jacobian_of_j_r, _scaled_acceleration_hessian, chart_hessian, chart_jacobian
+from ..space.lie import apply_matrix, d_integrate_blocks, dexp_inverse, dexp_inverse_block
+from .euler_hessian import chart_hessian, chart_jacobian, jacobian_of_j_r, scaled_acceleration_hessian
 
 # Bytes of one Hessian of a piece of the batch (at least one sample): a stage holds a dozen, which at this
 # size reuse the heap's blocks (larger ones are mapped afresh, and zeroed, on every call: go2 1.3x slower).
@@ -52,12 +52,12 @@ def rk_step_hessian(view, tableau, q, qd, tau, h, f_ext) -> torch.Tensor:
         r = slice(vi, vi + k)
         def jacobian(y, kind=kind, k=k):
             """J = dc/dy of c = dexp(u)^-1 x, y = [u; x], returned twice: jacfwd's output and its aux."""
-            J = torch.func.jacfwd(lambda y: _apply(_dexp_inverse_block(kind, y[:k], convention), y[k:]))(y)
+            J = torch.func.jacfwd(lambda y: apply_matrix(dexp_inverse_block(kind, y[:k], convention), y[k:]))(y)
             return J, J
 
         y = torch.cat([w[:-1, :, r], vs[..., r]], dim=-1).flatten(0, 1)
         K, J = torch.func.vmap(torch.func.jacfwd(jacobian, has_aux=True))(y)
-        dJ = _jacobian_of_j_r(kind, w[..., r].flatten(0, 1), convention)
+        dJ = jacobian_of_j_r(kind, w[..., r].flatten(0, 1), convention)
         jets.append((vi, k, K.unflatten(0, (len(rows), n)), J.unflatten(0, (len(rows), n)),
                      dJ.unflatten(0, (len(rows) + 1, n))))
     out = torch.empty(n, 2 * nv, 3 * nv, 3 * nv, dtype=qd.dtype, device=qd.device)
@@ -93,7 +93,7 @@ def _hessian(view, tableau, q, qd, tau, h, f_ext, stages, w, jets, pool, out):
         """dacc_i, Hacc_i from x = [e; v]'s Jacobian dx (n, 2 nv, N) and Hessians; none: x = z."""
         G = torch.cat(view.forward_dynamics_gradient(qi, vi, tau, f_ext), dim=-1)
         Ha = temp if dx is not None else stage_acc[i]
-        _scaled_acceleration_hessian(view.forward_dynamics_second_order(qi, vi, tau, f_ext), h3.new_ones(()), Ha)
+        scaled_acceleration_hessian(view.forward_dynamics_second_order(qi, vi, tau, f_ext), h3.new_ones(()), Ha)
         if dx is None:
             return G, Ha
         # dx^T Ha dx per output row, with the rows of x = [e; v; tau] dx = [P; E] (E = [0 0 I]) and Ha

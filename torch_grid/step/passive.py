@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import torch
 
-from .fd_second_order import second_order
-from .model import RobotModel
+from ..model.description import RobotModel
+from ..ops.fd_second_order import second_order
 
 
 class PassiveForces:

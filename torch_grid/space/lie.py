@@ -17,15 +17,12 @@ Taylor series (smooth to second order).
 """
 from __future__ import annotations
 
-import numbers
 from dataclasses import dataclass
 
 import torch
 
-from .arguments import _check_tensor
 from .constants import scalar_or_tensor
 from .conventions import quaternion_rotation, unit_quaternion
-from .func import dual, transforming
 from .tangent import broadcast_batch
 
 
@@ -53,7 +50,7 @@ class Space:
 def integrate(space: Space, q: torch.Tensor, v: torch.Tensor, dt, convention: int) -> torch.Tensor:
     """(..., nq): q (+) v dt, for q (..., nq), v (..., nv) and dt a number or a (...,) tensor."""
     q, v = broadcast_batch(q, v)
-    v = v * _dt(dt, v)
+    v = v * dt_column(dt, v)
     parts = []
     for kind, qi, vi in zip(space.kinds, space.qi, space.vi):
         if kind == "scalar":
@@ -68,7 +65,7 @@ def integrate(space: Space, q: torch.Tensor, v: torch.Tensor, dt, convention: in
             if convention:
                 parts.append(p + v_lin)
             else:  # M exp6(v): p + R V(w) v_lin; the quaternion in the input's hemisphere, as Pinocchio's
-                parts.append(p + _apply(quaternion_rotation(quat), _apply(_left_jacobian(w), v_lin)))
+                parts.append(p + apply_matrix(quaternion_rotation(quat), apply_matrix(_left_jacobian(w), v_lin)))
                 turned = torch.where(e[..., 3:] < 0, -turned, turned)
         parts.append(turned[..., [3, 0, 1, 2]] if convention else turned)
     return torch.cat(parts, dim=-1)
@@ -83,11 +80,11 @@ def difference(space: Space, q0: torch.Tensor, q1: torch.Tensor, convention: int
             parts.append(q1[..., qi:qi + 1] - q0[..., qi:qi + 1])
             continue
         a, b = _quaternion(q0, kind, qi, convention), _quaternion(q1, kind, qi, convention)
-        w = _log3(_mul(_conjugate(a), b))
+        w = log3(_mul(_conjugate(a), b))
         if kind == "free":
             dp = q1[..., qi:qi + 3] - q0[..., qi:qi + 3]
             # log6(M0^-1 M1) = (V(w)^-1 R0^T dp, w)
-            parts.append(dp if convention else _apply(_left_jacobian_inverse(w), _apply(quaternion_rotation(a).mT, dp)))
+            parts.append(dp if convention else apply_matrix(left_jacobian_inverse(w), apply_matrix(quaternion_rotation(a).mT, dp)))
         parts.append(w)
     return torch.cat(parts, dim=-1)
 
@@ -97,13 +94,13 @@ def d_integrate(space: Space, q: torch.Tensor, v: torch.Tensor, dt, convention: 
     q, v = broadcast_batch(q, v)
     blocks = d_integrate_blocks(space, q, v, dt, convention)
     eye = torch.eye(space.nv, dtype=v.dtype, device=v.device).expand(*v.shape[:-1], space.nv, space.nv)
-    return tangent_map(blocks, 0, eye), tangent_map(blocks, 1, eye) * _dt(dt, v).unsqueeze(-1)
+    return tangent_map(blocks, 0, eye), tangent_map(blocks, 1, eye) * dt_column(dt, v).unsqueeze(-1)
 
 
 def d_integrate_blocks(space: Space, q: torch.Tensor, v: torch.Tensor, dt, convention: int) -> list:
     """d_integrate without the nv x nv matrices: per quaternion joint (its first velocity index, J_q's
     block, J_v's block / dt); both Jacobians are the identity on the scalar coordinates (J_v: dt)."""
-    v = v * _dt(dt, v)
+    v = v * dt_column(dt, v)
     blocks = []
     for kind, vi in zip(space.kinds, space.vi):
         if kind == "scalar":
@@ -159,7 +156,7 @@ def d_difference(space: Space, q0: torch.Tensor, q1: torch.Tensor, convention: i
         rot_t = _rotation(w).mT
         if kind == "free" and not convention:
             # Jexp6(d)^-1 = [[Jr^-1, -Jr^-1 Q Jr^-1], [0, Jr^-1]], then Ad(exp6(d)^-1) as in d_integrate
-            log = _dexp_inverse_block(kind, d[..., vi:vi + 6], convention)
+            log = dexp_inverse_block(kind, d[..., vi:vi + 6], convention)
             blocks.append((vi, log @ _adjoint_exp6_inverse(d[..., vi:vi + 3], w, rot_t), log))
             continue
         jinv = _right_jacobian_inverse(w)
@@ -182,17 +179,17 @@ def dexp_inverse(space: Space, theta: torch.Tensor, v: torch.Tensor, convention:
     for kind, vi in zip(space.kinds, space.vi):
         n = {"free": 6, "ball": 3}.get(kind, 1)
         parts.append(v[..., vi:vi + n] if kind == "scalar" else
-                     _apply(_dexp_inverse_block(kind, theta[..., vi:vi + n], convention), v[..., vi:vi + n]))
+                     apply_matrix(dexp_inverse_block(kind, theta[..., vi:vi + n], convention), v[..., vi:vi + n]))
     return torch.cat(parts, dim=-1)
 
 
-def d_dexp_inverse_blocks(space: Space, theta: torch.Tensor, v: torch.Tensor, convention: int) -> list:
+def d_dexp_inverse_blocks(space: Space, theta: torch.Tensor, v: torch.Tensor, convention: int,
+                          outer: bool = False) -> list:
     """Per quaternion joint (its first velocity index, d/dtheta block, d/dv block) of dexp_inverse; d/dv
     is the identity elsewhere, d/dtheta zero. d/dtheta by forward-mode AD of the block's closed form, or,
-    inside a torch.autograd.forward_ad level (which torch.func.jacfwd may not nest in), by reverse mode
-    with create_graph, whose own forward-mode derivative the outer level takes."""
+    with `outer` (theta or v carry a torch.autograd.forward_ad tangent, a level torch.func.jacfwd may not
+    nest in), by reverse mode with create_graph, whose own forward-mode derivative the outer level takes."""
     theta, v = broadcast_batch(theta, v)
-    outer = not transforming() and dual((theta, v))
     blocks = []
     for kind, vi in zip(space.kinds, space.vi):
         if kind == "scalar":
@@ -201,7 +198,7 @@ def d_dexp_inverse_blocks(space: Space, theta: torch.Tensor, v: torch.Tensor, co
         t_b, v_b = theta[..., vi:vi + n], v[..., vi:vi + n]
 
         def carried(t, x, kind=kind):
-            return _apply(_dexp_inverse_block(kind, t, convention), x)
+            return apply_matrix(dexp_inverse_block(kind, t, convention), x)
 
         if outer:
             jac = _reverse_jacobian(carried, t_b, v_b)
@@ -209,7 +206,7 @@ def d_dexp_inverse_blocks(space: Space, theta: torch.Tensor, v: torch.Tensor, co
             # contiguous: forward AD cannot write tangents into a broadcast (stride-0) batch
             jac = torch.func.vmap(torch.func.jacfwd(carried))(t_b.reshape(-1, n).contiguous(),
                                                                v_b.reshape(-1, n).contiguous())
-        blocks.append((vi, jac.reshape(*theta.shape[:-1], n, n), _dexp_inverse_block(kind, t_b, convention)))
+        blocks.append((vi, jac.reshape(*theta.shape[:-1], n, n), dexp_inverse_block(kind, t_b, convention)))
     return blocks
 
 
@@ -224,7 +221,7 @@ def _reverse_jacobian(fn, t: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     return torch.stack(rows, dim=-2)
 
 
-def _dexp_inverse_block(kind: str, theta: torch.Tensor, convention: int) -> torch.Tensor:
+def dexp_inverse_block(kind: str, theta: torch.Tensor, convention: int) -> torch.Tensor:
     """dexp(theta)^-1 of one quaternion joint, (..., n, n)."""
     if kind == "ball":
         return _right_jacobian_inverse(theta)
@@ -232,52 +229,6 @@ def _dexp_inverse_block(kind: str, theta: torch.Tensor, convention: int) -> torc
     if convention:
         return block_diagonal(torch.eye(3, dtype=theta.dtype, device=theta.device).expand_as(jinv), jinv)
     return _upper(jinv, -jinv @ _q_right(theta[..., :3], theta[..., 3:]) @ jinv, jinv)
-
-
-class ConfigurationFunctions:
-    """The configuration-space functions of a robot's views (mixed into robot._Functions, which
-    provides `_robot` with its `_space`, and `_convention`)."""
-
-    def integrate(self, q: torch.Tensor, v: torch.Tensor, dt=1.0) -> torch.Tensor:
-        """(..., nq): q (+) v dt, Pinocchio's integrate or MuJoCo's mj_integratePos; q (..., nq), v (..., nv),
-        dt a number or a (...,) tensor."""
-        return integrate(self._robot._space, *self._checked("integrate", q, v, dt), dt, self._convention)
-
-    def difference(self, q0: torch.Tensor, q1: torch.Tensor) -> torch.Tensor:
-        """(..., nv): v with q0 (+) v = q1, Pinocchio's difference or MuJoCo's mj_differentiatePos (dt = 1)."""
-        return difference(self._robot._space, *self._checked("difference", q0, q1), self._convention)
-
-    def d_integrate(self, q: torch.Tensor, v: torch.Tensor, dt=1.0) -> tuple[torch.Tensor, torch.Tensor]:
-        """(d/dq, d/dv) of integrate along the tangent spaces, each (..., nv, nv) (Pinocchio's dIntegrate)."""
-        return d_integrate(self._robot._space, *self._checked("d_integrate", q, v, dt), dt, self._convention)
-
-    def d_difference(self, q0: torch.Tensor, q1: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(d/dq0, d/dq1) of difference along the tangent spaces, each (..., nv, nv) (Pinocchio's dDifference)."""
-        return d_difference(self._robot._space, *self._checked("d_difference", q0, q1), self._convention)
-
-    def _checked(self, op: str, q: torch.Tensor, x: torch.Tensor, dt=1.0) -> tuple[torch.Tensor, torch.Tensor]:
-        space = self._robot._space
-        second = ("v", (space.nv,)) if op.endswith("integrate") else ("q1", (space.nq,))
-        _check_tensor(op, "q0" if second[0] == "q1" else "q", q, (space.nq,), q)
-        _check_tensor(op, second[0], x, second[1], q)
-        check_dt(op, dt, q, x)
-        return q, x
-
-
-def check_dt(op: str, dt, q: torch.Tensor, *others: torch.Tensor) -> None:
-    """dt must be a real number, or a tensor of q's dtype and device whose shape broadcasts with the batch
-    shape of q and the others."""
-    if isinstance(dt, torch.Tensor):
-        if dt.dtype != q.dtype or dt.device != q.device:
-            raise TypeError(f"{op}: dt must have q's dtype and device ({q.dtype}, {q.device}), got {dt.dtype}, "
-                            f"{dt.device}")
-        try:
-            torch.broadcast_shapes(dt.shape, *(x.shape[:-1] for x in (q, *others) if isinstance(x, torch.Tensor)))
-        except RuntimeError:
-            raise ValueError(f"{op}: dt must be a number or a tensor of the batch shape, got shape {tuple(dt.shape)} "
-                             f"with q {tuple(q.shape)}") from None
-    elif not isinstance(dt, numbers.Real) or isinstance(dt, bool):
-        raise TypeError(f"{op}: dt must be a number or a tensor, got {type(dt).__name__}")
 
 
 # -- SO(3) and SE(3) pieces, batched over leading dimensions -------------------------------------------
@@ -294,7 +245,7 @@ def _coefficients(w: torch.Tensor, exact, series) -> torch.Tensor:
     return torch.where(small, series(t2), exact(theta))
 
 
-def _skew(w: torch.Tensor) -> torch.Tensor:
+def skew(w: torch.Tensor) -> torch.Tensor:
     x, y, z = w.unbind(-1)
     zero = torch.zeros_like(x)
     return torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], dim=-1).unflatten(-1, (3, 3))
@@ -307,7 +258,7 @@ def _exp3(w: torch.Tensor) -> torch.Tensor:
     return torch.cat([half * w, cos], dim=-1)
 
 
-def _log3(quat: torch.Tensor) -> torch.Tensor:
+def log3(quat: torch.Tensor) -> torch.Tensor:
     """The rotation vector of the shortest rotation of a unit quaternion (xyzw)."""
     quat = torch.where(quat[..., 3:] < 0, -quat, quat)
     xyz, w = quat[..., :3], quat[..., 3:]
@@ -327,7 +278,7 @@ def _rotation(w: torch.Tensor) -> torch.Tensor:
 
 def _so3_terms(w: torch.Tensor, a, a_series, b, b_series) -> torch.Tensor:
     """I + a(theta) [w] + b(theta) [w]^2."""
-    W = _skew(w)
+    W = skew(w)
     ca = _coefficients(w, a, a_series).unsqueeze(-1)
     cb = _coefficients(w, b, b_series).unsqueeze(-1)
     return torch.eye(3, dtype=w.dtype, device=w.device) + ca * W + cb * (W @ W)
@@ -371,20 +322,20 @@ def _right_jacobian_inverse(w):
     return _so3_terms(w, lambda t: 0.5 * torch.ones_like(t), lambda t2: 0.5 * torch.ones_like(t2), _cot_term, _cot_series)
 
 
-def _left_jacobian_inverse(w):
+def left_jacobian_inverse(w):
     return _so3_terms(w, lambda t: -0.5 * torch.ones_like(t), lambda t2: -0.5 * torch.ones_like(t2), _cot_term, _cot_series)
 
 
 def _adjoint_exp6_inverse(rho: torch.Tensor, w: torch.Tensor, rot_t: torch.Tensor) -> torch.Tensor:
     """Ad(exp6(rho, w)^-1) (linear first), with rot_t = R(w)^T: exp6 = (R(w), V(w) rho)."""
-    p = _apply(_left_jacobian(w), rho)
-    return _upper(rot_t, -rot_t @ _skew(p), rot_t)
+    p = apply_matrix(_left_jacobian(w), rho)
+    return _upper(rot_t, -rot_t @ skew(p), rot_t)
 
 
 def _q_right(rho: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     """The coupling block of SE(3)'s right Jacobian [[Jr, Q], [0, Jr]] (linear first): Barfoot's left
     Q(rho, w) at (-rho, -w)."""
-    P, W = _skew(-rho), _skew(-w)
+    P, W = skew(-rho), skew(-w)
     c1 = _coefficients(w, _minus_sin, _minus_sin_series).unsqueeze(-1)
     c2 = _coefficients(w, lambda t: (t * t + 2 * torch.cos(t) - 2) / (2 * t ** 4),
                        lambda t2: 1 / 24 - t2 / 720 + t2 * t2 / 40320).unsqueeze(-1)
@@ -397,7 +348,7 @@ def _q_right(rho: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
 
 # -- layout --------------------------------------------------------------------------------------------
 
-def _dt(dt, v: torch.Tensor) -> torch.Tensor:
+def dt_column(dt, v: torch.Tensor) -> torch.Tensor:
     """dt as (..., 1) against v's batch."""
     return scalar_or_tensor(dt, v.dtype, v.device).unsqueeze(-1)
 
@@ -423,7 +374,7 @@ def _conjugate(a: torch.Tensor) -> torch.Tensor:
     return torch.cat([-a[..., :3], a[..., 3:]], dim=-1)
 
 
-def _apply(m: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+def apply_matrix(m: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     return (m @ x.unsqueeze(-1)).squeeze(-1)
 
 

@@ -19,12 +19,18 @@ from typing import Callable
 
 import torch
 
-from .constants import constant
-from .model import RobotModel
+from ..model.description import RobotModel
+from ..space.constants import constant
+from ..space.tangent import (
+    ambient_direction,
+    bracket_term,
+    bracket_term_outer,
+    has_brackets,
+    tangent_directions,
+    tangent_to_ambient,
+)
 from .mujoco_second_order import crba_vjp as mujoco_crba_vjp
-from .ops import FORWARD_MODE_BACKWARD, OPS, OpSpec
-from .tangent import (ambient_direction, bracket_term, bracket_term_outer, has_brackets, tangent_directions,
-                      tangent_to_ambient)
+from .table import FORWARD_MODE_BACKWARD, OPS, OpSpec
 
 
 def backward_formula(spec: OpSpec) -> Callable | None:

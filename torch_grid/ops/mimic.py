@@ -22,8 +22,8 @@ from typing import Callable
 
 import torch
 
-from .model import Mimic, RobotModel
-from .ops import OPS, model_sizes
+from ..model.description import Mimic, RobotModel
+from .table import OPS, model_sizes
 
 # How each kernel output in full coordinates becomes the coupled one: "rows" G^T X (X's nv axis of
 # generalized forces), "columns" X G (its last, tangent axis), "both" G^T X G, "all" G on each of the

@@ -30,13 +30,12 @@ from pathlib import Path
 
 import torch
 
-from . import codegen, ops
-from .model import RobotModel
-from .ops import register_fakes
+from ..model.description import RobotModel
+from . import codegen
+from . import table as ops
+from .table import register_fakes
 
-CSRC = Path(__file__).resolve().parent.parent / "csrc"
-if not CSRC.is_dir():  # installed (non-editable) layout ships the sources inside the package
-    CSRC = Path(__file__).resolve().parent / "csrc"
+CSRC = Path(__file__).resolve().parent.parent / "csrc"  # the C++ sources, inside the package
 _REGISTERED: dict[str, str] = {}  # op namespace -> robot library, for this process
 _GLUE: list[Path] = []  # the glue library this process loaded
 _LOCK = threading.Lock()
@@ -145,7 +144,7 @@ def _glue_key(cuda: bool) -> str:
     h.update(f"cuda={cuda} openmp={torch.backends.openmp.is_available()}".encode())
     h.update(_compiler_version(os.environ.get("CXX", "c++")).encode())
     if cuda:
-        h.update(_compiler_version(_nvcc()).encode())
+        h.update(_compiler_version(find_nvcc()).encode())
     h.update(torch.__version__.encode())
     return h.hexdigest()
 
@@ -181,7 +180,7 @@ def _compile_robot(root: Path, model: RobotModel, mujoco: bool, cuda: bool, name
                 if _take_prebuilt(unit, obj):
                     prebuilt += 1
                     continue
-                cmd = [_nvcc(), *_nvcc_flags(), *include, "-c", str(unit), "-o", str(obj)]
+                cmd = [find_nvcc(), *nvcc_flags(), *include, "-c", str(unit), "-o", str(obj)]
             else:
                 cmd = [os.environ.get("CXX", "c++"), *_cxx_flags(unit.stem), *include, "-c", str(unit), "-o", str(obj)]
             jobs.append((unit.name, cmd, obj))
@@ -191,7 +190,7 @@ def _compile_robot(root: Path, model: RobotModel, mujoco: bool, cuda: bool, name
         jobs.sort(key=lambda job: _UNIT_ORDER.get(Path(job[0]).stem.rsplit("_", 1)[0], len(_UNIT_ORDER)))
         _run_parallel(model.name, jobs, start)
         if cuda:
-            link = [_nvcc(), "-shared", *objects, "-o", str(tmp / library)]
+            link = [find_nvcc(), "-shared", *objects, "-o", str(tmp / library)]
         else:
             link = [os.environ.get("CXX", "c++"), "-shared", *objects, "-o", str(tmp / library)]
         _run_parallel(model.name, [("link", link, tmp / library)], start)
@@ -217,7 +216,7 @@ def cuda_unit_digest(unit: Path) -> str:
     for name in ("robot.h", "op_args.h", "bindings.h"):
         h.update((unit.parent / name).read_bytes())
     h.update(_kernel_headers_digest().encode())
-    h.update(" ".join(_nvcc_flags()).encode())
+    h.update(" ".join(nvcc_flags()).encode())
     h.update(_nvcc_release().encode())
     return h.hexdigest()
 
@@ -234,7 +233,7 @@ def _kernel_headers_digest() -> str:
 
 
 def _nvcc_release() -> str:
-    version = _compiler_version(_nvcc())
+    version = _compiler_version(find_nvcc())
     release = [part.strip() for line in version.splitlines() for part in line.split(",") if part.strip().startswith("release")]
     return release[0] if release else version
 
@@ -269,7 +268,7 @@ def _cxx_flags(unit: str = "") -> list[str]:
     return ["-std=c++17", level, "-fno-fast-math", "-fPIC", "-fvisibility=hidden", "--param=vect-epilogues-nomask=0"] + native
 
 
-def _nvcc_flags() -> list[str]:
+def nvcc_flags() -> list[str]:
     arch = os.environ.get("TORCH_GRID_CUDA_ARCH", "native")
     return ["-std=c++17", "-O3", f"-arch={arch}", "-Xcompiler", "-fPIC", "-Xcompiler", "-fvisibility=hidden"]
 
@@ -386,7 +385,7 @@ def _file_lock(root: Path, name: str, what: str):
 def _cache_key(model: RobotModel, mujoco: bool, cuda: bool) -> str:
     h = hashlib.sha256()
     h.update(model.hash.encode())
-    h.update(f"mujoco={mujoco} cuda={cuda} flags={_cxx_flags()} {_cxx_flags('backward_f64')} {_nvcc_flags() if cuda else ''}".encode())
+    h.update(f"mujoco={mujoco} cuda={cuda} flags={_cxx_flags()} {_cxx_flags('backward_f64')} {nvcc_flags() if cuda else ''}".encode())
     h.update(_cpu_identity().encode())
     for path in sorted(CSRC.rglob("*")):
         if path.is_file():
@@ -397,7 +396,7 @@ def _cache_key(model: RobotModel, mujoco: bool, cuda: bool) -> str:
         h.update(Path(module.__file__).read_bytes())
     h.update(_compiler_version(os.environ.get("CXX", "c++")).encode())
     if cuda:
-        h.update(_compiler_version(_nvcc()).encode())
+        h.update(_compiler_version(find_nvcc()).encode())
     h.update(torch.__version__.encode())
     return h.hexdigest()
 
@@ -426,7 +425,7 @@ def _compiler_version(compiler: str) -> str:
         return "unknown"
 
 
-def _nvcc() -> str:
+def find_nvcc() -> str:
     home = cuda_home()
     if home is None:
         raise RuntimeError("torch_grid: no CUDA toolkit found (a folder with bin/nvcc and include/cuda_runtime.h): "

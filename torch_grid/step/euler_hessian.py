@@ -17,14 +17,14 @@ from __future__ import annotations
 
 import torch
 
-from .configuration import _dt, d_integrate_blocks, d_integrate_v_block
+from ..space.lie import d_integrate_blocks, d_integrate_v_block, dt_column
 from .passive import damped_acceleration_second_order
 
 
 def euler_step_hessian(view, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dt, f_ext, semi: bool) -> torch.Tensor:
     """(..., 2 nv, 3 nv, 3 nv): step_second_derivatives of euler (semi False) or semi_implicit_euler."""
     space, convention, nv = view._robot._space, view._convention, qd.shape[-1]
-    h = _dt(dt, qd)
+    h = dt_column(dt, qd)
     if semi and view._robot._implicit_damping:  # MuJoCo's Euler step: (M + dt D) a = tau + p - b
         a, G, second = damped_acceleration_second_order(view, q, qd, tau, h, f_ext)
     else:
@@ -35,7 +35,7 @@ def euler_step_hessian(view, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tenso
     hh = h.reshape(*h.shape[:-1], 1, 1, 1)
     # written in place: the tensor is 2 nv (3 nv)^2 numbers per sample (6 MB on a humanoid)
     out = torch.empty(*batch, 2 * nv, 3 * nv, 3 * nv, dtype=qd.dtype, device=qd.device)
-    _scaled_acceleration_hessian(second, hh, out[..., nv:, :, :])
+    scaled_acceleration_hessian(second, hh, out[..., nv:, :, :])
     if semi:
         torch.mul(out[..., nv:, :, :], hh, out=out[..., :nv, :, :])
     else:
@@ -67,12 +67,12 @@ def chart_hessian(space, convention: int, blocks: list, w: torch.Tensor, dw: tor
                   dJs: list | None = None) -> None:
     """In place: out (..., nv, 3 nv, 3 nv) holds the Hessian of w(z) and becomes that of e(z) (chart_jacobian),
     unchanged on the scalar coordinates; on a quaternion joint J_r Hw + Hpsi[dw, dw] + the bracket. dJs: each
-    block's _jacobian_of_j_r at w, if already computed."""
+    block's jacobian_of_j_r at w, if already computed."""
     for b, (vi, j_q, j_r) in enumerate(blocks):
         n = j_r.shape[-1]
         kind = "free" if n == 6 else "ball"
         rows, W = slice(vi, vi + n), dw[..., vi:vi + n, :]
-        dJ = _jacobian_of_j_r(kind, w[..., rows], convention) if dJs is None else dJs[b]
+        dJ = jacobian_of_j_r(kind, w[..., rows], convention) if dJs is None else dJs[b]
         block = torch.einsum("...mbd,...ba,...dc->...mac", 0.5 * (dJ + dJ.transpose(-1, -2)), W, W)
         block = block + torch.einsum("...mb,...bac->...mac", j_r, out[..., rows, :, :])
         X = torch.zeros(*W.shape[:-2], n, W.shape[-1], dtype=W.dtype, device=W.device)
@@ -81,7 +81,7 @@ def chart_hessian(space, convention: int, blocks: list, w: torch.Tensor, dw: tor
         out[..., rows, :, :] = block + 0.5 * (bracket + bracket.transpose(-1, -2))
 
 
-def _scaled_acceleration_hessian(second, hh: torch.Tensor, out: torch.Tensor) -> None:
+def scaled_acceleration_hessian(second, hh: torch.Tensor, out: torch.Tensor) -> None:
     """out (..., nv, 3 nv, 3 nv) = dt Ha from forward_dynamics_second_order's tensors (mixed partials
     commute where one side is flat: Ha[i, q_j, v_k] = dqdv[i, j, k], Ha[i, tau_j, q_k] = dtaudq[i, j, k])."""
     d2q, d2v, dqdv, dtaudq = second
@@ -96,7 +96,7 @@ def _scaled_acceleration_hessian(second, hh: torch.Tensor, out: torch.Tensor) ->
         out[..., r, c] = 0
 
 
-def _jacobian_of_j_r(kind: str, u: torch.Tensor, convention: int) -> torch.Tensor:
+def jacobian_of_j_r(kind: str, u: torch.Tensor, convention: int) -> torch.Tensor:
     """dJ[m, a, b] = d J_r(u)[m, a] / du_b, (..., n, n, n), by forward-mode AD of the closed form."""
     n = u.shape[-1]
     # contiguous: forward AD cannot write tangents into a broadcast (stride-0) batch

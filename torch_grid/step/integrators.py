@@ -24,14 +24,15 @@ from __future__ import annotations
 import torch
 from torch.autograd import forward_ad
 
-from .constants import scalar_or_tensor
-from .configuration import _dt, check_dt, d_dexp_inverse_blocks, d_integrate_blocks, dexp_inverse, tangent_map
-from .func import dual, transforming
+from ..ops.arguments import check_dt
+from ..ops.func import dual, transforming
+from ..space.constants import scalar_or_tensor
+from ..space.lie import d_dexp_inverse_blocks, d_integrate_blocks, dexp_inverse, dt_column, tangent_map
+from .compiled import compiled_step, opaque
+from .euler_hessian import euler_step_hessian
 from .passive import damped_acceleration, damped_acceleration_gradient
 from .rk_hessian import combine as _combine
 from .rk_hessian import rk_step_hessian
-from .step_hessian import euler_step_hessian
-from .step_op import compiled_step, opaque
 
 # (A rows below the diagonal, B) of each Runge-Kutta scheme
 TABLEAUS = {
@@ -61,7 +62,7 @@ class StepFunctions:
             return compiled_step(self, q, qd, tau, dt, integrator, f_ext)
         if torch.compiler.is_compiling() and forward_ad._current_level >= 0:
             return _step_eagerly(self, q, qd, tau, dt, integrator, f_ext)
-        h = _dt(dt, qd)
+        h = dt_column(dt, qd)
         if integrator == "semi_implicit_euler":
             damped = self._robot._implicit_damping
             qd_next = qd + h * (damped_acceleration(self, q, qd, tau, h, f_ext) if damped
@@ -89,7 +90,7 @@ class StepFunctions:
         when nothing asks for their derivatives (the kernels have no backward)."""
         _check(op, integrator, q, qd, tau, dt)
         if self._robot._coupling is None and not _differentiated(q, qd, tau, dt, f_ext):
-            h = _dt(dt, qd)
+            h = dt_column(dt, qd)
             passive = _passive_code(self._robot, integrator)
             if integrator in FUSED:
                 q_next, qd_next, A, B = self._kernel_call("step_derivatives", q, qd, tau, f_ext, h, FUSED[integrator],
@@ -101,7 +102,7 @@ class StepFunctions:
         return _in_chunks(lambda *args: self._step_derivatives(*args, integrator), q, qd, tau, dt, f_ext)
 
     def _step_derivatives(self, q, qd, tau, dt, f_ext, integrator):
-        h = _dt(dt, qd)
+        h = dt_column(dt, qd)
         hh, nv = h.unsqueeze(-1), qd.shape[-1]
         space, convention = self._robot._space, self._convention
         # A derivative along z = [dq; dqd; dtau] is an (..., nv, 3 nv) matrix; the integrate and dexp^-1
@@ -144,7 +145,8 @@ class StepFunctions:
             acc.append(a)
             dacc.append(da)
             # stage velocity carried to q's chart: dexp(h theta)^-1 v, with its derivative
-            blocks = d_dexp_inverse_blocks(space, h * theta, v, convention)
+            outer = not transforming() and dual((theta, v))  # a forward-mode level around the call
+            blocks = d_dexp_inverse_blocks(space, h * theta, v, convention, outer)
             carried.append(tangent_map(blocks, 1, v.unsqueeze(-1)).squeeze(-1))
             dcarried.append(_with_rows(dv, {vi: j_v @ dv[..., vi:vi + j_v.shape[-1], :]
                                             + j_theta @ (hh * dtheta[..., vi:vi + j_v.shape[-1], :])

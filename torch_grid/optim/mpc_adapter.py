@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import torch
 
-from .configuration import _skew
-from .conventions import quaternion_rotation, unit_quaternion
+from ..space.conventions import quaternion_rotation, unit_quaternion
+from ..space.lie import skew
 
 
 class MPCDynamics(torch.nn.Module):
@@ -62,8 +62,8 @@ def chart_maps(view, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         a, norm = unit_quaternion(raw)
         av, aw = a[..., :3], a[..., 3:].unsqueeze(-1)
         eye = torch.eye(3, dtype=q.dtype, device=q.device)
-        turn = torch.cat([aw * eye + _skew(av), -av.unsqueeze(-2)], dim=-2) / 2  # (4, 3), xyzw rows
-        back = torch.cat([aw * eye - _skew(av), -av.unsqueeze(-1)], dim=-1) * (2 / norm.unsqueeze(-1))  # (3, 4)
+        turn = torch.cat([aw * eye + skew(av), -av.unsqueeze(-2)], dim=-2) / 2  # (4, 3), xyzw rows
+        back = torch.cat([aw * eye - skew(av), -av.unsqueeze(-1)], dim=-1) * (2 / norm.unsqueeze(-1))  # (3, 4)
         idx = [qa + o for o in order]  # q's index of each xyzw component
         out[..., idx, va:va + 3] = turn
         into[..., va:va + 3, idx] = back

@@ -18,11 +18,11 @@ from torch._C._functorch import TransformType
 from torch._functorch.pyfunctorch import coerce_cinterpreter
 from torch.autograd import forward_ad
 
+from ..model.description import RobotModel
+from ..space.tangent import tangent_to_ambient
 from .autograd import BACKWARDS, COMPOSED_BACKWARD, backward_formula, mass_product_jvp, repeat
-from .model import RobotModel
 from .mujoco_second_order import kinematic_hessian_from_ops, second_order_from_ops
-from .ops import FORWARD_MODE_BACKWARD, KERNEL_JVP, OPS
-from .tangent import tangent_to_ambient
+from .table import FORWARD_MODE_BACKWARD, KERNEL_JVP, OPS
 
 
 def transforming() -> bool:
@@ -227,7 +227,7 @@ def _frame_jacobian_jvp(ops, J, q, frame, reference, convention, t_q, _f, _r, _c
 def _gradient_tangents(ops, q, qd, qdd, f_ext, convention, u, t_qd, t_qdd):
     """The derivatives of (dtau/dq, dtau/dqd, M) along (u in the tangent space, t_qd, t_qdd): the
     second-order kernel contracted with them; in MuJoCo's convention of a robot with quaternion
-    joints, its tensors (torch_grid/mujoco_second_order.py) contracted in torch."""
+    joints, its tensors (torch_grid/ops/mujoco_second_order.py) contracted in torch."""
     model = ops._model
     if not (convention and model.conventions_differ):
         return ops.inverse_dynamics_gradient_tangent(q, qd, qdd, f_ext, u, t_qd, t_qdd, convention)

@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import torch
 
-from .conventions import a_mjx_to_pin, ball_joints, free_joints, q_mjx_to_pin, quaternion_rotation, v_mjx_to_pin
+from ..space.conventions import a_mjx_to_pin, ball_joints, free_joints, q_mjx_to_pin, quaternion_rotation, v_mjx_to_pin
+from ..space.lie import skew
 
 
 class _Free:
@@ -41,15 +42,9 @@ class _Free:
         return slice(self.vi + 3, self.vi + 6)
 
 
-def _skew(x: torch.Tensor) -> torch.Tensor:
-    zero = torch.zeros_like(x[..., 0])
-    return torch.stack([torch.stack([zero, -x[..., 2], x[..., 1]], -1), torch.stack([x[..., 2], zero, -x[..., 0]], -1),
-                        torch.stack([-x[..., 1], x[..., 0], zero], -1)], dim=-2)
-
-
 def _unit_skews(like: torch.Tensor) -> torch.Tensor:
     """(3, 3, 3) [e_c]x for c = 0, 1, 2."""
-    return _skew(torch.eye(3, dtype=like.dtype, device=like.device))
+    return skew(torch.eye(3, dtype=like.dtype, device=like.device))
 
 
 def _rotate(X: torch.Tensor, dim: int, frees: list[_Free]) -> torch.Tensor:
@@ -99,17 +94,17 @@ def _mix(X: torch.Tensor, dim: int, frees: list[_Free], blocks) -> torch.Tensor:
 
 def _dv(f: _Free):
     """Jv: Pinocchio's v_lin under a base rotation e_a, -(e_a x v_lin) = [v_lin]x e_a."""
-    return [(f.lin, f.ang, _skew(f.v))]
+    return [(f.lin, f.ang, skew(f.v))]
 
 
 def _da(f: _Free):
     """Ja: Pinocchio's a_lin under a base rotation e_a, -e_a x aR + w x (e_a x v_lin)."""
-    return [(f.lin, f.ang, _skew(f.aR) - _skew(f.w) @ _skew(f.v))]
+    return [(f.lin, f.ang, skew(f.aR) - skew(f.w) @ skew(f.v))]
 
 
 def _dav(f: _Free):
     """Jav: Pinocchio's a_lin under qvel: -w x R^T e_a (linear), -(e_a x v_lin) (angular)."""
-    return [(f.lin, f.lin, -_skew(f.w) @ f.R.mT), (f.lin, f.ang, _skew(f.v))]
+    return [(f.lin, f.lin, -skew(f.w) @ f.R.mT), (f.lin, f.ang, skew(f.v))]
 
 
 def _put(out: torch.Tensor, rows: slice, j: slice, k: slice, value: torch.Tensor) -> torch.Tensor:
@@ -161,13 +156,13 @@ def inverse_dynamics_second_order(model, q_pin, v_pin, a_mjx, tau, A, B, M, seco
         E_q = _turn(f, e)  # [m, j=b, k=c]
         ev = torch.einsum("cab,dbe,...e->...acd", e, e, f.v)  # e_c x (e_d x v), [m, c, d]
         ea = torch.einsum("cab,dbe,...e->...acd", e, e, f.aR)
-        E_a = ea - torch.einsum("...ab,...bcd->...acd", _skew(f.w), ev)
+        E_a = ea - torch.einsum("...ab,...bcd->...acd", skew(f.w), ev)
         d2q = _put(d2q, slice(None), lin, ang, _lin_times(A, f, E_q))
         d2q = _put(d2q, slice(None), ang, ang, _lin_times(B, f, ev) + _lin_times(M, f, E_a))
         dM = _put(dM, slice(None), lin, ang, _lin_times(M, f, E_q))
         # d/dqd_k of Jv e_c, Ja e_c: k linear b: -(e_c x R^T e_b), w x (e_c x R^T e_b); k angular d: e_d x (e_c x v)
         Ev = E_q.transpose(-1, -2)  # [m, c, b]
-        Ea_lin = torch.einsum("...ab,...bcd->...acd", _skew(f.w), Ev).neg()
+        Ea_lin = torch.einsum("...ab,...bcd->...acd", skew(f.w), Ev).neg()
         dqdv = _put(dqdv, slice(None), ang, lin, _lin_times(B, f, Ev) + _lin_times(M, f, Ea_lin))
         dqdv = _put(dqdv, slice(None), ang, ang, _lin_times(M, f, ev.transpose(-1, -2)))  # e_d x (e_c x v)
         # d/dqd_k of Jav e_j: j linear a, k angular d: -(e_d x R^T e_a); j angular a, k linear b: -(e_a x R^T e_b)

@@ -74,7 +74,7 @@ class Mimic:
 class RobotModel:
     """A robot's kinematic tree, joints in depth-first order (every parent before its children).
 
-    `mimics` couples joints (reduced coordinates, torch_grid/mimic.py); the kernels are those of the
+    `mimics` couples joints (reduced coordinates, torch_grid/ops/mimic.py); the kernels are those of the
     tree with every joint independent (`kernel_model`), and nq, nv, q_index, v_index are theirs.
     """
 
