@@ -18,8 +18,9 @@ setup(
     python_requires=">=3.9",
     packages=find_packages(include=["torch_grid", "torch_grid.*"]),
     # the bundled robots, and the C++ sources every robot's kernels are generated and compiled against
-    package_data={"torch_grid": ["robots/*.urdf", "robots/*.xml", "robots/*.json", "robots/NOTICE", "csrc/*.h",
-                                 "csrc/*.cuh", "csrc/kernels/*.h", "csrc/kernels/*.cuh"]},
+    package_data={"torch_grid": ["robots/*.urdf", "robots/*.xml", "robots/*.json", "robots/NOTICE",
+                                 "csrc/torch/*.h", "csrc/batch/*.h", "csrc/batch/*.cuh", "csrc/kernels/*.h",
+                                 "csrc/kernels/*/*.h"]},
     # torch: tested 2.11 (CUDA 13.0 build) and 2.13; its C++ extension builder brings setuptools.
     # numpy: imported with the package (MuJoCo model conversion). ninja: builds each robot's kernels.
     # Pinocchio and MuJoCo are imported only to read a URDF, an MJCF or their model objects: the extras.

@@ -190,7 +190,7 @@ def test_op_table_limits_are_checked_when_it_is_built():
     from torch_grid.ops import table as ops
     from torch_grid.ops.build import CSRC
 
-    header = (CSRC / "batch.h").read_text()
+    header = (CSRC / "batch" / "batch.h").read_text()
     assert f"kMaxIn = {ops.MAX_TENSOR_INPUTS}, kMaxOut = {ops.MAX_OUTPUTS}," in header
     crba, Q, NVxNV = ops.OPS["crba"], ops.Q, ("nv", "nv")
     bad = {
@@ -232,7 +232,7 @@ def test_kernels_bind_arguments_by_name(tmp_path, rename):
     (tmp_path / "robot.h").write_text(codegen.robot_header(model, "tg_names"))
     (tmp_path / "op_args.h").write_text(codegen.op_args_header(table))
     (tmp_path / "bindings.h").write_text(codegen.bindings_header(table))
-    (tmp_path / "unit.cpp").write_text('#include "robot.h"\n#include "bindings.h"\n#include "cpu_range.h"\n'
+    (tmp_path / "unit.cpp").write_text('#include "robot.h"\n#include "bindings.h"\n#include "batch/cpu_range.h"\n'
                                        "template void tg::cpu_range<tg::bind::Crba, tg_names::Robot, double, tg::PIN>"
                                        "(const tg::Batch&, int64_t, int64_t);\n")
     result = subprocess.run(["c++", "-std=c++17", "-fsyntax-only", f"-I{build.CSRC}", f"-I{tmp_path}", "unit.cpp"],

@@ -1,4 +1,4 @@
-"""CPU batches split across threads by work (csrc/glue.h, Call::run; ops.py, cpu_grain): the results on
+"""CPU batches split across threads by work (csrc/torch/glue.h, Call::run; ops.py, cpu_grain): the results on
 one and on two threads are bitwise equal, and the grain of each op in a robot's table, the fewest samples
 the glue gives a thread, is the fewest that hold CPU_THREAD_NS of the op's estimated work."""
 from __future__ import annotations

@@ -173,7 +173,7 @@ def _inverse_dynamics_vjp(ops, model, needs, grads, output, q, qd, qdd, f_ext, l
 
 
 def _frame_jacobian(ops, model, needs, grads, output, q, frame, reference, convention):
-    """<G, J(q)> differentiated by an O(n) kernel along the chain (csrc/kernels/frames.h), in
+    """<G, J(q)> differentiated by an O(n) kernel along the chain (csrc/kernels/kinematics/frames.h), in
     Pinocchio's convention, or where the conventions agree; MuJoCo's twin reframes J with G(q), so
     there the op's kernel runs on dual numbers."""
     if convention and model.conventions_differ:
@@ -193,7 +193,7 @@ def _inertia_solve(ops, model, needs, grads, output, q, x, convention):
 
 
 def _crba(ops, model, needs, grads, output, q, convention):
-    """<G, M(q)> differentiated by an O(n d) kernel (csrc/kernels/crba.h); MuJoCo's twin with quaternion
+    """<G, M(q)> differentiated by an O(n d) kernel (csrc/kernels/dynamics/crba.h); MuJoCo's twin with quaternion
     joints reframes M with G(q), whose own turn adds a term (mujoco_second_order.crba_vjp)."""
     if convention and model.conventions_differ:
         if output is None:  # minv's backward passes no M
@@ -368,7 +368,7 @@ def _forward_dynamics_gradient(ops, model, needs, grads, output, q, qd, tau, f_e
 
 def _inverse_dynamics_gradient(ops, model, needs, grads, output, q, qd, qdd, f_ext, convention):
     """<Gq, dtau/dq> + <Gqd, dtau/dqd> differentiated with respect to every input by one O(n d) kernel,
-    the second-order recursion contracted with G (csrc/kernels/rnea_second_order.h), in Pinocchio's
+    the second-order recursion contracted with G (csrc/kernels/derivatives/rnea_second_order.h), in Pinocchio's
     convention or where the conventions agree; in MuJoCo's convention of a robot with quaternion joints,
     forward over reverse (_inverse_dynamics_gradient_jvps)."""
     if convention and model.conventions_differ:

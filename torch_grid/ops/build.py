@@ -139,7 +139,7 @@ def _compile_glue(root: Path, cuda: bool, key: str, entry: Path) -> None:
 def _glue_key(cuda: bool) -> str:
     h = hashlib.sha256()
     h.update(codegen.glue_unit().encode())
-    for name in ("glue.h", "register.h", "batch.h", "kernels/spatial.h"):
+    for name in ("torch/glue.h", "torch/register.h", "batch/batch.h", "kernels/spatial/spatial.h"):
         h.update((CSRC / name).read_bytes())
     h.update(f"cuda={cuda} openmp={torch.backends.openmp.is_available()}".encode())
     h.update(_compiler_version(os.environ.get("CXX", "c++")).encode())
@@ -204,8 +204,8 @@ def _compile_robot(root: Path, model: RobotModel, mujoco: bool, cuda: bool, name
 # there in $TORCH_GRID_PREBUILT under the digest of everything it is compiled from, so a stale object
 # (other sources, flags or nvcc release) is never taken: that unit is compiled as usual.
 
-# csrc files a CUDA unit never includes (they need torch's headers)
-_TORCH_SIDE = ("glue.h", "register.h")
+# the csrc folder a CUDA unit never includes (the torch glue needs torch's headers)
+_TORCH_SIDE = "torch"
 
 
 def cuda_unit_digest(unit: Path) -> str:
@@ -226,7 +226,7 @@ def _kernel_headers_digest() -> str:
     """The csrc files a CUDA unit may include, read once per process."""
     h = hashlib.sha256()
     for path in sorted(CSRC.rglob("*")):
-        if path.is_file() and path.name not in _TORCH_SIDE and "__pycache__" not in path.parts:
+        if path.is_file() and path.relative_to(CSRC).parts[0] != _TORCH_SIDE and "__pycache__" not in path.parts:
             h.update(path.relative_to(CSRC).as_posix().encode())
             h.update(path.read_bytes())
     return h.hexdigest()

@@ -27,7 +27,7 @@ INTEGER_KINDS = ("frame", "frames", "reference", "mask", "scheme", "tableau", "p
 # the batch; on CUDA one per sample).
 OUTPUT_KINDS = ("force", "acceleration", "congruence", "columns", "force_rows", "plain", "twin", "workspace")
 SIZES = ("nv", "nq", "nbodies", "nparams", "nframes", "nsel")
-# What one call can carry (csrc/batch.h: kMaxIn, kMaxOut), checked when the table is built.
+# What one call can carry (csrc/batch/batch.h: kMaxIn, kMaxOut), checked when the table is built.
 MAX_TENSOR_INPUTS, MAX_OUTPUTS = 8, 5
 
 
@@ -180,7 +180,7 @@ _VALUE_OPS = (
                (Out("dqdd_dparams", "force_rows", ("nv", "nparams")),), "regressors"),
 )
 
-# Ops whose backward runs their own kernel on dual numbers (csrc/kernels/forward_mode.h): those whose
+# Ops whose backward runs their own kernel on dual numbers (csrc/kernels/derivatives/forward_mode.h): those whose
 # outputs are already derivatives, where the gradient is a second-order quantity. (M and M^-1 have
 # an O(n^2) backward from inverse-dynamics products instead; the forward-dynamics derivatives, the
 # external-force one of inverse dynamics and osc_inertia compose the backwards of their parts, in
@@ -265,7 +265,7 @@ def check_table(table: dict[str, OpSpec]) -> None:
                 raise ValueError(f"op {op.name}: output {o.name!r} of kind {o.kind!r} cannot have the shape {o.shape}")
         if len(op.tensor_args) > MAX_TENSOR_INPUTS or len(op.outputs) > MAX_OUTPUTS:
             raise ValueError(f"op {op.name}: {len(op.tensor_args)} tensor inputs and {len(op.outputs)} outputs, at most "
-                             f"{MAX_TENSOR_INPUTS} and {MAX_OUTPUTS} (csrc/batch.h)")
+                             f"{MAX_TENSOR_INPUTS} and {MAX_OUTPUTS} (csrc/batch/batch.h)")
         if not op.args or op.args[0].kind != "configuration" or any(a.kind == "configuration" for a in op.args[1:]):
             raise ValueError(f"op {op.name}: the first argument, and only it, must be the configuration (it fixes batch, "
                              "dtype, device)")
@@ -287,7 +287,7 @@ def check_table(table: dict[str, OpSpec]) -> None:
 
 check_table(OPS)
 
-# How a CPU batch is split across threads (csrc/glue.h, Call::run): by work, not by samples. A thread is given
+# How a CPU batch is split across threads (csrc/torch/glue.h, Call::run): by work, not by samples. A thread is given
 # at least cpu_grain samples, CPU_THREAD_NS of the op's estimated work, well above what waking it costs (a few
 # µs on an idle core; a fixed 16 samples a thread woke one for 12 µs of go2's inverse_dynamics). The estimate
 # of a value op: its time per sample on one thread measured on go2 (µs; nv = 18, float64, B = 256), scaled to

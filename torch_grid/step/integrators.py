@@ -16,7 +16,7 @@ MuJoCo's mjd_transitionFD A, B), by the chain rule through the stages: forward_d
 each stage (passive.py's damped_acceleration_gradient for the implicit damping), the configuration
 space's d_integrate and the derivatives of dexp^-1. Everything is torch
 over the robot's ops, so autograd differentiates step itself to second order; (q', qd', A, B) also come
-from one kernel per call (csrc/kernels/step.h for the Euler schemes, csrc/kernels/runge_kutta.h for
+from one kernel per call (csrc/kernels/step/step.h for the Euler schemes, csrc/kernels/step/runge_kutta.h for
 Runge-Kutta), which runs when nothing differentiates them.
 """
 from __future__ import annotations
@@ -42,8 +42,8 @@ TABLEAUS = {
     "rk4": (((0.5,), (0.0, 0.5), (0.0, 0.0, 1.0)), (1 / 6, 1 / 3, 1 / 3, 1 / 6)),
 }
 INTEGRATORS = ("euler", "semi_implicit_euler", "midpoint", "rk3", "rk4")
-# The schemes the kernels fuse with the forward-dynamics derivatives: step_derivatives (csrc/kernels/step.h)
-# and rk_step_derivatives (csrc/kernels/runge_kutta.h)
+# The schemes the kernels fuse with the forward-dynamics derivatives: step_derivatives (csrc/kernels/step/step.h)
+# and rk_step_derivatives (csrc/kernels/step/runge_kutta.h)
 FUSED = {"euler": 0, "semi_implicit_euler": 1}
 RK_FUSED = {"midpoint": 2, "rk3": 3, "rk4": 4}
 

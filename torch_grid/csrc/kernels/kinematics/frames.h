@@ -1,7 +1,7 @@
 // Frame placements, poses and Jacobians (Pinocchio's framesForwardKinematics, getFrameJacobian).
 #pragma once
 
-#include "joints.h"
+#include "kernels/spatial/joints.h"
 
 namespace tg {
 

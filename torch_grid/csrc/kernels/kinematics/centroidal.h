@@ -2,7 +2,7 @@
 // as Pinocchio's ccrba): quantities of the whole robot, built from world-frame body terms.
 #pragma once
 
-#include "joints.h"
+#include "kernels/spatial/joints.h"
 
 namespace tg {
 

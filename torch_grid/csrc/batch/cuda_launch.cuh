@@ -3,7 +3,7 @@
 
 #include <cuda_runtime.h>
 
-#include "batch.h"
+#include "batch/batch.h"
 
 namespace tg {
 

@@ -6,7 +6,7 @@
 // See shared conventions reference; torch_grid/conventions.py is the same in torch.
 #pragma once
 
-#include "joints.h"
+#include "kernels/spatial/joints.h"
 
 namespace tg {
 

@@ -10,7 +10,7 @@
 // written as contiguous segments (F stored by component, so the loop over c vectorises).
 #pragma once
 
-#include "joints.h"
+#include "kernels/spatial/joints.h"
 
 namespace tg {
 

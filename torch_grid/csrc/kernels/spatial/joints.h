@@ -5,8 +5,8 @@
 // Body i is moved by joint i; parent[i] < i (depth-first order), -1 is the world.
 #pragma once
 
-#include "spatial.h"
-#include "trig.h"
+#include "kernels/spatial/spatial.h"
+#include "kernels/spatial/trig.h"
 
 namespace tg {
 

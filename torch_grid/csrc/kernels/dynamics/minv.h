@@ -10,7 +10,7 @@
 // Per-body steps are templated on the joint's dof count N (1, 3 for a ball, 6 for a free root) to unroll.
 #pragma once
 
-#include "joints.h"
+#include "kernels/spatial/joints.h"
 
 namespace tg {
 

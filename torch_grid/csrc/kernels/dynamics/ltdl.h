@@ -5,7 +5,7 @@
 // in row k, and stay so. M and its factor share the storage (row-major NV x NV, lower triangle read).
 #pragma once
 
-#include "products.h"
+#include "kernels/dynamics/products.h"
 
 namespace tg {
 

@@ -14,7 +14,7 @@
 // Pinocchio's Coriolis matrix has the same pairs with dS/dt = v x S in place of alpha, S / 2 for s.
 #pragma once
 
-#include "joints.h"
+#include "kernels/spatial/joints.h"
 
 namespace tg {
 

@@ -15,20 +15,16 @@
 // D_q^T and D_v^T, zero between branches of the tree, with 2 NV columns: never the dense M^-1 D.
 #pragma once
 
-#include "crba.h"
-#include "forward_mode.h"
-#include "ltdl.h"
-#include "passive.h"
-#include "products.h"
-#include "rnea.h"
-#include "step.h"
+#include "kernels/derivatives/dynamics_derivatives.h"
+#include "kernels/derivatives/forward_mode.h"
+#include "kernels/dynamics/crba.h"
+#include "kernels/dynamics/ltdl.h"
+#include "kernels/dynamics/passive.h"
+#include "kernels/dynamics/products.h"
+#include "kernels/dynamics/rnea.h"
+#include "kernels/step/step.h"
 
 namespace tg {
-
-// ops.h (its workspace in its own frame)
-template <class M, class S, int C, bool Zero = true>
-TG_HD void inverse_dynamics_derivatives(const Placements<M, S>& K, const S* qd, const S* qdd, const S* fext,
-                                        const Conv<M, S, C>& cv, S* dtau_dq, S* dtau_dqd);
 
 // Scheme 2 (midpoint), 3 (rk3) or 4 (rk4): the rows of a below the diagonal and the weights b.
 struct RkTableau {

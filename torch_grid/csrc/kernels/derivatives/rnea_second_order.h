@@ -17,7 +17,7 @@
 //   f3   = BC S_a + IC (psid_a + phid_a)
 #pragma once
 
-#include "rnea_derivatives.h"
+#include "kernels/derivatives/rnea_derivatives.h"
 
 namespace tg {
 

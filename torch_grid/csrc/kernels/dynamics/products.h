@@ -3,7 +3,7 @@
 // block of the result stays in registers while the rows of X stream past it.
 #pragma once
 
-#include "spatial.h"
+#include "kernels/spatial/spatial.h"
 
 namespace tg {
 

@@ -13,7 +13,7 @@
 
 #include <torch/library.h>
 
-#include "batch.h"
+#include "batch/batch.h"
 
 namespace tg {
 

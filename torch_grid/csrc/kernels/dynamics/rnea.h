@@ -2,7 +2,7 @@
 // Featherstone's ID (spatial_v2 ID.m) in joint frames, with Pinocchio's names.
 #pragma once
 
-#include "joints.h"
+#include "kernels/spatial/joints.h"
 
 namespace tg {
 

@@ -1,7 +1,7 @@
 // CPU side of the batch layer: a plain loop over the samples given to one thread.
 #pragma once
 
-#include "batch.h"
+#include "batch/batch.h"
 
 namespace tg {
 

@@ -12,7 +12,7 @@
 // (linear rows first; V = Jr(-u_ang) = Jl, Q Barfoot's coupling block at -u).
 #pragma once
 
-#include "convention.h"
+#include "kernels/spatial/convention.h"
 
 namespace tg {
 

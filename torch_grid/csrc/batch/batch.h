@@ -6,7 +6,7 @@
 #include <cstdint>
 #include <type_traits>
 
-#include "kernels/spatial.h"
+#include "kernels/spatial/spatial.h"
 
 namespace tg {
 
@@ -71,7 +71,7 @@ using CudaFn = int (*)(const Batch& b, void* stream, int sms, CudaAttributes* at
 struct OpKernels {
   CpuFn cpu[2][2];
   CudaFn cuda[2][2];
-  int64_t grain;  // the fewest samples worth a CPU thread (ops.py: cpu_grain)
+  int64_t grain;  // the fewest samples worth a CPU thread (ops/table.py: cpu_grain)
 };
 
 // What a robot library exports (one C symbol, named after its op namespace): its sizes and one

@@ -5,7 +5,7 @@
 // its derivatives, dp/dq = -K and dp/dqd = -D, diagonal along either tangent.
 #pragma once
 
-#include "spatial.h"
+#include "kernels/spatial/spatial.h"
 
 namespace tg {
 

@@ -27,7 +27,7 @@
 #include <utility>
 #include <vector>
 
-#include "batch.h"
+#include "batch/batch.h"
 
 #ifdef TG_WITH_CUDA
 #include <c10/cuda/CUDACachingAllocator.h>
@@ -330,7 +330,7 @@ class Call {
     const auto range = s == 0 ? &Call::as_double
                        : workspace_ || n_ * out_per_sample() * int64_t(sizeof(double)) > kStreamBytes ? &Call::streamed
                                                                                                       : &Call::direct;
-    // As many threads as get kernels.grain samples each, the least work worth waking one for (ops.py: cpu_grain).
+    // As many threads as get kernels.grain samples each, the least work worth waking one for (ops/table.py: cpu_grain).
     const int64_t threads = std::max<int64_t>(1, std::min<int64_t>(at::get_num_threads(), n_ / kernels.grain));
     at::parallel_for(0, threads, 1, [this, fn, range, threads](int64_t first, int64_t last) {
       for (int64_t t = first; t < last; ++t) (this->*range)(fn, n_ * t / threads, n_ * (t + 1) / threads);

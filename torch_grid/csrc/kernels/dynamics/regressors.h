@@ -3,7 +3,7 @@
 // I_zz], h = m c and I the rotational inertia about the joint frame origin.
 #pragma once
 
-#include "joints.h"
+#include "kernels/spatial/joints.h"
 
 namespace tg {
 

@@ -2,7 +2,7 @@
 // Featherstone's FDab (spatial_v2 FDab.m) in joint frames, multi-dof joints via a small SPD solve.
 #pragma once
 
-#include "joints.h"
+#include "kernels/spatial/joints.h"
 
 namespace tg {
 

@@ -8,7 +8,7 @@
 #include <cstring>
 #include <type_traits>
 
-#include "spatial.h"
+#include "kernels/spatial/spatial.h"
 
 namespace tg {
 

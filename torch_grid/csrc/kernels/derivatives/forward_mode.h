@@ -7,7 +7,7 @@
 
 #include <type_traits>
 
-#include "spatial.h"
+#include "kernels/spatial/spatial.h"
 
 namespace tg {
 
