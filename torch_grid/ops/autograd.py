@@ -1,17 +1,15 @@
-"""Autograd for the ops, backed by the derivative kernels.
+"""Autograd for the ops, as each op's table entry declares (OpSpec.backward, ops/table.py).
 
-The ops in BACKWARDS differentiate with respect to every tensor input, mostly through the O(n)
-vector-Jacobian product of inverse dynamics. Those kernels give derivatives along the tangent
-space; the gradient with respect to q is mapped to the ambient coordinates the caller passed (a
-quaternion through its normalisation: tangent.py).
-The ops in ops.FORWARD_MODE_BACKWARD (outputs that are already derivatives) use `<op>_backward`,
-their own kernel run on dual numbers, whose q gradient is already in ambient coordinates. Those in
-COMPOSED_BACKWARD are made of other ops: the inverse-dynamics gradient's backward differentiates
-the gradient of lam . tau along 2 nv directions (forward over reverse, the jvp kernels); the
-forward-dynamics derivatives, the external-force derivative of inverse dynamics and the
-operational-space inertia are products of other ops' outputs and back-propagate through those.
-The internal products raise a clear error when back-propagated through, as does differentiating
-any backward a second time.
+"formula": the formulas of BACKWARDS, mostly through the O(n) vector-Jacobian product of inverse
+dynamics. Those kernels give derivatives along the tangent space; the gradient with respect to q is
+mapped to the ambient coordinates the caller passed (a quaternion through its normalisation:
+space/tangent.py). "dual": `<op>_backward`, the op's own kernel on dual numbers, for outputs that are
+already derivatives; its q gradient is already in ambient coordinates. "composed": formulas over other
+ops: the inverse-dynamics gradient's backward differentiates the gradient of lam . tau along 2 nv
+directions (forward over reverse, the jvp kernels); the forward-dynamics derivatives, the
+external-force derivative of inverse dynamics and the operational-space inertia are products of other
+ops' outputs and back-propagate through those. The others raise a clear error when back-propagated
+through, as does differentiating any backward a second time.
 """
 from __future__ import annotations
 
@@ -30,14 +28,15 @@ from ..space.tangent import (
     tangent_to_ambient,
 )
 from .mujoco_second_order import crba_vjp as mujoco_crba_vjp
-from .table import FORWARD_MODE_BACKWARD, OPS, OpSpec
+from .table import OPS, OpSpec
 
 
 def backward_formula(spec: OpSpec) -> Callable | None:
-    """The op's backward, formula(ops, model, needs, grads, output, *inputs), or None if it has none."""
-    if spec.name in BACKWARDS:
+    """The op's backward, formula(ops, model, needs, grads, output, *inputs), as its table entry declares
+    (spec.backward), or None if it has none."""
+    if spec.backward in ("formula", "composed"):
         return BACKWARDS[spec.name]
-    return _forward_mode(spec) if spec.name in FORWARD_MODE_BACKWARD else None
+    return _forward_mode(spec) if spec.backward == "dual" else None
 
 
 def register_autograd(namespace: str, model: RobotModel) -> None:
@@ -72,18 +71,14 @@ def _no_backward(name: str) -> Callable:
     # whenever autograd is to see it.
     message = (f"torch_grid: {name} has no derivative: the op whose derivative it computes cannot be differentiated "
                "once more (a third derivative, or the second derivative of an op whose outputs are derivatives)")
-    if name in KERNEL_ONLY:
-        message = f"torch_grid: the {name} kernel has no derivative; {KERNEL_ONLY[name]}"
+    if OPS[name].backward == "step":
+        message = (f"torch_grid: the {name} kernel has no derivative; differentiate Robot.step_derivatives, which then "
+                   "composes the step in torch")
 
     def backward(ctx, *grads):
         raise NotImplementedError(message)
 
     return backward
-
-
-# Ops that a Python function runs only when nothing differentiates it, with what to call instead.
-KERNEL_ONLY = {name: "differentiate Robot.step_derivatives, which then composes the step in torch"
-               for name in ("step_derivatives", "rk_step_derivatives")}
 
 
 def _backward(name: str, formula: Callable, ops, model: RobotModel) -> Callable:
@@ -518,9 +513,11 @@ BACKWARDS = {
 
 # Ops whose outputs are derivatives and whose backward is made of other ops (their backwards, or the
 # jvp kernels of a first-order gradient) rather than of a kernel of their own on dual numbers.
-COMPOSED_BACKWARD = ("ccrba", "inverse_dynamics_gradient", "forward_dynamics_gradient",
-                     "inverse_dynamics_external_force_gradient", "forward_dynamics_external_force_gradient",
-                     "forward_dynamics_parameter_gradient", "osc_inertia")
+# The formulas cover exactly the ops whose entry declares one (backward "formula" or "composed").
+_DECLARED = {op.name for op in OPS.values() if op.backward in ("formula", "composed")}
+if set(BACKWARDS) != _DECLARED:
+    raise ValueError(f"autograd: formulas for {sorted(set(BACKWARDS) - _DECLARED)} whose table entries declare none, none for "
+                     f"{sorted(_DECLARED - set(BACKWARDS))} whose entries declare one")
 
 
 def _vjp(jacobian: torch.Tensor, grad: torch.Tensor) -> torch.Tensor:

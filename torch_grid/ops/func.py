@@ -20,9 +20,9 @@ from torch.autograd import forward_ad
 
 from ..model.description import RobotModel
 from ..space.tangent import tangent_to_ambient
-from .autograd import BACKWARDS, COMPOSED_BACKWARD, backward_formula, mass_product_jvp, repeat
+from .autograd import backward_formula, mass_product_jvp, repeat
 from .mujoco_second_order import kinematic_hessian_from_ops, second_order_from_ops
-from .table import FORWARD_MODE_BACKWARD, KERNEL_JVP, OPS
+from .table import KERNEL_JVP, OPS
 
 
 def transforming() -> bool:
@@ -118,7 +118,7 @@ class FuncOps:
             tensors = tuple(forward_ad.unpack_dual(t).primal if level is None else
                             torch._C._functorch._unwrap_for_grad(t, level) for t in ctx.saved_tensors)
             inputs, output = saved(ctx, tensors)
-            if name in _JVPS:
+            if spec.jvp in ("rule", "dual"):
                 return _JVPS[name](outer, output, *inputs, *tangents)
             outs = output if several else (output,)
             needs = tuple(t is not None for t in tangents)
@@ -300,8 +300,8 @@ def _kernel_jvp(name: str) -> Callable:
     return rule
 
 
-# Ops whose forward-mode derivative is its own formula (their backwards are made of kernels without
-# derivatives, so the generic rule above does not apply).
+# The forward-mode rules of the ops whose entry declares one (jvp "rule"), and the dual-number kernels'
+# (jvp "dual").
 _JVPS = {"inverse_dynamics_vjp": _inverse_dynamics_vjp_jvp, "inertia_solve": _inertia_solve_jvp, "crba_vjp": _crba_vjp_jvp,
          "mass_product_vjp": _mass_product_vjp_jvp,
          "inverse_dynamics_gradient": _inverse_dynamics_gradient_jvp,
@@ -309,8 +309,10 @@ _JVPS = {"inverse_dynamics_vjp": _inverse_dynamics_vjp_jvp, "inertia_solve": _in
          "frame_jacobian": _frame_jacobian_jvp, "frames_vjp": _linear_jvp("frames_vjp"),
          "body_velocities": _linear_jvp("body_velocities"),
          **{name: _kernel_jvp(name) for name in KERNEL_JVP}}
+_DECLARED = {op.name for op in OPS.values() if op.jvp in ("rule", "dual")}
+if set(_JVPS) != _DECLARED:
+    raise ValueError(f"func: forward-mode rules for {sorted(set(_JVPS) - _DECLARED)} whose table entries declare none, "
+                     f"none for {sorted(_DECLARED - set(_JVPS))} whose entries declare one")
 
-# Ops with a forward-mode derivative: those whose backward is differentiable in its cotangents (made of
-# ops with backwards; the backward of an op whose outputs are derivatives is not), and those with a rule.
-FORWARD_MODE = tuple(dict.fromkeys(
-    [n for n in BACKWARDS if n not in COMPOSED_BACKWARD and n not in FORWARD_MODE_BACKWARD] + list(_JVPS)))
+# The ops with a forward-mode derivative (jvp other than "none"; the others refuse forward mode by name).
+FORWARD_MODE = tuple(op.name for op in OPS.values() if op.jvp != "none")

@@ -67,6 +67,16 @@ class OpSpec:
     jvp_wrt: tuple[str, ...] = ()  # the inputs whose tangents a Jacobian-vector product takes
     jvp_in_place: bool = False  # a Jacobian-vector product returning (value, tangent) pairs, trailing dim 2
     mujoco_twin: bool = True  # False: no MuJoCo-convention kernel where the conventions differ (the call refuses)
+    # How the op is differentiated (BACKWARD_KINDS, JVP_KINDS), and the dual-number kernels generated for it
+    backward: str = "none"
+    jvp: str = "none"
+    dual_backward: bool = False  # <op>_backward: the kernel on dual numbers, one pass per input coordinate
+    dual_jvp: tuple[str, ...] = ()  # <op>_jvp: the kernel on dual numbers along the tangents of these inputs
+    contracted: bool = False  # <op>_backward contracts the output with its cotangent inside the kernel
+
+    @property
+    def has_dual_backward(self) -> bool:
+        return self.dual_backward or self.backward == "dual"
 
     @property
     def derived(self) -> bool:
@@ -100,6 +110,21 @@ def model_sizes(model: RobotModel) -> dict[str, int]:
             "nframes": len(model.frames)}
 
 
+# How an op is differentiated, declared in its entry. Its backward (reverse mode, autograd.py):
+#   "formula"   a formula of its own over kernels, mostly the O(n) vector-Jacobian product of inverse dynamics;
+#   "composed"  a formula over other ops' outputs and backwards (the op's outputs are products of theirs);
+#   "dual"      its own kernel on dual numbers (<op>_backward): outputs that are already derivatives;
+#   "step"      none: the fused step kernel, which Robot.step_derivatives replaces by the torch composition
+#               whenever anything differentiates it;
+#   "none"      none: a derivative computed inside another op's backward, or a second-order tensor.
+# Its forward mode (torch.func.jvp, jacfwd, forward_ad; func.py):
+#   "backward"  the derivative of its backward with respect to the cotangents (the backward is linear in them);
+#   "rule"      a formula of its own;
+#   "dual"      its own kernel on dual numbers along `dual_jvp` (<op>_jvp);
+#   "none"      refused by name.
+BACKWARD_KINDS = ("formula", "composed", "dual", "step", "none")
+JVP_KINDS = ("backward", "rule", "dual", "none")
+
 Q, QD, QDD, TAU = Arg("q", "configuration"), Arg("qd", "velocity"), Arg("qdd", "acceleration"), Arg("tau", "force")
 FEXT = Arg("f_ext", "body_forces", True)
 FRAME, REFERENCE = Arg("frame", "frame"), Arg("reference", "reference")
@@ -107,41 +132,53 @@ FRAME, REFERENCE = Arg("frame", "frame"), Arg("reference", "reference")
 PASSIVE = Arg("passive", "passive")
 NV, NVxNV, NV3 = ("nv",), ("nv", "nv"), ("nv", "nv", "nv")
 _VALUE_OPS = (
-        OpSpec("inverse_dynamics", "InverseDynamics", (Q, QD, QDD, FEXT), (Out("tau", "force", NV),)),
-        OpSpec("forward_dynamics", "ForwardDynamics", (Q, QD, TAU, FEXT), (Out("qdd", "acceleration", NV),)),
-        OpSpec("crba", "Crba", (Q,), (Out("M", "congruence", NVxNV),)),
+        OpSpec("inverse_dynamics", "InverseDynamics", (Q, QD, QDD, FEXT), (Out("tau", "force", NV),),
+               backward="formula", jvp="backward", dual_jvp=("q", "qd")),
+        OpSpec("forward_dynamics", "ForwardDynamics", (Q, QD, TAU, FEXT), (Out("qdd", "acceleration", NV),),
+               backward="formula", jvp="backward"),
+        OpSpec("crba", "Crba", (Q,), (Out("M", "congruence", NVxNV),), backward="formula", jvp="backward"),
         OpSpec("crba_vjp", "CrbaVjp", (Q, Arg("weight", "plain", shape=NVxNV)), (Out("grad_q", "plain", NV),),
-               mujoco_twin=False),
+               mujoco_twin=False, backward="formula", jvp="rule"),
         OpSpec("mass_product_vjp", "MassProductVjp", (Q, Arg("a", "plain", shape=NV), Arg("cotangent", "plain", shape=NV)),
-               (Out("grad_q", "plain", NV),), mujoco_twin=False),
-        OpSpec("minv", "Minv", (Q,), (Out("Minv", "congruence", NVxNV),)),
-        OpSpec("generalized_gravity", "GeneralizedGravity", (Q,), (Out("g", "force", NV),)),
-        OpSpec("nonlinear_effects", "NonlinearEffects", (Q, QD), (Out("nle", "twin", NV),)),
-        OpSpec("energy", "Energy", (Q, QD), (Out("energy", "plain", (3,)),)),
-        OpSpec("com", "Com", (Q,), (Out("com", "plain", (3,)),), "kinematics"),
-        OpSpec("jacobian_com", "JacobianCom", (Q,), (Out("J", "columns", (3, "nv")),), "kinematics"),
-        OpSpec("ccrba", "Ccrba", (Q, QD), (Out("A", "columns", (6, "nv")), Out("h", "plain", (6,))), "kinematics"),
+               (Out("grad_q", "plain", NV),), mujoco_twin=False, backward="formula", jvp="rule"),
+        OpSpec("minv", "Minv", (Q,), (Out("Minv", "congruence", NVxNV),), backward="formula", jvp="backward"),
+        OpSpec("generalized_gravity", "GeneralizedGravity", (Q,), (Out("g", "force", NV),),
+               backward="formula", jvp="backward"),
+        OpSpec("nonlinear_effects", "NonlinearEffects", (Q, QD), (Out("nle", "twin", NV),),
+               backward="formula", jvp="backward"),
+        OpSpec("energy", "Energy", (Q, QD), (Out("energy", "plain", (3,)),), backward="formula", jvp="backward"),
+        OpSpec("com", "Com", (Q,), (Out("com", "plain", (3,)),), "kinematics", backward="formula", jvp="backward"),
+        OpSpec("jacobian_com", "JacobianCom", (Q,), (Out("J", "columns", (3, "nv")),), "kinematics",
+               backward="dual", jvp="dual", dual_jvp=("q",)),
+        OpSpec("ccrba", "Ccrba", (Q, QD), (Out("A", "columns", (6, "nv")), Out("h", "plain", (6,))), "kinematics",
+               backward="composed", jvp="dual", dual_jvp=("q", "qd")),
         OpSpec("forward_kinematics", "ForwardKinematics", (Q,),
-               (Out("positions", "plain", ("nframes", 3)), Out("rotations", "plain", ("nframes", 3, 3))), "kinematics"),
+               (Out("positions", "plain", ("nframes", 3)), Out("rotations", "plain", ("nframes", 3, 3))), "kinematics",
+               backward="formula", jvp="backward"),
         OpSpec("end_effector_pose", "EndEffectorPose", (Q, Arg("frames", "frames")), (Out("pose", "plain", ("nsel", 6)),),
-               "kinematics"),
-        OpSpec("frame_jacobian", "FrameJacobian", (Q, FRAME, REFERENCE), (Out("J", "columns", (6, "nv")),), "kinematics"),
+               "kinematics", backward="formula", jvp="backward"),
+        OpSpec("frame_jacobian", "FrameJacobian", (Q, FRAME, REFERENCE), (Out("J", "columns", (6, "nv")),), "kinematics",
+               backward="formula", dual_backward=True, jvp="rule"),
         OpSpec("frame_jacobian_vjp", "FrameJacobianVjp", (Q, Arg("weight", "plain", shape=(6, "nv")), FRAME, REFERENCE),
                (Out("grad_q", "plain", NV),), "kinematics", mujoco_twin=False),
         OpSpec("frame_kinematic_hessian", "FrameKinematicHessian", (Q, FRAME, REFERENCE), (Out("H", "plain", (6, "nv", "nv")),),
                "kinematics", mujoco_twin=False),
         OpSpec("frame_jacobian_dot", "FrameJacobianDot", (Q, QD, FRAME, REFERENCE), (Out("Jdot", "twin", (6, "nv")),),
-               "kinematics"),
+               "kinematics", backward="dual", jvp="dual", dual_jvp=("q", "qd")),
         OpSpec("inverse_dynamics_vjp", "InverseDynamicsVjp", (Q, QD, QDD, FEXT, Arg("cotangent", "force")),
-               (Out("grad_q", "twin", NV), Out("grad_qd", "twin", NV))),
+               (Out("grad_q", "twin", NV), Out("grad_qd", "twin", NV)), backward="formula", jvp="rule"),
         OpSpec("inverse_dynamics_vjp_full", "InverseDynamicsVjpFull", (Q, QD, QDD, FEXT, Arg("cotangent", "force")),
                (Out("grad_q", "twin", NV), Out("grad_qd", "twin", NV), Out("grad_qdd", "force", NV),
-                Out("tau", "force", NV)), "derivatives"),
-        OpSpec("inertia_solve", "InertiaSolve", (Q, Arg("x", "force")), (Out("y", "force", NV),)),
-        OpSpec("body_velocities", "BodyVelocities", (Q, QD), (Out("v", "plain", ("nbodies", 6)),), "kinematics"),
-        OpSpec("frames_vjp", "FramesVjp", (Q, Arg("weights", "frame_weights")), (Out("tau", "force", NV),), "kinematics"),
+                Out("tau", "force", NV)), "derivatives", dual_jvp=("q", "qd")),
+        OpSpec("inertia_solve", "InertiaSolve", (Q, Arg("x", "force")), (Out("y", "force", NV),),
+               backward="formula", jvp="rule"),
+        OpSpec("body_velocities", "BodyVelocities", (Q, QD), (Out("v", "plain", ("nbodies", 6)),), "kinematics",
+               backward="dual", jvp="rule", dual_jvp=("q",)),
+        OpSpec("frames_vjp", "FramesVjp", (Q, Arg("weights", "frame_weights")), (Out("tau", "force", NV),), "kinematics",
+               backward="dual", jvp="rule", dual_jvp=("q",)),
         OpSpec("inverse_dynamics_gradient", "InverseDynamicsGradient", (Q, QD, QDD, FEXT),
-               (Out("dtau_dq", "twin", NVxNV), Out("dtau_dqd", "twin", NVxNV)), "derivatives"),
+               (Out("dtau_dq", "twin", NVxNV), Out("dtau_dqd", "twin", NVxNV)), "derivatives",
+               backward="composed", jvp="rule"),
         OpSpec("inverse_dynamics_second_order", "InverseDynamicsSecondOrder", (Q, QD, QDD, FEXT),
                (Out("d2tau_dq2", "plain", NV3), Out("d2tau_dqd2", "plain", NV3), Out("d2tau_dqdqd", "plain", NV3),
                 Out("dM_dq", "plain", NV3)), "second_order", mujoco_twin=False),
@@ -155,45 +192,43 @@ _VALUE_OPS = (
                "second_order", mujoco_twin=False),
         OpSpec("forward_dynamics_gradient", "ForwardDynamicsGradient", (Q, QD, TAU, FEXT),
                (Out("dqdd_dq", "twin", NVxNV), Out("dqdd_dqd", "twin", NVxNV), Out("dqdd_dtau", "twin", NVxNV)),
-               "derivatives"),
+               "derivatives", backward="composed", jvp="rule"),
         OpSpec("step_derivatives", "StepDerivatives",
                (Q, QD, TAU, FEXT, Arg("dt", "plain", shape=(1,)), Arg("scheme", "scheme"), PASSIVE),
                (Out("q_next", "twin", ("nq",)), Out("qd_next", "twin", NV), Out("A", "twin", (2, "nv", 2, "nv")),
-                Out("B", "twin", (2, "nv", "nv"))), "derivatives"),
+                Out("B", "twin", (2, "nv", "nv"))), "derivatives", backward="step"),
         OpSpec("rk_step_derivatives", "RkStepDerivatives",
                (Q, QD, TAU, FEXT, Arg("dt", "plain", shape=(1,)), Arg("scheme", "tableau"), PASSIVE),
                (Out("q_next", "twin", ("nq",)), Out("qd_next", "twin", NV), Out("A", "twin", (2, "nv", 2, "nv")),
-                Out("B", "twin", (2, "nv", "nv")), Out("work", "workspace", (8, "nv", 3, "nv"))), "derivatives"),
+                Out("B", "twin", (2, "nv", "nv")), Out("work", "workspace", (8, "nv", 3, "nv"))), "derivatives", backward="step"),
         OpSpec("inverse_dynamics_external_force_gradient", "InverseDynamicsExternalForceGradient", (Q,),
-               (Out("dtau_dfext", "force_rows", ("nv", "nbodies", 6)),), "derivatives"),
+               (Out("dtau_dfext", "force_rows", ("nv", "nbodies", 6)),), "derivatives", backward="composed"),
         OpSpec("forward_dynamics_external_force_gradient", "ForwardDynamicsExternalForceGradient", (Q,),
-               (Out("dqdd_dfext", "force_rows", ("nv", "nbodies", 6)),), "derivatives"),
-        OpSpec("osc_inertia", "OscInertia", (Q, FRAME, REFERENCE), (Out("Lambda", "plain", (6, 6)),), "derivatives"),
-        OpSpec("cmm_time_variation", "CmmTimeVariation", (Q, QD), (Out("Adot", "twin", (6, "nv")),), "kinematics"),
-        OpSpec("dccrba", "Dccrba", (Q, QD), (Out("dh_dq", "twin", (6, "nv")),), "kinematics"),
-        OpSpec("coriolis_matrix", "CoriolisMatrix", (Q, QD), (Out("C", "twin", NVxNV),), "derivatives"),
+               (Out("dqdd_dfext", "force_rows", ("nv", "nbodies", 6)),), "derivatives", backward="composed"),
+        OpSpec("osc_inertia", "OscInertia", (Q, FRAME, REFERENCE), (Out("Lambda", "plain", (6, 6)),), "derivatives",
+               backward="composed"),
+        OpSpec("cmm_time_variation", "CmmTimeVariation", (Q, QD), (Out("Adot", "twin", (6, "nv")),), "kinematics",
+               backward="dual", jvp="dual", dual_jvp=("q", "qd")),
+        OpSpec("dccrba", "Dccrba", (Q, QD), (Out("dh_dq", "twin", (6, "nv")),), "kinematics",
+               backward="dual", jvp="dual", dual_jvp=("q", "qd")),
+        OpSpec("coriolis_matrix", "CoriolisMatrix", (Q, QD), (Out("C", "twin", NVxNV),), "derivatives",
+               backward="dual", jvp="dual", dual_jvp=("q", "qd")),
         OpSpec("inverse_dynamics_regressor", "InverseDynamicsRegressor", (Q, QD, QDD), (Out("Y", "force_rows", ("nv", "nparams")),),
-               "regressors"),
-        OpSpec("kinetic_energy_regressor", "KineticEnergyRegressor", (Q, QD), (Out("Yk", "plain", ("nparams",)),), "regressors"),
-        OpSpec("potential_energy_regressor", "PotentialEnergyRegressor", (Q,), (Out("Yp", "plain", ("nparams",)),), "regressors"),
+               "regressors",
+               backward="dual", jvp="dual", dual_jvp=("q", "qd", "qdd"), contracted=True, jvp_in_place=True),
+        OpSpec("kinetic_energy_regressor", "KineticEnergyRegressor", (Q, QD), (Out("Yk", "plain", ("nparams",)),), "regressors",
+               backward="dual", jvp="dual", dual_jvp=("q", "qd")),
+        OpSpec("potential_energy_regressor", "PotentialEnergyRegressor", (Q,), (Out("Yp", "plain", ("nparams",)),), "regressors",
+               backward="dual", jvp="dual", dual_jvp=("q",)),
         OpSpec("forward_dynamics_parameter_gradient", "ForwardDynamicsParameterGradient", (Q, QD, TAU),
-               (Out("dqdd_dparams", "force_rows", ("nv", "nparams")),), "regressors"),
+               (Out("dqdd_dparams", "force_rows", ("nv", "nparams")),), "regressors", backward="composed"),
 )
 
-# Ops whose backward runs their own kernel on dual numbers (csrc/kernels/derivatives/forward_mode.h): those whose
-# outputs are already derivatives, where the gradient is a second-order quantity. (M and M^-1 have
-# an O(n^2) backward from inverse-dynamics products instead; the forward-dynamics derivatives, the
-# external-force one of inverse dynamics and osc_inertia compose the backwards of their parts, in
-# autograd.py.)
-FORWARD_MODE_BACKWARD = (
-    "jacobian_com", "frame_jacobian", "frame_jacobian_dot", "body_velocities", "frames_vjp",
-    "cmm_time_variation", "dccrba", "coriolis_matrix", "inverse_dynamics_regressor", "kinetic_energy_regressor", "potential_energy_regressor",
-)
-
-# Of those, the ops whose kernel also provides contract(args, weight, cv) = sum(weight * output), which
-# their backward runs instead (in the binding's convention, the output's reframe folded into the
-# weight): the output itself would not fit a GPU thread on dual numbers (Y: nv x 10 nbodies).
-CONTRACTED = ("inverse_dynamics_regressor",)
+# Views of the entries: the ops with a <op>_backward kernel (those whose outputs are already derivatives, where the
+# gradient is a second-order quantity), and of those the ones that contract the output with its cotangent
+# inside the kernel (the output itself would not fit a GPU thread on dual numbers: Y is nv x 10 nbodies).
+FORWARD_MODE_BACKWARD = tuple(op.name for op in _VALUE_OPS if op.has_dual_backward)
+CONTRACTED = tuple(op.name for op in _VALUE_OPS if op.contracted)
 
 
 def forward_mode_backward(op: OpSpec) -> OpSpec:
@@ -207,11 +242,11 @@ def forward_mode_backward(op: OpSpec) -> OpSpec:
 
 def forward_mode_jvp(op: OpSpec, wrt: tuple[str, ...]) -> OpSpec:
     """`<op>_jvp(inputs..., tangents...)`: the derivative of every output along the tangents of the
-    inputs named in `wrt` (the other inputs held fixed; a null tangent is zero). For an op of JVP_IN_PLACE
+    inputs named in `wrt` (the other inputs held fixed; a null tangent is zero). For an op with jvp_in_place
     each output is its (value, tangent) pairs, of shape (..., *shape, 2)."""
     args = {a.name: a for a in op.tensor_args}
     tangents = tuple(Arg(f"{name}_dot", "plain", True, args[name].trailing) for name in wrt)
-    in_place = op.name in JVP_IN_PLACE
+    in_place = op.jvp_in_place
     outputs = tuple(Out(f"{o.name}_dot", "plain", tuple(o.shape) + ((2,) if in_place else ())) for o in op.outputs)
     return OpSpec(f"{op.name}_jvp", f"{op.kernel}Jvp", op.args + tangents, outputs, "derivatives_backward",
                   jvp_of=op.name, jvp_wrt=wrt, jvp_in_place=in_place)
@@ -222,19 +257,10 @@ def forward_mode_jvp(op: OpSpec, wrt: tuple[str, ...]) -> OpSpec:
 # inverse_dynamics_gradient in MuJoCo's convention with quaternions), tau alone (d(M x) along q) and
 # the body velocities (-J lam along q), and the frames' vector-Jacobian product along q (the tangent of
 # forward_kinematics' and end_effector_pose's backward: their Hessians by torch.func.hessian).
-FORWARD_MODE_JVP = (("inverse_dynamics_vjp_full", ("q", "qd")), ("inverse_dynamics", ("q", "qd")),
-                    ("body_velocities", ("q",)), ("frames_vjp", ("q",)))
-
-# The ops whose forward mode (torch.func.jvp, jacfwd, forward_ad; com's Hessian by torch.func.hessian) is
-# their own kernel on dual numbers along their state inputs. (osc_inertia's M^-1 on dual numbers would
-# not fit a GPU thread.)
-KERNEL_JVP = {"jacobian_com": ("q",), "potential_energy_regressor": ("q",), "ccrba": ("q", "qd"),
-              "frame_jacobian_dot": ("q", "qd"), "cmm_time_variation": ("q", "qd"), "dccrba": ("q", "qd"),
-              "coriolis_matrix": ("q", "qd"), "kinetic_energy_regressor": ("q", "qd"),
-              "inverse_dynamics_regressor": ("q", "qd", "qdd")}
-# Of those, the ones whose outputs on dual numbers (Y: NV x 10 NB pairs) would not fit a GPU thread's
-# stack: their dual outputs are written in place in the op's output.
-JVP_IN_PLACE = ("inverse_dynamics_regressor",)
+# The ops with a <op>_jvp kernel, and along which inputs: those whose forward mode it is (jvp "dual"), and the
+# products the forward-mode rules of others are made of.
+KERNEL_JVP = {op.name: op.dual_jvp for op in _VALUE_OPS if op.jvp == "dual"}
+FORWARD_MODE_JVP = tuple((op.name, op.dual_jvp) for op in _VALUE_OPS if op.dual_jvp and op.jvp != "dual")
 
 OPS: dict[str, OpSpec] = {op.name: op for op in _VALUE_OPS}
 OPS.update({f"{name}_backward": forward_mode_backward(OPS[name]) for name in FORWARD_MODE_BACKWARD})
@@ -277,8 +303,13 @@ def check_table(table: dict[str, OpSpec]) -> None:
         integers = [a.kind for a in op.args if not a.is_tensor and a.kind != "mask"]
         if "frames" in integers and integers[-1] != "frames" or integers.count("frames") > 1:
             raise ValueError(f"op {op.name}: a 'frames' list must be the op's last integer argument (it takes the rest)")
-        if op.name in CONTRACTED and (op.name not in FORWARD_MODE_BACKWARD or len(op.outputs) != 1 or
-                                      op.outputs[0].kind not in ("force_rows", "plain")):
+        if op.backward not in BACKWARD_KINDS or op.jvp not in JVP_KINDS:
+            raise ValueError(f"op {op.name}: backward must be one of {BACKWARD_KINDS} and jvp one of {JVP_KINDS}, got "
+                             f"{op.backward!r} and {op.jvp!r}")
+        if op.jvp == "dual" and not op.dual_jvp:
+            raise ValueError(f"op {op.name}: a forward mode by dual numbers needs the inputs of its kernel (dual_jvp)")
+        if op.contracted and (not op.has_dual_backward or len(op.outputs) != 1 or
+                              op.outputs[0].kind not in ("force_rows", "plain")):
             raise ValueError(f"op {op.name}: a contracted op has a forward-mode backward and one output of kind "
                              "'force_rows' or 'plain'")
         if op.derived and any(d == "nsel" for a in op.tensor_args for d in a.trailing):
