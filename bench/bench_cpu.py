@@ -140,9 +140,9 @@ def cases(name: str):
         "forward_dynamics": (lambda: robot.forward_dynamics(q, qd, qdd), lambda: pin.aba(model, data, qn, vn, an)),
         "frame_jacobian": (lambda: robot.frame_jacobian(q, frame),
                            lambda: pin.computeFrameJacobian(model, data, qn, frame, pin.LOCAL_WORLD_ALIGNED)),
-        "inverse_dynamics_gradient": (lambda: robot.inverse_dynamics_gradient(q, qd, qdd),
+        "inverse_dynamics_derivatives": (lambda: robot.inverse_dynamics_derivatives(q, qd, qdd),
                                       lambda: pin.computeRNEADerivatives(model, data, qn, vn, an)),
-        "forward_dynamics_gradient": (lambda: robot.forward_dynamics_gradient(q, qd, qdd),
+        "forward_dynamics_derivatives": (lambda: robot.forward_dynamics_derivatives(q, qd, qdd),
                                       lambda: pin.computeABADerivatives(model, data, qn, vn, an)),
         "nonlinear_effects": (lambda: robot.nonlinear_effects(q, qd),
                               lambda: pin.nonLinearEffects(model, data, qn, vn)),
@@ -196,15 +196,15 @@ def second_order(name: str, batch: int = B) -> list[tuple[str, float, float]]:
         "minv": (lambda q, qd, qdd: robot.minv(q)),
         "frame_jacobian": (lambda q, qd, qdd: robot.frame_jacobian(q, frame)),
         "coriolis_matrix": (lambda q, qd, qdd: robot.coriolis_matrix(q, qd)),
-        "inverse_dynamics_gradient": (lambda q, qd, qdd: robot.inverse_dynamics_gradient(q, qd, qdd)),
-        "forward_dynamics_gradient": (lambda q, qd, tau: robot.forward_dynamics_gradient(q, qd, tau)),
+        "inverse_dynamics_derivatives": (lambda q, qd, qdd: robot.inverse_dynamics_derivatives(q, qd, qdd)),
+        "forward_dynamics_derivatives": (lambda q, qd, tau: robot.forward_dynamics_derivatives(q, qd, tau)),
     }
     return [(fn_name, *forward_and_backward_us(fn, inputs, batch, seconds=0.5)) for fn_name, fn in functions.items()]
 
 
 def second_order_kernel(name: str, cpp: dict[str, float]) -> list[str]:
-    """Rows of inverse_dynamics_second_order per sample (one thread, float64) at B = 4096 and 256,
-    and forward_dynamics_second_order at B = 256, beside Pinocchio's C++ ComputeRNEASecondOrderDerivatives
+    """Rows of inverse_dynamics_second_derivatives per sample (one thread, float64) at B = 4096 and 256,
+    and forward_dynamics_second_derivatives at B = 256, beside Pinocchio's C++ ComputeRNEASecondOrderDerivatives
     per call (it reuses its four tensors, in cache; a batch writes B sets of them)."""
     src, floating, bundled = ROBOTS[name]
     robot = torch_grid.load(bundled or src, floating_base=floating)
@@ -215,12 +215,12 @@ def second_order_kernel(name: str, cpp: dict[str, float]) -> list[str]:
         g = torch.Generator().manual_seed(0)
         q = robot.random_configuration(batch, generator=g)
         qd, qdd = (torch.randn(batch, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
-        ours = per_sample_us(lambda: robot.inverse_dynamics_second_order(q, qd, qdd), batch)
-        theirs = cpp["inverse_dynamics_second_order"]
-        rows.append(f"| {name} | inverse_dynamics_second_order | {batch} | {ours:.2f} | {theirs:.2f} | {ours / theirs:.2f} |")
+        ours = per_sample_us(lambda: robot.inverse_dynamics_second_derivatives(q, qd, qdd), batch)
+        theirs = cpp["inverse_dynamics_second_derivatives"]
+        rows.append(f"| {name} | inverse_dynamics_second_derivatives | {batch} | {ours:.2f} | {theirs:.2f} | {ours / theirs:.2f} |")
         print(rows[-1], flush=True)
-    fd = per_sample_us(lambda: robot.forward_dynamics_second_order(q, qd, qdd), 256)
-    rows.append(f"| {name} | forward_dynamics_second_order | 256 | {fd:.2f} | | |")
+    fd = per_sample_us(lambda: robot.forward_dynamics_second_derivatives(q, qd, qdd), 256)
+    rows.append(f"| {name} | forward_dynamics_second_derivatives | 256 | {fd:.2f} | | |")
     torch.set_num_threads(threads)
     return rows
 
@@ -330,14 +330,14 @@ def main() -> None:
         "`torch_grid.load` in a new process after `import torch`.\n\n" + "\n".join(builds) + \
         "\n\nAutograd: forward_dynamics alone against forward + backward with respect to q, qd and tau " \
         "(one thread, float64, B = 4096).\n\n" + "\n".join(grads) + \
-        "\n\nSecond-order backwards (crba, frame_jacobian and inverse_dynamics_gradient by their O(n d) kernels, " \
-        "minv through crba's; forward_dynamics_gradient through -M^-1 dtau/dx, the inverse-dynamics gradient's " \
+        "\n\nSecond-order backwards (crba, frame_jacobian and inverse_dynamics_derivatives by their O(n d) kernels, " \
+        "minv through crba's; forward_dynamics_derivatives through -M^-1 dtau/dx, the inverse-dynamics gradient's " \
         "backward and minv's; coriolis_matrix by its forward-mode dual-number kernel), with respect to every " \
         f"input, one thread, float64, B = {B}.\n\n" + "\n".join(second) + \
-        "\n\nSecond-order kernels: the four (nv, nv, nv) tensors of inverse_dynamics_second_order per sample, " \
+        "\n\nSecond-order kernels: the four (nv, nv, nv) tensors of inverse_dynamics_second_derivatives per sample, " \
         "one thread, float64, against Pinocchio's C++ ComputeRNEASecondOrderDerivatives per call (one Data and " \
         "four tensors reused, so they stay in cache; a batch writes 4 nv^3 numbers per sample to main " \
-        "memory, kept for the next call up to a quarter of the machine's memory); forward_dynamics_second_order adds M^-1 products in torch." \
+        "memory, kept for the next call up to a quarter of the machine's memory); forward_dynamics_second_derivatives adds M^-1 products in torch." \
         "\n\n" + "\n".join(kernels) + "\n\nTransforms, one thread, float64, B = 4096: torch.func.vmap against " \
         "the batched call (reference), and a Hessian-vector product of w . forward_dynamics(q, qd, tau) with " \
         "respect to all three (forward + backward with create_graph + double backward) against the forward " \

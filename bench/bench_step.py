@@ -1,4 +1,4 @@
-"""Plant-step benchmarks: step_derivatives against forward_dynamics_gradient (B = 4096, one thread,
+"""Plant-step benchmarks: step_derivatives against forward_dynamics_derivatives (B = 4096, one thread,
 float64), against MuJoCo's mjd_transitionFD per call on the same robot (a MuJoCo model built from the
 URDF as the tests build it, motors on the hinges), and step_second_derivatives on a small batch.
 
@@ -63,7 +63,7 @@ def _transition_fd_us(m: mujoco.MjModel, q: np.ndarray, calls: int = 200) -> flo
 
 
 def step_rows(robots: dict) -> list[str]:
-    """Markdown rows per robot: forward_dynamics_gradient, step_derivatives (semi-implicit Euler, rk4)
+    """Markdown rows per robot: forward_dynamics_derivatives, step_derivatives (semi-implicit Euler, rk4)
     and their ratios, mjd_transitionFD (Euler) per call and its ratio to ours."""
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
@@ -74,11 +74,11 @@ def step_rows(robots: dict) -> list[str]:
         g = torch.Generator().manual_seed(0)
         q = view.random_configuration(B, generator=g)
         qd, tau = (torch.randn(B, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
-        fdg = _per_sample_us(lambda: view.forward_dynamics_gradient(q, qd, tau), B)
+        fdg = _per_sample_us(lambda: view.forward_dynamics_derivatives(q, qd, tau), B)
         euler = _per_sample_us(lambda: view.step_derivatives(q, qd, tau, 0.01, "semi_implicit_euler"), B)
         rk4 = _per_sample_us(lambda: view.step_derivatives(q, qd, tau, 0.01, "rk4"), B)
         pin, q_pin = robot.pin, robot.pin.random_configuration(B, generator=g)
-        fdg_pin = _per_sample_us(lambda: pin.forward_dynamics_gradient(q_pin, qd, tau), B)
+        fdg_pin = _per_sample_us(lambda: pin.forward_dynamics_derivatives(q_pin, qd, tau), B)
         rk4_pin = _per_sample_us(lambda: pin.step_derivatives(q_pin, qd, tau, 0.01, "rk4"), B)
         m = _mujoco_model(src, floating, mujoco.mjtIntegrator.mjINT_EULER)
         ref = _transition_fd_us(m, q[0].numpy())
@@ -131,14 +131,14 @@ def ilqr_iteration_ms(batch: int = 256, T: int = 50) -> tuple[float, float]:
 
 
 def step_section(robots: dict) -> str:
-    header = ("Plant step, MuJoCo convention, one thread, float64, B = 4096 (µs per sample): forward_dynamics_gradient; "
+    header = ("Plant step, MuJoCo convention, one thread, float64, B = 4096 (µs per sample): forward_dynamics_derivatives; "
               "step_derivatives (A, B) for semi-implicit Euler (one kernel) and rk4 (one kernel) with "
               "their ratio to it; MuJoCo's "
               "mjd_transitionFD per call on the same robot (Euler, forward differences, its default; motors on the "
               "joints) and how many of our samples it costs; step_second_derivatives per sample for semi-implicit "
               "Euler and rk4 (closed form; the second-order chain rule through the stages), B = 64; and rk4's "
-              "step_derivatives in Pinocchio's convention with its ratio to forward_dynamics_gradient there.\n\n"
-              "| robot | forward_dynamics_gradient | step_derivatives euler | step_derivatives rk4 | mjd_transitionFD | "
+              "step_derivatives in Pinocchio's convention with its ratio to forward_dynamics_derivatives there.\n\n"
+              "| robot | forward_dynamics_derivatives | step_derivatives euler | step_derivatives rk4 | mjd_transitionFD | "
               "step_second_derivatives euler | step_second_derivatives rk4 | step_derivatives rk4, pin |\n"
               "|---|---|---|---|---|---|---|---|\n")
     iteration, horizon = ilqr_iteration_ms()

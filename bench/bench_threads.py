@@ -1,6 +1,6 @@
 """Thread scaling of small and large CPU batches: the time of one call on one and on two threads
 (torch.set_num_threads) for a light op (inverse_dynamics) and a heavy one
-(forward_dynamics_gradient), forward only, at B = 16, 64, 256 and 4096, and forward_dynamics
+(forward_dynamics_derivatives), forward only, at B = 16, 64, 256 and 4096, and forward_dynamics
 forward + backward at B = 64; go2, float64. Prints a markdown table of per-call times and the
 two-thread / one-thread ratio: the best call over all repeats, and the best over repeats of a
 repeat's median call (on a shared machine a woken thread may wait for a core other processes hold:
@@ -49,7 +49,7 @@ def cases(robot: torch_grid.Robot) -> list[tuple[str, int, Callable[[], object]]
         return torch.randn(b, nv, generator=g, dtype=torch.float64, requires_grad=grad)
 
     out = []
-    for name in ("inverse_dynamics", "forward_dynamics_gradient"):
+    for name in ("inverse_dynamics", "forward_dynamics_derivatives"):
         for b in BATCHES:
             args = (robot.random_configuration(b, generator=g), vector(b), vector(b))
             out.append((name, b, lambda f=getattr(robot, name), args=args: f(*args)))

@@ -169,11 +169,11 @@ def value_calls(robot, second_order: bool = True):
     calls["horizon"] = lambda v, q, qd, x, f: v.horizon(q, qd, x, 0.01, "rk4", _costs(v, robot, q, qd, x), f_ext=f)
     if second_order:
         calls.update({
-            "inverse_dynamics_second_order": lambda v, q, qd, x, f: v.inverse_dynamics_second_order(q, qd, x, f),
-            "forward_dynamics_second_order": lambda v, q, qd, x, f: v.forward_dynamics_second_order(q, qd, x, f),
+            "inverse_dynamics_second_derivatives": lambda v, q, qd, x, f: v.inverse_dynamics_second_derivatives(q, qd, x, f),
+            "forward_dynamics_second_derivatives": lambda v, q, qd, x, f: v.forward_dynamics_second_derivatives(q, qd, x, f),
             "frame_kinematic_hessian": lambda v, q, qd, x, f: torch.stack(
                 [v.frame_kinematic_hessian(q, last, ref) for ref in ("world", "local", "local_world_aligned")]),
-            "end_effector_pose_hessian": lambda v, q, qd, x, f: v.end_effector_pose_hessian(q, [last, 2]),
+            "end_effector_pose_second_derivatives": lambda v, q, qd, x, f: v.end_effector_pose_second_derivatives(q, [last, 2]),
             "step_second_derivatives[semi_implicit_euler]":
                 lambda v, q, qd, x, f: v.step_second_derivatives(q, qd, x, 0.01, "semi_implicit_euler", f),
             "step_second_derivatives[rk4]": lambda v, q, qd, x, f: v.step_second_derivatives(q, qd, x, 0.01, "rk4", f),
@@ -210,8 +210,8 @@ def values(checks: Checks, robot, device: torch.device, batch: int, errors: dict
             checks.run(f"{conv} float32 {name}", f32)
 
 
-CORE = ["inverse_dynamics", "forward_dynamics", "crba", "minv", "frame_jacobian", "inverse_dynamics_gradient",
-        "forward_dynamics_gradient", "step_derivatives[semi_implicit_euler]", "step_derivatives[rk4]"]
+CORE = ["inverse_dynamics", "forward_dynamics", "crba", "minv", "frame_jacobian", "inverse_dynamics_derivatives",
+        "forward_dynamics_derivatives", "step_derivatives[semi_implicit_euler]", "step_derivatives[rk4]"]
 
 
 def batches(checks: Checks, robot, device: torch.device, sizes: list[int]) -> None:
@@ -278,7 +278,7 @@ def gradients(checks: Checks, robot, device: torch.device, batch: int) -> None:
                 return [h if h is not None else torch.zeros_like(leaf) for h, leaf in zip(hv, leaves)]
             checks.run(f"{conv} double backward {name}", lambda hvp=hvp: compare(hvp(device), hvp("cpu"), GRAD_TOL, device))
 
-        for name in ("inverse_dynamics", "forward_dynamics", "crba", "minv", "frame_jacobian", "forward_dynamics_gradient",
+        for name in ("inverse_dynamics", "forward_dynamics", "crba", "minv", "frame_jacobian", "forward_dynamics_derivatives",
                      "coriolis_matrix", "step[rk4]", "step_derivatives[rk4]"):
             def jvp(dev, call=calls[name]):
                 primals = tuple(on(inputs, dev))

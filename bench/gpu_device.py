@@ -24,13 +24,13 @@ def streams(checks: Checks, robot, device: torch.device) -> None:
     if not (found := _cuda_only(checks, "side stream", robot, device, 4096, 4)):
         return
     view, q, qd, x = found
-    ref = view.forward_dynamics_gradient(q, qd, x)
+    ref = view.forward_dynamics_derivatives(q, qd, x)
 
     def side():
         stream = torch.cuda.Stream()
         stream.wait_stream(torch.cuda.current_stream())
         with torch.cuda.stream(stream):
-            out = view.forward_dynamics_gradient(q, qd, x)
+            out = view.forward_dynamics_derivatives(q, qd, x)
         torch.cuda.current_stream().wait_stream(stream)
         return compare(out, ref, F64_TOL, device)
     checks.run("side stream", side)
@@ -40,7 +40,7 @@ def streams(checks: Checks, robot, device: torch.device) -> None:
         for k, stream in enumerate(pool):
             stream.wait_stream(torch.cuda.current_stream())
             with torch.cuda.stream(stream):
-                outs.append(view.forward_dynamics_gradient(q[k::4], qd[k::4], x[k::4]))
+                outs.append(view.forward_dynamics_derivatives(q[k::4], qd[k::4], x[k::4]))
         for stream in pool:
             torch.cuda.current_stream().wait_stream(stream)
         return compare([torch.stack([o[i] for o in outs], 1).flatten(0, 1) for i in range(3)], ref, F64_TOL, device)
@@ -154,17 +154,17 @@ def refusal(checks: Checks, robot, device: torch.device) -> None:
     def refused():
         os.environ["TORCH_GRID_CUDA_LOCAL_MEMORY_MB"] = "1"
         try:
-            view.forward_dynamics_gradient(q, qd, x)
+            view.forward_dynamics_derivatives(q, qd, x)
         except RuntimeError as e:
             text = str(e)
-            return None if "forward_dynamics_gradient" in text and "TORCH_GRID_CUDA_LOCAL_MEMORY_MB" in text \
+            return None if "forward_dynamics_derivatives" in text and "TORCH_GRID_CUDA_LOCAL_MEMORY_MB" in text \
                 else f"unexpected error: {text[:300]}"
         finally:
             del os.environ["TORCH_GRID_CUDA_LOCAL_MEMORY_MB"]
         return "a kernel above the budget was launched"
     checks.run("local memory budget refusal", refused)
     checks.run("the same kernel within the budget", lambda: compare(
-        view.forward_dynamics_gradient(q, qd, x), view.forward_dynamics_gradient(*on((q, qd, x), "cpu")), F64_TOL, device))
+        view.forward_dynamics_derivatives(q, qd, x), view.forward_dynamics_derivatives(*on((q, qd, x), "cpu")), F64_TOL, device))
 
 
 def reservation(checks: Checks, robot, device: torch.device) -> None:
@@ -208,9 +208,9 @@ def small_calls(robot, device: torch.device) -> None:
 
 
 def profiled_call(robot, device: torch.device) -> None:
-    """Two calls of forward_dynamics_gradient at N = 65536 (ncu profiles the second)."""
+    """Two calls of forward_dynamics_derivatives at N = 65536 (ncu profiles the second)."""
     view = robot.pin
     q, qd, x, _ = on(states(view, 65536, seed=10), device)
     for _ in range(2):
-        view.forward_dynamics_gradient(q, qd, x)
+        view.forward_dynamics_derivatives(q, qd, x)
     torch.cuda.synchronize()

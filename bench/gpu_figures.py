@@ -23,14 +23,14 @@ OPS = {
     "forward_dynamics": lambda v, q, qd, x: v.forward_dynamics(q, qd, x),
     "crba": lambda v, q, qd, x: v.crba(q),
     "minv": lambda v, q, qd, x: v.minv(q),
-    "inverse_dynamics_gradient": lambda v, q, qd, x: v.inverse_dynamics_gradient(q, qd, x),
-    "forward_dynamics_gradient": lambda v, q, qd, x: v.forward_dynamics_gradient(q, qd, x),
-    "inverse_dynamics_second_order": lambda v, q, qd, x: v.inverse_dynamics_second_order(q, qd, x),
+    "inverse_dynamics_derivatives": lambda v, q, qd, x: v.inverse_dynamics_derivatives(q, qd, x),
+    "forward_dynamics_derivatives": lambda v, q, qd, x: v.forward_dynamics_derivatives(q, qd, x),
+    "inverse_dynamics_second_derivatives": lambda v, q, qd, x: v.inverse_dynamics_second_derivatives(q, qd, x),
     "step_derivatives[semi_implicit_euler]": lambda v, q, qd, x: v.step_derivatives(q, qd, x, 0.01, "semi_implicit_euler"),
     "step_derivatives[rk4]": lambda v, q, qd, x: v.step_derivatives(q, qd, x, 0.01, "rk4"),
 }
 # floats written per sample, for the memory cap below
-OUTPUTS = {"inverse_dynamics_second_order": lambda nv: 4 * nv ** 3, "step_derivatives[rk4]": lambda nv: 6 * nv ** 2}
+OUTPUTS = {"inverse_dynamics_second_derivatives": lambda nv: 4 * nv ** 3, "step_derivatives[rk4]": lambda nv: 6 * nv ** 2}
 MAX_OUTPUT_BYTES = 8 << 30
 
 

@@ -12,10 +12,10 @@ from pathlib import Path
 # GRiD's published per-sample times (RTX 5090, float32, data on the GPU, microseconds; N = 256 unless
 # noted): (robot, op) -> (figure, N)
 GRID = {("iiwa14", "inverse_dynamics"): (0.045, 256), ("iiwa14", "forward_dynamics"): (0.092, 256),
-        ("iiwa14", "inverse_dynamics_gradient"): (0.030, 1024), ("iiwa14", "forward_dynamics_gradient"): (0.185, 256),
+        ("iiwa14", "inverse_dynamics_derivatives"): (0.030, 1024), ("iiwa14", "forward_dynamics_derivatives"): (0.185, 256),
         ("g1", "inverse_dynamics"): (0.253, 256), ("g1", "forward_dynamics"): (0.800, 256), ("g1", "crba"): (0.420, 256),
-        ("g1", "forward_dynamics_gradient"): (1.49, 256), ("g1", "inverse_dynamics_gradient"): (0.625, 1024),
-        ("g1", "inverse_dynamics_second_order"): (12.8, 256)}
+        ("g1", "forward_dynamics_derivatives"): (1.49, 256), ("g1", "inverse_dynamics_derivatives"): (0.625, 1024),
+        ("g1", "inverse_dynamics_second_derivatives"): (12.8, 256)}
 
 
 def tables(records: list[dict]) -> str:

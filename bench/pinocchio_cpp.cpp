@@ -118,18 +118,18 @@ int main(int argc, char** argv) {
     pinocchio::computeFrameJacobian(model, data, q.col(i), frame, pinocchio::LOCAL_WORLD_ALIGNED, J);
     sink = J(0, 0);
   });
-  time("inverse_dynamics_gradient", [&](int i) {
+  time("inverse_dynamics_derivatives", [&](int i) {
     pinocchio::computeRNEADerivatives(model, data, q.col(i), v.col(i), a.col(i));
     sink = data.dtau_dq(0, 0) + data.dtau_dv(0, 0);
   });
-  time("forward_dynamics_gradient", [&](int i) {
+  time("forward_dynamics_derivatives", [&](int i) {
     pinocchio::computeABADerivatives(model, data, q.col(i), v.col(i), a.col(i));
     sink = data.ddq_dq(0, 0) + data.ddq_dv(0, 0) + data.Minv(model.nv - 1, 0);
   });
   pinocchio::Data::Tensor3x d2q(model.nv, model.nv, model.nv), d2v(model.nv, model.nv, model.nv),
       dqdv(model.nv, model.nv, model.nv), dadq(model.nv, model.nv, model.nv);
   for (auto* T : {&d2q, &d2v, &dqdv, &dadq}) T->setZero();
-  time("inverse_dynamics_second_order", [&](int i) {
+  time("inverse_dynamics_second_derivatives", [&](int i) {
     pinocchio::ComputeRNEASecondOrderDerivatives(model, data, q.col(i), v.col(i), a.col(i), d2q, d2v, dqdv, dadq);
     sink = d2q(0, 0, 0) + d2v(0, 0, 0) + dqdv(0, 0, 0) + dadq(0, 0, 0);
   });

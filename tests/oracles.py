@@ -3,7 +3,7 @@
 No tests here. Everything works on numpy float64 arrays, one state at a time; the `*_batch`
 helpers loop over any leading batch shape.
 
-Layouts (see /work/shared/reference/conventions.md):
+Layouts (see docs/guides/conventions.md):
 - torch_grid "pin" q: Pinocchio's q, except a continuous joint has one angle (Pinocchio: cos, sin).
 - torch_grid "mujoco" q: MuJoCo's qpos ([pos, quat wxyz, joints]); qvel = [v_lin WORLD, omega LOCAL, ...].
 """
@@ -271,7 +271,7 @@ class MjSim:
 
 
 def mujoco_from_urdf(urdf_path, floating: bool, joint_names: list[str] | None = None) -> MjSim:
-    """MuJoCo model of a URDF robot set up to match Pinocchio (conventions.md, 'Making MuJoCo match')."""
+    """MuJoCo model of a URDF robot set up to match Pinocchio (MuJoCo's options set to Pinocchio's model)."""
     spec = mujoco.MjSpec.from_string(_urdf_for_mujoco(Path(urdf_path).read_text()))
     if floating:
         spec.worldbody.first_body().add_freejoint()
@@ -297,7 +297,7 @@ def mujoco_from_mjcf(text: str) -> MjSim:
 
 
 # --------------------------------------------------------------------------------------------
-# numpy reference of the pin <-> MuJoCo transforms (conventions.md), used to validate this harness
+# numpy reference of the pin <-> MuJoCo transforms (docs/guides/conventions.md), used to validate this harness
 # --------------------------------------------------------------------------------------------
 def quat_wxyz_to_R(qw):
     w, x, y, z = qw

@@ -86,8 +86,8 @@ def test_configurations(robots):
     # MuJoCo's layout is the same configuration with the quaternion reordered.
     g = torch.Generator().manual_seed(11)
     q_pin = robot.random_configuration(5, generator=g)
-    q_mjx = robot.mujoco.random_configuration(5, generator=torch.Generator().manual_seed(11))
-    assert torch.equal(torch_grid.conventions.q_pin_to_mjx(q_pin), q_mjx)
+    q_mujoco = robot.mujoco.random_configuration(5, generator=torch.Generator().manual_seed(11))
+    assert torch.equal(torch_grid.conventions.q_pin_to_mujoco(q_pin), q_mujoco)
 
 
 def test_convention_selection(robots):
@@ -170,7 +170,7 @@ def test_float32_on_the_cpu_is_float64_rounded(robots):
         lambda q, qd, qdd, f, w: ops.inverse_dynamics(q, qd, qdd, f, 0),
         lambda q, qd, qdd, f, w: ops.crba(q, 1),
         lambda q, qd, qdd, f, w: ops.frame_jacobian(q, 7, 2, 1),
-        lambda q, qd, qdd, f, w: ops.inverse_dynamics_gradient(q, qd, qdd, f, 1),
+        lambda q, qd, qdd, f, w: ops.inverse_dynamics_derivatives(q, qd, qdd, f, 1),
         lambda q, qd, qdd, f, w: ops.inverse_dynamics_regressor(q, qd, qdd.expand_as(qd), 1),  # 3 samples a chunk
         lambda q, qd, qdd, f, w: ops.frame_jacobian_backward(q, 7, 2, None, 1, 1),
         lambda q, qd, qdd, f, w: ops.coriolis_matrix_backward(q, qd, w, 3, 1),
@@ -201,8 +201,8 @@ def test_large_cpu_outputs_reuse_their_blocks(robots):
     # several outputs, each streamed from the buffer
     qd, qdd = (torch.randn(13_000, robot.nv, generator=torch.Generator().manual_seed(k), dtype=torch.float64)
                for k in (5, 6))
-    parts = [robot.mujoco.inverse_dynamics_gradient(*x) for x in zip(q.split(1000), qd.split(1000), qdd.split(1000))]
-    for whole, part in zip(robot.mujoco.inverse_dynamics_gradient(q, qd, qdd), zip(*parts)):
+    parts = [robot.mujoco.inverse_dynamics_derivatives(*x) for x in zip(q.split(1000), qd.split(1000), qdd.split(1000))]
+    for whole, part in zip(robot.mujoco.inverse_dynamics_derivatives(q, qd, qdd), zip(*parts)):
         assert torch.equal(whole, torch.cat(part))
 
 

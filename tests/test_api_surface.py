@@ -23,6 +23,50 @@ def test_dir_shows_the_public_names_only():
     assert "Mapping" not in dir(torch_grid) and "annotations" not in dir(torch_grid)
 
 
+def test_former_module_paths_import_with_a_warning():
+    """The modules that moved into the layers keep their former paths for a release (CHANGELOG.md), with a
+    DeprecationWarning naming the new one; torch_grid.conventions stays public."""
+    import importlib
+    import sys
+
+    from torch_grid.ops import cuda_report
+    from torch_grid.optim import mpc_adapter
+
+    for old, new in (("torch_grid.mpc_adapter", mpc_adapter), ("torch_grid.cuda_report", cuda_report)):
+        sys.modules.pop(old, None)
+        with pytest.warns(DeprecationWarning, match=new.__name__.replace(".", r"\.")):
+            module = importlib.import_module(old)
+        assert all(getattr(module, name) is getattr(new, name) for name in module.__all__)
+    import torch_grid.conventions as conventions
+    assert conventions is torch_grid.conventions and conventions.q_pin_to_mujoco
+
+
+def test_former_names_are_the_functions_with_a_warning(robots):
+    """The renamed functions, conventions' transforms and convention spellings keep working for a release
+    (CHANGELOG.md): the same function, with a DeprecationWarning naming the new name."""
+    from torch_grid.former import FORMER_NAMES
+    from torch_grid.space import conventions
+
+    robot = robots["iiwa14"]
+    for view in (robot, robot.mujoco):
+        for old, new in FORMER_NAMES.items():
+            with pytest.warns(DeprecationWarning, match=new):
+                assert getattr(view, old) == getattr(view, new)
+    with pytest.raises(AttributeError, match="no attribute 'inverse_dynamics_gradiant'"):
+        robot.inverse_dynamics_gradiant
+    assert len(conventions.FORMER_NAMES) == 10
+    for old, new in conventions.FORMER_NAMES.items():
+        with pytest.warns(DeprecationWarning, match=new):
+            assert getattr(torch_grid.conventions, old) is getattr(conventions, new)
+    try:
+        for old, new in (("pinocchio", "pin"), ("MJX", "mujoco")):
+            with pytest.warns(DeprecationWarning, match=repr(new)):
+                robot.convention = old
+            assert robot.convention == new
+    finally:
+        robot.convention = "pin"
+
+
 def test_every_public_attribute_is_documented():
     for cls in (torch_grid.Robot, torch_grid.RobotView):
         assert cls.__doc__.strip()
@@ -37,7 +81,7 @@ def test_help_of_a_view_shows_the_public_class_and_its_functions(robots):
     assert type(robot.pin) is torch_grid.RobotView and type(robot.mujoco) is torch_grid.RobotView
     text = pydoc.render_doc(robot.pin, renderer=pydoc.plaintext)
     assert "class RobotView" in text and "_View" not in text
-    for function in ("inverse_dynamics", "forward_dynamics_gradient", "neutral_configuration", "step", "horizon"):
+    for function in ("inverse_dynamics", "forward_dynamics_derivatives", "neutral_configuration", "step", "horizon"):
         assert f"{function}(self" in text, function
 
 

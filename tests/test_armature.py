@@ -69,11 +69,11 @@ def test_derivatives_match_pinocchio(case):
 
     qp = to_pin_q(robot, q)
     ref = batch_apply(rnea_derivatives, qp, v.numpy(), a.numpy())
-    for ours, want in zip(robot.inverse_dynamics_gradient(q, v, a), ref):
+    for ours, want in zip(robot.inverse_dynamics_derivatives(q, v, a), ref):
         assert rel_err(ours, want) <= TOL
     tau = robot.inverse_dynamics(q, v, a)
     ref = batch_apply(aba_derivatives, qp, v.numpy(), tau.numpy())
-    for ours, want in zip(robot.forward_dynamics_gradient(q, v, tau), ref):
+    for ours, want in zip(robot.forward_dynamics_derivatives(q, v, tau), ref):
         assert rel_err(ours, want) <= TOL
 
 

@@ -28,8 +28,8 @@ def test_every_differentiable_function_is_checked(robots):
     public = {n for n in dir(robots["iiwa14"].pin) if not n.startswith("_") and callable(getattr(robots["iiwa14"].pin, n))}
     not_differentiable = {"inertial_parameters", "neutral_configuration", "random_configuration", "frame_index",
                           "rnea", "aba",  # constants and samplers; rnea/aba alias two functions in the table
-                          "inverse_dynamics_second_order", "forward_dynamics_second_order",  # a third derivative
-                          "frame_kinematic_hessian", "end_effector_pose_hessian", "step_second_derivatives"}
+                          "inverse_dynamics_second_derivatives", "forward_dynamics_second_derivatives",  # a third derivative
+                          "frame_kinematic_hessian", "end_effector_pose_second_derivatives", "step_second_derivatives"}
     # torch compositions of the functions above, gradchecked in test_configuration.py, test_step.py,
     # test_costs.py and test_mpc_adapter.py
     composed = {"integrate", "difference", "d_integrate", "d_difference", "step", "step_derivatives", "state_cost",
@@ -38,7 +38,7 @@ def test_every_differentiable_function_is_checked(robots):
     assert set(FORWARD_MODE_BACKWARD + COMPOSED_BACKWARD) - {"frames_vjp"} <= set(FUNCTIONS)  # internal: kinematics backwards
 
 
-@pytest.mark.parametrize("function", ["inverse_dynamics_gradient", "forward_dynamics", "crba", "ccrba"])
+@pytest.mark.parametrize("function", ["inverse_dynamics_derivatives", "forward_dynamics", "crba", "ccrba"])
 def test_gradient_of_some_inputs_equals_the_full_one(robots, function):
     """Inputs that do not require grad are skipped (the mask), and do not change the others."""
     robot = robots["go2"]
@@ -67,11 +67,11 @@ def test_gradcheck_every_input(robots, name, convention, function):
     fn = lambda *x: call(view, robot, *x)  # noqa: E731
     # Ops whose backward is the second-order forward-mode pass are checked on random projections
     # (fast mode): the full Jacobian of a matrix-valued op would take thousands of backward calls.
-    fast = function in FORWARD_MODE_BACKWARD + COMPOSED_BACKWARD + ("end_effector_pose_gradient", "centroidal_map_gradient")
+    fast = function in FORWARD_MODE_BACKWARD + COMPOSED_BACKWARD + ("end_effector_pose_derivatives", "centroidal_map_derivatives")
     assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-6, rtol=1e-5, fast_mode=fast)
 
 
-@pytest.mark.parametrize("function", ["crba", "frame_jacobian", "inverse_dynamics_gradient", "coriolis_matrix"])
+@pytest.mark.parametrize("function", ["crba", "frame_jacobian", "inverse_dynamics_derivatives", "coriolis_matrix"])
 def test_gradcheck_g1_and_tiago(robots, function):
     """The same on the humanoid (35 dofs) and on continuous + prismatic joints."""
     call, arity = FUNCTIONS[function]
@@ -88,7 +88,7 @@ def test_float32_backward_matches_float64(robots):
     grads = []
     for dtype in (torch.float64, torch.float32):
         leaves = [t.detach().to(dtype).requires_grad_(True) for t in (q, qd, qdd, f)]
-        dq, dqd = robot.inverse_dynamics_gradient(*leaves)
+        dq, dqd = robot.inverse_dynamics_derivatives(*leaves)
         (dq.square().sum() + dqd.square().sum()).backward()
         grads.append([t.grad.double() for t in leaves])
     for g64, g32 in zip(*grads):
@@ -187,7 +187,7 @@ def test_jvp_kernels_match_central_differences(robots, name, convention):
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
-@pytest.mark.parametrize("function", ["forward_dynamics", "crba", "inverse_dynamics_gradient"])
+@pytest.mark.parametrize("function", ["forward_dynamics", "crba", "inverse_dynamics_derivatives"])
 def test_cuda_graph_replays_forward_and_backward(robots, function):
     robot = robots["go2"]
     call, arity = FUNCTIONS[function]
@@ -249,6 +249,6 @@ def test_ops_without_a_backward_compute_derivatives():
     KERNEL_ONLY = {n for n, s in OPS.items() if s.backward == "step"}
     missing = {n for n, s in OPS.items() if backward_formula(s) is None and not s.derived}
     assert missing - set(KERNEL_ONLY) == {"frame_jacobian_vjp", "inverse_dynamics_vjp_full", "frame_kinematic_hessian",
-                                          "inverse_dynamics_second_order", "inverse_dynamics_gradient_vjp",
-                                          "inverse_dynamics_gradient_tangent"}
+                                          "inverse_dynamics_second_derivatives", "inverse_dynamics_derivatives_vjp",
+                                          "inverse_dynamics_derivatives_tangent"}
     assert set(KERNEL_ONLY) == {"step_derivatives", "rk_step_derivatives"} <= missing

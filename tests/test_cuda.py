@@ -40,7 +40,7 @@ def test_every_float32_kernel_compiles_with_nvcc(go2_sources):
     text = "".join(u.read_text() for u in go2_sources.glob("*.cu"))
     for op in OPS.values():
         for scalar in ("float", "double"):
-            for conv in ("tg::PIN", "tg::MJX") if op.mujoco_twin else ("tg::PIN",):
+            for conv in ("tg::PIN", "tg::MUJOCO") if op.mujoco_twin else ("tg::PIN",):
                 assert f"tg::cuda_launch<tg::bind::{op.kernel}, Robot, {scalar}, {conv}>" in text
 
     def compile_unit(unit):
@@ -70,7 +70,7 @@ def test_cuda_stack_budget_on_a_humanoid(erd_robots_dir):
     assert {(u.op, u.convention) for u in usages} == {(name, c) for name, op in OPS.items()
                                                       for c in (("pin", "mujoco") if op.mujoco_twin else ("pin",))}
     halved = {"inverse_dynamics": 8272, "crba": 18032, "forward_dynamics": 28768, "minv": 92896,
-              "forward_dynamics_gradient": 110288}  # bytes before; each convention must halve it
+              "forward_dynamics_derivatives": 110288}  # bytes before; each convention must halve it
     for u in usages:
         assert u.stack <= cuda_report.DEFAULT_BUDGET, \
             f"{u.op} ({u.convention}): {u.stack} bytes of stack per thread, budget {cuda_report.DEFAULT_BUDGET}"

@@ -29,22 +29,22 @@ def _states(robot, batch=3, seed=0, convention="pin"):
 
 
 @pytest.mark.parametrize("name", ROBOTS)
-def test_inverse_dynamics_gradient_vs_pinocchio(robots, pin_models, name):
+def test_inverse_dynamics_derivatives_vs_pinocchio(robots, pin_models, name):
     robot, pm = robots[name], pin_models[name]
     pd = pm.createData()
     q, qd, qdd, f = _states(robot)
-    dq, dqd = robot.inverse_dynamics_gradient(q, qd, qdd, f)
+    dq, dqd = robot.inverse_dynamics_derivatives(q, qd, qdd, f)
     for b in range(q.shape[0]):
         ref = pin.computeRNEADerivatives(pm, pd, to_pin_q(robot, q[b]), qd[b].numpy(), qdd[b].numpy(), pin_forces(pm, f[b]))
         assert rel_err(dq[b], ref[0]) <= 1e-8 and rel_err(dqd[b], ref[1]) <= 1e-8
 
 
 @pytest.mark.parametrize("name", ROBOTS)
-def test_forward_dynamics_gradient_vs_pinocchio(robots, pin_models, name):
+def test_forward_dynamics_derivatives_vs_pinocchio(robots, pin_models, name):
     robot, pm = robots[name], pin_models[name]
     pd = pm.createData()
     q, qd, tau, f = _states(robot, seed=1)
-    outs = robot.forward_dynamics_gradient(q, qd, tau, f)
+    outs = robot.forward_dynamics_derivatives(q, qd, tau, f)
     for b in range(q.shape[0]):
         pin.computeABADerivatives(pm, pd, to_pin_q(robot, q[b]), qd[b].numpy(), tau[b].numpy(), pin_forces(pm, f[b]))
         minv = np.triu(pd.Minv) + np.triu(pd.Minv, 1).T
@@ -84,10 +84,10 @@ def _move(x, k, eps):
 
 
 @pytest.mark.parametrize("name", FLOATING)
-def test_mujoco_inverse_dynamics_gradient_vs_finite_differences(robots, mj_sims, name):
+def test_mujoco_inverse_dynamics_derivatives_vs_finite_differences(robots, mj_sims, name):
     robot, sim = robots[name], mj_sims[name]
     q, qd, qdd, _ = (x[0].numpy() for x in _states(robot, batch=1, seed=3, convention="mujoco"))
-    dq, dqd = (x.numpy() for x in robot.mujoco.inverse_dynamics_gradient(*(torch.from_numpy(x) for x in (q, qd, qdd))))
+    dq, dqd = (x.numpy() for x in robot.mujoco.inverse_dynamics_derivatives(*(torch.from_numpy(x) for x in (q, qd, qdd))))
     eps = 1e-6
     fd_q = np.stack([_central(lambda p: sim.qfrc_inverse(p, qd, qdd), q, k, eps, _move_qpos(sim.m)) for k in range(robot.nv)], 1)
     fd_v = np.stack([_central(lambda v: sim.qfrc_inverse(q, v, qdd), qd, k, eps, _move) for k in range(robot.nv)], 1)
@@ -95,10 +95,10 @@ def test_mujoco_inverse_dynamics_gradient_vs_finite_differences(robots, mj_sims,
 
 
 @pytest.mark.parametrize("name", FLOATING)
-def test_mujoco_forward_dynamics_gradient_vs_finite_differences(robots, mj_sims, name):
+def test_mujoco_forward_dynamics_derivatives_vs_finite_differences(robots, mj_sims, name):
     robot, sim = robots[name], mj_sims[name]
     q, qd, u, _ = (x[0].numpy() for x in _states(robot, batch=1, seed=4, convention="mujoco"))
-    outs = [x.numpy() for x in robot.mujoco.forward_dynamics_gradient(*(torch.from_numpy(x) for x in (q, qd, u)))]
+    outs = [x.numpy() for x in robot.mujoco.forward_dynamics_derivatives(*(torch.from_numpy(x) for x in (q, qd, u)))]
     eps = 1e-6
     fd_q = np.stack([_central(lambda p: sim.qacc(p, qd, u), q, k, eps, _move_qpos(sim.m)) for k in range(robot.nv)], 1)
     fd_v = np.stack([_central(lambda v: sim.qacc(q, v, u), qd, k, eps, _move) for k in range(robot.nv)], 1)
@@ -108,12 +108,12 @@ def test_mujoco_forward_dynamics_gradient_vs_finite_differences(robots, mj_sims,
 
 
 @pytest.mark.parametrize("name", ["iiwa14", "go2"])
-def test_end_effector_pose_gradient_vs_pinocchio_retraction(robots, pin_models, name):
+def test_end_effector_pose_derivatives_vs_pinocchio_retraction(robots, pin_models, name):
     """Central differences of the pose along Pinocchio's own integrate (its tangent)."""
     robot, pm = robots[name], pin_models[name]
     q, _, _, _ = _states(robot, batch=1, seed=10)
     frames = [robot.nframes - 1, 3]
-    ours = robot.end_effector_pose_gradient(q, frames)[0].numpy()
+    ours = robot.end_effector_pose_derivatives(q, frames)[0].numpy()
     q_pin = to_pin_q(robot, q[0])
     pose = lambda qp: robot.end_effector_pose(_from_pin_q(robot, qp), frames).numpy()  # noqa: E731
     eps = 1e-6
@@ -170,7 +170,7 @@ def test_mujoco_regressors(robots, mj_sims, name):
         assert abs(float(robot.mujoco.potential_energy_regressor(q[b]) @ pi) - potential) <= 1e-9 * max(1, abs(potential))
 
 
-def test_forward_dynamics_parameter_gradient_vs_finite_differences(robots, tmp_path):
+def test_forward_dynamics_parameter_derivatives_vs_finite_differences(robots, tmp_path):
     """Perturb one body's dynamic parameters in the model itself, rebuild, and difference qdd."""
     import torch_grid
     from torch_grid.model.description import Joint, RobotModel
@@ -195,7 +195,7 @@ def test_forward_dynamics_parameter_gradient_vs_finite_differences(robots, tmp_p
     plus, minus = robot_with_mass(eps), robot_with_mass(-eps)
     for convention in ("pin", "mujoco"):
         q, qd, tau, _ = _states(robot, batch=1, seed=13, convention=convention)
-        ours = getattr(robot, convention).forward_dynamics_parameter_gradient(q, qd, tau)[0]
+        ours = getattr(robot, convention).forward_dynamics_parameter_derivatives(q, qd, tau)[0]
         fd = (getattr(plus, convention).forward_dynamics(q, qd, tau)[0]
               - getattr(minus, convention).forward_dynamics(q, qd, tau)[0]) / (2 * eps)
         assert rel_err(ours[:, 10 * body], fd) <= 1e-6, convention
@@ -286,7 +286,7 @@ def test_external_force_gradients_vs_pinocchio(robots, pin_models, name):
     robot, pm = robots[name], pin_models[name]
     pd = pm.createData()
     q, qd, x, f = _states(robot, batch=2, seed=18)
-    dtau, dqdd = robot.inverse_dynamics_external_force_gradient(q), robot.forward_dynamics_external_force_gradient(q)
+    dtau, dqdd = robot.inverse_dynamics_external_force_derivatives(q), robot.forward_dynamics_external_force_derivatives(q)
     for b in range(2):
         qp, v, a = to_pin_q(robot, q[b]), qd[b].numpy(), x[b].numpy()
         ref_tau = pin.rnea(pm, pd, qp, v, a, pin_forces(pm, f[b])) - pin.rnea(pm, pd, qp, v, a)
@@ -303,8 +303,8 @@ def test_mujoco_external_force_gradients(robots, name):
     tau = view.inverse_dynamics(q, qd, x, f) - view.inverse_dynamics(q, qd, x)
     qdd = view.forward_dynamics(q, qd, x, f) - view.forward_dynamics(q, qd, x)
     flat = f.reshape(2, -1, 1)
-    assert rel_err((view.inverse_dynamics_external_force_gradient(q).reshape(2, robot.nv, -1) @ flat)[..., 0], tau) <= 1e-12
-    assert rel_err((view.forward_dynamics_external_force_gradient(q).reshape(2, robot.nv, -1) @ flat)[..., 0], qdd) <= 1e-12
+    assert rel_err((view.inverse_dynamics_external_force_derivatives(q).reshape(2, robot.nv, -1) @ flat)[..., 0], tau) <= 1e-12
+    assert rel_err((view.forward_dynamics_external_force_derivatives(q).reshape(2, robot.nv, -1) @ flat)[..., 0], qdd) <= 1e-12
 
 
 @pytest.mark.parametrize("name", ["iiwa14", "go2", "g1"])
@@ -376,12 +376,12 @@ def test_mujoco_centroidal_derivatives_vs_finite_differences(robots, mj_sims, na
 
 
 @pytest.mark.parametrize("name", ["iiwa14", "go2", "g1"])
-def test_centroidal_map_gradient_vs_pinocchio(robots, pin_models, name):
+def test_centroidal_map_derivatives_vs_pinocchio(robots, pin_models, name):
     """d A / dq against central differences of pinocchio.ccrba's Ag along pinocchio.integrate."""
     robot, pm = robots[name], pin_models[name]
     data = pm.createData()
     q, _, _, _ = _states(robot, batch=1, seed=26)
-    ours = robot.centroidal_map_gradient(q)[0].numpy()
+    ours = robot.centroidal_map_derivatives(q)[0].numpy()
     q_pin = to_pin_q(robot, q[0])
 
     def A(qp):
@@ -396,11 +396,11 @@ def test_centroidal_map_gradient_vs_pinocchio(robots, pin_models, name):
 
 
 @pytest.mark.parametrize("name", FLOATING)
-def test_mujoco_centroidal_map_gradient_vs_finite_differences(robots, mj_sims, name):
+def test_mujoco_centroidal_map_derivatives_vs_finite_differences(robots, mj_sims, name):
     """Column j of MuJoCo's A is its momentum at qvel = e_j: differences of that along mj_integratePos."""
     robot, sim = robots[name], mj_sims[name]
     q, _, _, _ = _states(robot, batch=1, seed=27, convention="mujoco")
-    ours = robot.mujoco.centroidal_map_gradient(q)[0].numpy()
+    ours = robot.mujoco.centroidal_map_derivatives(q)[0].numpy()
     qpos, eps = q[0].numpy(), 1e-6
     fd = np.stack([np.stack([_central(lambda p: _mujoco_momentum(sim, p, unit), qpos, k, eps, _move_qpos(sim.m))
                              for k in range(robot.nv)], 1) for unit in np.eye(robot.nv)], 1)
@@ -415,7 +415,7 @@ def test_vector_jacobian_products_match_the_matrices(robots, name, convention):
     view = getattr(robot, convention)
     q, qd, qdd, f = _states(robot, batch=3, seed=23, convention=convention)
     lam = torch.randn(3, robot.nv, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
-    dq, dqd = view.inverse_dynamics_gradient(q, qd, qdd, f)
+    dq, dqd = view.inverse_dynamics_derivatives(q, qd, qdd, f)
     g_q, g_qd = robot._ops.inverse_dynamics_vjp(q, qd, qdd, f, lam, view._convention)
     assert rel_err(g_q, (lam.unsqueeze(-2) @ dq).squeeze(-2)) <= 1e-12
     assert rel_err(g_qd, (lam.unsqueeze(-2) @ dqd).squeeze(-2)) <= 1e-12
@@ -423,12 +423,12 @@ def test_vector_jacobian_products_match_the_matrices(robots, name, convention):
 
 
 @pytest.mark.parametrize("name", FLOATING)
-def test_mujoco_end_effector_pose_gradient_vs_finite_differences(robots, mj_sims, name):
+def test_mujoco_end_effector_pose_derivatives_vs_finite_differences(robots, mj_sims, name):
     """Central differences of the pose along MuJoCo's own mj_integratePos."""
     robot, sim = robots[name], mj_sims[name]
     q, _, _, _ = _states(robot, batch=1, seed=25, convention="mujoco")
     frames = _limb_frames(robot)
-    ours = robot.mujoco.end_effector_pose_gradient(q, frames)[0].numpy()
+    ours = robot.mujoco.end_effector_pose_derivatives(q, frames)[0].numpy()
     pose = lambda p: robot.mujoco.end_effector_pose(torch.from_numpy(p), frames).numpy()  # noqa: E731
     fd = np.stack([_central(pose, q[0].numpy(), k, 1e-6, _move_qpos(sim.m)) for k in range(robot.nv)], -1)
     assert rel_err(ours, fd) <= 1e-6

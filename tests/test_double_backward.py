@@ -111,7 +111,7 @@ def test_derivative_outputs_refuse_a_second_backward(robots):
     backward of their backward is a clear error, not a missing term."""
     robot = robots["iiwa14"]
     q, qd, x, _ = _inputs(robot, "pin", seed=9)
-    for out in (robot.frame_jacobian(q, robot.nframes - 1), robot.inverse_dynamics_gradient(q, qd, x)[0]):
+    for out in (robot.frame_jacobian(q, robot.nframes - 1), robot.inverse_dynamics_derivatives(q, qd, x)[0]):
         (g,) = torch.autograd.grad(out.square().sum(), q, create_graph=True)
         with pytest.raises(NotImplementedError, match="cannot be differentiated once more"):
             torch.autograd.grad(g.sum(), q)

@@ -52,7 +52,7 @@ def test_grad_vjp_jacrev_equal_autograd(robots, balls, name, convention):
     assert rel_err(pullback(w)[0], ref_q) <= 1e-12
     # the Jacobian of M q-dependence by reverse mode, and of qd by the analytic gradient
     J = torch.func.jacrev(lambda qd: view.inverse_dynamics(q, qd, tau))(qd)
-    assert rel_err(J, view.inverse_dynamics_gradient(q, qd, tau)[1]) <= 1e-12
+    assert rel_err(J, view.inverse_dynamics_derivatives(q, qd, tau)[1]) <= 1e-12
 
 
 def test_hessian_by_reverse_over_reverse(robots):
@@ -82,7 +82,7 @@ def test_vmap_is_the_batched_call(robots, balls, name, convention):
         shared = torch.func.vmap(view.inverse_dynamics, in_dims=(0, None, None))(q, qd[0], x[0])
         moved = torch.func.vmap(view.inverse_dynamics, in_dims=(1, 1, 1))(q.mT, qd.mT, x.mT)
         # the second-order tensors (in the MuJoCo convention composed in torch from Pinocchio's ops)
-        second = torch.func.vmap(view.inverse_dynamics_second_order)(q, qd, x)
+        second = torch.func.vmap(view.inverse_dynamics_second_derivatives)(q, qd, x)
         hess = torch.func.vmap(lambda q: view.frame_kinematic_hessian(q, robot.nframes - 1))(q)
         pose = torch.func.vmap(lambda q: view.end_effector_pose(q, [robot.nframes - 1]))(q)  # a list argument
         # per-sample gradients: vmap of grad
@@ -90,7 +90,7 @@ def test_vmap_is_the_batched_call(robots, balls, name, convention):
             q, qd, x)
     finally:
         torch._C._functorch._set_vmap_fallback_enabled(fallback)
-    assert all(rel_err(a, b) <= 1e-14 for a, b in zip(second, view.inverse_dynamics_second_order(q, qd, x)))
+    assert all(rel_err(a, b) <= 1e-14 for a, b in zip(second, view.inverse_dynamics_second_derivatives(q, qd, x)))
     assert rel_err(hess, view.frame_kinematic_hessian(q, robot.nframes - 1)) <= 1e-14
     assert torch.equal(pose, view.end_effector_pose(q, [robot.nframes - 1]))
     assert torch.equal(tau, view.inverse_dynamics(q, qd, x)) and torch.equal(moved, tau)
@@ -205,7 +205,7 @@ def test_forward_mode_of_the_kernel_jvps(robots, balls, name, convention):
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
 @pytest.mark.parametrize("name", ["go2", "balls"])
 def test_forward_mode_of_the_composed_functions(robots, balls, name, convention):
-    """In forward mode the external-force gradients, osc_inertia and forward_dynamics_parameter_gradient
+    """In forward mode the external-force gradients, osc_inertia and forward_dynamics_parameter_derivatives
     are composed of ops that have one (body_velocities, minv, frame_jacobian, inverse_dynamics_regressor,
     forward_dynamics): the same values as their kernels, and tangents against central differences,
     forward_ad and jacrev, at quaternions of norm 1.2."""
@@ -215,10 +215,10 @@ def test_forward_mode_of_the_composed_functions(robots, balls, name, convention)
     q = 1.2 * q
     frame = robot.nframes - 1
     functions = {
-        "inverse_dynamics_external_force_gradient": view.inverse_dynamics_external_force_gradient,
-        "forward_dynamics_external_force_gradient": view.forward_dynamics_external_force_gradient,
+        "inverse_dynamics_external_force_derivatives": view.inverse_dynamics_external_force_derivatives,
+        "forward_dynamics_external_force_derivatives": view.forward_dynamics_external_force_derivatives,
         "osc_inertia": lambda q: torch.stack([view.osc_inertia(q, frame, ref) for ref in ("local", "local_world_aligned")]),
-        "forward_dynamics_parameter_gradient": lambda q: view.forward_dynamics_parameter_gradient(
+        "forward_dynamics_parameter_derivatives": lambda q: view.forward_dynamics_parameter_derivatives(
             q, *((qd, tau) if q.dim() > 1 else (qd[0], tau[0]))),
     }
     t = torch.randn(q.shape, dtype=q.dtype, generator=torch.Generator().manual_seed(14))
@@ -230,8 +230,8 @@ def test_forward_mode_of_the_composed_functions(robots, balls, name, convention)
         assert rel_err(tangent, (fn(q + eps * t) - fn(q - eps * t)) / (2 * eps)) <= 1e-6, label
         assert rel_err(torch.func.jvp(fn, (q,), (t,))[1], tangent) <= 1e-12, label
         assert rel_err(torch.func.jacfwd(fn)(q[0]), torch.func.jacrev(fn)(q[0])) <= 1e-10, label
-    # forward_dynamics_parameter_gradient along qd and tau as well
-    fn = lambda qd, tau: view.forward_dynamics_parameter_gradient(q[0], qd, tau)  # noqa: E731
+    # forward_dynamics_parameter_derivatives along qd and tau as well
+    fn = lambda qd, tau: view.forward_dynamics_parameter_derivatives(q[0], qd, tau)  # noqa: E731
     for Jf, Jr in zip(torch.func.jacfwd(fn, argnums=(0, 1))(qd[0], tau[0]), torch.func.jacrev(fn, argnums=(0, 1))(qd[0], tau[0])):
         assert rel_err(Jf, Jr) <= 1e-10
 
@@ -247,9 +247,9 @@ def test_per_sample_hessians_by_vmap(robots, convention):
     one, two = [robot.nframes - 1], [1, robot.nframes - 1]  # (the garbage came with one frame)
     transforms = {
         "end_effector_pose": torch.func.hessian(lambda q, qd, tau: view.end_effector_pose(q, one).square().sum()),
-        "end_effector_pose_gradient": torch.func.jacfwd(lambda q, qd, tau: view.end_effector_pose_gradient(q, one)),
-        "end_effector_pose_gradient, two frames": torch.func.jacfwd(
-            lambda q, qd, tau: view.end_effector_pose_gradient(q, two)),
+        "end_effector_pose_derivatives": torch.func.jacfwd(lambda q, qd, tau: view.end_effector_pose_derivatives(q, one)),
+        "end_effector_pose_derivatives, two frames": torch.func.jacfwd(
+            lambda q, qd, tau: view.end_effector_pose_derivatives(q, two)),
         "forward_dynamics": torch.func.hessian(lambda q, qd, tau: view.forward_dynamics(q, qd, tau).square().sum(),
                                                argnums=(0, 1, 2)),
         "com": torch.func.hessian(lambda q, qd, tau: view.com(q).square().sum()),
@@ -317,7 +317,7 @@ def test_frame_jacobian_forward_mode(robots, balls, name, convention):
 @pytest.mark.parametrize("name, convention", [("iiwa14", "pin"), ("balls", "pin"), ("go2", "pin"), ("balls", "mujoco"),
                                               ("go2", "mujoco")])
 def test_dynamics_gradients_forward_mode(robots, balls, name, convention):
-    """jvp and jacfwd of inverse_dynamics_gradient and forward_dynamics_gradient (the second-order
+    """jvp and jacfwd of inverse_dynamics_derivatives and forward_dynamics_derivatives (the second-order
     kernel contracted with the tangents; MuJoCo's tensors with quaternions) against jacrev, with f_ext,
     at quaternions of norm 1.2."""
     robot = _robot(name, robots, balls)
@@ -326,7 +326,7 @@ def test_dynamics_gradients_forward_mode(robots, balls, name, convention):
     q = 1.2 * q
     f = torch.randn(robot.nbodies, 6, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
     tangents = tuple(torch.randn_like(t) for t in (q, qd, x, f))
-    for fn in (view.inverse_dynamics_gradient, view.forward_dynamics_gradient):
+    for fn in (view.inverse_dynamics_derivatives, view.forward_dynamics_derivatives):
         out, jv = torch.func.jvp(fn, (q, qd, x, f), tangents)
         J = torch.func.jacrev(fn, argnums=(0, 1, 2, 3))(q, qd, x, f)
         for o, d, Js in zip(out, jv, J):

@@ -153,21 +153,21 @@ def test_projection_of_the_uncoupled_robot(gripper, convention):
     tau = fview.inverse_dynamics(q_full, vf, af, f) @ G
     assert rel_err(view.inverse_dynamics(q, v, a, f), tau) <= TOL
     assert rel_err(view.forward_dynamics(q, v, tau, f), a) <= 1e-8
-    dq, dv = fview.inverse_dynamics_gradient(q_full, vf, af, f)
-    ours = view.inverse_dynamics_gradient(q, v, a, f)
+    dq, dv = fview.inverse_dynamics_derivatives(q_full, vf, af, f)
+    ours = view.inverse_dynamics_derivatives(q, v, a, f)
     assert rel_err(ours[0], G.mT @ dq @ G) <= TOL and rel_err(ours[1], G.mT @ dv @ G) <= TOL
-    gq, gv, gt = view.forward_dynamics_gradient(q, v, tau, f)
+    gq, gv, gt = view.forward_dynamics_derivatives(q, v, tau, f)
     minv = torch.linalg.inv(M)
     assert rel_err(gq, -minv @ ours[0]) <= 1e-8 and rel_err(gv, -minv @ ours[1]) <= 1e-8 and rel_err(gt, minv) <= 1e-8
     C = view.coriolis_matrix(q, v)
     assert rel_err(C, G.mT @ fview.coriolis_matrix(q_full, vf) @ G) <= TOL
     if convention == "pin" or not robot.floating_base:
-        second = zip(view.inverse_dynamics_second_order(q, v, a, f), fview.inverse_dynamics_second_order(q_full, vf, af, f))
+        second = zip(view.inverse_dynamics_second_derivatives(q, v, a, f), fview.inverse_dynamics_second_derivatives(q_full, vf, af, f))
         for ours, theirs in second:
             assert rel_err(ours, torch.einsum("...abc,ai,bj,ck->...ijk", theirs, G, G, G)) <= TOL
     Y = view.inverse_dynamics_regressor(q, v, a)
     assert rel_err(Y @ robot.inertial_parameters(), view.inverse_dynamics(q, v, a)) <= TOL
-    dfd = view.forward_dynamics_external_force_gradient(q)
+    dfd = view.forward_dynamics_external_force_derivatives(q)
     assert rel_err((dfd.flatten(-2) @ f.flatten(-2).unsqueeze(-1)).squeeze(-1),
                    view.forward_dynamics(q, v, tau, f) - view.forward_dynamics(q, v, tau)) <= 1e-8
     if not robot.floating_base:  # 2 dofs move the tool (shoulder, wrist; the thumb is not on its chain)
@@ -180,11 +180,11 @@ def test_projection_of_the_uncoupled_robot(gripper, convention):
 
 
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
-def test_forward_dynamics_gradient_vs_central_differences(gripper, convention):
+def test_forward_dynamics_derivatives_vs_central_differences(gripper, convention):
     robot, _, _ = gripper
     view = getattr(robot, convention)
     q, v, tau, _ = _states(robot, convention, n=1, seed=3)
-    gq, gv, _ = view.forward_dynamics_gradient(q[0], v[0], tau[0])
+    gq, gv, _ = view.forward_dynamics_derivatives(q[0], v[0], tau[0])
     eps, n0 = 1e-6, 7 if robot.floating_base else 0  # perturb the joints (the base's tangent is tested elsewhere)
     for k in range(n0, robot.nq):
         dq = torch.zeros(robot.nq, dtype=q.dtype)
@@ -222,7 +222,7 @@ def test_per_sample_jacobians_and_hessians_by_vmap(gripper, convention):
     transforms = {
         "jacfwd": torch.func.jacfwd(view.forward_dynamics, argnums=(0, 1, 2)),
         "hessian": torch.func.hessian(lambda *x: view.forward_dynamics(*x).square().sum(), argnums=(0, 1, 2)),
-        "jacfwd of the gradient": torch.func.jacfwd(lambda *x: view.forward_dynamics_gradient(*x)[0]),
+        "jacfwd of the gradient": torch.func.jacfwd(lambda *x: view.forward_dynamics_derivatives(*x)[0]),
     }
     for label, fn in transforms.items():
         batched = torch.utils._pytree.tree_leaves(torch.func.vmap(fn)(q, v, a))
@@ -285,11 +285,11 @@ def test_mujoco_second_order_with_a_free_joint_refuses(gripper):
     robot, _, _ = gripper
     q, qd, qdd, _ = _states(robot, "mujoco", n=1)
     if not robot.floating_base:  # the conventions agree: Pinocchio's tensors, coupled
-        mujoco, pin_ = (v.inverse_dynamics_second_order(q, qd, qdd) for v in (robot.mujoco, robot.pin))
+        mujoco, pin_ = (v.inverse_dynamics_second_derivatives(q, qd, qdd) for v in (robot.mujoco, robot.pin))
         assert all(torch.equal(x, y) for x, y in zip(mujoco, pin_))
         return
     with pytest.raises(NotImplementedError, match="mimic joints and free or ball joints"):
-        robot.mujoco.inverse_dynamics_second_order(q, qd, qdd)
+        robot.mujoco.inverse_dynamics_second_derivatives(q, qd, qdd)
     with pytest.raises(NotImplementedError, match="mimic joints and free or ball joints"):
         robot.mujoco.frame_kinematic_hessian(q, robot.nframes - 1)
 

@@ -146,10 +146,10 @@ def test_pin_convention_is_the_same_dynamics(zoo):
     robot, m = zoo
     g = torch.Generator().manual_seed(3)
     q = robot.random_configuration(2, generator=g)
-    qm = torch_grid.conventions.q_pin_to_mjx(q, True)
+    qm = torch_grid.conventions.q_pin_to_mujoco(q, True)
     M_pin = robot.crba(q)
-    M_mjx = robot.mujoco.crba(qm)
-    assert rel(torch_grid.conventions.congruence_pin_to_mjx(q, M_pin, True), M_mjx) <= TOL
+    M_mujoco = robot.mujoco.crba(qm)
+    assert rel(torch_grid.conventions.congruence_pin_to_mujoco(q, M_pin, True), M_mujoco) <= TOL
 
 
 def with_joint(attributes: str) -> str:
@@ -248,8 +248,8 @@ def test_passive_derivatives_match_mujoco_differences(springy):
         columns["qd"].append([(x - y) / (2 * eps) for x, y in zip(mj(qpos, qvel + dv), mj(qpos, qvel - dv))])
     fd = {k: [np.stack([c[i] for c in cols], axis=-1) for i in range(2)] for k, cols in columns.items()}
     q, v, a = (torch.from_numpy(x.copy()) for x in (qpos, qvel, qacc))
-    dtau_dq, dtau_dqd = robot.inverse_dynamics_gradient(q, v, a)
-    dqdd_dq, dqdd_dqd, _ = robot.forward_dynamics_gradient(q, v, torch.from_numpy(tau))
+    dtau_dq, dtau_dqd = robot.inverse_dynamics_derivatives(q, v, a)
+    dqdd_dq, dqdd_dqd, _ = robot.forward_dynamics_derivatives(q, v, torch.from_numpy(tau))
     assert rel(dtau_dq, fd["q"][0]) <= 1e-6 and rel(dtau_dqd, fd["qd"][0]) <= 1e-6
     assert rel(dqdd_dq, fd["q"][1]) <= 1e-6 and rel(dqdd_dqd, fd["qd"][1]) <= 1e-6
 
@@ -262,11 +262,11 @@ def test_passive_forces_in_autograd(springy):
     tau = torch.randn(2, robot.nv, dtype=torch.float64, generator=g)
     qdd = robot.forward_dynamics(q, v, tau)
     (grad,) = torch.autograd.grad(qdd.sum(), v)
-    _, dqdd_dqd, _ = robot.forward_dynamics_gradient(q, v.detach(), tau)
+    _, dqdd_dqd, _ = robot.forward_dynamics_derivatives(q, v.detach(), tau)
     assert rel(grad, dqdd_dqd.sum(dim=-2)) <= 1e-12
     inputs = [x.detach().clone().requires_grad_(True) for x in (q, v, tau)]
-    for fn in (robot.passive_forces, robot.forward_dynamics, robot.inverse_dynamics, robot.inverse_dynamics_gradient,
-               robot.forward_dynamics_gradient):
+    for fn in (robot.passive_forces, robot.forward_dynamics, robot.inverse_dynamics, robot.inverse_dynamics_derivatives,
+               robot.forward_dynamics_derivatives):
         arity = 2 if fn == robot.passive_forces else 3
         assert torch.autograd.gradcheck(fn, inputs[:arity], eps=1e-6, atol=1e-6, rtol=1e-5, fast_mode=True)
 
@@ -343,5 +343,5 @@ def test_float32_and_gradcheck_on_the_planar_and_multi_joint_model(zoo):
         q = view.random_configuration(2, generator=g).requires_grad_(True)
         v, a = (torch.randn(2, robot.nv, dtype=torch.float64, generator=g, requires_grad=True) for _ in range(2))
         for fn, inputs in ((view.inverse_dynamics, (q, v, a)), (view.forward_dynamics, (q, v, a)), (view.crba, (q,)),
-                           (view.inverse_dynamics_gradient, (q, v, a))):
+                           (view.inverse_dynamics_derivatives, (q, v, a))):
             assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-6, rtol=1e-5, fast_mode=True)

@@ -127,7 +127,7 @@ def test_mjcf_source_matches_pinocchio_and_mujoco(tmp_path, floating):
         ref = pin.rnea(pm, pd, q.numpy(), qd.numpy(), qdd.numpy())
         assert np.abs(robot.inverse_dynamics(q, qd, qdd).numpy() - ref).max() <= 1e-9 * np.abs(ref).max()
         # MuJoCo itself, in its own convention.
-        qpos = torch_grid.conventions.q_pin_to_mjx(q, floating)
+        qpos = torch_grid.conventions.q_pin_to_mujoco(q, floating)
         d.qpos[:], d.qvel[:] = qpos.numpy(), qd.numpy()
         mujoco.mj_forward(m, d)
         M = np.zeros((m.nv, m.nv))

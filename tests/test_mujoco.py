@@ -143,23 +143,23 @@ class PinBatched:
 
 
 def via_conventions(C, pin_api, case, s):
-    """MuJoCo-convention value of `case` from a Pinocchio-convention backend and conventions.md."""
+    """MuJoCo-convention value of `case` from a Pinocchio-convention backend and the transforms of docs/guides/conventions.md."""
     qp, qd = s["q_pin"], s["qd"]
-    vp = C.v_mjx_to_pin(qp, qd)
+    vp = C.v_mujoco_to_pin(qp, qd)
     if case == "crba" or case == "minv":
-        return C.congruence_pin_to_mjx(qp, getattr(pin_api, case)(qp))
+        return C.congruence_pin_to_mujoco(qp, getattr(pin_api, case)(qp))
     if case in ("inverse_dynamics", "rnea", "nonlinear_effects"):
         qdd = torch.zeros_like(qd) if case == "nonlinear_effects" else s["qdd"]
-        return C.covector_pin_to_mjx(qp, pin_api.inverse_dynamics(qp, vp, C.a_mjx_to_pin(qp, vp, qdd)))
+        return C.covector_pin_to_mujoco(qp, pin_api.inverse_dynamics(qp, vp, C.a_mujoco_to_pin(qp, vp, qdd)))
     if case == "generalized_gravity":
-        return C.covector_pin_to_mjx(qp, pin_api.generalized_gravity(qp))
+        return C.covector_pin_to_mujoco(qp, pin_api.generalized_gravity(qp))
     if case in ("forward_dynamics", "aba"):
-        return C.a_pin_to_mjx(qp, vp, pin_api.forward_dynamics(qp, vp, C.covector_mjx_to_pin(qp, s["tau"])))
+        return C.a_pin_to_mujoco(qp, vp, pin_api.forward_dynamics(qp, vp, C.covector_mujoco_to_pin(qp, s["tau"])))
     if case == "jacobian_com":
-        return C.columns_pin_to_mjx(qp, pin_api.jacobian_com(qp))
+        return C.columns_pin_to_mujoco(qp, pin_api.jacobian_com(qp))
     if case == "ccrba":
         A, h = pin_api.ccrba(qp, vp)
-        return C.columns_pin_to_mjx(qp, A), h
+        return C.columns_pin_to_mujoco(qp, A), h
     if case == "energy":
         return pin_api.energy(qp, vp)
     if case in ("com", "forward_kinematics"):
@@ -233,7 +233,7 @@ def test_mujoco_random_configuration(robots, robot_name, C):
     q = robot.mujoco.random_configuration(5, generator=torch.Generator().manual_seed(4))
     assert q.shape == (5, robot.nq) and q.dtype == torch.float64
     assert torch.allclose(q[..., 3:7].norm(dim=-1), torch.ones(5, dtype=torch.float64), atol=1e-12)
-    q_pin = C.q_mjx_to_pin(q, True)
+    q_pin = C.q_mujoco_to_pin(q, True)
     for j, iq in zip(robot.model.joints[1:], robot.model.q_index[1:]):
         assert torch.all(q_pin[..., iq] >= j.lower - 1e-12) and torch.all(q_pin[..., iq] <= j.upper + 1e-12), j.name
 
@@ -254,7 +254,7 @@ def test_fused_frame_jacobian_matches_conventions_oracle(robots, robot_name, C):
     for frame in bodies_to_test(robot) + [robot.frame_names[-1]]:
         for ref in ("local_world_aligned", "local", "world"):
             ours = robot.mujoco.frame_jacobian(s["q"], frame, ref)
-            check(f"frame_jacobian({frame!r}, {ref})", ours, C.columns_pin_to_mjx(s["q_pin"], robot.pin.frame_jacobian(s["q_pin"], frame, ref)))
+            check(f"frame_jacobian({frame!r}, {ref})", ours, C.columns_pin_to_mujoco(s["q_pin"], robot.pin.frame_jacobian(s["q_pin"], frame, ref)))
 
 
 @pytest.mark.parametrize("case", list(MJ_REF))
@@ -270,7 +270,7 @@ def test_conventions_frame_jacobian_on_pinocchio_match_mujoco(robots, pin_models
     s = make_states(robot, seed=8)
     pin_api = PinBatched(robot, pin_models.get(robot_name))
     for body in bodies_to_test(robot):
-        ours = C.columns_pin_to_mjx(s["q_pin"], pin_api.frame_jacobian(s["q_pin"], body))
+        ours = C.columns_pin_to_mujoco(s["q_pin"], pin_api.frame_jacobian(s["q_pin"], body))
         check(f"conventions frame_jacobian({body!r})", ours, mj_ref(sim, s, lambda m, q: m.jac_body(q, body), []))
 
 
@@ -278,21 +278,21 @@ def test_conventions_layout_and_round_trips(robots, robot_name, C):
     robot = robots.get(robot_name)
     s = make_states(robot, seed=9)
     qp, qm, v = s["q_pin"], s["q"], s["qd"]
-    assert torch.equal(C.q_pin_to_mjx(qp, True), qm)
-    assert torch.equal(C.q_mjx_to_pin(qm, True), qp)
-    # v_lin_pin = R^T v_lin_mjx with R from the base quaternion; everything past the base untouched
+    assert torch.equal(C.q_pin_to_mujoco(qp, True), qm)
+    assert torch.equal(C.q_mujoco_to_pin(qm, True), qp)
+    # v_lin_pin = R^T v_lin_mujoco with R from the base quaternion; everything past the base untouched
     w, x, y, z = qm[..., 3:7].unbind(-1)
     R = torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
                      2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
                      2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1).reshape(*BATCH, 3, 3)
-    vp = C.v_mjx_to_pin(qp, v)
+    vp = C.v_mujoco_to_pin(qp, v)
     expected = v.clone()
     expected[..., :3] = (R.transpose(-1, -2) @ v[..., :3, None])[..., 0]
     assert rel_err(vp, expected) <= 1e-12
-    assert rel_err(C.covector_mjx_to_pin(qp, v), expected) <= 1e-12
+    assert rel_err(C.covector_mujoco_to_pin(qp, v), expected) <= 1e-12
     for name, there, back in [
-        ("v", lambda x: C.v_mjx_to_pin(qp, x), lambda x: C.v_pin_to_mjx(qp, x)),
-        ("a", lambda x: C.a_mjx_to_pin(qp, vp, x), lambda x: C.a_pin_to_mjx(qp, vp, x)),
-        ("covector", lambda x: C.covector_mjx_to_pin(qp, x), lambda x: C.covector_pin_to_mjx(qp, x)),
+        ("v", lambda x: C.v_mujoco_to_pin(qp, x), lambda x: C.v_pin_to_mujoco(qp, x)),
+        ("a", lambda x: C.a_mujoco_to_pin(qp, vp, x), lambda x: C.a_pin_to_mujoco(qp, vp, x)),
+        ("covector", lambda x: C.covector_mujoco_to_pin(qp, x), lambda x: C.covector_pin_to_mujoco(qp, x)),
     ]:
         assert rel_err(back(there(s["qdd"])), s["qdd"]) <= 1e-12, f"{name} round trip"

@@ -127,16 +127,16 @@ def test_layout(balls):
     assert [j.type for j in robot.model.joints] == ["free", "ball", "revolute", "ball", "prismatic", "prismatic",
                                                     "revolute", "ball", "ball"]
     assert (robot.nq, robot.nv) == (m.nq, m.nv) == (7 + 4 + 1 + 4 + 3 + 4 + 4, 6 + 3 + 1 + 3 + 3 + 3 + 3)
-    q_mjx, q_pin = robot.mujoco.neutral_configuration(), robot.pin.neutral_configuration()
+    q_mujoco, q_pin = robot.mujoco.neutral_configuration(), robot.pin.neutral_configuration()
     balls_q = [qi for j, qi in zip(robot.model.joints, robot.model.q_index) if j.type == "ball"]
     for qi in balls_q:  # identities, wxyz as in MuJoCo's qpos0
-        assert np.array_equal(q_mjx[qi:qi + 4].numpy(), m.qpos0[qi:qi + 4])
-    assert np.array_equal(q_mjx[3:7].numpy(), [1, 0, 0, 0])
-    assert torch.equal(torch_grid.conventions.q_pin_to_mjx(q_pin, True, balls_q), q_mjx)
+        assert np.array_equal(q_mujoco[qi:qi + 4].numpy(), m.qpos0[qi:qi + 4])
+    assert np.array_equal(q_mujoco[3:7].numpy(), [1, 0, 0, 0])
+    assert torch.equal(torch_grid.conventions.q_pin_to_mujoco(q_pin, True, balls_q), q_mujoco)
     q = robot.mujoco.random_configuration(5, generator=torch.Generator().manual_seed(0))
     for qi in balls_q:
         assert torch.allclose(q[:, qi:qi + 4].norm(dim=-1), torch.ones(5, dtype=q.dtype))
-    assert torch.equal(torch_grid.conventions.q_mjx_to_pin(torch_grid.conventions.q_pin_to_mjx(q, True, balls_q),
+    assert torch.equal(torch_grid.conventions.q_mujoco_to_pin(torch_grid.conventions.q_pin_to_mujoco(q, True, balls_q),
                                                            True, balls_q), q)
     shoulder = robot.model.joints[1]
     assert (shoulder.armature, shoulder.damping) == (0.01, 0.2)
@@ -248,12 +248,12 @@ def test_derivatives_match_mujoco_differences(fixture, request):
 
     eps, nv = 1e-6, m.nv
     for qpos, qvel, qacc in mujoco_states(m, 2, seed=4):
-        dq, dv = robot.mujoco.inverse_dynamics_gradient(t(qpos), t(qvel), t(qacc))
+        dq, dv = robot.mujoco.inverse_dynamics_derivatives(t(qpos), t(qvel), t(qacc))
         fd_q = np.stack([_central(lambda p: qfrc_inverse(p, qvel, qacc), qpos, k, eps, _move_qpos(m)) for k in range(nv)], 1)
         fd_v = np.stack([_central(lambda v: qfrc_inverse(qpos, v, qacc), qvel, k, eps, _move) for k in range(nv)], 1)
         assert rel_err(dq, fd_q) <= 1e-6 and rel_err(dv, fd_v) <= 1e-6
         u = qfrc_inverse(qpos, qvel, qacc)
-        gq, gv, gu = robot.mujoco.forward_dynamics_gradient(t(qpos), t(qvel), t(u))
+        gq, gv, gu = robot.mujoco.forward_dynamics_derivatives(t(qpos), t(qvel), t(u))
         fd_q = np.stack([_central(lambda p: qacc_of(p, qvel, u), qpos, k, eps, _move_qpos(m)) for k in range(nv)], 1)
         fd_v = np.stack([_central(lambda v: qacc_of(qpos, v, u), qvel, k, eps, _move) for k in range(nv)], 1)
         fd_u = np.stack([_central(lambda f: qacc_of(qpos, qvel, f), u, k, eps, _move) for k in range(nv)], 1)
@@ -322,10 +322,10 @@ def test_pinocchio_spherical_joints(pinocchio_balls):
         assert rel_err(A, A_ref) <= TOL and rel_err(h, h_ref) <= TOL
         for reference in ("local_world_aligned", "local", "world"):
             assert rel_err(view.frame_jacobian(q, "tool", reference), oracle.frame_jacobian(qn, tool, reference)) <= TOL
-        dq, dv = view.inverse_dynamics_gradient(q, v, a)
+        dq, dv = view.inverse_dynamics_derivatives(q, v, a)
         ref_q, ref_v, _ = pin.computeRNEADerivatives(model, data, qn, vn, an)
         assert rel_err(dq, ref_q) <= TOL and rel_err(dv, ref_v) <= TOL
-        gq, gv, gu = view.forward_dynamics_gradient(q, v, t(tau))
+        gq, gv, gu = view.forward_dynamics_derivatives(q, v, t(tau))
         pin.computeABADerivatives(model, data, qn, vn, tau)
         assert rel_err(gq, data.ddq_dq) <= 1e-8 and rel_err(gv, data.ddq_dv) <= 1e-8
         assert rel_err(gu, oracle.minv(qn)) <= 1e-8
@@ -355,7 +355,7 @@ def test_gradcheck(balls, convention):
     assert torch.autograd.gradcheck(lambda x: view.end_effector_pose(x, ["hand", "hip"]), (q,))
     assert torch.autograd.gradcheck(view.crba, (q,))
     assert torch.autograd.gradcheck(lambda x, y: view.energy(x, y), (q, v))
-    assert torch.autograd.gradcheck(lambda x, y, z: view.inverse_dynamics_gradient(x, y, z)[0], (q, v, a))
+    assert torch.autograd.gradcheck(lambda x, y, z: view.inverse_dynamics_derivatives(x, y, z)[0], (q, v, a))
 
 
 @pytest.mark.parametrize("fixture", ["balls", "trees"])
@@ -368,20 +368,20 @@ def test_mujoco_twins_equal_the_torch_transforms(fixture, request):
     g = torch.Generator().manual_seed(9)
     q = robot.pin.random_configuration(3, generator=g)
     v, a = (torch.randn(3, robot.nv, dtype=q.dtype, generator=g) for _ in range(2))
-    qm = C.q_pin_to_mjx(q, balls=balls, free=free)
-    assert torch.equal(C.q_mjx_to_pin(qm, balls=balls, free=free), q)
-    vm, am = C.v_pin_to_mjx(q, v, free=free), C.a_pin_to_mjx(q, v, a, free=free)
-    assert rel_err(C.v_mjx_to_pin(q, vm, free=free), v) <= 1e-15 and rel_err(C.a_mjx_to_pin(q, v, am, free=free), a) <= 1e-14
+    qm = C.q_pin_to_mujoco(q, balls=balls, free=free)
+    assert torch.equal(C.q_mujoco_to_pin(qm, balls=balls, free=free), q)
+    vm, am = C.v_pin_to_mujoco(q, v, free=free), C.a_pin_to_mujoco(q, v, a, free=free)
+    assert rel_err(C.v_mujoco_to_pin(q, vm, free=free), v) <= 1e-15 and rel_err(C.a_mujoco_to_pin(q, v, am, free=free), a) <= 1e-14
     pin_view, mjx = robot.pin, robot.mujoco
-    assert rel_err(mjx.crba(qm), C.congruence_pin_to_mjx(q, pin_view.crba(q), free=free)) <= TOL
-    assert rel_err(mjx.minv(qm), C.congruence_pin_to_mjx(q, pin_view.minv(q), free=free)) <= TOL
+    assert rel_err(mjx.crba(qm), C.congruence_pin_to_mujoco(q, pin_view.crba(q), free=free)) <= TOL
+    assert rel_err(mjx.minv(qm), C.congruence_pin_to_mujoco(q, pin_view.minv(q), free=free)) <= TOL
     tau = pin_view.inverse_dynamics(q, v, a)
-    assert rel_err(mjx.inverse_dynamics(qm, vm, am), C.covector_pin_to_mjx(q, tau, free=free)) <= TOL
-    assert rel_err(mjx.forward_dynamics(qm, vm, C.covector_pin_to_mjx(q, tau, free=free)), am) <= 1e-8
+    assert rel_err(mjx.inverse_dynamics(qm, vm, am), C.covector_pin_to_mujoco(q, tau, free=free)) <= TOL
+    assert rel_err(mjx.forward_dynamics(qm, vm, C.covector_pin_to_mujoco(q, tau, free=free)), am) <= 1e-8
     last = robot.nframes - 1
     J = pin_view.frame_jacobian(q, last)
-    assert rel_err(mjx.frame_jacobian(qm, last), C.columns_pin_to_mjx(q, J, free=free)) <= TOL
-    assert rel_err(mjx.jacobian_com(qm), C.columns_pin_to_mjx(q, pin_view.jacobian_com(q), free=free)) <= TOL
+    assert rel_err(mjx.frame_jacobian(qm, last), C.columns_pin_to_mujoco(q, J, free=free)) <= TOL
+    assert rel_err(mjx.jacobian_com(qm), C.columns_pin_to_mujoco(q, pin_view.jacobian_com(q), free=free)) <= TOL
 
 
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])

@@ -74,14 +74,14 @@ def test_zero_configuration_has_finite_gradients(robots, convention):
 
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
 def test_second_order_tensors_refuse_forward_mode(robots, convention):
-    """inverse_dynamics_second_order and frame_kinematic_hessian have no forward mode (a third derivative):
+    """inverse_dynamics_second_derivatives and frame_kinematic_hessian have no forward mode (a third derivative):
     refused by name in both conventions, the MuJoCo one (composed in torch from Pinocchio's tensors on a
     floating base) included, rather than returning the tangent of the composition alone."""
     robot = robots["go2"]
     view = getattr(robot, convention)
     q, qd, qdd, _ = _states(robot, 2, 5, convention)
-    with pytest.raises(NotImplementedError, match="inverse_dynamics_second_order has no forward-mode derivative"):
-        torch.func.jvp(lambda x: view.inverse_dynamics_second_order(q, x, qdd), (qd,), (torch.ones_like(qd),))
+    with pytest.raises(NotImplementedError, match="inverse_dynamics_second_derivatives has no forward-mode derivative"):
+        torch.func.jvp(lambda x: view.inverse_dynamics_second_derivatives(q, x, qdd), (qd,), (torch.ones_like(qd),))
     with pytest.raises(NotImplementedError, match="frame_kinematic_hessian has no forward-mode derivative"):
         torch.func.jvp(lambda x: view.frame_kinematic_hessian(x, robot.nframes - 1), (q,), (torch.ones_like(q),))
 

@@ -1,9 +1,9 @@
 """Second-order derivatives of the dynamics against their oracles.
 
-inverse_dynamics_second_order: Pinocchio's C++ ComputeRNEASecondOrderDerivatives (compiled once per
+inverse_dynamics_second_derivatives: Pinocchio's C++ ComputeRNEASecondOrderDerivatives (compiled once per
 machine by pinocchio_cpp_oracle.py; float64 <= 1e-9 relative), and central differences of the
-analytic inverse_dynamics_gradient along pinocchio.integrate (with f_ext, which Pinocchio's has not).
-forward_dynamics_second_order: central differences of forward_dynamics_gradient.
+analytic inverse_dynamics_derivatives along pinocchio.integrate (with f_ext, which Pinocchio's has not).
+forward_dynamics_second_derivatives: central differences of forward_dynamics_derivatives.
 """
 from __future__ import annotations
 
@@ -40,10 +40,10 @@ def _states(robot, batch, seed):
 
 
 @pytest.mark.parametrize("name", ["iiwa14", "go2", "g1", "tiago", "balls"])
-def test_inverse_dynamics_second_order_vs_pinocchio(robots, pin_models, pinocchio_balls, name):
+def test_inverse_dynamics_second_derivatives_vs_pinocchio(robots, pin_models, pinocchio_balls, name):
     robot, model = _robot_and_model(name, robots, pin_models, pinocchio_balls)
     q, qd, qdd, _ = _states(robot, 2, seed=3)
-    ours = robot.pin.inverse_dynamics_second_order(q, qd, qdd)
+    ours = robot.pin.inverse_dynamics_second_derivatives(q, qd, qdd)
     refs = rnea_second_order(model, to_pin_q(robot, q), qd.numpy(), qdd.numpy())
     for label, x, ref in zip(("d2tau_dq2", "d2tau_dqd2", "d2tau_dqdqd", "dM_dq"), ours, refs):
         assert x.shape == (2, robot.nv, robot.nv, robot.nv)
@@ -86,22 +86,22 @@ def _any_robot(name, robots, pin_models, pinocchio_balls, mjcf_robots):
 
 
 @pytest.mark.parametrize("name", ["iiwa14", "go2", "balls", "zoo", "trees"])
-def test_inverse_dynamics_second_order_vs_differences(robots, pin_models, pinocchio_balls, mjcf_robots, name):
+def test_inverse_dynamics_second_derivatives_vs_differences(robots, pin_models, pinocchio_balls, mjcf_robots, name):
     """Each tensor is the derivative of the analytic first-order one, with f_ext too; "zoo" has a
     planar root and a two-hinge body, "trees" two free roots and a ball (MJCF models)."""
     robot = _any_robot(name, robots, pin_models, pinocchio_balls, mjcf_robots)
     q, qd, qdd, f = (x[0] for x in _states(robot, 1, seed=4))
     h = 1e-5
-    d2q, d2v, dqdv, dadq = robot.pin.inverse_dynamics_second_order(q, qd, qdd, f)
+    d2q, d2v, dqdv, dadq = robot.pin.inverse_dynamics_second_derivatives(q, qd, qdd, f)
     qp, qm = _tangent_steps(robot, q, h)
-    gp, gm = (robot.pin.inverse_dynamics_gradient(x, qd.expand(robot.nv, -1), qdd.expand(robot.nv, -1), f.expand(robot.nv, -1, -1))
+    gp, gm = (robot.pin.inverse_dynamics_derivatives(x, qd.expand(robot.nv, -1), qdd.expand(robot.nv, -1), f.expand(robot.nv, -1, -1))
               for x in (qp, qm))
     # (k, i, j) -> (i, j, k)
     assert rel_err(d2q, ((gp[0] - gm[0]) / (2 * h)).permute(1, 2, 0)) <= 1e-6
     dM = (robot.pin.crba(qp) - robot.pin.crba(qm)) / (2 * h)
     assert rel_err(dadq, dM.permute(1, 2, 0)) <= 1e-6
     eye = h * torch.eye(robot.nv, dtype=torch.float64)
-    vp, vm = (robot.pin.inverse_dynamics_gradient(q.expand(robot.nv, -1), qd + s * eye, qdd.expand(robot.nv, -1),
+    vp, vm = (robot.pin.inverse_dynamics_derivatives(q.expand(robot.nv, -1), qd + s * eye, qdd.expand(robot.nv, -1),
                                                   f.expand(robot.nv, -1, -1)) for s in (1, -1))
     assert rel_err(dqdv, ((vp[0] - vm[0]) / (2 * h)).permute(1, 2, 0)) <= 1e-6
     assert rel_err(d2v, ((vp[1] - vm[1]) / (2 * h)).permute(1, 2, 0)) <= 1e-6
@@ -110,12 +110,12 @@ def test_inverse_dynamics_second_order_vs_differences(robots, pin_models, pinocc
 @pytest.mark.parametrize("name", ["iiwa14", "g1", "balls", "zoo", "trees"])
 def test_crba_backward_is_the_contracted_mass_matrix_derivative(robots, pin_models, pinocchio_balls, mjcf_robots, name):
     """crba's backward kernel (O(n d), not second-order tensors) gives sum_ij W_ij dM_ij/dq_k, dM_dq of
-    inverse_dynamics_second_order (checked against Pinocchio above); through autograd, in ambient
+    inverse_dynamics_second_derivatives (checked against Pinocchio above); through autograd, in ambient
     coordinates, the same mapped by tangent_to_ambient."""
     robot = _any_robot(name, robots, pin_models, pinocchio_balls, mjcf_robots)
     q, qd, qdd, _ = _states(robot, 3, seed=9)
     W = torch.randn(3, robot.nv, robot.nv, dtype=torch.float64, generator=torch.Generator().manual_seed(2))
-    dM = robot.pin.inverse_dynamics_second_order(q, qd, qdd)[3]
+    dM = robot.pin.inverse_dynamics_second_derivatives(q, qd, qdd)[3]
     expected = torch.einsum("bij,bijk->bk", W, dM)
     assert rel_err(robot._ops.crba_vjp(q, W, 0), expected) <= 1e-12
     leaf = q.clone().requires_grad_(True)
@@ -127,9 +127,9 @@ def test_crba_backward_is_the_contracted_mass_matrix_derivative(robots, pin_mode
 
 
 @pytest.mark.parametrize("name", ["iiwa14", "go2", "g1", "balls", "zoo", "trees"])
-def test_inverse_dynamics_gradient_backward_contracts_the_second_order_tensors(robots, pin_models, pinocchio_balls,
+def test_inverse_dynamics_derivatives_backward_contracts_the_second_order_tensors(robots, pin_models, pinocchio_balls,
                                                                               mjcf_robots, name):
-    """The contracted kernel behind inverse_dynamics_gradient's backward against the stored tensors
+    """The contracted kernel behind inverse_dynamics_derivatives's backward against the stored tensors
     (checked against Pinocchio above): d/dq_k <Gq, dtau/dq> + <Gv, dtau/dqd> = Gq . d2q[..k] + Gv . dqdv[.k.],
     d/dqd_k = Gq . dqdv[..k] + Gv . d2v[..k], d/dqdd_m = Gq . dM_dq[.m.], with f_ext; and d/df_ext (dtau/dq
     is affine in f_ext) by central differences."""
@@ -137,38 +137,38 @@ def test_inverse_dynamics_gradient_backward_contracts_the_second_order_tensors(r
     q, qd, qdd, f = _states(robot, 3, seed=10)
     g = torch.Generator().manual_seed(3)
     Gq, Gv = (torch.randn(3, robot.nv, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
-    d2q, d2v, dqdv, dadq = robot.pin.inverse_dynamics_second_order(q, qd, qdd, f)
-    gq, gqd, gqdd, gf = robot._ops.inverse_dynamics_gradient_vjp(q, qd, qdd, f, Gq, Gv, 0)
+    d2q, d2v, dqdv, dadq = robot.pin.inverse_dynamics_second_derivatives(q, qd, qdd, f)
+    gq, gqd, gqdd, gf = robot._ops.inverse_dynamics_derivatives_vjp(q, qd, qdd, f, Gq, Gv, 0)
     assert rel_err(gq, torch.einsum("bij,bijk->bk", Gq, d2q) + torch.einsum("bij,bikj->bk", Gv, dqdv)) <= 1e-12
     assert rel_err(gqd, torch.einsum("bij,bijk->bk", Gq, dqdv) + torch.einsum("bij,bijk->bk", Gv, d2v)) <= 1e-12
     assert rel_err(gqdd, torch.einsum("bij,bimj->bm", Gq, dadq)) <= 1e-12
     # f_ext: d/df <Gq, dtau/dq> by central differences (dtau/dq is affine in f_ext)
     h = 1e-3
     eye = torch.eye(robot.nbodies * 6, dtype=torch.float64).view(-1, robot.nbodies, 6)
-    plus, minus = (robot.pin.inverse_dynamics_gradient(q[:, None], qd[:, None], qdd[:, None], f[:, None] + s * h * eye)[0]
+    plus, minus = (robot.pin.inverse_dynamics_derivatives(q[:, None], qd[:, None], qdd[:, None], f[:, None] + s * h * eye)[0]
                    for s in (1, -1))
     assert rel_err(gf, torch.einsum("bij,bfij->bf", Gq, (plus - minus) / (2 * h)).view_as(f)) <= 1e-9
     # through autograd with a sum's broadcast cotangents (passed on uncopied): all-ones weights
     leaves = [x.clone().requires_grad_(True) for x in (q, qd, qdd)]
-    dq, dqd, dqdd = torch.autograd.grad(sum(t.sum() for t in robot.pin.inverse_dynamics_gradient(*leaves, f)), leaves)
+    dq, dqd, dqdd = torch.autograd.grad(sum(t.sum() for t in robot.pin.inverse_dynamics_derivatives(*leaves, f)), leaves)
     ones = torch.ones_like(Gq)
     assert rel_err(dqd, torch.einsum("bij,bijk->bk", ones, dqdv + d2v)) <= 1e-12
     assert rel_err(dqdd, torch.einsum("bij,bimj->bm", ones, dadq)) <= 1e-12
 
 
 @pytest.mark.parametrize("name", ["iiwa14", "go2", "balls", "zoo"])
-def test_forward_dynamics_second_order_vs_differences(robots, pin_models, pinocchio_balls, mjcf_robots, name):
+def test_forward_dynamics_second_derivatives_vs_differences(robots, pin_models, pinocchio_balls, mjcf_robots, name):
     robot = _any_robot(name, robots, pin_models, pinocchio_balls, mjcf_robots)
     q, qd, tau, f = (x[0] for x in _states(robot, 1, seed=5))
     h, n = 1e-5, robot.nv
-    d2q, d2v, dqdv, dtdq = robot.pin.forward_dynamics_second_order(q, qd, tau, f)
+    d2q, d2v, dqdv, dtdq = robot.pin.forward_dynamics_second_derivatives(q, qd, tau, f)
     qp, qm = _tangent_steps(robot, q, h)
-    gp, gm = (robot.pin.forward_dynamics_gradient(x, qd.expand(n, -1), tau.expand(n, -1), f.expand(n, -1, -1))
+    gp, gm = (robot.pin.forward_dynamics_derivatives(x, qd.expand(n, -1), tau.expand(n, -1), f.expand(n, -1, -1))
               for x in (qp, qm))
     assert rel_err(d2q, ((gp[0] - gm[0]) / (2 * h)).permute(1, 2, 0)) <= 1e-6
     assert rel_err(dtdq, ((gp[2] - gm[2]) / (2 * h)).permute(1, 2, 0)) <= 1e-6
     eye = h * torch.eye(n, dtype=torch.float64)
-    vp, vm = (robot.pin.forward_dynamics_gradient(q.expand(n, -1), qd + s * eye, tau.expand(n, -1), f.expand(n, -1, -1))
+    vp, vm = (robot.pin.forward_dynamics_derivatives(q.expand(n, -1), qd + s * eye, tau.expand(n, -1), f.expand(n, -1, -1))
               for s in (1, -1))
     assert rel_err(dqdv, ((vp[0] - vm[0]) / (2 * h)).permute(1, 2, 0)) <= 1e-6
     assert rel_err(d2v, ((vp[1] - vm[1]) / (2 * h)).permute(1, 2, 0)) <= 1e-6
@@ -177,16 +177,16 @@ def test_forward_dynamics_second_order_vs_differences(robots, pin_models, pinocc
 def test_batch_shapes_and_float32(robots):
     robot = robots["go2"]
     q, qd, qdd, _ = _states(robot, 6, seed=6)
-    ref = robot.pin.inverse_dynamics_second_order(q, qd, qdd)
-    shaped = robot.pin.inverse_dynamics_second_order(q.view(2, 3, -1), qd.view(2, 3, -1), qdd[0])
-    single = robot.pin.inverse_dynamics_second_order(q, qd, qdd[0].expand_as(qdd))
+    ref = robot.pin.inverse_dynamics_second_derivatives(q, qd, qdd)
+    shaped = robot.pin.inverse_dynamics_second_derivatives(q.view(2, 3, -1), qd.view(2, 3, -1), qdd[0])
+    single = robot.pin.inverse_dynamics_second_derivatives(q, qd, qdd[0].expand_as(qdd))
     for x, y in zip(shaped, single):
         assert x.shape == (2, 3, robot.nv, robot.nv, robot.nv)
         assert torch.equal(x.reshape(y.shape), y)
-    low = robot.pin.inverse_dynamics_second_order(q.float(), qd.float(), qdd.float())
+    low = robot.pin.inverse_dynamics_second_derivatives(q.float(), qd.float(), qdd.float())
     for x, y in zip(low, ref):
         assert x.dtype == torch.float32 and rel_err(x, y) <= 1e-4
-    fd = robot.pin.forward_dynamics_second_order(q.view(2, 3, -1), qd.view(2, 3, -1), qdd.view(2, 3, -1))
+    fd = robot.pin.forward_dynamics_second_derivatives(q.view(2, 3, -1), qd.view(2, 3, -1), qdd.view(2, 3, -1))
     assert all(x.shape == (2, 3, robot.nv, robot.nv, robot.nv) for x in fd)
 
 
@@ -194,7 +194,7 @@ def test_mujoco_convention_without_quaternions_is_pinocchios(robots):
     """Without a quaternion joint the conventions agree (a fixed arm): the same tensors."""
     arm = robots["iiwa14"]
     q, qd, qdd, _ = _states(arm, 2, seed=7)
-    for x, y in zip(arm.mujoco.inverse_dynamics_second_order(q, qd, qdd), arm.pin.inverse_dynamics_second_order(q, qd, qdd)):
+    for x, y in zip(arm.mujoco.inverse_dynamics_second_derivatives(q, qd, qdd), arm.pin.inverse_dynamics_second_derivatives(q, qd, qdd)):
         assert torch.equal(x, y)
 
 
@@ -202,7 +202,7 @@ def test_third_derivatives_refuse(robots):
     robot = robots["iiwa14"]
     q, qd, qdd, _ = _states(robot, 2, seed=8)
     q.requires_grad_(True)
-    for out in (robot.inverse_dynamics_second_order(q, qd, qdd), robot.forward_dynamics_second_order(q, qd, qdd)):
+    for out in (robot.inverse_dynamics_second_derivatives(q, qd, qdd), robot.forward_dynamics_second_derivatives(q, qd, qdd)):
         with pytest.raises(NotImplementedError, match="cannot be differentiated once more"):
             out[0].sum().backward()
 
@@ -253,25 +253,25 @@ def test_frame_kinematic_hessian_vs_differences(robots, pinocchio_balls, mjcf_ro
             assert rel_err(H, ((J[0] - J[1]) / 2e-6).permute(1, 2, 0)) <= 1e-6, reference
 
 
-def test_end_effector_pose_hessian_vs_differences(robots, pinocchio_balls):
-    """Against central differences of end_effector_pose_gradient along the tangent."""
+def test_end_effector_pose_second_derivatives_vs_differences(robots, pinocchio_balls):
+    """Against central differences of end_effector_pose_derivatives along the tangent."""
     for robot in (robots["iiwa14"], robots["go2"], pinocchio_balls[0]):
         q = robot.pin.random_configuration(generator=torch.Generator().manual_seed(11))
         frames = [robot.nframes - 1, max(range(robot.nframes), key=lambda f: robot.model.frames[f].parent)]
-        H = robot.pin.end_effector_pose_hessian(q, frames)
+        H = robot.pin.end_effector_pose_second_derivatives(q, frames)
         assert H.shape == (2, 6, robot.nv, robot.nv)
         qp, qm = _tangent_steps(robot, q, 1e-6)
-        gp, gm = (robot.pin.end_effector_pose_gradient(x, frames) for x in (qp, qm))
+        gp, gm = (robot.pin.end_effector_pose_derivatives(x, frames) for x in (qp, qm))
         assert rel_err(H, ((gp - gm) / 2e-6).permute(1, 2, 3, 0)) <= 1e-6
 
 
-def test_forward_dynamics_second_order_chunks_equal_the_whole_batch(robots):
+def test_forward_dynamics_second_derivatives_chunks_equal_the_whole_batch(robots):
     """Without autograd the batch goes in chunks of samples (written over the inverse-dynamics
     tensors); with it, in one piece: the same numbers."""
     robot = robots["go2"]
     q, qd, tau, _ = _states(robot, 50, seed=12)
-    chunked = robot.pin.forward_dynamics_second_order(q.view(5, 10, -1), qd.view(5, 10, -1), tau[0])
-    whole = robot.pin.forward_dynamics_second_order(q.clone().requires_grad_(True), qd, tau[0].expand_as(tau))
+    chunked = robot.pin.forward_dynamics_second_derivatives(q.view(5, 10, -1), qd.view(5, 10, -1), tau[0])
+    whole = robot.pin.forward_dynamics_second_derivatives(q.clone().requires_grad_(True), qd, tau[0].expand_as(tau))
     for a, b in zip(chunked, whole):
         assert a.shape == (5, 10, robot.nv, robot.nv, robot.nv)
         assert torch.allclose(a.reshape(b.shape), b.detach(), rtol=1e-12, atol=1e-12)
@@ -285,11 +285,11 @@ def test_a_batch_written_through_the_buffer_equals_small_batches(robots):
     robot = robots["go2"]
     q, qd, qdd, _ = _states(robot, 64, seed=13)
     qdd[5:] = 0  # samples whose entries are partly zero
-    big = robot.inverse_dynamics_second_order(q, qd, qdd)
-    robot.inverse_dynamics_gradient(q, qd, qdd)
-    again = robot.inverse_dynamics_second_order(q, qd, qdd)
+    big = robot.inverse_dynamics_second_derivatives(q, qd, qdd)
+    robot.inverse_dynamics_derivatives(q, qd, qdd)
+    again = robot.inverse_dynamics_second_derivatives(q, qd, qdd)
     for s in range(0, 64, 2):
-        small = robot.inverse_dynamics_second_order(q[s:s + 2], qd[s:s + 2], qdd[s:s + 2])
+        small = robot.inverse_dynamics_second_derivatives(q[s:s + 2], qd[s:s + 2], qdd[s:s + 2])
         for a, b, c in zip(big, again, small):
             assert torch.equal(a[s:s + 2], c) and torch.equal(b[s:s + 2], c)
     assert (big[0] == 0).float().mean() > 0.3  # the zeros are there to be kept

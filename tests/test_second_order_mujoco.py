@@ -68,12 +68,12 @@ def _differences(fn, m, q, qd, x, f, along_x=False):
 
 
 @pytest.mark.parametrize("name", ["go2", "trees", "zoo"])
-def test_inverse_dynamics_second_order(models, name):
+def test_inverse_dynamics_second_derivatives(models, name):
     robot, m = models[name]
     view = robot.mujoco
     q, qd, qdd, f = _state(robot, seed=11)
-    d2q, d2v, dqdv, dM = view.inverse_dynamics_second_order(q, qd, qdd, f)
-    gq, gv, ga = _differences(view.inverse_dynamics_gradient, m, q, qd, qdd, f, along_x=True)
+    d2q, d2v, dqdv, dM = view.inverse_dynamics_second_derivatives(q, qd, qdd, f)
+    gq, gv, ga = _differences(view.inverse_dynamics_derivatives, m, q, qd, qdd, f, along_x=True)
     assert rel_err(d2q, gq[0]) <= 1e-6
     assert rel_err(dqdv, gv[0]) <= 1e-6
     assert rel_err(d2v, gv[1]) <= 1e-6
@@ -82,12 +82,12 @@ def test_inverse_dynamics_second_order(models, name):
 
 
 @pytest.mark.parametrize("name", ["go2", "trees"])
-def test_forward_dynamics_second_order(models, name):
+def test_forward_dynamics_second_derivatives(models, name):
     robot, m = models[name]
     view = robot.mujoco
     q, qd, tau, f = _state(robot, seed=12)
-    d2q, d2v, dqdv, dminv = view.forward_dynamics_second_order(q, qd, tau, f)
-    gq, gv = _differences(view.forward_dynamics_gradient, m, q, qd, tau, f)
+    d2q, d2v, dqdv, dminv = view.forward_dynamics_second_derivatives(q, qd, tau, f)
+    gq, gv = _differences(view.forward_dynamics_derivatives, m, q, qd, tau, f)
     assert rel_err(d2q, gq[0]) <= 1e-6
     assert rel_err(dminv, gq[2]) <= 1e-6
     assert rel_err(dqdv, gv[0]) <= 1e-6
@@ -104,8 +104,8 @@ def test_frame_kinematic_hessian_and_pose_hessian(models, name, reference):
     frame = robot.nframes - 1
     H_ = view.frame_kinematic_hessian(q, frame, reference)
     assert rel_err(H_, _along(lambda p: view.frame_jacobian(p, frame, reference), plus, minus)[0]) <= 1e-6
-    pose = view.end_effector_pose_hessian(q, [frame])
-    assert rel_err(pose, _along(lambda p: view.end_effector_pose_gradient(p, [frame]), plus, minus)[0]) <= 1e-6
+    pose = view.end_effector_pose_second_derivatives(q, [frame])
+    assert rel_err(pose, _along(lambda p: view.end_effector_pose_derivatives(p, [frame]), plus, minus)[0]) <= 1e-6
 
 
 @pytest.mark.parametrize("name", ["go2", "trees"])
@@ -119,8 +119,8 @@ def test_broadcast_batches_and_vmap_with_inputs_held_fixed(models, name):
     g = torch.Generator().manual_seed(32)
     qd, x = (torch.randn(3, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
     functions = {
-        "inverse_dynamics_second_order": lambda q, qd, x: view.inverse_dynamics_second_order(q, qd, x, f),
-        "forward_dynamics_second_order": lambda q, qd, x: view.forward_dynamics_second_order(q, qd, x, f),
+        "inverse_dynamics_second_derivatives": lambda q, qd, x: view.inverse_dynamics_second_derivatives(q, qd, x, f),
+        "forward_dynamics_second_derivatives": lambda q, qd, x: view.forward_dynamics_second_derivatives(q, qd, x, f),
         "step_second_derivatives": lambda q, qd, x: (view.step_second_derivatives(q, qd, x, 0.01, f_ext=f),),
     }
     for label, fn in functions.items():

@@ -313,7 +313,7 @@ def test_step_second_derivatives_match_differences_of_the_first(robots, name, co
 
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
 def test_step_hessians_are_forward_over_reverse(robots, convention):
-    """step_second_derivatives (the Euler schemes' closed form from forward_dynamics_second_order; rk4's
+    """step_second_derivatives (the Euler schemes' closed form from forward_dynamics_second_derivatives; rk4's
     second-order chain rule through the stages) against forward over reverse through step
     itself, on every joint type (two free joints, a ball, a hinge, a slide), at rest, slow and fast (turns
     of about one rad per step), with a per-sample dt and external forces."""

@@ -1,4 +1,4 @@
-"""CPU batches split across threads by work (csrc/torch/glue.h, Call::run; ops.py, cpu_grain): the results on
+"""CPU batches split across threads by work (csrc/torch/glue.h, Call::run; ops/table.py, cpu_grain): the results on
 one and on two threads are bitwise equal, and the grain of each op in a robot's table, the fewest samples
 the glue gives a thread, is the fewest that hold CPU_THREAD_NS of the op's estimated work."""
 from __future__ import annotations
@@ -33,7 +33,7 @@ def _same_on_one_and_two_threads(robot, name: str, args: tuple[torch.Tensor, ...
 
 
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32], ids=["float64", "float32"])
-@pytest.mark.parametrize("name", ["inverse_dynamics", "forward_dynamics_gradient", "crba"])
+@pytest.mark.parametrize("name", ["inverse_dynamics", "forward_dynamics_derivatives", "crba"])
 def test_one_and_two_threads_bitwise_equal(robots, name: str, dtype: torch.dtype) -> None:
     robot = robots["go2"]
     threads = torch.get_num_threads()

@@ -2,10 +2,12 @@
 in Pinocchio's or MuJoCo's convention."""
 from __future__ import annotations
 
+import sys as _sys
 from collections.abc import Mapping
 from dataclasses import replace as _replace
 from pathlib import Path
 
+from .former import convention_name
 from .model.description import Frame, Joint, RobotModel, check_triangle_inequality, with_armature
 from .model.parse import BUNDLED, from_pinocchio, source_to_model
 from .ops.autograd import register_autograd
@@ -15,6 +17,8 @@ from .optim.costs import log_barrier, quadratic_barrier
 from .robot import Robot, RobotView
 from .space import conventions
 from .step.integrators import INTEGRATORS
+
+_sys.modules[f"{__name__}.conventions"] = conventions  # `import torch_grid.conventions`: the public module
 
 __all__ = ["load", "Robot", "RobotView", "RobotModel", "Joint", "Frame", "conventions", "from_pinocchio", "BUNDLED",
            "INTEGRATORS", "log_barrier", "quadratic_barrier", "empty_cache"]
@@ -94,9 +98,8 @@ def load(source, *, floating_base: bool | None = None, convention: str = "pin", 
         model = _replace(model, eulerdamp=eulerdamp)
     if armature is not None:
         model = with_armature(model, armature)
-    if convention not in ("pin", "pinocchio", "mujoco", "mjx"):
-        raise ValueError(f"convention must be 'pin' or 'mujoco', got {convention!r}")
-    if convention in ("mujoco", "mjx") and model.conventions_differ and not enable_mujoco_kernels:
+    convention = convention_name(convention)
+    if convention == "mujoco" and model.conventions_differ and not enable_mujoco_kernels:
         raise ValueError("convention='mujoco' needs enable_mujoco_kernels=True for a robot with a free or ball joint")
     namespace = _build(model.kernel_model, mujoco=enable_mujoco_kernels, cache_dir=cache_dir)
     if namespace not in _AUTOGRAD_DONE:

@@ -5,11 +5,13 @@ import difflib
 import json
 import math
 import numbers
+import warnings
 from pathlib import Path
 from typing import Sequence
 
 import torch
 
+from .former import CONVENTIONS, FORMER_NAMES, convention_name
 from .model.description import RobotModel, inertia_about_origin
 from .ops import mujoco_second_order
 from .ops.arguments import check_batch_shape, check_dt, check_tensor, checked, forward_mode, reference_code
@@ -27,7 +29,6 @@ from .step.integrators import StepFunctions
 from .step.passive import PassiveForces
 
 _CPU, _CUDA = torch._C.DispatchKeySet(torch._C.DispatchKey.CPU), torch._C.DispatchKeySet(torch._C.DispatchKey.CUDA)
-CONVENTIONS = {"pin": 0, "pinocchio": 0, "mujoco": 1, "mjx": 1}
 
 
 class ConfigurationFunctions:
@@ -69,6 +70,14 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
 
     _robot: "Robot"
     _convention: int
+
+    def __getattr__(self, name: str):
+        # a former name of a function (FORMER_NAMES): the function, with a DeprecationWarning
+        if name in FORMER_NAMES:
+            warnings.warn(f"{name} is now {FORMER_NAMES[name]}; the former name goes in 0.3", DeprecationWarning,
+                          stacklevel=2)
+            return getattr(self, FORMER_NAMES[name])
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     # -- description: the robot's, the same in every convention ------------------------------------
     name = property(lambda self: self._robot.model.name, doc="The robot's name.")
@@ -177,33 +186,33 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         """Spatial velocity [linear; angular] (..., nbodies, 6) of each body, in its joint frame."""
         return self._call("body_velocities", q, qd)
 
-    def inverse_dynamics_gradient(self, q, qd, qdd, f_ext=None) -> tuple[torch.Tensor, torch.Tensor]:
+    def inverse_dynamics_derivatives(self, q, qd, qdd, f_ext=None) -> tuple[torch.Tensor, torch.Tensor]:
         """Analytic (d tau / dq, d tau / dqd), each (..., nv, nv), of inverse_dynamics.
 
         Derivatives along the tangent space: for a floating base in Pinocchio's convention, the
         local increment q (+) dq (as pinocchio.computeRNEADerivatives); in MuJoCo's convention,
         mj_integratePos's increment, with qvel and qacc held fixed in MuJoCo's frame.
         """
-        dq, dqd = self._call("inverse_dynamics_gradient", q, qd, qdd, f_ext)
+        dq, dqd = self._call("inverse_dynamics_derivatives", q, qd, qdd, f_ext)
         if not self._robot._with_passive:
             return dq, dqd
         # - passive_forces adds stiffness and damping to the diagonals.
         damping, stiffness, _ = self._robot._passive.coefficients(dq)
         return dq + torch.diag_embed(stiffness), dqd + torch.diag_embed(damping)
 
-    def forward_dynamics_gradient(self, q, qd, tau, f_ext=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def forward_dynamics_derivatives(self, q, qd, tau, f_ext=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Analytic (d qdd / dq, d qdd / dqd, d qdd / dtau), each (..., nv, nv), of forward_dynamics.
 
-        Tangent derivatives as in inverse_dynamics_gradient; d qdd / dtau = M^-1.
+        Tangent derivatives as in inverse_dynamics_derivatives; d qdd / dtau = M^-1.
         """
         if not self._robot._with_passive:
-            return self._call("forward_dynamics_gradient", q, qd, tau, f_ext)
+            return self._call("forward_dynamics_derivatives", q, qd, tau, f_ext)
         # qdd = FD(q, qd, tau + passive(q, qd)): the chain rule through the passive forces' diagonals.
-        dq, dqd, minv = self._call("forward_dynamics_gradient", q, qd, tau + self._robot._passive(q, qd), f_ext)
+        dq, dqd, minv = self._call("forward_dynamics_derivatives", q, qd, tau + self._robot._passive(q, qd), f_ext)
         damping, stiffness, _ = self._robot._passive.coefficients(minv)
         return dq - minv * stiffness, dqd - minv * damping, minv
 
-    def inverse_dynamics_second_order(self, q, qd, qdd, f_ext=None) -> tuple[torch.Tensor, ...]:
+    def inverse_dynamics_second_derivatives(self, q, qd, qdd, f_ext=None) -> tuple[torch.Tensor, ...]:
         """Analytic second derivatives of inverse_dynamics, each (..., nv, nv, nv), tau's index first:
 
             d2tau_dq2[i, j, k]   = d/dq_k  (d tau / dq)[i, j]
@@ -212,30 +221,30 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
             dM_dq[i, j, k]       = d/dq_k M[i, j]
 
         Pinocchio's ComputeRNEASecondOrderDerivatives layout (d2tau_dqdq, d2tau_dvdv, dtau_dqdv,
-        dtau_dadq), with f_ext; tangent derivatives as in inverse_dynamics_gradient, so on a floating
+        dtau_dadq), with f_ext; tangent derivatives as in inverse_dynamics_derivatives, so on a floating
         base d2tau_dq2 is not symmetric in j, k. Passive forces are linear in q and qd: no term here.
         In the MuJoCo convention, the derivatives of its first derivatives along mj_integratePos's tangent,
         qvel and qacc held fixed in MuJoCo's frame; with free joints, composed in torch from Pinocchio's
         tensors (torch_grid/ops/mujoco_second_order.py).
         """
         if self._differs():
-            return mujoco_second_order.inverse_dynamics_second_order_mujoco(self._robot, q, qd, qdd, f_ext)
-        return self._call("inverse_dynamics_second_order", q, qd, qdd, f_ext)
+            return mujoco_second_order.inverse_dynamics_second_derivatives_mujoco(self._robot, q, qd, qdd, f_ext)
+        return self._call("inverse_dynamics_second_derivatives", q, qd, qdd, f_ext)
 
-    def forward_dynamics_second_order(self, q, qd, tau, f_ext=None) -> tuple[torch.Tensor, ...]:
+    def forward_dynamics_second_derivatives(self, q, qd, tau, f_ext=None) -> tuple[torch.Tensor, ...]:
         """Second derivatives of forward_dynamics, each (..., nv, nv, nv), in the layout of
-        inverse_dynamics_second_order: (d2qdd_dq2, d2qdd_dqd2, d2qdd_dqdqd, d2qdd_dtaudq) with
+        inverse_dynamics_second_derivatives: (d2qdd_dq2, d2qdd_dqd2, d2qdd_dqdqd, d2qdd_dtaudq) with
         d2qdd_dtaudq[i, j, k] = d/dq_k (M^-1)[i, j].
 
         Closed form at qdd = forward_dynamics(q, qd, tau): differentiating ID(q, qd, qdd(x)) = tau
         twice, with Z = d qdd / dx,
             d2qdd/dx_j dx_k = -M^-1 (d2tau/dx_j dx_k + dM/dx_j Z_k + dM/dx_k Z_j)
-        (dM/dx only along q), from inverse_dynamics_second_order and forward_dynamics_gradient, in
+        (dM/dx only along q), from inverse_dynamics_second_derivatives and forward_dynamics_derivatives, in
         either convention.
         """
         qdd = self.forward_dynamics(q, qd, tau, f_ext)
-        z_q, z_qd, minv = self.forward_dynamics_gradient(q, qd, tau, f_ext)
-        return second_order(self.inverse_dynamics_second_order(q, qd, qdd, f_ext), z_q, z_qd, minv)
+        z_q, z_qd, minv = self.forward_dynamics_derivatives(q, qd, tau, f_ext)
+        return second_order(self.inverse_dynamics_second_derivatives(q, qd, qdd, f_ext), z_q, z_qd, minv)
 
     def _differs(self) -> bool:
         """Whether this view is MuJoCo's convention of a robot on which it differs from Pinocchio's."""
@@ -250,17 +259,17 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
             return self._robot._passive(q, qd)
         return coupling.rows(self._robot._passive(coupling.q(q), coupling.v(qd)), -1)
 
-    def inverse_dynamics_external_force_gradient(self, q) -> torch.Tensor:
+    def inverse_dynamics_external_force_derivatives(self, q) -> torch.Tensor:
         """d inverse_dynamics / d f_ext (..., nv, nbodies, 6) = -J_k^T, J_k body k's Jacobian in its joint frame."""
         if forward_mode((q,)):
             return -self._body_jacobians(q)
-        return self._call("inverse_dynamics_external_force_gradient", q)
+        return self._call("inverse_dynamics_external_force_derivatives", q)
 
-    def forward_dynamics_external_force_gradient(self, q) -> torch.Tensor:
+    def forward_dynamics_external_force_derivatives(self, q) -> torch.Tensor:
         """d forward_dynamics / d f_ext (..., nv, nbodies, 6) = M^-1 J_k^T."""
         if forward_mode((q,)):
             return (self.minv(q) @ self._body_jacobians(q).flatten(-2)).unflatten(-1, (self._robot.nbodies, 6))
-        return self._call("forward_dynamics_external_force_gradient", q)
+        return self._call("forward_dynamics_external_force_derivatives", q)
 
     def _body_jacobians(self, q) -> torch.Tensor:
         """(..., nv, nbodies, 6): [m, k] = J_k e_m, from body_velocities (linear in qd), which has a forward
@@ -294,12 +303,12 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         convention, qvel fixed in MuJoCo's frame); dh/dqd is A itself."""
         return self._call("dccrba", q, qd)
 
-    def centroidal_map_gradient(self, q) -> torch.Tensor:
+    def centroidal_map_derivatives(self, q) -> torch.Tensor:
         """d A / dq (..., 6, nv, nv) of the centroidal momentum matrix: [..., i, j, k] = d A_ij / dq_k
         along the tangent (as dccrba). Column j of A is the momentum at qd = e_j, so this is
         dccrba at each unit velocity: nv times its cost."""
         nv = self._robot.nv
-        check_tensor("centroidal_map_gradient", "q", q, (self._robot.nq,), q)
+        check_tensor("centroidal_map_derivatives", "q", q, (self._robot.nq,), q)
         unit = torch.eye(nv, dtype=q.dtype, device=q.device)
         dh = self.dccrba(q.unsqueeze(-2).expand(*q.shape[:-1], nv, q.shape[-1]), unit.expand(*q.shape[:-1], nv, nv))
         return dh.movedim(-3, -2)
@@ -322,13 +331,13 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         """(..., 10 nbodies) with potential energy = regressor @ inertial_parameters()."""
         return self._call("potential_energy_regressor", q)
 
-    def forward_dynamics_parameter_gradient(self, q, qd, tau) -> torch.Tensor:
+    def forward_dynamics_parameter_derivatives(self, q, qd, tau) -> torch.Tensor:
         """d forward_dynamics / d inertial_parameters (..., nv, 10 nbodies) = -M^-1 Y at qdd = FD."""
         if forward_mode((q, qd, tau)):  # composed of ops that have a forward mode (the kernel has none)
             return -(self.minv(q) @ self.inverse_dynamics_regressor(q, qd, self.forward_dynamics(q, qd, tau)))
         if self._robot._with_passive:
             tau = tau + self._robot._passive(q, qd)
-        return self._call("forward_dynamics_parameter_gradient", q, qd, tau)
+        return self._call("forward_dynamics_parameter_derivatives", q, qd, tau)
 
     def inertial_parameters(self, dtype: torch.dtype = torch.float64, device="cpu") -> torch.Tensor:
         """(10 nbodies,) each body's [m, m c, I_xx, I_xy, I_yy, I_xz, I_yz, I_zz] in Pinocchio's order:
@@ -547,9 +556,7 @@ class Robot(_Functions):
         return _restore, (self.model.to_json(), self.convention, self._enable_mujoco_kernels, self._include_passive)
 
     def _convention_code(self, value: str) -> int:
-        if not isinstance(value, str) or value.lower() not in CONVENTIONS:
-            raise ValueError(f"convention must be 'pin' or 'mujoco', got {value!r}")
-        code = CONVENTIONS[value.lower()]
+        code = CONVENTIONS[convention_name(value)]
         if code and not self._mujoco_kernels:
             raise ValueError(f"convention='mujoco': robot {self.name!r} was built with enable_mujoco_kernels=False")
         return code

@@ -345,38 +345,38 @@ def _end_effector_pose(ops, model, needs, grads, output, q, frames, convention):
     return tangent_to_ambient(model, q, ops.frames_vjp(q, weights, convention), convention), None, None
 
 
-def _forward_dynamics_gradient(ops, model, needs, grads, output, q, qd, tau, f_ext, convention):
+def _forward_dynamics_derivatives(ops, model, needs, grads, output, q, qd, tau, f_ext, convention):
     """(-M^-1 dtau/dq, -M^-1 dtau/dqd, M^-1) at qdd = FD(q, qd, tau, f_ext): back through that
     composition, each part by its own backward (the ID gradient's is second order)."""
     g_dq, g_dqd, g_minv = grads
     minv = output[2]
     qdd = ops.forward_dynamics(q, qd, tau, f_ext, convention)
-    d_q, d_qd = ops.inverse_dynamics_gradient(q, qd, qdd, f_ext, convention)
+    d_q, d_qd = ops.inverse_dynamics_derivatives(q, qd, qdd, f_ext, convention)
     g_id = tuple(None if g is None else -minv @ g for g in (g_dq, g_dqd))  # M^-1 is symmetric
     g_m = _sum(g_minv, None if g_dq is None else -g_dq @ d_q.mT, None if g_dqd is None else -g_dqd @ d_qd.mT)
-    dq, dqd, g_qdd, df, _ = _inverse_dynamics_gradient(ops, model, (needs[0], needs[1], True, needs[3], False), g_id,
+    dq, dqd, g_qdd, df, _ = _inverse_dynamics_derivatives(ops, model, (needs[0], needs[1], True, needs[3], False), g_id,
                                                        None, q, qd, qdd, f_ext, convention)
     fd = _forward_dynamics(ops, model, needs, (g_qdd,), qdd, q, qd, tau, f_ext, convention)
     dq_m = _minv(ops, model, needs, (g_m,), minv, q, convention)[0] if needs[0] and g_m is not None else None
     return _sum(dq, fd[0], dq_m), _sum(dqd, fd[1]), fd[2], _sum(df, fd[3]), None
 
 
-def _inverse_dynamics_gradient(ops, model, needs, grads, output, q, qd, qdd, f_ext, convention):
+def _inverse_dynamics_derivatives(ops, model, needs, grads, output, q, qd, qdd, f_ext, convention):
     """<Gq, dtau/dq> + <Gqd, dtau/dqd> differentiated with respect to every input by one O(n d) kernel,
     the second-order recursion contracted with G (csrc/kernels/derivatives/rnea_second_order.h), in Pinocchio's
     convention or where the conventions agree; in MuJoCo's convention of a robot with quaternion joints,
-    forward over reverse (_inverse_dynamics_gradient_jvps)."""
+    forward over reverse (_inverse_dynamics_derivatives_jvps)."""
     if convention and model.conventions_differ:
-        return _inverse_dynamics_gradient_jvps(ops, model, needs, grads, output, q, qd, qdd, f_ext, convention)
+        return _inverse_dynamics_derivatives_jvps(ops, model, needs, grads, output, q, qd, qdd, f_ext, convention)
     nv, batch = model.nv, q.shape[:-1]
     zero = torch.zeros(*batch, nv, nv, dtype=q.dtype, device=q.device)
     g_q, g_qd = (zero if g is None else _unexpanded(g, 2) for g in grads)
-    dq, dqd, dqdd, df = ops.inverse_dynamics_gradient_vjp(q, qd, qdd, f_ext, g_q, g_qd, convention)
+    dq, dqd, dqdd, df = ops.inverse_dynamics_derivatives_vjp(q, qd, qdd, f_ext, g_q, g_qd, convention)
     dq = tangent_to_ambient(model, q, dq, convention) if needs[0] else None
     return dq, dqd if needs[1] else None, dqdd if needs[2] else None, df if needs[3] else None, None
 
 
-def _inverse_dynamics_gradient_jvps(ops, model, needs, grads, output, q, qd, qdd, f_ext, convention):
+def _inverse_dynamics_derivatives_jvps(ops, model, needs, grads, output, q, qd, qdd, f_ext, convention):
     """<Gq, dtau/dq> + <Gqd, dtau/dqd> = sum_j D_j (lam_j . tau) + D'_j (mu_j . tau), with lam_j, mu_j
     the columns of Gq, Gqd, D_j the derivative along q's tangent j and D'_j along qd_j. Its gradient
     is forward over reverse: the derivatives along those 2 nv directions of the gradient of
@@ -413,7 +413,7 @@ def repeat(x: torch.Tensor, n: int, trailing: int) -> torch.Tensor:
     return x.unsqueeze(-trailing - 1).expand(*x.shape[:-trailing], n, *x.shape[-trailing:])
 
 
-def _inverse_dynamics_external_force_gradient(ops, model, needs, grads, output, q, convention):
+def _inverse_dynamics_external_force_derivatives(ops, model, needs, grads, output, q, convention):
     """Row i of d tau / d f_ext is minus the body velocities at qd = e_i (-J_k e_i), so the gradient
     is that of -sum_i <G[i], body_velocities(q, e_i)>, by body_velocities' backward."""
     nv, batch = model.nv, q.shape[:-1]
@@ -423,18 +423,18 @@ def _inverse_dynamics_external_force_gradient(ops, model, needs, grads, output, 
     return dq.sum(-2), None
 
 
-def _forward_dynamics_external_force_gradient(ops, model, needs, grads, output, q, convention):
+def _forward_dynamics_external_force_derivatives(ops, model, needs, grads, output, q, convention):
     """-M^-1 (d tau / d f_ext): back through the product."""
     minv = ops.minv(q, convention)
-    e = ops.inverse_dynamics_external_force_gradient(q, convention)
+    e = ops.inverse_dynamics_external_force_derivatives(q, convention)
     g = grads[0].flatten(-2)
     g_e = (-minv @ g).reshape(e.shape)
-    dq = _inverse_dynamics_external_force_gradient(ops, model, needs, (g_e,), e, q, convention)[0]
+    dq = _inverse_dynamics_external_force_derivatives(ops, model, needs, (g_e,), e, q, convention)[0]
     dq_m = _minv(ops, model, needs, (-g @ e.flatten(-2).mT,), minv, q, convention)[0]
     return dq + dq_m, None
 
 
-def _forward_dynamics_parameter_gradient(ops, model, needs, grads, output, q, qd, tau, convention):
+def _forward_dynamics_parameter_derivatives(ops, model, needs, grads, output, q, qd, tau, convention):
     """-M^-1 Y(q, qd, qdd) at qdd = FD(q, qd, tau): back through the product, the regressor by its
     own backward and qdd by forward_dynamics'."""
     minv = ops.minv(q, convention)
@@ -503,11 +503,11 @@ BACKWARDS = {
     "com": _com,
     "ccrba": _ccrba,
     "energy": _energy,
-    "inverse_dynamics_gradient": _inverse_dynamics_gradient,
-    "forward_dynamics_gradient": _forward_dynamics_gradient,
-    "inverse_dynamics_external_force_gradient": _inverse_dynamics_external_force_gradient,
-    "forward_dynamics_external_force_gradient": _forward_dynamics_external_force_gradient,
-    "forward_dynamics_parameter_gradient": _forward_dynamics_parameter_gradient,
+    "inverse_dynamics_derivatives": _inverse_dynamics_derivatives,
+    "forward_dynamics_derivatives": _forward_dynamics_derivatives,
+    "inverse_dynamics_external_force_derivatives": _inverse_dynamics_external_force_derivatives,
+    "forward_dynamics_external_force_derivatives": _forward_dynamics_external_force_derivatives,
+    "forward_dynamics_parameter_derivatives": _forward_dynamics_parameter_derivatives,
     "osc_inertia": _osc_inertia,
 }
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..model.description import RobotModel, inertia_about_origin
-from .table import CONTRACTED, OPS, Arg, OpSpec, cpu_grain, op_signature
+from .table import CONTRACTED, OPS, OpSpec, cpu_grain, op_signature
 
 _JTYPE = {"free": 0, "revolute": 1, "continuous": 1, "prismatic": 2, "ball": 3}
 _KERNEL_SIZE = {"nv": "M::NV", "nq": "M::NQ", "nframes": "M::NF", "nbodies": "M::NB", "nparams": "10 * M::NB"}
@@ -17,7 +17,7 @@ _SCALARS = (("float", "f32"), ("double", "f64"))  # index 0 and 1 of OpKernels' 
 # The CPU kernels are built for double only: the glue runs float32 through them, a chunk of samples at
 # a time (csrc/torch/glue.h), which halves a robot's build for about what float arithmetic would save.
 _CPU_SCALARS = ("double",)
-_CONVENTIONS = (("tg::PIN", "pin"), ("tg::MJX", "mujoco"))
+_CONVENTIONS = (("tg::PIN", "pin"), ("tg::MUJOCO", "mujoco"))
 
 
 def write_robot_sources(model: RobotModel, mujoco: bool, cuda: bool, namespace: str, directory: Path) -> list[Path]:
@@ -228,7 +228,7 @@ def table_unit(model: RobotModel, mujoco: bool, cuda: bool, namespace: str) -> s
     flags = f"{int(model.conventions_differ)}, {int(mujoco)}, {int(cuda)}"
     return _unit(["batch/batch.h"], [
         f"namespace {namespace} {{", *decls,
-        f"const tg::OpKernels kOps[] = {{\n" + "\n".join(entries) + "\n};",
+        "const tg::OpKernels kOps[] = {\n" + "\n".join(entries) + "\n};",
         f'const tg::RobotTable kTable = {{tg::kTableAbi, "{op_signature()}", Robot::NQ, Robot::NV, Robot::NB, '
         f"Robot::NF, {flags}, {len(OPS)}, kOps}};",
         f"}}  // namespace {namespace}",

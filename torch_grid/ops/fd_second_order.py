@@ -5,7 +5,7 @@ Euler step with the damping implicit; p the passive forces, linear), differentia
 Z = d qdd / dx and W = (M + K)^-1:
     d2qdd/dx_j dx_k = -W (d2tau/dx_j dx_k + dM/dx_j Z_k + dM/dx_k Z_j)     (dM/dx only along q)
     d2qdd/dtau_j dq_k = d/dq_k W[:, j] = -(W dM/dq_k W)[:, j]
-from inverse_dynamics_second_order at that qdd, in either convention.
+from inverse_dynamics_second_derivatives at that qdd, in either convention.
 """
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from .func import transforming
 def second_order(second: tuple[torch.Tensor, ...], z_q: torch.Tensor, z_qd: torch.Tensor,
                  inverse: torch.Tensor) -> tuple[torch.Tensor, ...]:
     """(d2qdd_dq2, d2qdd_dqd2, d2qdd_dqdqd, d2qdd_dtaudq), each (..., nv, nv, nv), from `second` (the four
-    inverse_dynamics_second_order tensors at qdd), Z = (z_q, z_qd) and W = `inverse` (..., nv, nv)."""
+    inverse_dynamics_second_derivatives tensors at qdd), Z = (z_q, z_qd) and W = `inverse` (..., nv, nv)."""
     traced = torch.compiler.is_compiling() or transforming()
     if traced or (torch.is_grad_enabled() and any(t.requires_grad for t in second)):
         return _closed_form(*second, z_q, z_qd, inverse)

@@ -53,7 +53,7 @@ def dual(args) -> bool:
 # Why an op inside a backward has no derivative of its own, in the words of the function the user called.
 _THIRD = (" (it computes a derivative inside a backward: differentiating it again is a third derivative, or the "
           "second derivative of a function whose outputs are derivatives, such as frame_jacobian or "
-          "inverse_dynamics_gradient)")
+          "inverse_dynamics_derivatives)")
 
 
 class FuncOps:
@@ -230,7 +230,7 @@ def _gradient_tangents(ops, q, qd, qdd, f_ext, convention, u, t_qd, t_qdd):
     joints, its tensors (torch_grid/ops/mujoco_second_order.py) contracted in torch."""
     model = ops._model
     if not (convention and model.conventions_differ):
-        return ops.inverse_dynamics_gradient_tangent(q, qd, qdd, f_ext, u, t_qd, t_qdd, convention)
+        return ops.inverse_dynamics_derivatives_tangent(q, qd, qdd, f_ext, u, t_qd, t_qdd, convention)
     d2q, d2v, dqdv, dM = second_order_from_ops(ops, model, q, qd, qdd, f_ext)
     dA = (torch.einsum("...ijk,...k->...ij", d2q, u) + torch.einsum("...ijk,...k->...ij", dqdv, t_qd) +
           torch.einsum("...imj,...m->...ij", dM, t_qdd))
@@ -244,7 +244,7 @@ def _affine_in_force(op, q, qd, x, f_ext, t_f, convention):
     return tuple(a - b for a, b in zip(with_t, without)) if isinstance(with_t, tuple) else with_t - without
 
 
-def _inverse_dynamics_gradient_jvp(ops, _out, q, qd, qdd, f_ext, convention, t_q, t_qd, t_qdd, t_f, _):
+def _inverse_dynamics_derivatives_jvp(ops, _out, q, qd, qdd, f_ext, convention, t_q, t_qd, t_qdd, t_f, _):
     """The tangent of (dtau/dq, dtau/dqd): the second-order tensors along (q, qd, qdd), contracted in
     the kernel; along f_ext, dtau/dq is affine in it."""
     zero = torch.zeros_like(qd)
@@ -252,11 +252,11 @@ def _inverse_dynamics_gradient_jvp(ops, _out, q, qd, qdd, f_ext, convention, t_q
     dA, dB, _ = _gradient_tangents(ops, q, qd, qdd, f_ext, convention, u, zero if t_qd is None else t_qd,
                                    zero if t_qdd is None else t_qdd)
     if t_f is not None:
-        dA = dA + _affine_in_force(ops.inverse_dynamics_gradient, q, qd, qdd, f_ext, t_f, convention)[0]
+        dA = dA + _affine_in_force(ops.inverse_dynamics_derivatives, q, qd, qdd, f_ext, t_f, convention)[0]
     return dA, dB
 
 
-def _forward_dynamics_gradient_jvp(ops, out, q, qd, tau, f_ext, convention, t_q, t_qd, t_tau, t_f, _):
+def _forward_dynamics_derivatives_jvp(ops, out, q, qd, tau, f_ext, convention, t_q, t_qd, t_tau, t_f, _):
     """(Z_q, Z_qd, M^-1) = (-M^-1 dtau/dq, -M^-1 dtau/dqd, M^-1) at qdd = FD: with dqdd the tangent of
     qdd and (dA, dB, dM) those of dtau/dq, dtau/dqd, M along (q, qd, dqdd), dZ = -M^-1 (dA + dM Z) and
     d(M^-1) = -M^-1 dM M^-1."""
@@ -270,7 +270,7 @@ def _forward_dynamics_gradient_jvp(ops, out, q, qd, tau, f_ext, convention, t_q,
     qdd = ops.forward_dynamics(q, qd, tau, f_ext, convention)
     dA, dB, dM = _gradient_tangents(ops, q, qd, qdd, f_ext, convention, u, zero if t_qd is None else t_qd, dqdd)
     if t_f is not None:
-        dA = dA + _affine_in_force(ops.inverse_dynamics_gradient, q, qd, qdd, f_ext, t_f, convention)[0]
+        dA = dA + _affine_in_force(ops.inverse_dynamics_derivatives, q, qd, qdd, f_ext, t_f, convention)[0]
     return -minv @ (dA + dM @ z_q), -minv @ (dB + dM @ z_qd), -minv @ dM @ minv
 
 
@@ -304,8 +304,8 @@ def _kernel_jvp(name: str) -> Callable:
 # (jvp "dual").
 _JVPS = {"inverse_dynamics_vjp": _inverse_dynamics_vjp_jvp, "inertia_solve": _inertia_solve_jvp, "crba_vjp": _crba_vjp_jvp,
          "mass_product_vjp": _mass_product_vjp_jvp,
-         "inverse_dynamics_gradient": _inverse_dynamics_gradient_jvp,
-         "forward_dynamics_gradient": _forward_dynamics_gradient_jvp,
+         "inverse_dynamics_derivatives": _inverse_dynamics_derivatives_jvp,
+         "forward_dynamics_derivatives": _forward_dynamics_derivatives_jvp,
          "frame_jacobian": _frame_jacobian_jvp, "frames_vjp": _linear_jvp("frames_vjp"),
          "body_velocities": _linear_jvp("body_velocities"),
          **{name: _kernel_jvp(name) for name in KERNEL_JVP}}

@@ -33,8 +33,8 @@ _OUTPUTS = {
     "crba": ("both",), "energy": ("plain",), "com": ("plain",), "jacobian_com": ("columns",),
     "ccrba": ("columns", "plain"), "forward_kinematics": ("plain", "plain"), "end_effector_pose": ("plain",),
     "frame_jacobian": ("columns",), "frame_jacobian_dot": ("columns",), "body_velocities": ("plain",),
-    "inverse_dynamics_gradient": ("both", "both"), "inverse_dynamics_second_order": ("all",) * 4,
-    "frame_kinematic_hessian": ("last2",), "inverse_dynamics_external_force_gradient": ("rows",),
+    "inverse_dynamics_derivatives": ("both", "both"), "inverse_dynamics_second_derivatives": ("all",) * 4,
+    "frame_kinematic_hessian": ("last2",), "inverse_dynamics_external_force_derivatives": ("rows",),
     "cmm_time_variation": ("columns",), "dccrba": ("columns",), "coriolis_matrix": ("both",),
     "inverse_dynamics_regressor": ("rows",), "kinetic_energy_regressor": ("plain",),
     "potential_energy_regressor": ("plain",),
@@ -177,22 +177,22 @@ def _minv(c: Coupling, call: Callable, q):
     return c.inverse_inertia(call, q)
 
 
-def _forward_dynamics_gradient(c: Coupling, call: Callable, q, qd, tau, f_ext=None):
+def _forward_dynamics_derivatives(c: Coupling, call: Callable, q, qd, tau, f_ext=None):
     """d qdd / dx = -M^-1 d tau / dx at qdd = FD(q, qd, tau); d qdd / d tau = M^-1."""
     qdd = _forward_dynamics(c, call, q, qd, tau, f_ext)
-    dq, dqd = call("inverse_dynamics_gradient", c.q(q), c.v(qd), c.v(qdd), f_ext)
+    dq, dqd = call("inverse_dynamics_derivatives", c.q(q), c.v(qd), c.v(qdd), f_ext)
     minv = c.inverse_inertia(call, q)
     return -minv @ c.both(dq), -minv @ c.both(dqd), minv
 
 
-def _forward_dynamics_external_force_gradient(c: Coupling, call: Callable, q):
+def _forward_dynamics_external_force_derivatives(c: Coupling, call: Callable, q):
     """d qdd / d f_ext = -M^-1 d tau / d f_ext."""
-    dtau = c.rows(call("inverse_dynamics_external_force_gradient", c.q(q)), -3)
+    dtau = c.rows(call("inverse_dynamics_external_force_derivatives", c.q(q)), -3)
     minv = c.inverse_inertia(call, q)
     return -(minv @ dtau.flatten(-2)).unflatten(-1, dtau.shape[-2:])
 
 
-def _forward_dynamics_parameter_gradient(c: Coupling, call: Callable, q, qd, tau):
+def _forward_dynamics_parameter_derivatives(c: Coupling, call: Callable, q, qd, tau):
     """-M^-1 Y(q, qd, qdd) at qdd = FD(q, qd, tau)."""
     qdd = _forward_dynamics(c, call, q, qd, tau)
     Y = c.rows(call("inverse_dynamics_regressor", c.q(q), c.v(qd), c.v(qdd)), -2)
@@ -206,7 +206,7 @@ def _osc_inertia(c: Coupling, call: Callable, q, frame: int, reference: int):
 
 
 _SPECIAL = {
-    "forward_dynamics": _forward_dynamics, "minv": _minv, "forward_dynamics_gradient": _forward_dynamics_gradient,
-    "forward_dynamics_external_force_gradient": _forward_dynamics_external_force_gradient,
-    "forward_dynamics_parameter_gradient": _forward_dynamics_parameter_gradient, "osc_inertia": _osc_inertia,
+    "forward_dynamics": _forward_dynamics, "minv": _minv, "forward_dynamics_derivatives": _forward_dynamics_derivatives,
+    "forward_dynamics_external_force_derivatives": _forward_dynamics_external_force_derivatives,
+    "forward_dynamics_parameter_derivatives": _forward_dynamics_parameter_derivatives, "osc_inertia": _osc_inertia,
 }

@@ -5,10 +5,10 @@ each free joint's linear dofs, I elsewhere) maps Pinocchio's velocity to MuJoCo'
 MuJoCo's tangent is Pinocchio's direction Gi e_k (Gi = G^T). Holding qvel and qacc fixed in MuJoCo's
 frame, a step of q along k also changes Pinocchio's inputs: with t the MuJoCo direction,
 
-    tau_mjx(q, v, a) = G(q) tau(q, V(q, v), A(q, v, a)),   V = G^T v,   A_lin = R^T a_lin - w x V_lin,
+    tau_mujoco(q, v, a) = G(q) tau(q, V(q, v), A(q, v, a)),   V = G^T v,   A_lin = R^T a_lin - w x V_lin,
 
 so a direction k of q moves Pinocchio's (q, v, a) by (Dq, Dv, Da) e_k = (Gi, Jv, Ja) e_k, Jv and Ja
-non-zero in each free joint's (linear rows, angular columns) block only (conventions.md). A direction
+non-zero in each free joint's (linear rows, angular columns) block only (docs/guides/conventions.md). A direction
 of qvel moves (v, a) by (Gi, Jav) e_k, one of qacc moves a by Gi e_k. Every second derivative is then
 the derivative of MuJoCo's first derivative (the last index the direction, as Pinocchio's), by the
 product rule: Pinocchio's second-order tensors contracted with those maps, plus the terms where the
@@ -19,19 +19,19 @@ from __future__ import annotations
 
 import torch
 
-from ..space.conventions import a_mjx_to_pin, ball_joints, free_joints, q_mjx_to_pin, quaternion_rotation, v_mjx_to_pin
+from ..space.conventions import a_mujoco_to_pin, ball_joints, free_joints, q_mujoco_to_pin, quaternion_rotation, v_mujoco_to_pin
 from ..space.lie import skew
 
 
 class _Free:
-    """One free joint at a configuration: its v index, R, and Pinocchio's v_lin, w, R^T a_lin_mjx."""
+    """One free joint at a configuration: its v index, R, and Pinocchio's v_lin, w, R^T a_lin_mujoco."""
 
-    def __init__(self, q_pin, qi: int, vi: int, v_pin=None, a_mjx=None):
+    def __init__(self, q_pin, qi: int, vi: int, v_pin=None, a_mujoco=None):
         self.vi = vi
         self.R = quaternion_rotation(q_pin[..., qi + 3:qi + 7])
         if v_pin is not None:
             self.v, self.w = v_pin[..., vi:vi + 3], v_pin[..., vi + 3:vi + 6]
-            self.aR = (self.R.mT @ a_mjx[..., vi:vi + 3].unsqueeze(-1)).squeeze(-1)
+            self.aR = (self.R.mT @ a_mujoco[..., vi:vi + 3].unsqueeze(-1)).squeeze(-1)
 
     @property
     def lin(self) -> slice:
@@ -128,11 +128,11 @@ def _gdot(f: _Free, x: torch.Tensor, e: torch.Tensor) -> torch.Tensor:
     return torch.einsum("...ab,cbd,...dn->...acn", f.R, e, x[..., f.lin, :])
 
 
-def inverse_dynamics_second_order(model, q_pin, v_pin, a_mjx, tau, A, B, M, second):
+def inverse_dynamics_second_derivatives(model, q_pin, v_pin, a_mujoco, tau, A, B, M, second):
     """MuJoCo's (d2tau_dq2, d2tau_dqd2, d2tau_dqdqd, dM_dq) from Pinocchio's at the converted state:
-    tau, A = dtau/dq, B = dtau/dqd, M and `second` (Pinocchio's four tensors), a_mjx MuJoCo's qacc."""
+    tau, A = dtau/dq, B = dtau/dqd, M and `second` (Pinocchio's four tensors), a_mujoco MuJoCo's qacc."""
     T_qq, T_vv, T_qv, T_M = second
-    frees = [_Free(q_pin, qi, vi, v_pin, a_mjx) for qi, vi in free_joints(model)]
+    frees = [_Free(q_pin, qi, vi, v_pin, a_mujoco) for qi, vi in free_joints(model)]
     e = _unit_skews(q_pin)
     P = T_M.transpose(-1, -2)   # P[i, j, m] = d/da_m A[i, j]
     Q = T_qv.transpose(-1, -2)  # Q[i, j, n] = d/dq_n B[i, j]
@@ -193,9 +193,9 @@ def kinematic_hessian(model, q_pin, J, H):
     return out
 
 
-def inverse_dynamics_second_order_mujoco(robot, q, qd, qdd, f_ext):
-    """Robot.mujoco.inverse_dynamics_second_order of a robot with quaternion joints."""
-    return second_order_from_ops(_PinCalls(robot.pin), _model(robot, "inverse_dynamics_second_order"), q, qd, qdd, f_ext)
+def inverse_dynamics_second_derivatives_mujoco(robot, q, qd, qdd, f_ext):
+    """Robot.mujoco.inverse_dynamics_second_derivatives of a robot with quaternion joints."""
+    return second_order_from_ops(_PinCalls(robot.pin), _model(robot, "inverse_dynamics_second_derivatives"), q, qd, qdd, f_ext)
 
 
 def second_order_from_ops(ops, model, q, qd, qdd, f_ext):
@@ -206,13 +206,13 @@ def second_order_from_ops(ops, model, q, qd, qdd, f_ext):
     batch = torch.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1], () if f_ext is None else f_ext.shape[:-2])
     q, qd, qdd = (x.expand(*batch, x.shape[-1]) for x in (q, qd, qdd))
     free = free_joints(model)
-    q_pin = q_mjx_to_pin(q, balls=ball_joints(model), free=free)
-    v_pin = v_mjx_to_pin(q_pin, qd, free=free)
-    a_pin = a_mjx_to_pin(q_pin, v_pin, qdd, free=free)
+    q_pin = q_mujoco_to_pin(q, balls=ball_joints(model), free=free)
+    v_pin = v_mujoco_to_pin(q_pin, qd, free=free)
+    a_pin = a_mujoco_to_pin(q_pin, v_pin, qdd, free=free)
     tau = ops.inverse_dynamics(q_pin, v_pin, a_pin, f_ext, 0)
-    A, B = ops.inverse_dynamics_gradient(q_pin, v_pin, a_pin, f_ext, 0)
-    second = ops.inverse_dynamics_second_order(q_pin, v_pin, a_pin, f_ext, 0)
-    return inverse_dynamics_second_order(model, q_pin, v_pin, qdd, tau, A, B, ops.crba(q_pin, 0), second)
+    A, B = ops.inverse_dynamics_derivatives(q_pin, v_pin, a_pin, f_ext, 0)
+    second = ops.inverse_dynamics_second_derivatives(q_pin, v_pin, a_pin, f_ext, 0)
+    return inverse_dynamics_second_derivatives(model, q_pin, v_pin, qdd, tau, A, B, ops.crba(q_pin, 0), second)
 
 
 def frame_kinematic_hessian(robot, q, frame: int, reference: int):
@@ -222,7 +222,7 @@ def frame_kinematic_hessian(robot, q, frame: int, reference: int):
 
 def kinematic_hessian_from_ops(ops, model, q, frame: int, reference: int):
     """MuJoCo's kinematic Hessian of a frame at MuJoCo's q, from Pinocchio's ops (convention 0)."""
-    q_pin = q_mjx_to_pin(q, balls=ball_joints(model), free=free_joints(model))
+    q_pin = q_mujoco_to_pin(q, balls=ball_joints(model), free=free_joints(model))
     J = ops.frame_jacobian(q_pin, frame, reference, 0)
     return kinematic_hessian(model, q_pin, J, ops.frame_kinematic_hessian(q_pin, frame, reference, 0))
 
@@ -247,12 +247,12 @@ def _model(robot, name: str):
 
 
 def crba_vjp(ops, model, q, W, M):
-    """The gradient along MuJoCo's tangent of <W, M_mjx(q)>, M_mjx = G M G^T the op's output: Pinocchio's
+    """The gradient along MuJoCo's tangent of <W, M_mujoco(q)>, M_mujoco = G M G^T the op's output: Pinocchio's
     kernel for <G^T W G, M> mapped by G (a MuJoCo direction k is Pinocchio's G^T e_k), plus, for a free
     joint's rotation c, G's own turn: 2 <sym(W), Gdot_c M G^T> = 2 tr([e_c]x C), C = (M G^T)_lin sym(W)_lin^T R.
     Beyond G^T W G, only 3 x nv products."""
     free = free_joints(model)
-    q_pin = q_mjx_to_pin(q, balls=ball_joints(model), free=free)
+    q_pin = q_mujoco_to_pin(q, balls=ball_joints(model), free=free)
     frees = [_Free(q_pin, qi, vi) for qi, vi in free]
     # G^T W G: the free joints' rows, then their columns (each stage reads the one before)
     rows = W.clone()
@@ -264,7 +264,7 @@ def crba_vjp(ops, model, q, W, M):
     g = ops.crba_vjp(q_pin, inner, 0)
     parts, k = [], 0
     for f in frees:
-        MGt = f.R.mT @ M[..., f.lin, :]  # rows of G^T M_mjx = M G^T
+        MGt = f.R.mT @ M[..., f.lin, :]  # rows of G^T M_mujoco = M G^T
         C = MGt @ (W[..., f.lin, :] + W[..., :, f.lin].mT).mT @ f.R  # 2 (M G^T)_lin sym(W)_lin^T R
         turn = torch.stack([C[..., 1, 2] - C[..., 2, 1], C[..., 2, 0] - C[..., 0, 2], C[..., 0, 1] - C[..., 1, 0]], -1)
         lin = (f.R @ g[..., f.lin].unsqueeze(-1)).squeeze(-1)

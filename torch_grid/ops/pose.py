@@ -13,25 +13,26 @@ class PoseDerivatives:
     """The end-effector pose derivatives of a robot's views (mixed into robot._Functions, which provides
     end_effector_pose, frame_jacobian and frame_kinematic_hessian)."""
 
-    def end_effector_pose_gradient(self, q, frames: Sequence[str | int]) -> torch.Tensor:
+    def end_effector_pose_derivatives(self, q, frames: Sequence[str | int]) -> torch.Tensor:
         """d end_effector_pose / dq along the tangent, (..., len(frames), 6, nv): [xyz; rpy] rows.
 
         xyz rows are the LOCAL_WORLD_ALIGNED linear Jacobian rows; rpy rows are E^-1 J_angular with
         E the rpy rate matrix (singular at pitch = +-pi/2, as rpy itself).
         """
         if isinstance(frames, (str, int)):
-            raise TypeError(f"end_effector_pose_gradient: frames must be a list of frame names or indices, got {frames!r}")
+            raise TypeError(f"end_effector_pose_derivatives: frames must be a list of frame names or indices, got {frames!r}")
         rpy = self.end_effector_pose(q, frames)[..., 3:]
         J = torch.stack([self.frame_jacobian(q, f, "local_world_aligned") for f in frames], dim=-3)
         return torch.cat([J[..., :3, :], rpy_rate_solve(rpy, J[..., 3:, :])], dim=-2)
 
-    def end_effector_pose_hessian(self, q, frames: Sequence[str | int]) -> torch.Tensor:
+    def end_effector_pose_second_derivatives(self, q, frames: Sequence[str | int]) -> torch.Tensor:
         """Second derivative of end_effector_pose along the tangent, (..., len(frames), 6, nv, nv):
-        [..., r, j, k] = d/dq_k (end_effector_pose_gradient)[..., r, j]. xyz rows are the linear rows of
+        [..., r, j, k] = d/dq_k (end_effector_pose_derivatives)[..., r, j]. xyz rows are the linear rows of
         the LOCAL_WORLD_ALIGNED kinematic Hessian; rpy rows differentiate E^-1 J_angular, with E the
         rpy rate matrix: E^-1 (dJ_angular/dq_k - dE/dq_k E^-1 J_angular)."""
         if isinstance(frames, (str, int)):
-            raise TypeError(f"end_effector_pose_hessian: frames must be a list of frame names or indices, got {frames!r}")
+            raise TypeError("end_effector_pose_second_derivatives: frames must be a list of frame names or indices, "
+                            f"got {frames!r}")
         rpy = self.end_effector_pose(q, frames)[..., 3:]
         J = torch.stack([self.frame_jacobian(q, f, "local_world_aligned") for f in frames], dim=-3)
         H = torch.stack([self.frame_kinematic_hessian(q, f, "local_world_aligned") for f in frames], dim=-4)

@@ -176,21 +176,21 @@ _VALUE_OPS = (
                backward="dual", jvp="rule", dual_jvp=("q",)),
         OpSpec("frames_vjp", "FramesVjp", (Q, Arg("weights", "frame_weights")), (Out("tau", "force", NV),), "kinematics",
                backward="dual", jvp="rule", dual_jvp=("q",)),
-        OpSpec("inverse_dynamics_gradient", "InverseDynamicsGradient", (Q, QD, QDD, FEXT),
+        OpSpec("inverse_dynamics_derivatives", "InverseDynamicsDerivatives", (Q, QD, QDD, FEXT),
                (Out("dtau_dq", "twin", NVxNV), Out("dtau_dqd", "twin", NVxNV)), "derivatives",
                backward="composed", jvp="rule"),
-        OpSpec("inverse_dynamics_second_order", "InverseDynamicsSecondOrder", (Q, QD, QDD, FEXT),
+        OpSpec("inverse_dynamics_second_derivatives", "InverseDynamicsSecondDerivatives", (Q, QD, QDD, FEXT),
                (Out("d2tau_dq2", "plain", NV3), Out("d2tau_dqd2", "plain", NV3), Out("d2tau_dqdqd", "plain", NV3),
                 Out("dM_dq", "plain", NV3)), "second_order", mujoco_twin=False),
-        OpSpec("inverse_dynamics_gradient_vjp", "InverseDynamicsGradientVjp",
+        OpSpec("inverse_dynamics_derivatives_vjp", "InverseDynamicsDerivativesVjp",
                (Q, QD, QDD, FEXT, Arg("grad_dtau_dq", "plain", shape=NVxNV), Arg("grad_dtau_dqd", "plain", shape=NVxNV)),
                (Out("grad_q", "plain", NV), Out("grad_qd", "plain", NV), Out("grad_qdd", "plain", NV),
                 Out("grad_f_ext", "plain", ("nbodies", 6))), "second_order", mujoco_twin=False),
-        OpSpec("inverse_dynamics_gradient_tangent", "InverseDynamicsGradientTangent",
+        OpSpec("inverse_dynamics_derivatives_tangent", "InverseDynamicsDerivativesTangent",
                (Q, QD, QDD, FEXT, Arg("t_q", "plain", shape=NV), Arg("t_qd", "plain", shape=NV), Arg("t_qdd", "plain", shape=NV)),
                (Out("dtau_dq_dot", "plain", NVxNV), Out("dtau_dqd_dot", "plain", NVxNV), Out("M_dot", "plain", NVxNV)),
                "second_order", mujoco_twin=False),
-        OpSpec("forward_dynamics_gradient", "ForwardDynamicsGradient", (Q, QD, TAU, FEXT),
+        OpSpec("forward_dynamics_derivatives", "ForwardDynamicsDerivatives", (Q, QD, TAU, FEXT),
                (Out("dqdd_dq", "twin", NVxNV), Out("dqdd_dqd", "twin", NVxNV), Out("dqdd_dtau", "twin", NVxNV)),
                "derivatives", backward="composed", jvp="rule"),
         OpSpec("step_derivatives", "StepDerivatives",
@@ -201,9 +201,9 @@ _VALUE_OPS = (
                (Q, QD, TAU, FEXT, Arg("dt", "plain", shape=(1,)), Arg("scheme", "tableau"), PASSIVE),
                (Out("q_next", "twin", ("nq",)), Out("qd_next", "twin", NV), Out("A", "twin", (2, "nv", 2, "nv")),
                 Out("B", "twin", (2, "nv", "nv")), Out("work", "workspace", (8, "nv", 3, "nv"))), "derivatives", backward="step"),
-        OpSpec("inverse_dynamics_external_force_gradient", "InverseDynamicsExternalForceGradient", (Q,),
+        OpSpec("inverse_dynamics_external_force_derivatives", "InverseDynamicsExternalForceDerivatives", (Q,),
                (Out("dtau_dfext", "force_rows", ("nv", "nbodies", 6)),), "derivatives", backward="composed"),
-        OpSpec("forward_dynamics_external_force_gradient", "ForwardDynamicsExternalForceGradient", (Q,),
+        OpSpec("forward_dynamics_external_force_derivatives", "ForwardDynamicsExternalForceDerivatives", (Q,),
                (Out("dqdd_dfext", "force_rows", ("nv", "nbodies", 6)),), "derivatives", backward="composed"),
         OpSpec("osc_inertia", "OscInertia", (Q, FRAME, REFERENCE), (Out("Lambda", "plain", (6, 6)),), "derivatives",
                backward="composed"),
@@ -220,7 +220,7 @@ _VALUE_OPS = (
                backward="dual", jvp="dual", dual_jvp=("q", "qd")),
         OpSpec("potential_energy_regressor", "PotentialEnergyRegressor", (Q,), (Out("Yp", "plain", ("nparams",)),), "regressors",
                backward="dual", jvp="dual", dual_jvp=("q",)),
-        OpSpec("forward_dynamics_parameter_gradient", "ForwardDynamicsParameterGradient", (Q, QD, TAU),
+        OpSpec("forward_dynamics_parameter_derivatives", "ForwardDynamicsParameterDerivatives", (Q, QD, TAU),
                (Out("dqdd_dparams", "force_rows", ("nv", "nparams")),), "regressors", backward="composed"),
 )
 
@@ -254,7 +254,7 @@ def forward_mode_jvp(op: OpSpec, wrt: tuple[str, ...]) -> OpSpec:
 
 # Jacobian-vector products on dual numbers (autograd.py): along q and qd, the gradient of lam . tau with
 # respect to q, qd and qdd (M lam) and tau, in one pass (the backwards of inverse_dynamics_vjp, and of
-# inverse_dynamics_gradient in MuJoCo's convention with quaternions), tau alone (d(M x) along q) and
+# inverse_dynamics_derivatives in MuJoCo's convention with quaternions), tau alone (d(M x) along q) and
 # the body velocities (-J lam along q), and the frames' vector-Jacobian product along q (the tangent of
 # forward_kinematics' and end_effector_pose's backward: their Hessians by torch.func.hessian).
 # The ops with a <op>_jvp kernel, and along which inputs: those whose forward mode it is (jvp "dual"), and the
@@ -331,12 +331,12 @@ CPU_SAMPLE_US = {
     "jacobian_com": 0.28, "ccrba": 0.58, "forward_kinematics": 0.65, "end_effector_pose": 0.25,
     "frame_jacobian": 0.084, "frame_jacobian_vjp": 0.12, "frame_kinematic_hessian": 0.43, "frame_jacobian_dot": 0.11,
     "inverse_dynamics_vjp": 1.7, "inverse_dynamics_vjp_full": 1.8, "inertia_solve": 1.1, "body_velocities": 0.34,
-    "frames_vjp": 0.59, "inverse_dynamics_gradient": 3.6, "inverse_dynamics_second_order": 34,
-    "inverse_dynamics_gradient_vjp": 25, "inverse_dynamics_gradient_tangent": 40, "forward_dynamics_gradient": 6.8,
-    "step_derivatives": 7.7, "rk_step_derivatives": 50, "inverse_dynamics_external_force_gradient": 0.83,
-    "forward_dynamics_external_force_gradient": 3.8, "osc_inertia": 2.5, "cmm_time_variation": 2.1, "dccrba": 2.1,
+    "frames_vjp": 0.59, "inverse_dynamics_derivatives": 3.6, "inverse_dynamics_second_derivatives": 34,
+    "inverse_dynamics_derivatives_vjp": 25, "inverse_dynamics_derivatives_tangent": 40, "forward_dynamics_derivatives": 6.8,
+    "step_derivatives": 7.7, "rk_step_derivatives": 50, "inverse_dynamics_external_force_derivatives": 0.83,
+    "forward_dynamics_external_force_derivatives": 3.8, "osc_inertia": 2.5, "cmm_time_variation": 2.1, "dccrba": 2.1,
     "coriolis_matrix": 2.2, "inverse_dynamics_regressor": 3.1, "kinetic_energy_regressor": 0.40,
-    "potential_energy_regressor": 0.20, "forward_dynamics_parameter_gradient": 7.4,
+    "potential_energy_regressor": 0.20, "forward_dynamics_parameter_derivatives": 7.4,
 }
 
 

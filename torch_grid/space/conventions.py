@@ -6,9 +6,9 @@ Only quaternion joints differ between the conventions:
   - velocity: a free joint's linear velocity is in the world frame in MuJoCo's, in the body frame in
     Pinocchio's (angular velocities, a ball joint's included, are local in both).
 With R_f free joint f's rotation and G = blockdiag(R_f on each free joint's linear dofs, I elsewhere),
-v_mjx = G v_pin; generalized forces transform like velocities (G orthogonal), M -> G M G^T,
+v_mujoco = G v_pin; generalized forces transform like velocities (G orthogonal), M -> G M G^T,
 Jacobians J -> J G^T. An acceleration also picks up the rate of change of G:
-a_lin_mjx = R_f (a_lin_pin + w x v_lin_pin).
+a_lin_mujoco = R_f (a_lin_pin + w x v_lin_pin).
 
 Every function takes any leading batch shape. `q_pin` is a configuration in Pinocchio's layout.
 `free` lists each free joint's (first q index, first v index); by default one free root at (0, 0)
@@ -17,14 +17,18 @@ own lists: `free_joints(model)`, `ball_joints(model)`.
 """
 from __future__ import annotations
 
+import warnings
 from typing import Sequence
 
 import torch
 
 __all__ = [
-    "free_joints", "ball_joints", "unit_quaternion", "quaternion_rotation", "base_rotation", "q_mjx_to_pin", "q_pin_to_mjx", "v_mjx_to_pin", "v_pin_to_mjx", "a_mjx_to_pin",
-    "a_pin_to_mjx", "covector_mjx_to_pin", "covector_pin_to_mjx", "congruence_pin_to_mjx", "columns_pin_to_mjx",
+    "free_joints", "ball_joints", "unit_quaternion", "quaternion_rotation", "base_rotation", "q_mujoco_to_pin",
+    "q_pin_to_mujoco", "v_mujoco_to_pin", "v_pin_to_mujoco", "a_mujoco_to_pin", "a_pin_to_mujoco", "covector_mujoco_to_pin",
+    "covector_pin_to_mujoco", "congruence_pin_to_mujoco", "columns_pin_to_mujoco",
 ]
+# The former names (`mjx` for MuJoCo's convention), kept for one release (CHANGELOG.md).
+FORMER_NAMES = {name.replace("mujoco", "mjx"): name for name in __all__ if "mujoco" in name}
 
 Free = Sequence[tuple[int, int]]
 
@@ -74,52 +78,52 @@ def quaternion_rotation(quat: torch.Tensor) -> torch.Tensor:
     return torch.stack(rows, dim=-1).reshape(*quat.shape[:-1], 3, 3)
 
 
-def q_mjx_to_pin(q: torch.Tensor, floating: bool = True, balls: Sequence[int] = (), free: Free | None = None) -> torch.Tensor:
+def q_mujoco_to_pin(q: torch.Tensor, floating: bool = True, balls: Sequence[int] = (), free: Free | None = None) -> torch.Tensor:
     """MuJoCo qpos (quaternions wxyz) -> Pinocchio q (xyzw)."""
     return _reorder(q, [qi + 3 for qi, _ in _free(floating, free)] + list(balls), [1, 2, 3, 0])
 
 
-def q_pin_to_mjx(q: torch.Tensor, floating: bool = True, balls: Sequence[int] = (), free: Free | None = None) -> torch.Tensor:
+def q_pin_to_mujoco(q: torch.Tensor, floating: bool = True, balls: Sequence[int] = (), free: Free | None = None) -> torch.Tensor:
     """Pinocchio q (quaternions xyzw) -> MuJoCo qpos (wxyz)."""
     return _reorder(q, [qi + 3 for qi, _ in _free(floating, free)] + list(balls), [3, 0, 1, 2])
 
 
-def v_mjx_to_pin(q_pin: torch.Tensor, v: torch.Tensor, floating: bool = True, free: Free | None = None) -> torch.Tensor:
-    """qvel -> Pinocchio v: each free joint's v_lin = R^T v_lin_mjx."""
+def v_mujoco_to_pin(q_pin: torch.Tensor, v: torch.Tensor, floating: bool = True, free: Free | None = None) -> torch.Tensor:
+    """qvel -> Pinocchio v: each free joint's v_lin = R^T v_lin_mujoco."""
     return _linear(v, {vi: _mul(_rotation(q_pin, qi).mT, v[..., vi:vi + 3]) for qi, vi in _free(floating, free)})
 
 
-def v_pin_to_mjx(q_pin: torch.Tensor, v: torch.Tensor, floating: bool = True, free: Free | None = None) -> torch.Tensor:
-    """Pinocchio v -> qvel: each free joint's v_lin_mjx = R v_lin."""
+def v_pin_to_mujoco(q_pin: torch.Tensor, v: torch.Tensor, floating: bool = True, free: Free | None = None) -> torch.Tensor:
+    """Pinocchio v -> qvel: each free joint's v_lin_mujoco = R v_lin."""
     return _linear(v, {vi: _mul(_rotation(q_pin, qi), v[..., vi:vi + 3]) for qi, vi in _free(floating, free)})
 
 
-covector_mjx_to_pin = v_mjx_to_pin  # G orthogonal: G^-T = G, forces transform as velocities
-covector_pin_to_mjx = v_pin_to_mjx
+covector_mujoco_to_pin = v_mujoco_to_pin  # G orthogonal: G^-T = G, forces transform as velocities
+covector_pin_to_mujoco = v_pin_to_mujoco
 
 
-def a_mjx_to_pin(q_pin: torch.Tensor, v_pin: torch.Tensor, a: torch.Tensor, floating: bool = True,
+def a_mujoco_to_pin(q_pin: torch.Tensor, v_pin: torch.Tensor, a: torch.Tensor, floating: bool = True,
                  free: Free | None = None) -> torch.Tensor:
-    """qacc -> Pinocchio a: a_lin = R^T a_lin_mjx - w x v_lin (v_pin in Pinocchio's convention)."""
+    """qacc -> Pinocchio a: a_lin = R^T a_lin_mujoco - w x v_lin (v_pin in Pinocchio's convention)."""
     return _linear(a, {vi: _mul(_rotation(q_pin, qi).mT, a[..., vi:vi + 3]) - _w_cross_v(v_pin, vi)
                        for qi, vi in _free(floating, free)})
 
 
-def a_pin_to_mjx(q_pin: torch.Tensor, v_pin: torch.Tensor, a_pin: torch.Tensor, floating: bool = True,
+def a_pin_to_mujoco(q_pin: torch.Tensor, v_pin: torch.Tensor, a_pin: torch.Tensor, floating: bool = True,
                  free: Free | None = None) -> torch.Tensor:
-    """Pinocchio a -> qacc: a_lin_mjx = R (a_lin + w x v_lin)."""
+    """Pinocchio a -> qacc: a_lin_mujoco = R (a_lin + w x v_lin)."""
     return _linear(a_pin, {vi: _mul(_rotation(q_pin, qi), a_pin[..., vi:vi + 3] + _w_cross_v(v_pin, vi))
                            for qi, vi in _free(floating, free)})
 
 
-def congruence_pin_to_mjx(q_pin: torch.Tensor, M: torch.Tensor, floating: bool = True,
+def congruence_pin_to_mujoco(q_pin: torch.Tensor, M: torch.Tensor, floating: bool = True,
                           free: Free | None = None) -> torch.Tensor:
     """(..., nv, nv) G M G^T: mass matrix and its inverse."""
-    MGt = columns_pin_to_mjx(q_pin, M, floating, free)
-    return columns_pin_to_mjx(q_pin, MGt.mT, floating, free).mT
+    MGt = columns_pin_to_mujoco(q_pin, M, floating, free)
+    return columns_pin_to_mujoco(q_pin, MGt.mT, floating, free).mT
 
 
-def columns_pin_to_mjx(q_pin: torch.Tensor, J: torch.Tensor, floating: bool = True,
+def columns_pin_to_mujoco(q_pin: torch.Tensor, J: torch.Tensor, floating: bool = True,
                        free: Free | None = None) -> torch.Tensor:
     """(..., rows, nv) J G^T: each free joint's linear columns right-multiplied by R^T (Jacobians,
     centroidal map)."""
@@ -168,3 +172,12 @@ def _linear(x: torch.Tensor, parts: dict[int, torch.Tensor]) -> torch.Tensor:
 
 def _mul(R: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     return (R @ x.unsqueeze(-1)).squeeze(-1)
+
+
+def __getattr__(name: str):
+    """A former name: the function under its name now, with a DeprecationWarning."""
+    if name in FORMER_NAMES:
+        warnings.warn(f"conventions.{name} is now conventions.{FORMER_NAMES[name]}; the former name goes in 0.3",
+                      DeprecationWarning, stacklevel=2)
+        return globals()[FORMER_NAMES[name]]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -18,7 +18,7 @@ from __future__ import annotations
 import torch
 
 from ..space.lie import d_integrate_blocks, d_integrate_v_block, dt_column
-from .passive import damped_acceleration_second_order
+from .passive import damped_acceleration_second_derivatives
 
 
 def euler_step_hessian(view, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dt, f_ext, semi: bool) -> torch.Tensor:
@@ -26,10 +26,10 @@ def euler_step_hessian(view, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tenso
     space, convention, nv = view._robot._space, view._convention, qd.shape[-1]
     h = dt_column(dt, qd)
     if semi and view._robot._implicit_damping:  # MuJoCo's Euler step: (M + dt D) a = tau + p - b
-        a, G, second = damped_acceleration_second_order(view, q, qd, tau, h, f_ext)
+        a, G, second = damped_acceleration_second_derivatives(view, q, qd, tau, h, f_ext)
     else:
-        a, G = view.forward_dynamics(q, qd, tau, f_ext), view.forward_dynamics_gradient(q, qd, tau, f_ext)
-        second = view.forward_dynamics_second_order(q, qd, tau, f_ext)
+        a, G = view.forward_dynamics(q, qd, tau, f_ext), view.forward_dynamics_derivatives(q, qd, tau, f_ext)
+        second = view.forward_dynamics_second_derivatives(q, qd, tau, f_ext)
     G = torch.cat(G, dim=-1)
     batch = torch.broadcast_shapes(second[0].shape[:-3], h.shape[:-1])
     hh = h.reshape(*h.shape[:-1], 1, 1, 1)
@@ -82,7 +82,7 @@ def chart_hessian(space, convention: int, blocks: list, w: torch.Tensor, dw: tor
 
 
 def scaled_acceleration_hessian(second, hh: torch.Tensor, out: torch.Tensor) -> None:
-    """out (..., nv, 3 nv, 3 nv) = dt Ha from forward_dynamics_second_order's tensors (mixed partials
+    """out (..., nv, 3 nv, 3 nv) = dt Ha from forward_dynamics_second_derivatives's tensors (mixed partials
     commute where one side is flat: Ha[i, q_j, v_k] = dqdv[i, j, k], Ha[i, tau_j, q_k] = dtaudq[i, j, k])."""
     d2q, d2v, dqdv, dtaudq = second
     nv = d2q.shape[-1]

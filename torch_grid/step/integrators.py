@@ -12,8 +12,8 @@ Integrators, with a = forward_dynamics(q, qd, tau, f_ext) and (+) the configurat
                        at quaternion joints); the step is q' = q (+) dt sum_j B_j w_j,
                        qd' = qd + dt sum_j B_j a_j (euler is the one-stage case).
 The Jacobians are along the tangent spaces (the state deviation [dq; dqd], as Crocoddyl's Fx, Fu and
-MuJoCo's mjd_transitionFD A, B), by the chain rule through the stages: forward_dynamics_gradient at
-each stage (passive.py's damped_acceleration_gradient for the implicit damping), the configuration
+MuJoCo's mjd_transitionFD A, B), by the chain rule through the stages: forward_dynamics_derivatives at
+each stage (passive.py's damped_acceleration_derivatives for the implicit damping), the configuration
 space's d_integrate and the derivatives of dexp^-1. Everything is torch
 over the robot's ops, so autograd differentiates step itself to second order; (q', qd', A, B) also come
 from one kernel per call (csrc/kernels/step/step.h for the Euler schemes, csrc/kernels/step/runge_kutta.h for
@@ -30,7 +30,7 @@ from ..space.constants import scalar_or_tensor
 from ..space.lie import d_dexp_inverse_blocks, d_integrate_blocks, dexp_inverse, dt_column, tangent_map
 from .compiled import compiled_step, opaque
 from .euler_hessian import euler_step_hessian
-from .passive import damped_acceleration, damped_acceleration_gradient
+from .passive import damped_acceleration, damped_acceleration_derivatives
 from .rk_hessian import combine as _combine
 from .rk_hessian import rk_step_hessian
 
@@ -114,10 +114,10 @@ class StepFunctions:
         def stage(qi, vi, dq, dv):
             """a at a stage and its derivative, from the stage's own (dq, dqd); None: the start."""
             if integrator == "semi_implicit_euler" and self._robot._implicit_damping:
-                a, da_dq, da_dv, da_dtau = damped_acceleration_gradient(self, qi, vi, tau, h, f_ext)
+                a, da_dq, da_dv, da_dtau = damped_acceleration_derivatives(self, qi, vi, tau, h, f_ext)
             else:
                 a = self.forward_dynamics(qi, vi, tau, f_ext)
-                da_dq, da_dv, da_dtau = self.forward_dynamics_gradient(qi, vi, tau, f_ext)
+                da_dq, da_dv, da_dtau = self.forward_dynamics_derivatives(qi, vi, tau, f_ext)
             if dq is None:
                 return a, torch.cat([da_dq, da_dv, da_dtau], dim=-1)
             da = da_dq @ dq + da_dv @ dv
@@ -161,7 +161,7 @@ class StepFunctions:
                                 f_ext: torch.Tensor | None = None) -> torch.Tensor:
         """(..., 2 nv, 3 nv, 3 nv): the Hessian at z = 0 of z -> [difference(q', q'(z)); qd'(z) - qd'] with
         (q'(z), qd'(z)) = step(q (+) z_q, qd + z_qd, tau + z_tau), symmetric in its last two indices. The
-        Euler schemes: in closed form from forward_dynamics_second_order (step_hessian.py); the Runge-Kutta
+        Euler schemes: in closed form from forward_dynamics_second_derivatives (step_hessian.py); the Runge-Kutta
         schemes: the second-order chain rule through the stages, from each stage's forward-dynamics gradient
         and second derivatives and the configuration space's closed forms (rk_hessian.py)."""
         _check("step_second_derivatives", integrator, q, qd, tau, dt)
@@ -179,7 +179,7 @@ class StepFunctions:
 
 
 # Samples per piece of a large batch: the chain rule's (nv, nv) temporaries of a piece stay in cache
-# (G1 at B = 4096: 6.7x forward_dynamics_gradient whole, 2.3x in pieces).
+# (G1 at B = 4096: 6.7x forward_dynamics_derivatives whole, 2.3x in pieces).
 CHUNK = 256
 
 

@@ -81,10 +81,10 @@ def _damped_solve(view, q, qd, tau, h, f_ext) -> tuple[torch.Tensor, torch.Tenso
     return L, torch.cholesky_solve(rhs.unsqueeze(-1), L).squeeze(-1)
 
 
-def damped_acceleration_gradient(view, q, qd, tau, h, f_ext=None) -> tuple[torch.Tensor, ...]:
+def damped_acceleration_derivatives(view, q, qd, tau, h, f_ext=None) -> tuple[torch.Tensor, ...]:
     """(qdd (..., nv), dqdd/dq, dqdd/dqd, dqdd/dtau (..., nv, nv) each) of damped_acceleration."""
     L, qdd = _damped_solve(view, q, qd, tau, h, f_ext)
-    dq, dqd = view.inverse_dynamics_gradient(q, qd, qdd, f_ext)  # of ID - p
+    dq, dqd = view.inverse_dynamics_derivatives(q, qd, qdd, f_ext)  # of ID - p
     nv = qd.shape[-1]
     batch = torch.broadcast_shapes(L.shape[:-2], dq.shape[:-2], dqd.shape[:-2])
     eye = torch.eye(nv, dtype=qd.dtype, device=qd.device).expand(*batch, nv, nv)
@@ -93,9 +93,9 @@ def damped_acceleration_gradient(view, q, qd, tau, h, f_ext=None) -> tuple[torch
     return qdd, dq, dqd, dtau
 
 
-def damped_acceleration_second_order(view, q, qd, tau, h, f_ext=None) -> tuple:
+def damped_acceleration_second_derivatives(view, q, qd, tau, h, f_ext=None) -> tuple:
     """(qdd, (dqdd/dq, dqdd/dqd, dqdd/dtau), the four second-derivative tensors of
-    forward_dynamics_second_order's layout) of damped_acceleration, H^-1 in place of M^-1."""
-    qdd, dq, dqd, dtau = damped_acceleration_gradient(view, q, qd, tau, h, f_ext)
-    second = view.inverse_dynamics_second_order(q, qd, qdd, f_ext)
+    forward_dynamics_second_derivatives's layout) of damped_acceleration, H^-1 in place of M^-1."""
+    qdd, dq, dqd, dtau = damped_acceleration_derivatives(view, q, qd, tau, h, f_ext)
+    second = view.inverse_dynamics_second_derivatives(q, qd, qdd, f_ext)
     return qdd, (dq, dqd, dtau), second_order(second, dq, dqd, dtau)

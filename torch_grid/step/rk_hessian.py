@@ -91,9 +91,9 @@ def _hessian(view, tableau, q, qd, tau, h, f_ext, stages, w, jets, pool, out):
 
     def acceleration(i, qi, vi, dx=None, He=None, Hv=None):
         """dacc_i, Hacc_i from x = [e; v]'s Jacobian dx (n, 2 nv, N) and Hessians; none: x = z."""
-        G = torch.cat(view.forward_dynamics_gradient(qi, vi, tau, f_ext), dim=-1)
+        G = torch.cat(view.forward_dynamics_derivatives(qi, vi, tau, f_ext), dim=-1)
         Ha = temp if dx is not None else stage_acc[i]
-        scaled_acceleration_hessian(view.forward_dynamics_second_order(qi, vi, tau, f_ext), h3.new_ones(()), Ha)
+        scaled_acceleration_hessian(view.forward_dynamics_second_derivatives(qi, vi, tau, f_ext), h3.new_ones(()), Ha)
         if dx is None:
             return G, Ha
         # dx^T Ha dx per output row, with the rows of x = [e; v; tau] dx = [P; E] (E = [0 0 I]) and Ha

@@ -25,7 +25,7 @@ struct Batch {
   int n_iargs = 0;
   // The outputs already hold zeros wherever the op's kernel writes nothing (the glue's own buffer, zeroed
   // once and refilled sample after sample by the same kernel): a kernel that writes a fixed pattern of
-  // entries (inverse_dynamics_second_order) then skips zero-filling the rest.
+  // entries (inverse_dynamics_second_derivatives) then skips zero-filling the rest.
   bool zeroed = false;
 };
 

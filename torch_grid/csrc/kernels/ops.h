@@ -164,8 +164,8 @@ template <class M, class S> struct FramesVjp {
   TG_HD static void run(const FramesVjpArgs<S>& a) { frames_vjp<M, S>(a.q, a.weights, a.tau); }
 };
 
-template <class M, class S> struct InverseDynamicsGradient {
-  template <int C> TG_HD static void run(const InverseDynamicsGradientArgs<S>& a, const Conv<M, S, C>& cv) {
+template <class M, class S> struct InverseDynamicsDerivatives {
+  template <int C> TG_HD static void run(const InverseDynamicsDerivativesArgs<S>& a, const Conv<M, S, C>& cv) {
     const Placements<M, S> K(a.q);
     inverse_dynamics_derivatives<M, S>(K, a.qd, a.qdd, a.f_ext, cv, a.dtau_dq, a.dtau_dqd);
   }
@@ -173,8 +173,8 @@ template <class M, class S> struct InverseDynamicsGradient {
 
 // The second derivatives of tau in Pinocchio's convention (its only kernel: the op table gives it no
 // MuJoCo twin).
-template <class M, class S> struct InverseDynamicsSecondOrder {
-  TG_HD static void run(const InverseDynamicsSecondOrderArgs<S>& a) {
+template <class M, class S> struct InverseDynamicsSecondDerivatives {
+  TG_HD static void run(const InverseDynamicsSecondDerivativesArgs<S>& a) {
     const Placements<M, S> K(a.q);
     RneaDerivativesWork<M, S> W;
     rnea_derivatives_setup<M, S>(K, a.qd, a.qdd, a.f_ext, W);
@@ -182,10 +182,10 @@ template <class M, class S> struct InverseDynamicsSecondOrder {
   }
 };
 
-// The backward of inverse_dynamics_gradient: the second-order tensors contracted with its cotangents
+// The backward of inverse_dynamics_derivatives: the second-order tensors contracted with its cotangents
 // as they are produced (Pinocchio's convention only).
-template <class M, class S> struct InverseDynamicsGradientVjp {
-  TG_HD static void run(const InverseDynamicsGradientVjpArgs<S>& a) {
+template <class M, class S> struct InverseDynamicsDerivativesVjp {
+  TG_HD static void run(const InverseDynamicsDerivativesVjpArgs<S>& a) {
     const Placements<M, S> K(a.q);
     RneaDerivativesWork<M, S> W;
     rnea_derivatives_setup<M, S>(K, a.qd, a.qdd, a.f_ext, W);
@@ -194,10 +194,10 @@ template <class M, class S> struct InverseDynamicsGradientVjp {
   }
 };
 
-// The forward mode of inverse_dynamics_gradient (and M along q): the second-order tensors contracted
+// The forward mode of inverse_dynamics_derivatives (and M along q): the second-order tensors contracted
 // with the tangents as they are produced (Pinocchio's convention only).
-template <class M, class S> struct InverseDynamicsGradientTangent {
-  TG_HD static void run(const InverseDynamicsGradientTangentArgs<S>& a) {
+template <class M, class S> struct InverseDynamicsDerivativesTangent {
+  TG_HD static void run(const InverseDynamicsDerivativesTangentArgs<S>& a) {
     const Placements<M, S> K(a.q);
     RneaDerivativesWork<M, S> W;
     rnea_derivatives_setup<M, S>(K, a.qd, a.qdd, a.f_ext, W);
@@ -205,10 +205,10 @@ template <class M, class S> struct InverseDynamicsGradientTangent {
   }
 };
 
-template <class M, class S> struct ForwardDynamicsGradient {
-  template <int C> TG_HD static void run(const ForwardDynamicsGradientArgs<S>& a, const Conv<M, S, C>& cv) {
+template <class M, class S> struct ForwardDynamicsDerivatives {
+  template <int C> TG_HD static void run(const ForwardDynamicsDerivativesArgs<S>& a, const Conv<M, S, C>& cv) {
     S qdd[M::NV];
-    forward_dynamics_gradient<M, S>(Placements<M, S>(a.q), a.qd, a.tau, a.f_ext, cv, a.dqdd_dq, a.dqdd_dqd, a.dqdd_dtau,
+    forward_dynamics_derivatives<M, S>(Placements<M, S>(a.q), a.qd, a.tau, a.f_ext, cv, a.dqdd_dq, a.dqdd_dqd, a.dqdd_dtau,
                                     qdd);
   }
 };
@@ -216,7 +216,7 @@ template <class M, class S> struct ForwardDynamicsGradient {
 // One Euler step (scheme 0: explicit, 1: semi-implicit) and its Jacobians (step.h): G is computed
 // into the rows of q', which euler_step reads before it overwrites them. With the passive forces
 // (passive 1), G is that of FD(q, qd, tau + p); with the damping implicit (passive 2), that of
-// damped_dynamics_gradient. A robot without damping or springs compiles neither.
+// damped_dynamics_derivatives. A robot without damping or springs compiles neither.
 template <class M, class S> struct StepDerivatives {
   template <int C> TG_HD static void run(const StepDerivativesArgs<S>& a, const Conv<M, S, C>& cv) {
     constexpr int NV = M::NV;
@@ -226,11 +226,11 @@ template <class M, class S> struct StepDerivatives {
     S* const dqd = a.A + NV * NV;
     if constexpr (M::PASSIVE) {
       if (a.passive == 2)
-        damped_dynamics_gradient<M, S>(K, cv, a.q, a.qd, a.tau, a.f_ext, a.dt[0], dq, dqd, a.B, qdd);
+        damped_dynamics_derivatives<M, S>(K, cv, a.q, a.qd, a.tau, a.f_ext, a.dt[0], dq, dqd, a.B, qdd);
       else
-        passive_dynamics_gradient<M, S>(K, cv, a.q, a.qd, a.tau, a.f_ext, a.passive, dq, dqd, a.B, qdd);
+        passive_dynamics_derivatives<M, S>(K, cv, a.q, a.qd, a.tau, a.f_ext, a.passive, dq, dqd, a.B, qdd);
     } else {
-      forward_dynamics_gradient<M, S>(K, a.qd, a.tau, a.f_ext, cv, dq, dqd, a.B, qdd);
+      forward_dynamics_derivatives<M, S>(K, a.qd, a.tau, a.f_ext, cv, dq, dqd, a.B, qdd);
     }
     for (int k = 0; k < NV; ++k) v[k] = a.qd[k];
     cv.velocity_out(v);
@@ -248,16 +248,16 @@ template <class M, class S> struct RkStepDerivatives {
   }
 };
 
-template <class M, class S> struct InverseDynamicsExternalForceGradient {
-  TG_HD static void run(const InverseDynamicsExternalForceGradientArgs<S>& a) {
+template <class M, class S> struct InverseDynamicsExternalForceDerivatives {
+  TG_HD static void run(const InverseDynamicsExternalForceDerivativesArgs<S>& a) {
     const Placements<M, S> K(a.q);
     external_force_jacobian<M, S>(K, a.dtau_dfext);
   }
 };
 
 // d qdd / d f_ext = -M^-1 d tau / d f_ext.
-template <class M, class S> struct ForwardDynamicsExternalForceGradient {
-  TG_HD static void run(const ForwardDynamicsExternalForceGradientArgs<S>& a) {
+template <class M, class S> struct ForwardDynamicsExternalForceDerivatives {
+  TG_HD static void run(const ForwardDynamicsExternalForceDerivativesArgs<S>& a) {
     const Placements<M, S> K(a.q);
     S Minv[M::NV * M::NV];
     minv<M, S>(K, Minv);
@@ -353,8 +353,8 @@ template <class M, class S> struct PotentialEnergyRegressor {
 
 // d qdd / d pi = -M^-1 Y(q, qd, qdd) at qdd = FD(q, qd, tau). MuJoCo's qdd differs from Pinocchio's
 // by G and a term free of pi, so the binding's force-rows reframe (G .) is the twin.
-template <class M, class S> struct ForwardDynamicsParameterGradient {
-  TG_HD static void run(const ForwardDynamicsParameterGradientArgs<S>& a) {
+template <class M, class S> struct ForwardDynamicsParameterDerivatives {
+  TG_HD static void run(const ForwardDynamicsParameterDerivativesArgs<S>& a) {
     const Placements<M, S> K(a.q);
     S qdd[M::NV], Minv[M::NV * M::NV];
     minv<M, S>(K, Minv);

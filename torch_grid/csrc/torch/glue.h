@@ -151,7 +151,7 @@ class Call {
     device_ = q.device();
     TORCH_CHECK(dtype_ == at::kFloat || dtype_ == at::kDouble, op_, ": q must be float32 or float64, got ", dtype_);
     TORCH_CHECK(device_.is_cpu() || device_.is_cuda(), op_, ": q must be on the CPU or a CUDA device, got ", device_);
-    TORCH_CHECK(convention == PIN || convention == MJX, op_, ": convention must be 0 (pin) or 1 (mujoco), got ", convention);
+    TORCH_CHECK(convention == PIN || convention == MUJOCO, op_, ": convention must be 0 (pin) or 1 (mujoco), got ", convention);
   }
 
   // First, every tensor input's shape (*batch, *trailing): the batch shapes broadcast, as in torch.
@@ -310,7 +310,7 @@ class Call {
     if (n_ == 0) return;
     const int s = dtype_ == at::kDouble ? 1 : 0;
     // Without a quaternion joint there is nothing to convert: both conventions share the Pinocchio kernel.
-    const int c = convention_ == MJX && robot_.converts ? 1 : 0;
+    const int c = convention_ == MUJOCO && robot_.converts ? 1 : 0;
     TORCH_CHECK(!c || robot_.mujoco, op_, ": this build has no MuJoCo-convention kernels (enable_mujoco_kernels=False)");
     TORCH_CHECK(!c || kernels.cpu[1][1], op_, " has no MuJoCo-convention kernel for a robot with free or ball joints "
                 "(not implemented); call it in the pin convention");
@@ -440,7 +440,7 @@ class Call {
 
   // glibc maps a block above its mmap threshold afresh, or trims a freed one at the top of the heap,
   // and the kernel then zeroes each page on first touch: about 1 µs per sample for G1's M at
-  // B = 4096, 10-25 % of crba or minv, and 8x the time of inverse_dynamics_second_order on G1 at
+  // B = 4096, 10-25 % of crba or minv, and 8x the time of inverse_dynamics_second_derivatives on G1 at
   // B = 4 (four 1.4 MB outputs, trimmed after every call). CPU outputs above glibc's first
   // threshold, 128 KiB, come from LargeBlocks instead, kept for the next output of the same size.
   static at::Tensor empty(const std::vector<int64_t>& shape, const at::TensorOptions& options) {

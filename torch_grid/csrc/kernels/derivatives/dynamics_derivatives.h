@@ -62,7 +62,7 @@ TG_HD void inverse_dynamics_derivatives(const Placements<M, S>& K, const S* qd, 
   if constexpr (Conv<M, S, C>::active) {
     S Mb[M::NV * Conv<M, S, C>::NB3];
     mass_base_columns<M, S>(W, Mb);
-    cv.inverse_dynamics_gradient_out(qd, qdd, tau, Mb, dtau_dq, dtau_dqd);
+    cv.inverse_dynamics_derivatives_out(qd, qdd, tau, Mb, dtau_dq, dtau_dqd);
   }
 }
 
@@ -71,7 +71,7 @@ TG_HD void inverse_dynamics_derivatives(const Placements<M, S>& K, const S* qd, 
 // Placements pass.
 // dqdd/dq, dqdd/dqd, dqdd/dtau (NV x NV each, in the convention) and qdd (in Pinocchio's).
 template <class M, class S, int C>
-TG_HD void forward_dynamics_gradient(const Placements<M, S>& K, const S* qd, const S* tau, const S* fext,
+TG_HD void forward_dynamics_derivatives(const Placements<M, S>& K, const S* qd, const S* tau, const S* fext,
                                      const Conv<M, S, C>& cv, S* dq, S* dqd, S* dtau, S* qdd) {
   minv<M, S>(K, dtau);  // needed anyway, so qdd comes from it rather than from ABA
   forward_dynamics_from_minv<M, S>(K, qd, tau, fext, dtau, qdd);
@@ -87,7 +87,7 @@ TG_HD void forward_dynamics_gradient(const Placements<M, S>& K, const S* qd, con
 // convention (H_c = G H G^T, D being zero on free joints), as a Runge-Kutta stage's M (rk_stage).
 // dqdd/dq, dqdd/dqd, dqdd/dtau (NV x NV each, in the convention) and qdd (in Pinocchio's).
 template <class M, class S, int C>
-TG_HD void damped_dynamics_gradient(const Placements<M, S>& K, const Conv<M, S, C>& cv, const S* q, const S* qd,
+TG_HD void damped_dynamics_derivatives(const Placements<M, S>& K, const Conv<M, S, C>& cv, const S* q, const S* qd,
                                     const S* tau, const S* fext, S h, S* dq, S* dqd, S* dtau, S* qdd) {
   constexpr int NV = M::NV;
   const auto& d = data<M, S>();
@@ -115,15 +115,15 @@ TG_HD void damped_dynamics_gradient(const Placements<M, S>& K, const Conv<M, S, 
   ltdl_solve_rows<M, NV>(H, dtau);
 }
 
-// forward_dynamics_gradient at FD(q, qd, tau + p) with passive (1) and dq -= M^-1 K, dqd -= M^-1 D (passive.h);
+// forward_dynamics_derivatives at FD(q, qd, tau + p) with passive (1) and dq -= M^-1 K, dqd -= M^-1 D (passive.h);
 // without (0), at tau.
 template <class M, class S, int C>
-TG_HD void passive_dynamics_gradient(const Placements<M, S>& K, const Conv<M, S, C>& cv, const S* q, const S* qd,
+TG_HD void passive_dynamics_derivatives(const Placements<M, S>& K, const Conv<M, S, C>& cv, const S* q, const S* qd,
                                      const S* tau, const S* fext, int passive, S* dq, S* dqd, S* dtau, S* qdd) {
   S tau_p[M::NV];
   for (int k = 0; k < M::NV; ++k) tau_p[k] = tau[k];
   if (passive) add_passive<M, S>(q, qd, tau_p);
-  forward_dynamics_gradient<M, S>(K, qd, tau_p, fext, cv, dq, dqd, dtau, qdd);
+  forward_dynamics_derivatives<M, S>(K, qd, tau_p, fext, cv, dq, dqd, dtau, qdd);
   if (passive) add_passive_columns<M, S>(dtau, dq, dqd);
 }
 

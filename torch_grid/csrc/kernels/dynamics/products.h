@@ -1,5 +1,5 @@
 // Dense row-major matrix products with register blocking, for the NV x NV by NV x k products of the
-// derivative kernels (forward_dynamics_gradient's -M^-1 dtau/dx, the Runge-Kutta chain rule): an RB x CB
+// derivative kernels (forward_dynamics_derivatives's -M^-1 dtau/dx, the Runge-Kutta chain rule): an RB x CB
 // block of the result stays in registers while the rows of X stream past it.
 #pragma once
 
@@ -20,7 +20,7 @@ namespace tg {
 #endif
 
 // The register block: 6 x 16 on a CPU; one row of 16 on a GPU, whose thread holds far fewer registers
-// (larger blocks spilled more in forward_dynamics_external_force_gradient on G1).
+// (larger blocks spilled more in forward_dynamics_external_force_derivatives on G1).
 #ifdef __CUDA_ARCH__
 constexpr int kProductRows = 1, kProductCols = 16;
 #else

@@ -1,9 +1,9 @@
-// The MuJoCo (mjx) convention, fused into every kernel: convert the inputs to Pinocchio's
+// The MuJoCo convention, fused into every kernel: convert the inputs to Pinocchio's
 // convention on entry, reframe the outputs on exit. Only quaternion joints differ:
 //   a ball joint's qpos quaternion is wxyz (pin: xyzw), its qvel the same local angular velocity;
 //   the free-flyer root's too, and qvel = [v_lin WORLD; w LOCAL] (pin: [v_lin LOCAL; w LOCAL]).
-// With G = blockdiag(R, I): v_mjx = G v_pin, forces covary (G), M -> G M G^T, J -> J G^T.
-// See shared conventions reference; torch_grid/conventions.py is the same in torch.
+// With G = blockdiag(R, I): v_mujoco = G v_pin, forces covary (G), M -> G M G^T, J -> J G^T.
+// docs/guides/conventions.md states them; torch_grid/space/conventions.py is the same in torch.
 #pragma once
 
 #include "kernels/spatial/joints.h"
@@ -11,7 +11,7 @@
 namespace tg {
 
 template <class M, class S, int C> struct Conv {
-  static constexpr bool active = (C == MJX) && M::NFREE > 0;  // a free joint's velocity is reframed
+  static constexpr bool active = (C == MUJOCO) && M::NFREE > 0;  // a free joint's velocity is reframed
   static constexpr int NB3 = 3 * (M::NFREE > 0 ? M::NFREE : 1);  // columns of Mb below
   S q[M::NQ];                                       // configuration in Pinocchio's layout
   Mat3<S> R[M::NFREE > 0 ? M::NFREE : 1];           // each free joint's rotation
@@ -28,7 +28,7 @@ template <class M, class S, int C> struct Conv {
         R[f] = quat_rotation(q[a], q[a + 1], q[a + 2], q[a + 3]);
         vi[f] = d.vi[i];
       }
-    if constexpr (C == MJX && M::BALLS)
+    if constexpr (C == MUJOCO && M::BALLS)
       for (int i = 0; i < M::NB; ++i)
         if (d.jtype[i] == BALL) {
           const S* in = q_in + d.qi[i];
@@ -49,7 +49,7 @@ template <class M, class S, int C> struct Conv {
     }
   }
   TG_HD const S* force(const S* in, S* buf) const { return velocity(in, buf); }
-  // Acceleration in: a_lin = R^T a_mjx - w x v_lin (v already in Pinocchio's convention).
+  // Acceleration in: a_lin = R^T a_mujoco - w x v_lin (v already in Pinocchio's convention).
   TG_HD const S* acceleration(const S* v, const S* in, S* buf) const {
     if constexpr (active) {
       for (int k = 0; k < M::NV; ++k) buf[k] = in[k];
@@ -98,7 +98,7 @@ template <class M, class S, int C> struct Conv {
       }
   }
   // Centroidal momentum derivative out: MuJoCo holds qvel fixed, so turning a free joint also turns
-  // Pinocchio's v_lin (Jv_q[:, ang a] = -(e_a x v_lin)): dh/dq_mjx = dh/dq G^-1 + A_pin Jv_q.
+  // Pinocchio's v_lin (Jv_q[:, ang a] = -(e_a x v_lin)): dh/dq_mujoco = dh/dq G^-1 + A_pin Jv_q.
   TG_HD void momentum_gradient_out(const S* v, const S* A, S* dh) const {
     if constexpr (active) {
       for (int f = 0; f < M::NFREE; ++f) {
@@ -132,8 +132,8 @@ template <class M, class S, int C> struct Conv {
       }
     }
   }
-  // Coriolis matrix out: C_mjx = G (C G^T + M K) with K qd = [v_lin x w; 0] per free joint, Pinocchio's
-  // acceleration at MuJoCo's qacc = 0, so that C_mjx qd + g_mjx = MuJoCo's bias force; Mb as below.
+  // Coriolis matrix out: C_mujoco = G (C G^T + M K) with K qd = [v_lin x w; 0] per free joint, Pinocchio's
+  // acceleration at MuJoCo's qacc = 0, so that C_mujoco qd + g_mujoco = MuJoCo's bias force; Mb as below.
   TG_HD void coriolis_out(const S* v, const S* Mb, S* Cq) const {
     if constexpr (active) {
       columns_out(Cq, M::NV);
@@ -161,7 +161,7 @@ template <class M, class S, int C> struct Conv {
         }
       }
   }
-  // The weight of Pinocchio's entry (r, c) in sum(W * X_mjx) for X_mjx = force_rows_out(X): (G^T W)[r, c].
+  // The weight of Pinocchio's entry (r, c) in sum(W * X_mujoco) for X_mujoco = force_rows_out(X): (G^T W)[r, c].
   template <class T> TG_HD S force_rows_weight(const T* W, int r, int c, int cols) const {
     if constexpr (active)
       for (int f = 0; f < M::NFREE; ++f) {
@@ -183,8 +183,8 @@ template <class M, class S, int C> struct Conv {
 
   // Inverse-dynamics derivatives out. MuJoCo holds qvel and qacc fixed in its own frame, so turning a
   // free joint also moves the Pinocchio-frame v and a (Jv_q, Ja_q), and changes G (pref):
-  //   dtau/dq_mjx  = G (dtau/dq G^-1 + dtau/dqd Jv_q + M Ja_q) + pref
-  //   dtau/dqd_mjx = G (dtau/dqd G^-1 + M Ja_v)
+  //   dtau/dq_mujoco  = G (dtau/dq G^-1 + dtau/dqd Jv_q + M Ja_q) + pref
+  //   dtau/dqd_mujoco = G (dtau/dqd G^-1 + M Ja_v)
   // with, for the free joint's rotation a, on its linear rows (v, a in Pinocchio's convention):
   //   Jv_q[:, ang a] = -(e_a x v_lin)
   //   Ja_q[:, ang a] = -(e_a x a_lin) - e_a x (w x v_lin) + w x (e_a x v_lin)
@@ -209,7 +209,7 @@ template <class M, class S, int C> struct Conv {
 
   // Mb: the free joints' linear columns of Pinocchio's M (NV x 3 NFREE, free joint f's at 3f), all of
   // M these terms read.
-  TG_HD void inverse_dynamics_gradient_out(const S* v, const S* a, const S* tau, const S* Mb, S* dq, S* dv) const {
+  TG_HD void inverse_dynamics_derivatives_out(const S* v, const S* a, const S* tau, const S* Mb, S* dq, S* dv) const {
     if constexpr (active) {
       constexpr int NV = M::NV;
       // The Jv_q and Ja terms read Pinocchio's dtau/dqd and M before any reframe.

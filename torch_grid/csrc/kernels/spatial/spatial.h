@@ -16,10 +16,10 @@
 // For an algorithm body shared by several entry points: inlined into each, so that arrays the entry
 // point owns (joint placements) stay local to one function (1.5x faster RNEA than a call). Also the
 // vector primitives below: GCC's unit-wide inlining budget otherwise leaves some of them calls in one
-// unit and not another (cross_force as a call made inverse_dynamics_gradient 1.7x slower on go2).
+// unit and not another (cross_force as a call made inverse_dynamics_derivatives 1.7x slower on go2).
 #define TG_HD_INLINE inline __attribute__((always_inline))
 // For a register-blocked loop nest: compiled on its own, its accumulators stay in registers, which GCC
-// inlined into a large caller has kept in memory instead (go2's forward_dynamics_gradient 20% slower).
+// inlined into a large caller has kept in memory instead (go2's forward_dynamics_derivatives 20% slower).
 #define TG_HD_NOINLINE __attribute__((noinline))
 #endif
 
@@ -30,7 +30,7 @@ using std::cos;
 using std::sin;
 using std::sqrt;
 
-enum Convention : int { PIN = 0, MJX = 1 };
+enum Convention : int { PIN = 0, MUJOCO = 1 };
 
 // The plain floating-point type under a scalar (forward_mode.h specialises it for dual numbers).
 template <class S> struct BaseScalar { using type = S; };

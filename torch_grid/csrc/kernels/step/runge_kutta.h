@@ -1,4 +1,4 @@
-// The explicit Runge-Kutta steps in Munthe-Kaas's form (MuJoCo's mj_RungeKutta; torch_grid/integrators.py
+// The explicit Runge-Kutta steps in Munthe-Kaas's form (MuJoCo's mj_RungeKutta; torch_grid/step/integrators.py
 // holds the same in torch) and their tangent Jacobians, from each stage's inverse-dynamics derivatives.
 // Stage i (tableau a, weights b; every vector in the call's convention):
 //   u_i = dt sum_j a_ij c_j,  q_i = q (+) u_i,  v_i = qd + dt sum_j a_ij acc_j,  acc_i = FD(q_i, v_i, tau)
@@ -51,7 +51,7 @@ template <class T, int C> TG_HD void dexp_inverse_joint(int n, const T* theta, c
   const Vec3<T> xa = right_jacobian_inverse(w, k.beta, load3(x + n - 3));
   store3(xa, out + n - 3);
   if (n == 6) {
-    if constexpr (C == MJX) {
+    if constexpr (C == MUJOCO) {
       store3(load3(x), out);
     } else {
       store3(right_jacobian_inverse(w, k.beta, load3(x) - se3_coupling_times(load3(theta), w, k, xa)), out);
@@ -97,7 +97,7 @@ template <class S, int C> TG_HD void dexp_inverse_jacobians_lie(int n, const S* 
 // ball's. (Not by recursion: a recursive function is not inlined on a GPU, and its frames go on a call
 // stack of the driver's default size, which they overflowed.)
 template <class S, int C> TG_HD void dexp_inverse_jacobians(int n, const S* theta, const S* x, S* c, S* Dtheta, S* Dx) {
-  if (C == MJX && n == 6) {
+  if (C == MUJOCO && n == 6) {
     S Dt3[9], Dx3[9];
     dexp_inverse_jacobians_lie<S, C>(3, theta + 3, x + 3, c + 3, Dt3, Dx3);
     for (int a = 0; a < 6; ++a)

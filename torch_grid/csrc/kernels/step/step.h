@@ -1,5 +1,5 @@
 // The plant step's two Euler schemes and their tangent Jacobians, from the forward-dynamics
-// derivatives in one pass (torch_grid/integrators.py holds every scheme in torch). With
+// derivatives in one pass (torch_grid/step/integrators.py holds every scheme in torch). With
 // a = FD(q, qd, tau, f_ext) and G = [da/dq, da/dqd, da/dtau], all in the call's convention:
 //   euler                (scheme 0)  qd' = qd + dt a,  q' = q (+) dt qd
 //   semi_implicit_euler  (scheme 1)  qd' = qd + dt a,  q' = q (+) dt qd'
@@ -133,7 +133,7 @@ template <class M, class S, int C> TG_HD int integrate_joint(int i, const S* q, 
   }
   if (t == FREE) {
     const Vec3<S> p = load3(q + qi), ul = load3(u + vi);
-    if constexpr (C == MJX) {
+    if constexpr (C == MUJOCO) {
       store3(p + ul, q_next + qi);
       if (Jq) put3(Jq, 6, 0, 0, identity3<S>()), put3(Jv, 6, 0, 0, identity3<S>());
     } else {  // M exp6(u): p + R V u_lin, the quaternion kept in the input's hemisphere as Pinocchio's
@@ -150,7 +150,7 @@ template <class M, class S, int C> TG_HD int integrate_joint(int i, const S* q, 
     }
   }
   S* out = q_next + qa;
-  if constexpr (C == MJX) {  // wxyz
+  if constexpr (C == MUJOCO) {  // wxyz
     out[0] = turned[3]; out[1] = turned[0]; out[2] = turned[1]; out[3] = turned[2];
   } else {
     for (int c = 0; c < 4; ++c) out[c] = turned[c];
