@@ -50,9 +50,9 @@ def load(source, *, floating_base: bool | None = None, convention: str = "pin", 
          mimic: bool = False, strict_inertia: bool = False, cache_dir: str | Path | None = None) -> Robot:
     """Build (or reuse from the cache) a robot's kernels and return its `Robot`.
 
-    source: a bundled robot name ("iiwa14", "go2"), a URDF path or XML string, an MJCF path or
-    string, a saved model (.json, see Robot.save), a `pinocchio.Model`, a `mujoco.MjModel` or a
-    `RobotModel`. MJCF is compiled by MuJoCo: joint, dof and body order are MuJoCo's.
+    source: a bundled robot name (BUNDLED: "iiwa14", "go2", "humanoid"), a URDF path or XML string,
+    an MJCF path or string, a saved model (.json, see Robot.save), a `pinocchio.Model`, a
+    `mujoco.MjModel` or a `RobotModel`. MJCF is compiled by MuJoCo: joint, dof and body order are MuJoCo's.
     floating_base: None takes the source's own choice (a bundled robot's default, fixed for a URDF,
     floating when an MJCF has a free joint); True adds a free-flyer root to a URDF (an MJCF must
     declare its own free joint).

@@ -547,7 +547,8 @@ class Robot(_Functions):
         return len({self._coupling.v_src[k] for k in dofs} if self._coupling else dofs)
 
     def save(self, path: str | Path) -> None:
-        """Write the model description (JSON); `torch_grid.load(path)` rebuilds it, without Pinocchio."""
+        """Write the model description (JSON); `torch_grid.load(path)` rebuilds it, with neither Pinocchio
+        nor MuJoCo."""
         self.model.save(path)
 
     def __reduce__(self):

@@ -95,14 +95,17 @@ class RobotModel:
     # -- sizes and layout --------------------------------------------------------------------
     @property
     def nbodies(self) -> int:
+        """The number of moving bodies: one per joint."""
         return len(self.joints)
 
     @property
     def nq(self) -> int:
+        """The size of a configuration q (a free joint counts 7, a ball joint 4)."""
         return sum(j.nq for j in self.joints)
 
     @property
     def nv(self) -> int:
+        """The size of a velocity qd (a free joint counts 6, a ball joint 3)."""
         return sum(j.nv for j in self.joints)
 
     @property
@@ -137,6 +140,7 @@ class RobotModel:
 
     # -- serialization -----------------------------------------------------------------------
     def to_dict(self) -> dict:
+        """The description as plain data (lists, numbers, strings), with its format version."""
         d = asdict(self)
         d.pop("_hash")
         if d["eulerdamp"]:  # the default: a description without it reads the same
@@ -145,10 +149,12 @@ class RobotModel:
         return d
 
     def to_json(self) -> str:
+        """The description as canonical JSON: compact, keys sorted (its hash is this text's)."""
         return json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
 
     @classmethod
     def from_dict(cls, d: dict) -> "RobotModel":
+        """The model of `to_dict`'s data; ValueError for another format version."""
         if d.get("format") != FORMAT_VERSION:
             raise ValueError(f"model format {d.get('format')!r} is not supported (expected {FORMAT_VERSION})")
         joints = tuple(Joint(**{k: _tuple(v) for k, v in j.items()}) for j in d["joints"])
@@ -158,10 +164,12 @@ class RobotModel:
                    eulerdamp=bool(d.get("eulerdamp", True)))
 
     def save(self, path: str | Path) -> None:
+        """Write the description as JSON to `path` (`torch_grid.load(path)` builds it)."""
         Path(path).write_text(json.dumps(self.to_dict(), indent=1, sort_keys=True))
 
     @classmethod
     def load(cls, path: str | Path) -> "RobotModel":
+        """The model saved at `path` by `save`."""
         return cls.from_dict(json.loads(Path(path).read_text()))
 
 
