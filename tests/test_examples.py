@@ -1,5 +1,6 @@
 """The examples run (shortened) and do what they print: iLQR lowers the cost on iiwa14 and go2, the
-policy's loss falls through back-propagation over the dynamics, and the compiled rollout equals eager."""
+policy's loss falls through back-propagation over the dynamics, the compiled rollout equals eager, and the
+package's demo agrees with its oracles."""
 from __future__ import annotations
 
 import sys
@@ -7,6 +8,8 @@ from pathlib import Path
 
 import pytest
 import torch
+
+import torch_grid
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples"))
 
@@ -76,3 +79,15 @@ def test_policy_example_learns_and_compiles():
     losses, (eager, compiled) = values[:-2], values[-2:]
     assert losses[-1] < losses[0]
     assert abs(compiled - eager) <= 1e-10 * abs(eager)
+
+
+def test_demo_runs_and_matches_the_oracles(capsys):
+    """`python -m torch_grid.demo`, the README's first command, on a small batch: every bundled robot's
+    functions run, and its sample check against Pinocchio or MuJoCo agrees."""
+    import re
+
+    from torch_grid import demo
+
+    demo.main(["--batch", "4", "--device", "cpu"])
+    errors = re.findall(r"max relative error (\S+)", capsys.readouterr().out)
+    assert len(errors) == len(torch_grid.BUNDLED) and all(float(e) <= 1e-10 for e in errors), errors

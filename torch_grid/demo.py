@@ -12,6 +12,7 @@ import time
 import torch
 
 import torch_grid
+from torch_grid.model.parse import ROBOTS_DIR
 
 
 def _calls(robot, q, qd, qdd):
@@ -52,7 +53,7 @@ def _check_against_pinocchio(robot, q, qd, qdd) -> str:
         return "Pinocchio not installed: sample check skipped"
     import numpy as np
 
-    src = str(torch_grid.parse.ROBOTS_DIR / f"{robot.name}.urdf")
+    src = str(ROBOTS_DIR / f"{robot.name}.urdf")
     model = pin.buildModelFromUrdf(src, pin.JointModelFreeFlyer()) if robot.floating_base else pin.buildModelFromUrdf(src)
     data = model.createData()
     x = [t[0].detach().cpu().double().numpy() for t in (q, qd, qdd)]
@@ -72,7 +73,7 @@ def _check_against_mujoco(robot) -> str:
         return "MuJoCo not installed: sample check skipped"
     import numpy as np
 
-    m = mujoco.MjModel.from_xml_path(str(torch_grid.parse.ROBOTS_DIR / f"{robot.name}.xml"))
+    m = mujoco.MjModel.from_xml_path(str(ROBOTS_DIR / f"{robot.name}.xml"))
     m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
     d = mujoco.MjData(m)
     view, g = robot.mujoco, torch.Generator().manual_seed(1)
@@ -90,12 +91,12 @@ def _check_against_mujoco(robot) -> str:
     return f"sample vs MuJoCo (crba, forward/inverse dynamics, passive forces): max relative error {err:.1e}"
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="torch_grid demo on the bundled robots")
     parser.add_argument("--batch", type=int, default=4096)
     parser.add_argument("--dtype", choices=["float64", "float32"], default="float64")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     device, dtype = torch.device(args.device), getattr(torch, args.dtype)
     print(f"torch_grid demo: batch {args.batch}, {args.dtype}, {device}, {torch.get_num_threads()} CPU threads\n")
     for name in sorted(torch_grid.BUNDLED):
@@ -108,7 +109,7 @@ def main() -> None:
         print(f"  {'function':<22}{'µs/sample':>12}")
         for fn_name, fn in _calls(robot, q, qd, qdd).items():
             print(f"  {fn_name:<22}{_time(fn, device) / args.batch * 1e6:>12.3f}")
-        mjcf = (torch_grid.parse.ROBOTS_DIR / f"{name}.xml").exists()
+        mjcf = (ROBOTS_DIR / f"{name}.xml").exists()
         print(f"  {_check_against_mujoco(robot) if mjcf else _check_against_pinocchio(robot, q, qd, qdd)}\n")
 
 
