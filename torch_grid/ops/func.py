@@ -27,7 +27,7 @@ from .table import KERNEL_JVP, OPS
 
 def transforming() -> bool:
     """Whether a torch.func transform is active (then ops go through FuncOps)."""
-    return top_transform() is not None
+    return isinstance(torch._C._functorch.peek_interpreter_stack(), torch._C._functorch.CInterpreter)
 
 
 def traced_transform() -> bool:
@@ -40,8 +40,7 @@ def traced_transform() -> bool:
 def top_transform() -> TransformType | None:
     """The innermost active torch.func transform (Vmap, Grad, Jvp, ...), or None; in the functorch calls
     that torch.compile traces (the interpreter stack itself it cannot)."""
-    top = torch._C._functorch.peek_interpreter_stack()
-    return coerce_cinterpreter(top).key() if isinstance(top, torch._C._functorch.CInterpreter) else None
+    return coerce_cinterpreter(torch._C._functorch.peek_interpreter_stack()).key() if transforming() else None
 
 
 def dual(args) -> bool:
