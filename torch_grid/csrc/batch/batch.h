@@ -29,13 +29,13 @@ struct Batch {
   bool zeroed = false;
 };
 
-template <template <class, class, int> class Op, class M, class S, int C>
+template <template <class, class, int> class Op, class Robot, class Scalar, int C>
 TG_HD void run_sample(const Batch& b, int64_t s) {
-  const S* in[kMaxIn];
-  S* out[kMaxOut];
-  for (int k = 0; k < kMaxIn; ++k) in[k] = b.in[k] ? static_cast<const S*>(b.in[k]) + s * b.in_stride[k] : nullptr;
-  for (int k = 0; k < kMaxOut; ++k) out[k] = b.out[k] ? static_cast<S*>(b.out[k]) + s * b.out_stride[k] : nullptr;
-  Op<M, S, C>::run(in, out, b.iargs, b.n_iargs, b.zeroed);
+  const Scalar* in[kMaxIn];
+  Scalar* out[kMaxOut];
+  for (int k = 0; k < kMaxIn; ++k) in[k] = b.in[k] ? static_cast<const Scalar*>(b.in[k]) + s * b.in_stride[k] : nullptr;
+  for (int k = 0; k < kMaxOut; ++k) out[k] = b.out[k] ? static_cast<Scalar*>(b.out[k]) + s * b.out_stride[k] : nullptr;
+  Op<Robot, Scalar, C>::run(in, out, b.iargs, b.n_iargs, b.zeroed);
 }
 
 // Ops that split a sample into independent work items (a forward-mode backward: one per input
@@ -45,13 +45,13 @@ template <class T> struct Coordinates<T, std::void_t<decltype(T::kCoordinates)>>
   static constexpr int value = T::kCoordinates;
 };
 
-template <template <class, class, int> class Op, class M, class S, int C>
+template <template <class, class, int> class Op, class Robot, class Scalar, int C>
 TG_HD void run_sample_coordinate(const Batch& b, int64_t s, int c) {
-  const S* in[kMaxIn];
-  S* out[kMaxOut];
-  for (int k = 0; k < kMaxIn; ++k) in[k] = b.in[k] ? static_cast<const S*>(b.in[k]) + s * b.in_stride[k] : nullptr;
-  for (int k = 0; k < kMaxOut; ++k) out[k] = b.out[k] ? static_cast<S*>(b.out[k]) + s * b.out_stride[k] : nullptr;
-  Op<M, S, C>::run_coordinate(in, out, b.iargs, b.n_iargs, c);
+  const Scalar* in[kMaxIn];
+  Scalar* out[kMaxOut];
+  for (int k = 0; k < kMaxIn; ++k) in[k] = b.in[k] ? static_cast<const Scalar*>(b.in[k]) + s * b.in_stride[k] : nullptr;
+  for (int k = 0; k < kMaxOut; ++k) out[k] = b.out[k] ? static_cast<Scalar*>(b.out[k]) + s * b.out_stride[k] : nullptr;
+  Op<Robot, Scalar, C>::run_coordinate(in, out, b.iargs, b.n_iargs, c);
 }
 
 // Samples [begin, end) on the calling CPU thread (cpu_range.h).

@@ -5,9 +5,9 @@
 
 namespace tg {
 
-template <template <class, class, int> class Op, class M, class S, int C>
+template <template <class, class, int> class Op, class Robot, class Scalar, int C>
 void cpu_range(const Batch& b, int64_t begin, int64_t end) {
-  for (int64_t s = begin; s < end; ++s) run_sample<Op, M, S, C>(b, s);
+  for (int64_t s = begin; s < end; ++s) run_sample<Op, Robot, Scalar, C>(b, s);
 }
 
 }  // namespace tg

@@ -11,12 +11,12 @@
 
 namespace tg {
 
-template <class S> struct Dual {
-  S v, d;  // value, tangent
+template <class Scalar> struct Dual {
+  Scalar v, d;  // value, tangent
   Dual() = default;
-  TG_HD constexpr Dual(S value, S tangent) : v(value), d(tangent) {}
+  TG_HD constexpr Dual(Scalar value, Scalar tangent) : v(value), d(tangent) {}
   template <class T, class = std::enable_if_t<std::is_arithmetic_v<T>>>
-  TG_HD constexpr Dual(T value) : v(static_cast<S>(value)), d(0) {}
+  TG_HD constexpr Dual(T value) : v(static_cast<Scalar>(value)), d(0) {}
 
   TG_HD Dual& operator+=(const Dual& b) { v += b.v; d += b.d; return *this; }
   TG_HD Dual& operator-=(const Dual& b) { v -= b.v; d -= b.d; return *this; }
@@ -27,7 +27,7 @@ template <class S> struct Dual {
   TG_HD friend Dual operator-(const Dual& a, const Dual& b) { return {a.v - b.v, a.d - b.d}; }
   TG_HD friend Dual operator*(const Dual& a, const Dual& b) { return {a.v * b.v, a.d * b.v + a.v * b.d}; }
   TG_HD friend Dual operator/(const Dual& a, const Dual& b) {
-    const S r = a.v / b.v;
+    const Scalar r = a.v / b.v;
     return {r, (a.d - r * b.d) / b.v};
   }
   // Branches follow the values, so a kernel takes the same path as on plain numbers.
@@ -39,14 +39,14 @@ template <class S> struct Dual {
   TG_HD friend bool operator!=(const Dual& a, const Dual& b) { return a.v != b.v; }
 };
 
-template <class S> struct BaseScalar<Dual<S>> { using type = S; };
+template <class Scalar> struct BaseScalar<Dual<Scalar>> { using type = Scalar; };
 
 // Mixed arithmetic with plain numbers (literals and the robot's constants).
 #define TG_DUAL_MIXED(op)                                                                                   \
-  template <class S, class T, class = std::enable_if_t<std::is_arithmetic_v<T>>>                            \
-  TG_HD auto operator op(const Dual<S>& a, T b) { return a op Dual<S>(b); }                                 \
-  template <class S, class T, class = std::enable_if_t<std::is_arithmetic_v<T>>>                            \
-  TG_HD auto operator op(T a, const Dual<S>& b) { return Dual<S>(a) op b; }
+  template <class Scalar, class T, class = std::enable_if_t<std::is_arithmetic_v<T>>>                            \
+  TG_HD auto operator op(const Dual<Scalar>& a, T b) { return a op Dual<Scalar>(b); }                                 \
+  template <class Scalar, class T, class = std::enable_if_t<std::is_arithmetic_v<T>>>                            \
+  TG_HD auto operator op(T a, const Dual<Scalar>& b) { return Dual<Scalar>(a) op b; }
 TG_DUAL_MIXED(+)
 TG_DUAL_MIXED(-)
 TG_DUAL_MIXED(*)
@@ -57,23 +57,23 @@ TG_DUAL_MIXED(<=)
 TG_DUAL_MIXED(>=)
 #undef TG_DUAL_MIXED
 
-template <class S> TG_HD Dual<S> sqrt(const Dual<S>& a) {
-  const S r = sqrt(a.v);
-  return {r, a.d / (S(2) * r)};
+template <class Scalar> TG_HD Dual<Scalar> sqrt(const Dual<Scalar>& a) {
+  const Scalar r = sqrt(a.v);
+  return {r, a.d / (Scalar(2) * r)};
 }
-template <class S> TG_HD Dual<S> sin(const Dual<S>& a) { return {sin(a.v), a.d * cos(a.v)}; }
-template <class S> TG_HD Dual<S> cos(const Dual<S>& a) { return {cos(a.v), -a.d * sin(a.v)}; }
-template <class S> TG_HD Dual<S> atan2(const Dual<S>& y, const Dual<S>& x) {
+template <class Scalar> TG_HD Dual<Scalar> sin(const Dual<Scalar>& a) { return {sin(a.v), a.d * cos(a.v)}; }
+template <class Scalar> TG_HD Dual<Scalar> cos(const Dual<Scalar>& a) { return {cos(a.v), -a.d * sin(a.v)}; }
+template <class Scalar> TG_HD Dual<Scalar> atan2(const Dual<Scalar>& y, const Dual<Scalar>& x) {
   return {atan2(y.v, x.v), (x.v * y.d - y.v * x.d) / (x.v * x.v + y.v * y.v)};
 }
 
 // A value and its derivatives along N directions: N forward-mode passes in one, where a small closed form
 // is differentiated along each of a few inputs (runge_kutta.h's dexp^-1 along a joint's rotation).
-template <class S, int N> struct Jet {
-  S v, d[N];
+template <class Scalar, int N> struct Jet {
+  Scalar v, d[N];
   Jet() = default;
   template <class T, class = std::enable_if_t<std::is_arithmetic_v<T>>>
-  TG_HD constexpr Jet(T value) : v(static_cast<S>(value)), d{} {}
+  TG_HD constexpr Jet(T value) : v(static_cast<Scalar>(value)), d{} {}
 
   TG_HD friend Jet operator-(const Jet& a) {
     Jet r;
@@ -111,21 +111,21 @@ template <class S, int N> struct Jet {
   TG_HD friend bool operator>(const Jet& a, const Jet& b) { return a.v > b.v; }
 };
 
-template <class S, int N> struct BaseScalar<Jet<S, N>> { using type = S; };
+template <class Scalar, int N> struct BaseScalar<Jet<Scalar, N>> { using type = Scalar; };
 
 // f(a) from f(a.v) and f'(a.v)
-template <class S, int N> TG_HD Jet<S, N> jet_chain(const Jet<S, N>& a, S f, S df) {
-  Jet<S, N> r;
+template <class Scalar, int N> TG_HD Jet<Scalar, N> jet_chain(const Jet<Scalar, N>& a, Scalar f, Scalar df) {
+  Jet<Scalar, N> r;
   r.v = f;
   for (int k = 0; k < N; ++k) r.d[k] = df * a.d[k];
   return r;
 }
-template <class S, int N> TG_HD Jet<S, N> sqrt(const Jet<S, N>& a) {
-  const S r = sqrt(a.v);
-  return jet_chain(a, r, S(0.5) / r);
+template <class Scalar, int N> TG_HD Jet<Scalar, N> sqrt(const Jet<Scalar, N>& a) {
+  const Scalar r = sqrt(a.v);
+  return jet_chain(a, r, Scalar(0.5) / r);
 }
-template <class S, int N> TG_HD Jet<S, N> sin(const Jet<S, N>& a) { return jet_chain(a, sin(a.v), cos(a.v)); }
-template <class S, int N> TG_HD Jet<S, N> cos(const Jet<S, N>& a) { return jet_chain(a, cos(a.v), -sin(a.v)); }
+template <class Scalar, int N> TG_HD Jet<Scalar, N> sin(const Jet<Scalar, N>& a) { return jet_chain(a, sin(a.v), cos(a.v)); }
+template <class Scalar, int N> TG_HD Jet<Scalar, N> cos(const Jet<Scalar, N>& a) { return jet_chain(a, cos(a.v), -sin(a.v)); }
 
 // The flattened sizes of an op's tensor inputs or outputs, known at compile time.
 template <int... N> struct Sizes {
@@ -144,12 +144,12 @@ template <int... N> struct Sizes {
 
 // Dual copies x of an op's inputs (sizes In; zero tangents, absent inputs null in xs) and the
 // output slots ys over y (sizes Out): the arguments of the op run on dual numbers.
-template <class In, class Out, class S>
-TG_HD void dual_arguments(const S* const* in, Dual<S>* x, const Dual<S>** xs, Dual<S>* y, Dual<S>** ys) {
+template <class In, class Out, class Scalar>
+TG_HD void dual_arguments(const Scalar* const* in, Dual<Scalar>* x, const Dual<Scalar>** xs, Dual<Scalar>* y, Dual<Scalar>** ys) {
   for (int j = 0, o = 0; j < In::count; o += In::at(j), ++j) {
     xs[j] = in[j] ? x + o : nullptr;
     if (in[j])
-      for (int m = 0; m < In::at(j); ++m) x[o + m] = Dual<S>(in[j][m], S(0));
+      for (int m = 0; m < In::at(j); ++m) x[o + m] = Dual<Scalar>(in[j][m], Scalar(0));
   }
   for (int o = 0, yoff = 0; o < Out::count; yoff += Out::at(o), ++o) ys[o] = y + yoff;
 }
@@ -165,43 +165,43 @@ struct Contracted<Op, std::void_t<decltype(Op::contract(nullptr, static_cast<con
 // Out, null for zero); iargs = Op's integer arguments, then a bit mask of the inputs to
 // differentiate; out = one gradient per input (zero where not asked). An op with a contraction
 // (one output) is dotted with its cotangent as it goes, so its output is never held.
-template <template <class, class, int> class Op, class M, class S, int C, class In, class Out>
+template <template <class, class, int> class Op, class Robot, class Scalar, int C, class In, class Out>
 struct ForwardModeVjp {
   // One input coordinate per pass: the batch layer runs them as separate work items (a CUDA thread
   // each), or all of them in turn through run().
   static constexpr int kCoordinates = In::total;
 
-  TG_HD static void run(const S* const* in, S* const* out, const int* iargs, int n_iargs, bool = false) {
+  TG_HD static void run(const Scalar* const* in, Scalar* const* out, const int* iargs, int n_iargs, bool = false) {
     for (int c = 0; c < kCoordinates; ++c) run_coordinate(in, out, iargs, n_iargs, c);
   }
 
   // Entry c of the gradient (input i's k-th coordinate, counting through the inputs in order).
-  TG_HD static void run_coordinate(const S* const* in, S* const* out, const int* iargs, int n_iargs, int c) {
-    using D = Dual<S>;
+  TG_HD static void run_coordinate(const Scalar* const* in, Scalar* const* out, const int* iargs, int n_iargs, int c) {
+    using D = Dual<Scalar>;
     constexpr int NI = In::count, NO = Out::count;
     int i = 0, off = 0;
     while (c >= off + In::at(i)) off += In::at(i++);
     const int k = c - off;
     if (!in[i] || !(iargs[n_iargs - 1] >> i & 1)) {  // absent, or not asked for by the mask
-      if (out[i]) out[i][k] = S(0);
+      if (out[i]) out[i][k] = Scalar(0);
       return;
     }
     // dual copies of the inputs, the tangent seeded on this coordinate
     D x[In::total];
     const D* xs[NI];
-    if constexpr (Contracted<Op<M, D, C>>::value) {
+    if constexpr (Contracted<Op<Robot, D, C>>::value) {
       static_assert(NO == 1, "a contraction dots one output");
-      dual_arguments<In, Sizes<>, S>(in, x, xs, nullptr, nullptr);
-      x[off + k].d = S(1);
-      out[i][k] = in[NI] ? Op<M, D, C>::contract(xs, in[NI], iargs, n_iargs - 1).d : S(0);
+      dual_arguments<In, Sizes<>, Scalar>(in, x, xs, nullptr, nullptr);
+      x[off + k].d = Scalar(1);
+      out[i][k] = in[NI] ? Op<Robot, D, C>::contract(xs, in[NI], iargs, n_iargs - 1).d : Scalar(0);
     } else {
       D y[Out::total];
       D* ys[NO];
       dual_arguments<In, Out>(in, x, xs, y, ys);
-      x[off + k].d = S(1);
-      Op<M, D, C>::run(xs, ys, iargs, n_iargs - 1);
+      x[off + k].d = Scalar(1);
+      Op<Robot, D, C>::run(xs, ys, iargs, n_iargs - 1);
       // the output tangents dotted with the cotangents
-      S acc = S(0);
+      Scalar acc = Scalar(0);
       for (int o = 0, yoff = 0; o < NO; yoff += Out::at(o), ++o)
         if (in[NI + o])
           for (int m = 0; m < Out::at(o); ++m) acc += in[NI + o][m] * y[yoff + m].d;
@@ -213,10 +213,10 @@ struct ForwardModeVjp {
 // The Jacobian-vector product of Op: in = Op's inputs (sizes In), then the tangents of the inputs
 // whose indices Wrt lists (null for zero); iargs = Op's integer arguments; out = the tangent of
 // every output. One forward pass on dual numbers per sample.
-template <template <class, class, int> class Op, class M, class S, int C, class In, class Out, class Wrt>
+template <template <class, class, int> class Op, class Robot, class Scalar, int C, class In, class Out, class Wrt>
 struct ForwardModeJvp {
-  TG_HD static void run(const S* const* in, S* const* out, const int* iargs, int n_iargs, bool = false) {
-    using D = Dual<S>;
+  TG_HD static void run(const Scalar* const* in, Scalar* const* out, const int* iargs, int n_iargs, bool = false) {
+    using D = Dual<Scalar>;
     constexpr int NI = In::count, NO = Out::count;
     D x[In::total], y[Out::total];
     const D* xs[NI];
@@ -225,11 +225,11 @@ struct ForwardModeJvp {
     // the tangents seeded on the inputs that have one
     for (int w = 0; w < Wrt::count; ++w) {
       const int j = Wrt::at(w);
-      const S* t = in[NI + w];
+      const Scalar* t = in[NI + w];
       if (t && in[j])
         for (int m = 0; m < In::at(j); ++m) x[In::offset(j) + m].d = t[m];
     }
-    Op<M, D, C>::run(xs, ys, iargs, n_iargs);
+    Op<Robot, D, C>::run(xs, ys, iargs, n_iargs);
     for (int o = 0, yoff = 0; o < NO; yoff += Out::at(o), ++o)
       for (int m = 0; m < Out::at(o); ++m) out[o][m] = y[yoff + m].d;
   }
@@ -238,24 +238,24 @@ struct ForwardModeJvp {
 // The same for an op whose outputs would not fit a GPU thread's stack as dual numbers
 // (inverse_dynamics_regressor's NV x 10 NB): each output (value, tangent) pairs, written in place in
 // `out`, an array of twice the output's size.
-template <template <class, class, int> class Op, class M, class S, int C, class In, class Out, class Wrt>
+template <template <class, class, int> class Op, class Robot, class Scalar, int C, class In, class Out, class Wrt>
 struct ForwardModeJvpInPlace {
-  TG_HD static void run(const S* const* in, S* const* out, const int* iargs, int n_iargs, bool = false) {
-    using D = Dual<S>;
-    static_assert(sizeof(D) == 2 * sizeof(S), "a dual number is a (value, tangent) pair");
+  TG_HD static void run(const Scalar* const* in, Scalar* const* out, const int* iargs, int n_iargs, bool = false) {
+    using D = Dual<Scalar>;
+    static_assert(sizeof(D) == 2 * sizeof(Scalar), "a dual number is a (value, tangent) pair");
     constexpr int NI = In::count, NO = Out::count;
     D x[In::total];
     const D* xs[NI];
     D* ys[NO];
-    dual_arguments<In, Sizes<>, S>(in, x, xs, nullptr, nullptr);
+    dual_arguments<In, Sizes<>, Scalar>(in, x, xs, nullptr, nullptr);
     for (int o = 0; o < NO; ++o) ys[o] = reinterpret_cast<D*>(out[o]);
     for (int w = 0; w < Wrt::count; ++w) {
       const int j = Wrt::at(w);
-      const S* t = in[NI + w];
+      const Scalar* t = in[NI + w];
       if (t && in[j])
         for (int m = 0; m < In::at(j); ++m) x[In::offset(j) + m].d = t[m];
     }
-    Op<M, D, C>::run(xs, ys, iargs, n_iargs);
+    Op<Robot, D, C>::run(xs, ys, iargs, n_iargs);
   }
 };
 

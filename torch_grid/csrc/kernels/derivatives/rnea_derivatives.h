@@ -20,27 +20,27 @@ namespace tg {
 
 // What the Coriolis matrix and M's base columns read: world axes and velocities, and the subtree
 // sums Yc and B.
-template <class M, class S> struct VelocityWork {
-  const SE3<S>* oMi;      // the Placements pass
-  Sv<S> v[M::NB];         // world velocity
-  Inertia<S> Yc[M::NB];   // subtree inertia, world frame
-  M6<S> B[M::NB];         // subtree sum of dI + [. x* h]
-  Sv<S> s[M::NV];         // per column: its world axis
+template <class Robot, class Scalar> struct VelocityWork {
+  const SE3<Scalar>* oMi;      // the Placements pass
+  Sv<Scalar> v[Robot::NB];         // world velocity
+  Inertia<Scalar> Yc[Robot::NB];   // subtree inertia, world frame
+  M6<Scalar> B[Robot::NB];         // subtree sum of dI + [. x* h]
+  Sv<Scalar> s[Robot::NV];         // per column: its world axis
 };
 
 // Everything the derivatives read: the above, the subtree forces and the per-column terms.
-template <class M, class S> struct RneaDerivativesWork : VelocityWork<M, S> {
-  Sv<S> F[M::NB];                                   // subtree force
-  Sv<S> w[M::NV], u[M::NV], alpha[M::NV];           // per column, see above
+template <class Robot, class Scalar> struct RneaDerivativesWork : VelocityWork<Robot, Scalar> {
+  Sv<Scalar> F[Robot::NB];                                   // subtree force
+  Sv<Scalar> w[Robot::NV], u[Robot::NV], alpha[Robot::NV];           // per column, see above
 };
 
 // The 6x6 matrix of x -> dI x + x x* h with dI = v x* I - I v x and h = I v: the rate of change of
 // the momentum I v of a body when its velocity v changes by x while it moves with velocity v.
-template <class S> TG_HD M6<S> momentum_rate_matrix(const Inertia<S>& I, const Sv<S>& v) {
-  M6<S> B = inertia_rate_matrix(I, v);
+template <class Scalar> TG_HD M6<Scalar> momentum_rate_matrix(const Inertia<Scalar>& I, const Sv<Scalar>& v) {
+  M6<Scalar> B = inertia_rate_matrix(I, v);
   // x x* h = [-h_lin x x_ang; -h_lin x x_lin - h_ang x x_ang]
-  const Sv<S> h = mul(I, v);
-  const Mat3<S> Hl = skew(lin(h)), Ha = skew(ang(h));
+  const Sv<Scalar> h = mul(I, v);
+  const Mat3<Scalar> Hl = skew(lin(h)), Ha = skew(ang(h));
   for (int r = 0; r < 3; ++r)
     for (int c = 0; c < 3; ++c) {
       B.m[6 * r + 3 + c] -= Hl.m[3 * r + c];
@@ -52,21 +52,21 @@ template <class S> TG_HD M6<S> momentum_rate_matrix(const Inertia<S>& I, const S
 
 // Body i's velocity terms: its world axes and velocity, and its own world inertia and B (summed
 // over subtrees by velocity_sums).
-template <class M, class S> TG_HD_INLINE void velocity_step(int i, const S* qd, VelocityWork<M, S>& W) {
-  const auto& d = data<M, S>();
+template <class Robot, class Scalar> TG_HD_INLINE void velocity_step(int i, const Scalar* qd, VelocityWork<Robot, Scalar>& W) {
+  const auto& d = data<Robot, Scalar>();
   const int p = d.parent[i], vi = d.vi[i];
-  W.v[i] = p < 0 ? sv_zero<S>() : W.v[p];
+  W.v[i] = p < 0 ? sv_zero<Scalar>() : W.v[p];
   for (int k = 0; k < d.nvj[i]; ++k) {
-    W.s[vi + k] = act_motion(W.oMi[i], joint_axis<M, S>(i, k));
+    W.s[vi + k] = act_motion(W.oMi[i], joint_axis<Robot, Scalar>(i, k));
     W.v[i] = W.v[i] + qd[vi + k] * W.s[vi + k];
   }
-  W.Yc[i] = act(W.oMi[i], body_inertia<M, S>(i));
+  W.Yc[i] = act(W.oMi[i], body_inertia<Robot, Scalar>(i));
   W.B[i] = momentum_rate_matrix(W.Yc[i], W.v[i]);
 }
 
-template <class M, class S> TG_HD void velocity_sums(VelocityWork<M, S>& W) {
-  const auto& d = data<M, S>();
-  for (int i = M::NB - 1; i > 0; --i) {
+template <class Robot, class Scalar> TG_HD void velocity_sums(VelocityWork<Robot, Scalar>& W) {
+  const auto& d = data<Robot, Scalar>();
+  for (int i = Robot::NB - 1; i > 0; --i) {
     const int p = d.parent[i];
     if (p < 0) continue;
     W.Yc[p] = W.Yc[p] + W.Yc[i];
@@ -74,43 +74,43 @@ template <class M, class S> TG_HD void velocity_sums(VelocityWork<M, S>& W) {
   }
 }
 
-template <class M, class S> TG_HD void velocity_setup(const Placements<M, S>& K, const S* qd, VelocityWork<M, S>& W) {
+template <class Robot, class Scalar> TG_HD void velocity_setup(const Placements<Robot, Scalar>& K, const Scalar* qd, VelocityWork<Robot, Scalar>& W) {
   W.oMi = K.oMi;
-  for (int i = 0; i < M::NB; ++i) velocity_step<M, S>(i, qd, W);
-  velocity_sums<M, S>(W);
+  for (int i = 0; i < Robot::NB; ++i) velocity_step<Robot, Scalar>(i, qd, W);
+  velocity_sums<Robot, Scalar>(W);
 }
 
 // Forward pass (world placements, axes, velocities, accelerations, body forces and the per-column
 // terms), then the subtree sums Yc, B, F.
-template <class M, class S>
-TG_HD void rnea_derivatives_setup(const Placements<M, S>& K, const S* qd, const S* qdd, const S* fext,
-                                  RneaDerivativesWork<M, S>& W) {
-  const auto& d = data<M, S>();
-  using L = Levels<M>;
-  Sv<S> a[L::N];  // world accelerations (gravity included), only for the children
+template <class Robot, class Scalar>
+TG_HD void rnea_derivatives_setup(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* qdd, const Scalar* fext,
+                                  RneaDerivativesWork<Robot, Scalar>& W) {
+  const auto& d = data<Robot, Scalar>();
+  using L = Levels<Robot>;
+  Sv<Scalar> a[L::N];  // world accelerations (gravity included), only for the children
   W.oMi = K.oMi;
-  for (int i = 0; i < M::NB; ++i) {
-    velocity_step<M, S>(i, qd, W);
+  for (int i = 0; i < Robot::NB; ++i) {
+    velocity_step<Robot, Scalar>(i, qd, W);
     const int p = d.parent[i], n = d.nvj[i], vi = d.vi[i];
-    const Sv<S> vp = p < 0 ? sv_zero<S>() : W.v[p];
-    const Sv<S> ap = p < 0 ? base_acceleration<M, S>() : a[L::parent(d, i)];
-    Sv<S>& ai = a[L::of(d, i)];
+    const Sv<Scalar> vp = p < 0 ? sv_zero<Scalar>() : W.v[p];
+    const Sv<Scalar> ap = p < 0 ? base_acceleration<Robot, Scalar>() : a[L::parent(d, i)];
+    Sv<Scalar>& ai = a[L::of(d, i)];
     ai = ap;
     for (int k = 0; k < n; ++k) ai = ai + qdd[vi + k] * W.s[vi + k] + qd[vi + k] * cross_motion(W.v[i], W.s[vi + k]);
     for (int k = 0; k < n; ++k) {
-      const Sv<S>& s = W.s[vi + k];
+      const Sv<Scalar>& s = W.s[vi + k];
       W.w[vi + k] = cross_motion(vp, s);
       W.u[vi + k] = cross_motion(ap, s) + cross_motion(vp, W.w[vi + k]);
       W.alpha[vi + k] = cross_motion(vp + W.v[i], s);
     }
     W.F[i] = mul(W.Yc[i], ai) + cross_force(W.v[i], mul(W.Yc[i], W.v[i]));
     if (fext) {
-      const Sv<S> fe = {{fext[6 * i], fext[6 * i + 1], fext[6 * i + 2], fext[6 * i + 3], fext[6 * i + 4], fext[6 * i + 5]}};
+      const Sv<Scalar> fe = {{fext[6 * i], fext[6 * i + 1], fext[6 * i + 2], fext[6 * i + 3], fext[6 * i + 4], fext[6 * i + 5]}};
       W.F[i] = W.F[i] - act_force(W.oMi[i], fe);
     }
   }
-  velocity_sums<M, S>(W);
-  for (int i = M::NB - 1; i > 0; --i)
+  velocity_sums<Robot, Scalar>(W);
+  for (int i = Robot::NB - 1; i > 0; --i)
     if (d.parent[i] >= 0) W.F[d.parent[i]] = W.F[d.parent[i]] + W.F[i];
 }
 
@@ -120,19 +120,19 @@ TG_HD void rnea_derivatives_setup(const Placements<M, S>& K, const S* qd, const 
 //   row m, column j:  S_m^T (Yc_j X_j + B_j Y_j [+ s_j x* F_j])          (m strictly above j)
 // Entries of unrelated branches are zero (left as they were without Zero, for a reader of the tree's
 // entries alone). HalfY takes Y / 2 for Y (exactly, without its storage).
-template <bool ForceTerm, bool HalfY, class M, class S, class Work, bool Zero = true>
-TG_HD void ancestor_pairs(const Work& W, const Sv<S>* X, const Sv<S>* Y, S* out) {
-  const auto& d = data<M, S>();
-  constexpr int NV = M::NV;
+template <bool ForceTerm, bool HalfY, class Robot, class Scalar, class Work, bool Zero = true>
+TG_HD void ancestor_pairs(const Work& W, const Sv<Scalar>* X, const Sv<Scalar>* Y, Scalar* out) {
+  const auto& d = data<Robot, Scalar>();
+  constexpr int NV = Robot::NV;
   if constexpr (Zero)
-    for (int k = 0; k < NV * NV; ++k) out[k] = S(0);
-  for (int i = 0; i < M::NB; ++i) {
+    for (int k = 0; k < NV * NV; ++k) out[k] = Scalar(0);
+  for (int i = 0; i < Robot::NB; ++i) {
     // Rows of joint i, columns of its ancestors and itself.
     for (int l = 0; l < d.nvj[i]; ++l) {
       const int row = d.vi[i] + l;
-      const Sv<S> P = mul(W.Yc[i], W.s[d.vi[i] + l]);
-      Sv<S> Q = mul_transpose(W.B[i], W.s[d.vi[i] + l]);
-      if constexpr (HalfY) Q = S(0.5) * Q;
+      const Sv<Scalar> P = mul(W.Yc[i], W.s[d.vi[i] + l]);
+      Sv<Scalar> Q = mul_transpose(W.B[i], W.s[d.vi[i] + l]);
+      if constexpr (HalfY) Q = Scalar(0.5) * Q;
       for (int j = i; j >= 0; j = d.parent[j])
         for (int c = 0; c < d.nvj[j]; ++c) {
           const int col = d.vi[j] + c;
@@ -142,9 +142,9 @@ TG_HD void ancestor_pairs(const Work& W, const Sv<S>* X, const Sv<S>* Y, S* out)
     // Columns of joint i, rows of its strict ancestors.
     for (int c = 0; c < d.nvj[i]; ++c) {
       const int col = d.vi[i] + c;
-      Sv<S> BY = mul(W.B[i], Y[col]);
-      if constexpr (HalfY) BY = S(0.5) * BY;
-      Sv<S> dF = mul(W.Yc[i], X[col]) + BY;
+      Sv<Scalar> BY = mul(W.B[i], Y[col]);
+      if constexpr (HalfY) BY = Scalar(0.5) * BY;
+      Sv<Scalar> dF = mul(W.Yc[i], X[col]) + BY;
       if constexpr (ForceTerm) dF = dF + cross_force(W.s[col], W.F[i]);
       for (int m = d.parent[i]; m >= 0; m = d.parent[m])
         for (int l = 0; l < d.nvj[m]; ++l) out[NV * (d.vi[m] + l) + col] = dot(W.s[d.vi[m] + l], dF);
@@ -154,14 +154,14 @@ TG_HD void ancestor_pairs(const Work& W, const Sv<S>* X, const Sv<S>* Y, S* out)
 
 // tau (NV), dtau_dq and dtau_dqd (NV x NV, row-major) at the (q, qd, qdd, fext) W was set up at; without
 // Zero, the entries between branches are left as they were.
-template <class M, class S, bool Zero = true>
-TG_HD void rnea_derivatives(const RneaDerivativesWork<M, S>& W, S* tau, S* dtau_dq, S* dtau_dqd) {
-  const auto& d = data<M, S>();
-  using Work = RneaDerivativesWork<M, S>;
-  for (int i = 0; i < M::NB; ++i)
+template <class Robot, class Scalar, bool Zero = true>
+TG_HD void rnea_derivatives(const RneaDerivativesWork<Robot, Scalar>& W, Scalar* tau, Scalar* dtau_dq, Scalar* dtau_dqd) {
+  const auto& d = data<Robot, Scalar>();
+  using Work = RneaDerivativesWork<Robot, Scalar>;
+  for (int i = 0; i < Robot::NB; ++i)
     for (int l = 0; l < d.nvj[i]; ++l) tau[d.vi[i] + l] = dot(W.s[d.vi[i] + l], W.F[i]);
-  ancestor_pairs<true, false, M, S, Work, Zero>(W, W.u, W.w, dtau_dq);
-  ancestor_pairs<false, false, M, S, Work, Zero>(W, W.alpha, W.s, dtau_dqd);
+  ancestor_pairs<true, false, Robot, Scalar, Work, Zero>(W, W.u, W.w, dtau_dq);
+  ancestor_pairs<false, false, Robot, Scalar, Work, Zero>(W, W.alpha, W.s, dtau_dqd);
 }
 
 // lambda^T d tau / dq and lambda^T d tau / dqd (NV each) in O(n), the pairs above summed over their rows
@@ -172,33 +172,33 @@ TG_HD void rnea_derivatives(const RneaDerivativesWork<M, S>& W, S* tau, S* dtau_
 // and tau_j = s_j . F_j, (M lambda)_j = s_j . Z_j (written where Mlam is not null). Rest: at qd = 0
 // without gravity or fext (qd and fext are not read), where tau = M qdd and h, R and w vanish: the
 // gradient of lambda^T M(q) qdd (mass_product_vjp).
-template <bool Rest = false, class M, class S>
-TG_HD void rnea_vjp(const Placements<M, S>& K, const S* qd, const S* qdd, const S* fext, const S* lambda, S* tau,
-                    S* g_q, S* g_qd, S* Mlam = nullptr) {
-  const auto& d = data<M, S>();
-  constexpr int NB = M::NB;
-  Sv<S> s[M::NV], v[NB], a[NB], h[NB], F[NB], y[NB], Z[NB], R[NB];
-  Inertia<S> I[NB];
+template <bool Rest = false, class Robot, class Scalar>
+TG_HD void rnea_vjp(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* qdd, const Scalar* fext, const Scalar* lambda, Scalar* tau,
+                    Scalar* g_q, Scalar* g_qd, Scalar* Mlam = nullptr) {
+  const auto& d = data<Robot, Scalar>();
+  constexpr int NB = Robot::NB;
+  Sv<Scalar> s[Robot::NV], v[NB], a[NB], h[NB], F[NB], y[NB], Z[NB], R[NB];
+  Inertia<Scalar> I[NB];
   // forward: world axes, velocities, accelerations (gravity included) and body forces
   for (int i = 0; i < NB; ++i) {
     const int p = d.parent[i], vi = d.vi[i];
-    v[i] = p < 0 ? sv_zero<S>() : v[p];
+    v[i] = p < 0 ? sv_zero<Scalar>() : v[p];
     for (int k = 0; k < d.nvj[i]; ++k) {
-      s[vi + k] = act_motion(K.oMi[i], joint_axis<M, S>(i, k));
+      s[vi + k] = act_motion(K.oMi[i], joint_axis<Robot, Scalar>(i, k));
       if constexpr (!Rest) v[i] = v[i] + qd[vi + k] * s[vi + k];
     }
-    a[i] = p >= 0 ? a[p] : Rest ? sv_zero<S>() : base_acceleration<M, S>();
+    a[i] = p >= 0 ? a[p] : Rest ? sv_zero<Scalar>() : base_acceleration<Robot, Scalar>();
     for (int k = 0; k < d.nvj[i]; ++k) a[i] = a[i] + qdd[vi + k] * s[vi + k];
     if constexpr (!Rest)
       for (int k = 0; k < d.nvj[i]; ++k) a[i] = a[i] + qd[vi + k] * cross_motion(v[i], s[vi + k]);
-    I[i] = act(K.oMi[i], body_inertia<M, S>(i));
+    I[i] = act(K.oMi[i], body_inertia<Robot, Scalar>(i));
     F[i] = mul(I[i], a[i]);
     if constexpr (!Rest) {
       h[i] = mul(I[i], v[i]);
       F[i] = F[i] + cross_force(v[i], h[i]);
     }
     if (!Rest && fext) {
-      const Sv<S> fe = {{fext[6 * i], fext[6 * i + 1], fext[6 * i + 2], fext[6 * i + 3], fext[6 * i + 4], fext[6 * i + 5]}};
+      const Sv<Scalar> fe = {{fext[6 * i], fext[6 * i + 1], fext[6 * i + 2], fext[6 * i + 3], fext[6 * i + 4], fext[6 * i + 5]}};
       F[i] = F[i] - act_force(K.oMi[i], fe);
     }
   }
@@ -206,7 +206,7 @@ TG_HD void rnea_vjp(const Placements<M, S>& K, const S* qd, const S* qdd, const 
     if (d.parent[i] >= 0) F[d.parent[i]] = F[d.parent[i]] + F[i];
   // down: y; each body's I y and B^T y
   for (int i = 0; i < NB; ++i) {
-    y[i] = d.parent[i] < 0 ? sv_zero<S>() : y[d.parent[i]];
+    y[i] = d.parent[i] < 0 ? sv_zero<Scalar>() : y[d.parent[i]];
     for (int c = d.vi[i]; c < d.vi[i] + d.nvj[i]; ++c) y[i] = y[i] + lambda[c] * s[c];
     Z[i] = mul(I[i], y[i]);
     if constexpr (!Rest) R[i] = cross_force(v[i], Z[i]) - mul(I[i], cross_motion(v[i], y[i])) - cross_force(y[i], h[i]);
@@ -219,15 +219,15 @@ TG_HD void rnea_vjp(const Placements<M, S>& K, const S* qd, const S* qdd, const 
   // per column: w = v_p x s, u = a_p x s + v_p x w, alpha = (v_p + v_i) x s
   for (int i = 0; i < NB; ++i) {
     const int p = d.parent[i];
-    const Sv<S> vp = p < 0 ? sv_zero<S>() : v[p], L = p < 0 ? sv_zero<S>() : y[p];
-    const Sv<S> ap = p >= 0 ? a[p] : Rest ? sv_zero<S>() : base_acceleration<M, S>();
+    const Sv<Scalar> vp = p < 0 ? sv_zero<Scalar>() : v[p], L = p < 0 ? sv_zero<Scalar>() : y[p];
+    const Sv<Scalar> ap = p >= 0 ? a[p] : Rest ? sv_zero<Scalar>() : base_acceleration<Robot, Scalar>();
     for (int c = d.vi[i]; c < d.vi[i] + d.nvj[i]; ++c) {
       tau[c] = dot(s[c], F[i]);
       if (Mlam) Mlam[c] = dot(s[c], Z[i]);
       if constexpr (Rest) {
         g_q[c] = dot(cross_motion(ap, s[c]), Z[i]) + dot(L, cross_force(s[c], F[i]));
       } else {
-        const Sv<S> w = cross_motion(vp, s[c]), u = cross_motion(ap, s[c]) + cross_motion(vp, w);
+        const Sv<Scalar> w = cross_motion(vp, s[c]), u = cross_motion(ap, s[c]) + cross_motion(vp, w);
         g_q[c] = dot(u, Z[i]) + dot(w, R[i]) + dot(L, cross_force(s[c], F[i]));
         g_qd[c] = dot(cross_motion(vp + v[i], s[c]), Z[i]) + dot(s[c], R[i]);
       }
@@ -236,36 +236,36 @@ TG_HD void rnea_vjp(const Placements<M, S>& K, const S* qd, const S* qdd, const 
 }
 
 // The gradient along the tangent of lam^T M(q) a (NV): rnea_vjp at rest without gravity.
-template <class M, class S>
-TG_HD void mass_product_vjp(const Placements<M, S>& K, const S* acc, const S* lambda, S* g_q) {
-  S tau[M::NV];
-  rnea_vjp<true, M, S>(K, nullptr, acc, nullptr, lambda, tau, g_q, nullptr);
+template <class Robot, class Scalar>
+TG_HD void mass_product_vjp(const Placements<Robot, Scalar>& K, const Scalar* acc, const Scalar* lambda, Scalar* g_q) {
+  Scalar tau[Robot::NV];
+  rnea_vjp<true, Robot, Scalar>(K, nullptr, acc, nullptr, lambda, tau, g_q, nullptr);
 }
 
 // Coriolis matrix C (NV x NV) with C qd = nonlinear effects - gravity, Pinocchio's factorisation
 // (dM/dt - 2 C skew-symmetric): the pairs above with X = dS/dt = v x S and Y = S / 2. It reads only
 // the velocity terms (velocity_setup, or a derivatives workspace at any qdd and fext).
-template <class M, class S> TG_HD void coriolis_matrix(const VelocityWork<M, S>& W, S* C) {
-  const auto& d = data<M, S>();
-  Sv<S> sdot[M::NV];
-  for (int i = 0; i < M::NB; ++i)
+template <class Robot, class Scalar> TG_HD void coriolis_matrix(const VelocityWork<Robot, Scalar>& W, Scalar* C) {
+  const auto& d = data<Robot, Scalar>();
+  Sv<Scalar> sdot[Robot::NV];
+  for (int i = 0; i < Robot::NB; ++i)
     for (int k = 0; k < d.nvj[i]; ++k) sdot[d.vi[i] + k] = cross_motion(W.v[i], W.s[d.vi[i] + k]);
-  ancestor_pairs<false, true, M, S>(W, sdot, W.s, C);
+  ancestor_pairs<false, true, Robot, Scalar>(W, sdot, W.s, C);
 }
 
 // The linear columns of M of each free joint f (NV x 3 NFREE, row-major, f's at 3f), from W's
 // composite inertias: M[r, c] = S_r^T Yc_i S_c with i the body of dof r, in f's subtree (else 0).
 // All a MuJoCo twin's reframe reads of M.
-template <class M, class S> TG_HD void mass_base_columns(const VelocityWork<M, S>& W, S* Mb) {
-  const auto& d = data<M, S>();
-  constexpr int NB3 = 3 * (M::NFREE > 0 ? M::NFREE : 1);
-  for (int i = 0; i < M::NB; ++i)
+template <class Robot, class Scalar> TG_HD void mass_base_columns(const VelocityWork<Robot, Scalar>& W, Scalar* Mb) {
+  const auto& d = data<Robot, Scalar>();
+  constexpr int NB3 = 3 * (Robot::NFREE > 0 ? Robot::NFREE : 1);
+  for (int i = 0; i < Robot::NB; ++i)
     for (int l = 0; l < d.nvj[i]; ++l) {
       const int r = d.vi[i] + l;
-      const Sv<S> Ys = mul(W.Yc[i], W.s[r]);
-      for (int f = 0; f < M::NFREE; ++f) {
+      const Sv<Scalar> Ys = mul(W.Yc[i], W.s[r]);
+      for (int f = 0; f < Robot::NFREE; ++f) {
         const int j = d.free_joint[f], b = d.vi[j];
-        for (int c = 0; c < 3; ++c) Mb[NB3 * r + 3 * f + c] = r >= b && r < d.vend[j] ? dot(Ys, W.s[b + c]) : S(0);
+        for (int c = 0; c < 3; ++c) Mb[NB3 * r + 3 * f + c] = r >= b && r < d.vend[j] ? dot(Ys, W.s[b + c]) : Scalar(0);
       }
     }
 }

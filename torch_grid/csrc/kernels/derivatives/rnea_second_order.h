@@ -23,22 +23,22 @@ namespace tg {
 
 // Column a's terms against the subtree of its body i, dB assembled once per column (each pair then
 // takes one 6x6 product with it): dB = Bw + [S_a x*] BC - BC [S_a x], Bw = dI(IC, psid_a) + [IC psid_a]f.
-template <class S> struct ColumnTerms {
-  M6<S> D, Bs, dB;
-  Sv<S> ICs, BCTs, f2, f3;
+template <class Scalar> struct ColumnTerms {
+  M6<Scalar> D, Bs, dB;
+  Sv<Scalar> ICs, BCTs, f2, f3;
 };
 
-template <class M, class S> TG_HD ColumnTerms<S> column_terms(const RneaDerivativesWork<M, S>& W, int i, int a) {
-  const Inertia<S>& IC = W.Yc[i];
-  const M6<S>& BC = W.B[i];
-  const Sv<S>& Sa = W.s[a];
-  ColumnTerms<S> t{inertia_rate_matrix(IC, Sa), momentum_rate_matrix(IC, Sa), momentum_rate_matrix(IC, W.w[a]),
+template <class Robot, class Scalar> TG_HD ColumnTerms<Scalar> column_terms(const RneaDerivativesWork<Robot, Scalar>& W, int i, int a) {
+  const Inertia<Scalar>& IC = W.Yc[i];
+  const M6<Scalar>& BC = W.B[i];
+  const Sv<Scalar>& Sa = W.s[a];
+  ColumnTerms<Scalar> t{inertia_rate_matrix(IC, Sa), momentum_rate_matrix(IC, Sa), momentum_rate_matrix(IC, W.w[a]),
                    mul(IC, Sa), mul_transpose(BC, Sa), mul(BC, W.w[a]) + mul(IC, W.u[a]) + cross_force(Sa, W.F[i]),
                    mul(BC, Sa) + mul(IC, W.alpha[a])};
   for (int c = 0; c < 6; ++c) {
-    Sv<S> e = sv_zero<S>();
-    e.v[c] = S(1);
-    const Sv<S> col = cross_force(Sa, mul(BC, e)) - mul(BC, cross_motion(Sa, e));
+    Sv<Scalar> e = sv_zero<Scalar>();
+    e.v[c] = Scalar(1);
+    const Sv<Scalar> col = cross_force(Sa, mul(BC, e)) - mul(BC, cross_motion(Sa, e));
     for (int r = 0; r < 6; ++r) t.dB.m[6 * r + c] += col.v[r];
   }
   return t;
@@ -46,21 +46,21 @@ template <class M, class S> TG_HD ColumnTerms<S> column_terms(const RneaDerivati
 
 // Column b's terms (b in body i or above it) against the subtree of a's body i, named after what
 // they pair with below.
-template <class S> struct PairTerms {
-  Sv<S> dBT_Sb, DT_Sb, BsT_Sb, Sb_ICs, rate_q, rate_qv, rate_vq, rate_qv_above, Bs_Sb, D_Sb, same_body_vv, wb_part;
+template <class Scalar> struct PairTerms {
+  Sv<Scalar> dBT_Sb, DT_Sb, BsT_Sb, Sb_ICs, rate_q, rate_qv, rate_vq, rate_qv_above, Bs_Sb, D_Sb, same_body_vv, wb_part;
 };
 
-template <class M, class S>
-TG_HD PairTerms<S> pair_terms(const RneaDerivativesWork<M, S>& W, const ColumnTerms<S>& A, int i, int a, int b) {
-  const Sv<S>& Sa = W.s[a];
-  const Sv<S>& Sb = W.s[b];
-  const Sv<S>& wb = W.w[b];
-  PairTerms<S> p;
+template <class Robot, class Scalar>
+TG_HD PairTerms<Scalar> pair_terms(const RneaDerivativesWork<Robot, Scalar>& W, const ColumnTerms<Scalar>& A, int i, int a, int b) {
+  const Sv<Scalar>& Sa = W.s[a];
+  const Sv<Scalar>& Sb = W.s[b];
+  const Sv<Scalar>& wb = W.w[b];
+  PairTerms<Scalar> p;
   p.dBT_Sb = mul_transpose(A.dB, Sb);
   p.DT_Sb = mul_transpose(A.D, Sb);
   p.BsT_Sb = mul_transpose(A.Bs, Sb);
   p.Sb_ICs = cross_force(Sb, A.ICs);
-  const Sv<S> Sb_BCTs = cross_force(Sb, A.BCTs);
+  const Sv<Scalar> Sb_BCTs = cross_force(Sb, A.BCTs);
   p.rate_q = mul(A.dB, wb) + mul(A.D, W.u[b]) + cross_force(Sb, A.f2);
   p.rate_qv = cross_force(wb, A.ICs) - mul(A.D, wb) + Sb_BCTs;
   p.rate_vq = mul(A.Bs, wb) + cross_force(Sb, A.f3);
@@ -75,18 +75,18 @@ TG_HD PairTerms<S> pair_terms(const RneaDerivativesWork<M, S>& W, const ColumnTe
 // Eight values that one instruction adds or multiplies on a CPU with 512-bit vectors (GCC's vector
 // extension); a plain array on a GPU thread.
 #if defined(__GNUC__) && !defined(__CUDACC__)
-template <class S> struct Lanes {
-  typedef S V __attribute__((vector_size(8 * sizeof(S))));
+template <class Scalar> struct Lanes {
+  typedef Scalar V __attribute__((vector_size(8 * sizeof(Scalar))));
   V x;
-  TG_HD S operator[](int l) const { return x[l]; }
-  TG_HD void fma(S a, const Lanes& b) { x += a * b.x; }
+  TG_HD Scalar operator[](int l) const { return x[l]; }
+  TG_HD void fma(Scalar a, const Lanes& b) { x += a * b.x; }
   TG_HD void fma(const Lanes& a, const Lanes& b) { x += a.x * b.x; }
 };
 #else
-template <class S> struct Lanes {
-  S x[8];
-  TG_HD S operator[](int l) const { return x[l]; }
-  TG_HD void fma(S a, const Lanes& b) {
+template <class Scalar> struct Lanes {
+  Scalar x[8];
+  TG_HD Scalar operator[](int l) const { return x[l]; }
+  TG_HD void fma(Scalar a, const Lanes& b) {
     for (int l = 0; l < 8; ++l) x[l] += a * b.x[l];
   }
   TG_HD void fma(const Lanes& a, const Lanes& b) {
@@ -94,8 +94,8 @@ template <class S> struct Lanes {
   }
 };
 #endif
-template <class S> TG_HD Lanes<S> lanes(S a, S b, S c, S d, S e, S f, S g, S h) {
-  Lanes<S> L;
+template <class Scalar> TG_HD Lanes<Scalar> lanes(Scalar a, Scalar b, Scalar c, Scalar d, Scalar e, Scalar f, Scalar g, Scalar h) {
+  Lanes<Scalar> L;
   L.x[0] = a, L.x[1] = b, L.x[2] = c, L.x[3] = d, L.x[4] = e, L.x[5] = f, L.x[6] = g, L.x[7] = h;
   return L;
 }
@@ -105,12 +105,12 @@ template <class S> TG_HD Lanes<S> lanes(S a, S b, S c, S d, S e, S f, S g, S h) 
 // rate_qv, rate_vq, Bs_Sb; and two = sum_r mixed_c[r] p2[r], mixed_c[r] = (S, psid x3, psidd x2,
 // alpha x2)[r] of c, with lanes (against S) rate_qv_above, or same_body_vv for a pair in one body,
 // (psid) BsT_Sb, wb_part, dBT_Sb, (psidd) Sb_ICs, DT_Sb, (alpha) DT_Sb, Sb_ICs.
-template <class S> struct PairLanes {
-  Lanes<S> p1[6], p2[6];
+template <class Scalar> struct PairLanes {
+  Lanes<Scalar> p1[6], p2[6];
 };
 
-template <class S> TG_HD void pair_lanes(const PairTerms<S>& P, bool same_body, PairLanes<S>& L) {
-  const Sv<S>& above = same_body ? P.same_body_vv : P.rate_qv_above;
+template <class Scalar> TG_HD void pair_lanes(const PairTerms<Scalar>& P, bool same_body, PairLanes<Scalar>& L) {
+  const Sv<Scalar>& above = same_body ? P.same_body_vv : P.rate_qv_above;
   for (int r = 0; r < 6; ++r) {
     L.p1[r] = lanes(P.BsT_Sb.v[r], P.D_Sb.v[r], P.dBT_Sb.v[r], P.rate_q.v[r], P.Sb_ICs.v[r], P.rate_qv.v[r],
                     P.rate_vq.v[r], P.Bs_Sb.v[r]);
@@ -124,8 +124,8 @@ enum SecondOrderTensor : int { D2Q = 0, D2V = 1, DQDV = 2, DADQ = 3 };
 
 // Visits every non-zero entry of the four tensors at the (q, qd, qdd, fext) W was set up at, once
 // each: put(tensor, i, j, k, value). Entries of columns on different branches are zero.
-template <class M, class S, class Put> TG_HD void rnea_second_order_visit(const RneaDerivativesWork<M, S>& W, Put&& put) {
-  const auto& d = data<M, S>();
+template <class Robot, class Scalar, class Put> TG_HD void rnea_second_order_visit(const RneaDerivativesWork<Robot, Scalar>& W, Put&& put) {
+  const auto& d = data<Robot, Scalar>();
   // column c's row r in the lanes of PairLanes::p2: a table on the CPU, built as met on a GPU thread
   const auto column_lanes = [&W](int c, int r) {
     return lanes(W.s[c].v[r], W.w[c].v[r], W.w[c].v[r], W.w[c].v[r], W.u[c].v[r], W.u[c].v[r], W.alpha[c].v[r],
@@ -134,31 +134,31 @@ template <class M, class S, class Put> TG_HD void rnea_second_order_visit(const 
 #ifdef __CUDA_ARCH__
   const auto mixed = column_lanes;
 #else
-  Lanes<S> table[M::NV][6];
-  for (int c = 0; c < M::NV; ++c)
+  Lanes<Scalar> table[Robot::NV][6];
+  for (int c = 0; c < Robot::NV; ++c)
     for (int r = 0; r < 6; ++r) table[c][r] = column_lanes(c, r);
-  const auto mixed = [&table](int c, int r) -> const Lanes<S>& { return table[c][r]; };
+  const auto mixed = [&table](int c, int r) -> const Lanes<Scalar>& { return table[c][r]; };
 #endif
-  for (int i = 0; i < M::NB; ++i)
+  for (int i = 0; i < Robot::NB; ++i)
     for (int a = d.vi[i]; a < d.vi[i] + d.nvj[i]; ++a) {
-      const ColumnTerms<S> A = column_terms<M, S>(W, i, a);
+      const ColumnTerms<Scalar> A = column_terms<Robot, Scalar>(W, i, a);
       for (int j = i; j >= 0; j = d.parent[j])
         for (int b = d.vi[j]; b < d.vi[j] + d.nvj[j]; ++b) {
-          const PairTerms<S> P = pair_terms<M, S>(W, A, i, a, b);
-          PairLanes<S> L;
+          const PairTerms<Scalar> P = pair_terms<Robot, Scalar>(W, A, i, a, b);
+          PairLanes<Scalar> L;
           pair_lanes(P, j == i, L);
           for (int k = j; k >= 0; k = d.parent[k])
             for (int c = d.vi[k]; c < d.vi[k] + d.nvj[k]; ++c) {
-              Lanes<S> one = lanes<S>(0, 0, 0, 0, 0, 0, 0, 0), two = one;
+              Lanes<Scalar> one = lanes<Scalar>(0, 0, 0, 0, 0, 0, 0, 0), two = one;
               for (int r = 0; r < 6; ++r) {
                 one.fma(W.s[c].v[r], L.p1[r]);
                 two.fma(mixed(c, r), L.p2[r]);
               }
-              const S p1 = two[1], p2 = two[4] + two[2];
+              const Scalar p1 = two[1], p2 = two[4] + two[2];
               put(D2Q, a, b, c, p2);
               put(DQDV, a, c, b, -p1);
               if (j != i) {
-                const S q2 = two[3] + two[5];
+                const Scalar q2 = two[3] + two[5];
                 put(D2Q, b, c, a, q2);
                 put(D2Q, b, a, c, q2);
                 put(DQDV, b, c, a, p1);
@@ -195,24 +195,24 @@ template <class M, class S, class Put> TG_HD void rnea_second_order_visit(const 
 
 // The four NV x NV x NV tensors (row-major, [i][j][k] at NV (NV i + j) + k); the entries off the
 // visit's fixed pattern zeroed unless they hold zeros already.
-template <class M, class S>
-TG_HD void rnea_second_order(const RneaDerivativesWork<M, S>& W, S* d2q, S* d2v, S* dqdv, S* dadq, bool zeroed) {
-  constexpr int NV = M::NV;
+template <class Robot, class Scalar>
+TG_HD void rnea_second_order(const RneaDerivativesWork<Robot, Scalar>& W, Scalar* d2q, Scalar* d2v, Scalar* dqdv, Scalar* dadq, bool zeroed) {
+  constexpr int NV = Robot::NV;
   if (!zeroed)
-    for (int n = 0; n < NV * NV * NV; ++n) d2q[n] = d2v[n] = dqdv[n] = dadq[n] = S(0);
-  S* const T[4] = {d2q, d2v, dqdv, dadq};
-  rnea_second_order_visit<M, S>(W, [&](int t, int i, int j, int k, S v) { T[t][NV * (NV * i + j) + k] = v; });
+    for (int n = 0; n < NV * NV * NV; ++n) d2q[n] = d2v[n] = dqdv[n] = dadq[n] = Scalar(0);
+  Scalar* const T[4] = {d2q, d2v, dqdv, dadq};
+  rnea_second_order_visit<Robot, Scalar>(W, [&](int t, int i, int j, int k, Scalar v) { T[t][NV * (NV * i + j) + k] = v; });
 }
 
 // The derivatives of dtau/dq, dtau/dqd and M (NV x NV each) along tangents tq (of q, along its
 // tangent space), tqd and tqdd: each entry of the visit above times its direction's tangent. Mixed
 // partials commute: d/dq_j (dtau_i/dqd_k) = dqdv[i][j][k], d/dqdd_j (dtau_i/dq_k) = dM_dq[i][j][k].
-template <class M, class S>
-TG_HD void rnea_second_order_tangent(const RneaDerivativesWork<M, S>& W, const S* tq, const S* tqd, const S* tqdd, S* dA,
-                                     S* dB, S* dM) {
-  constexpr int NV = M::NV;
-  for (int n = 0; n < NV * NV; ++n) dA[n] = dB[n] = dM[n] = S(0);
-  rnea_second_order_visit<M, S>(W, [&](int t, int i, int j, int k, S v) {
+template <class Robot, class Scalar>
+TG_HD void rnea_second_order_tangent(const RneaDerivativesWork<Robot, Scalar>& W, const Scalar* tq, const Scalar* tqd, const Scalar* tqdd, Scalar* dA,
+                                     Scalar* dB, Scalar* dM) {
+  constexpr int NV = Robot::NV;
+  for (int n = 0; n < NV * NV; ++n) dA[n] = dB[n] = dM[n] = Scalar(0);
+  rnea_second_order_visit<Robot, Scalar>(W, [&](int t, int i, int j, int k, Scalar v) {
     if (t == D2Q) {
       dA[NV * i + j] += tq[k] * v;
     } else if (t == D2V) {
@@ -240,20 +240,20 @@ TG_HD void rnea_second_order_tangent(const RneaDerivativesWork<M, S>& W, const S
 // the sum over j of d/dq_j of body b's velocity J_b lam_j, which turns only with the columns of lam_j
 // above j's joint: X_b^-1 sum over the columns j at or above b of S_j x Y_j, Y_j = sum of Gq[c][j] S_c
 // over the columns c strictly above j's joint (gf: NB x 6, in each body's frame, as f_ext).
-template <class M, class S>
-TG_HD void rnea_second_order_contract(const RneaDerivativesWork<M, S>& W, const S* Gq, const S* Gv, S* gq, S* gqd,
-                                      S* gqdd, S* gf) {
-  const auto& d = data<M, S>();
-  constexpr int NV = M::NV, NB = M::NB;
+template <class Robot, class Scalar>
+TG_HD void rnea_second_order_contract(const RneaDerivativesWork<Robot, Scalar>& W, const Scalar* Gq, const Scalar* Gv, Scalar* gq, Scalar* gqd,
+                                      Scalar* gqdd, Scalar* gf) {
+  const auto& d = data<Robot, Scalar>();
+  constexpr int NV = Robot::NV, NB = Robot::NB;
   const auto gq_ = [&](int r, int c) { return Gq[NV * r + c]; };
   const auto gv_ = [&](int r, int c) { return Gv[NV * r + c]; };
-  for (int n = 0; n < NV; ++n) gq[n] = gqd[n] = gqdd[n] = S(0);
+  for (int n = 0; n < NV; ++n) gq[n] = gqd[n] = gqdd[n] = Scalar(0);
   // Per column b: Gq[b][c] psid_c, Gq[b][c] psidd_c, Gv[b][c] S_c, Gv[b][c] alpha_c over c at or above
   // b's body; Gq[c][b] S_c, Gv[c][b] S_c over c strictly above it.
-  Sv<S> bw[NV], bu[NV], bS[NV], bal[NV], cqS[NV], cvS[NV];
+  Sv<Scalar> bw[NV], bu[NV], bS[NV], bal[NV], cqS[NV], cvS[NV];
   for (int j = 0; j < NB; ++j)
     for (int b = d.vi[j]; b < d.vi[j] + d.nvj[j]; ++b) {
-      bw[b] = bu[b] = bS[b] = bal[b] = cqS[b] = cvS[b] = sv_zero<S>();
+      bw[b] = bu[b] = bS[b] = bal[b] = cqS[b] = cvS[b] = sv_zero<Scalar>();
       for (int k = j; k >= 0; k = d.parent[k])
         for (int c = d.vi[k]; c < d.vi[k] + d.nvj[k]; ++c) {
           bw[b] = bw[b] + gq_(b, c) * W.w[c];
@@ -268,14 +268,14 @@ TG_HD void rnea_second_order_contract(const RneaDerivativesWork<M, S>& W, const 
     }
   // Per body j, the vectors that c's psidd, psid (into gq[c]), S, alpha (into gqd[c]) and S (into
   // gqdd[c]) meet, for c at or above j ("all"), strictly above ("above") or in j ("same").
-  Sv<S> Pu[NB], Pw[NB], PS[NB], Pal[NB], PSa[NB], Pala[NB], PSs[NB], QS[NB], QSa[NB];
-  for (int j = 0; j < NB; ++j) Pu[j] = Pw[j] = PS[j] = Pal[j] = PSa[j] = Pala[j] = PSs[j] = QS[j] = QSa[j] = sv_zero<S>();
+  Sv<Scalar> Pu[NB], Pw[NB], PS[NB], Pal[NB], PSa[NB], Pala[NB], PSs[NB], QS[NB], QSa[NB];
+  for (int j = 0; j < NB; ++j) Pu[j] = Pw[j] = PS[j] = Pal[j] = PSa[j] = Pala[j] = PSs[j] = QS[j] = QSa[j] = sv_zero<Scalar>();
   for (int i = 0; i < NB; ++i)
     for (int a = d.vi[i]; a < d.vi[i] + d.nvj[i]; ++a) {
-      const ColumnTerms<S> A = column_terms<M, S>(W, i, a);
+      const ColumnTerms<Scalar> A = column_terms<Robot, Scalar>(W, i, a);
       // a's sums over the columns at or above j, as j climbs from i: Gq[a][c] psid_c, Gq[a][c] psidd_c,
       // Gv[a][c] S_c, Gv[a][c] alpha_c, Gq[c][a] S_c, Gv[c][a] S_c
-      Sv<S> aw = sv_zero<S>(), au = aw, avS = aw, aval = aw, aqS = aw, acvS = aw;
+      Sv<Scalar> aw = sv_zero<Scalar>(), au = aw, avS = aw, aval = aw, aqS = aw, acvS = aw;
       for (int k = i; k >= 0; k = d.parent[k])
         for (int c = d.vi[k]; c < d.vi[k] + d.nvj[k]; ++c) {
           aw = aw + gq_(a, c) * W.w[c];
@@ -287,7 +287,7 @@ TG_HD void rnea_second_order_contract(const RneaDerivativesWork<M, S>& W, const 
         }
       for (int j = i; j >= 0; j = d.parent[j]) {
         // the same strictly above j
-        Sv<S> sw = aw, su = au, svS = avS, sval = aval, sqS = aqS, scvS = acvS;
+        Sv<Scalar> sw = aw, su = au, svS = avS, sval = aval, sqS = aqS, scvS = acvS;
         for (int c = d.vi[j]; c < d.vi[j] + d.nvj[j]; ++c) {
           sw = sw - gq_(a, c) * W.w[c];
           su = su - gq_(a, c) * W.u[c];
@@ -298,8 +298,8 @@ TG_HD void rnea_second_order_contract(const RneaDerivativesWork<M, S>& W, const 
         }
         const bool below = j != i;
         for (int b = d.vi[j]; b < d.vi[j] + d.nvj[j]; ++b) {
-          const PairTerms<S> P = pair_terms<M, S>(W, A, i, a, b);
-          const S qab = gq_(a, b), qba = gq_(b, a), vab = gv_(a, b), vba = gv_(b, a);
+          const PairTerms<Scalar> P = pair_terms<Robot, Scalar>(W, A, i, a, b);
+          const Scalar qab = gq_(a, b), qba = gq_(b, a), vab = gv_(a, b), vba = gv_(b, a);
           // entries whose gradient index is a or b
           gqd[b] += -dot(P.BsT_Sb, aw);
           gq[b] += dot(P.Sb_ICs, su) + dot(P.wb_part, sw) + dot(P.rate_q, sqS) + dot(P.rate_qv, svS) +
@@ -341,8 +341,8 @@ TG_HD void rnea_second_order_contract(const RneaDerivativesWork<M, S>& W, const 
     }
   // Up from the leaves: "all" vectors summed over the bodies at or below each body, "above" ones over
   // those strictly below; then each column meets its body's sums.
-  Sv<S> Ba[NB], Bb[NB], Bq[NB];  // strictly below: PSa, Pala, QSa
-  for (int k = 0; k < NB; ++k) Ba[k] = Bb[k] = Bq[k] = sv_zero<S>();
+  Sv<Scalar> Ba[NB], Bb[NB], Bq[NB];  // strictly below: PSa, Pala, QSa
+  for (int k = 0; k < NB; ++k) Ba[k] = Bb[k] = Bq[k] = sv_zero<Scalar>();
   for (int k = NB - 1; k >= 0; --k) {
     for (int c = d.vi[k]; c < d.vi[k] + d.nvj[k]; ++c) {
       gq[c] += dot(Pu[k], W.u[c]) + dot(Pw[k], W.w[c]);
@@ -362,16 +362,16 @@ TG_HD void rnea_second_order_contract(const RneaDerivativesWork<M, S>& W, const 
     }
   }
   // f_ext: Z_b = sum of S_j x Y_j over the columns at or above b, down the tree
-  Sv<S> Z[NB];
+  Sv<Scalar> Z[NB];
   for (int i = 0; i < NB; ++i) {
-    Z[i] = d.parent[i] >= 0 ? Z[d.parent[i]] : sv_zero<S>();
+    Z[i] = d.parent[i] >= 0 ? Z[d.parent[i]] : sv_zero<Scalar>();
     for (int j = d.vi[i]; j < d.vi[i] + d.nvj[i]; ++j) {
-      Sv<S> Y = sv_zero<S>();
+      Sv<Scalar> Y = sv_zero<Scalar>();
       for (int k = d.parent[i]; k >= 0; k = d.parent[k])
         for (int c = d.vi[k]; c < d.vi[k] + d.nvj[k]; ++c) Y = Y + gq_(c, j) * W.s[c];
       Z[i] = Z[i] + cross_motion(W.s[j], Y);
     }
-    const Sv<S> z = actinv_motion(W.oMi[i], Z[i]);
+    const Sv<Scalar> z = actinv_motion(W.oMi[i], Z[i]);
     for (int r = 0; r < 6; ++r) gf[6 * i + r] = z.v[r];
   }
 }

@@ -10,17 +10,17 @@
 namespace tg {
 
 // In place: D on the diagonal, L strictly below it.
-template <class M, class S> TG_HD void ltdl_factor(S* H) {
-  const auto& d = data<M, S>();
-  constexpr int NV = M::NV;
+template <class Robot, class Scalar> TG_HD void ltdl_factor(Scalar* H) {
+  const auto& d = data<Robot, Scalar>();
+  constexpr int NV = Robot::NV;
   for (int k = NV - 1; k >= 0; --k) {
-    const S* Hk = H + NV * k;
-    const S inv = S(1) / Hk[k];
+    const Scalar* Hk = H + NV * k;
+    const Scalar inv = Scalar(1) / Hk[k];
     for (const int i : d.dof_ancestors[k]) {
       if (i < 0) break;
       // eliminate (k, i): row i loses L_ki times row k
-      const S a = Hk[i] * inv;
-      S* Hi = H + NV * i;
+      const Scalar a = Hk[i] * inv;
+      Scalar* Hi = H + NV * i;
       for (int j = 0; j <= i; ++j) Hi[j] -= a * Hk[j];
       H[NV * k + i] = a;
     }
@@ -29,15 +29,15 @@ template <class M, class S> TG_HD void ltdl_factor(S* H) {
 
 // x := M^-1 x from ltdl_factor's H: L^T z = x (leaves up), z / D, then L y = z (root down); L's zeros
 // make the dense triangular loops exact.
-template <class M, class S> TG_HD void ltdl_solve(const S* H, S* x) {
-  constexpr int NV = M::NV;
+template <class Robot, class Scalar> TG_HD void ltdl_solve(const Scalar* H, Scalar* x) {
+  constexpr int NV = Robot::NV;
   for (int i = NV - 1; i > 0; --i) {
-    const S xi = x[i];
+    const Scalar xi = x[i];
     for (int j = 0; j < i; ++j) x[j] -= H[NV * i + j] * xi;
   }
   for (int i = 0; i < NV; ++i) x[i] /= H[NV * i + i];
   for (int i = 1; i < NV; ++i) {
-    S s = S(0);
+    Scalar s = Scalar(0);
     for (int j = 0; j < i; ++j) s += H[NV * i + j] * x[j];
     x[i] -= s;
   }
@@ -48,12 +48,12 @@ template <class M, class S> TG_HD void ltdl_solve(const S* H, S* x) {
 // each FMA then has a dozen independent others beside it, where a few columns at a time would wait on the
 // one before. A GPU thread updates x in place.
 #if defined(__GNUC__) && !defined(__CUDACC__)
-template <int XS, int COLS, class S>
-inline void less_rows(int n, const int* ks, const S* c, const S* X, S* x, S a = S(1), S* t = nullptr) {
-  typedef S V __attribute__((vector_size(8 * sizeof(S))));
+template <int XS, int COLS, class Scalar>
+inline void less_rows(int n, const int* ks, const Scalar* c, const Scalar* X, Scalar* x, Scalar a = Scalar(1), Scalar* t = nullptr) {
+  typedef Scalar V __attribute__((vector_size(8 * sizeof(Scalar))));
   constexpr int NL = COLS / 8, T = COLS % 8;
   V acc[NL > 0 ? NL : 1];
-  S tail[T > 0 ? T : 1];
+  Scalar tail[T > 0 ? T : 1];
 #pragma GCC unroll 16
   for (int l = 0; l < NL; ++l) {
     __builtin_memcpy(&acc[l], x + 8 * l, sizeof(V));
@@ -61,8 +61,8 @@ inline void less_rows(int n, const int* ks, const S* c, const S* X, S* x, S a = 
   }
   for (int e = 0; e < T; ++e) tail[e] = a * x[8 * NL + e];
   for (int m = 0; m < n; ++m) {
-    const S cm = c[m];
-    const S* xr = X + XS * ks[m];
+    const Scalar cm = c[m];
+    const Scalar* xr = X + XS * ks[m];
 #pragma GCC unroll 16
     for (int l = 0; l < NL; ++l) {
       V y;
@@ -87,12 +87,12 @@ inline void less_rows(int n, const int* ks, const S* c, const S* X, S* x, S a = 
 }
 constexpr int kSolveCols = 128;
 #else
-template <int XS, int COLS, class S>
-TG_HD void less_rows(int n, const int* ks, const S* c, const S* X, S* x, S a = S(1), S* t = nullptr) {
+template <int XS, int COLS, class Scalar>
+TG_HD void less_rows(int n, const int* ks, const Scalar* c, const Scalar* X, Scalar* x, Scalar a = Scalar(1), Scalar* t = nullptr) {
   for (int e = 0; e < COLS; ++e) x[e] *= a;
   for (int m = 0; m < n; ++m) {
-    const S cm = c[m];
-    const S* xr = X + XS * ks[m];
+    const Scalar cm = c[m];
+    const Scalar* xr = X + XS * ks[m];
     for (int e = 0; e < COLS; ++e) x[e] -= cm * xr[e];
   }
   if (t)
@@ -105,11 +105,11 @@ constexpr int kSolveCols = 16;
 // from the leaves (row j less L_ij times each row i below it, [j + 1, dof_end)), then Y = D^-1 Z - L Y from
 // the root (row i less L_ij times each row j among its ancestors); each row of Y also added to T's (of X's
 // layout) if given.
-template <class M, int COLS, int W, class S> TG_HD void ltdl_solve_columns(const S* H, S* X, int c0, S* T = nullptr) {
-  const auto& d = data<M, S>();
-  constexpr int NV = M::NV;
+template <class Robot, int COLS, int W, class Scalar> TG_HD void ltdl_solve_columns(const Scalar* H, Scalar* X, int c0, Scalar* T = nullptr) {
+  const auto& d = data<Robot, Scalar>();
+  constexpr int NV = Robot::NV;
   int ks[NV];
-  S L[NV];
+  Scalar L[NV];
   for (int j = NV - 1; j >= 0; --j) {
     int n = 0;
     for (int i = j + 1; i < d.dof_end[j]; ++i) ks[n] = i, L[n++] = H[NV * i + j];
@@ -121,16 +121,16 @@ template <class M, int COLS, int W, class S> TG_HD void ltdl_solve_columns(const
       if (j < 0) break;
       ks[n] = j, L[n++] = H[NV * i + j];
     }
-    less_rows<COLS, W>(n, ks, L, X + c0, X + COLS * i + c0, S(1) / H[NV * i + i], T ? T + COLS * i + c0 : nullptr);
+    less_rows<COLS, W>(n, ks, L, X + c0, X + COLS * i + c0, Scalar(1) / H[NV * i + i], T ? T + COLS * i + c0 : nullptr);
   }
 }
 
 // X := M^-1 X for NV x COLS X (row-major), at most as many columns at a time as a CPU core's registers hold;
 // the result also added to T's (of X's layout) if given.
-template <class M, int COLS, class S> TG_HD void ltdl_solve_rows(const S* H, S* X, S* T = nullptr) {
+template <class Robot, int COLS, class Scalar> TG_HD void ltdl_solve_rows(const Scalar* H, Scalar* X, Scalar* T = nullptr) {
   constexpr int W = kSolveCols, RC = COLS % W;
-  for (int c0 = 0; c0 < COLS - RC; c0 += W) ltdl_solve_columns<M, COLS, W>(H, X, c0, T);
-  if constexpr (RC > 0) ltdl_solve_columns<M, COLS, RC>(H, X, COLS - RC, T);
+  for (int c0 = 0; c0 < COLS - RC; c0 += W) ltdl_solve_columns<Robot, COLS, W>(H, X, c0, T);
+  if constexpr (RC > 0) ltdl_solve_columns<Robot, COLS, RC>(H, X, COLS - RC, T);
 }
 
 }  // namespace tg

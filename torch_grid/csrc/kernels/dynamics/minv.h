@@ -14,45 +14,45 @@
 
 namespace tg {
 
-template <class M, class S> struct MinvWork {
-  static constexpr int NV = M::NV;
-  const Placements<M, S>* K;  // the placements pass
-  M6<S> IA[M::NB];  // articulated inertias, about joint i's origin
+template <class Robot, class Scalar> struct MinvWork {
+  static constexpr int NV = Robot::NV;
+  const Placements<Robot, Scalar>* K;  // the placements pass
+  M6<Scalar> IA[Robot::NB];  // articulated inertias, about joint i's origin
   // Per dof (joint i's k-th at vi + k): its axis and U = IA S about the root's origin, and row k of
   // (S^T U)^-1 (N x N): per dof rather than per body, so a free root's six do not size every body.
-  Sv<S> Sw[NV], Uw[NV];
-  S Dinv[NV][6];
-  Sv<S> F[NV];  // F[col]: force on the subtree owning col per unit torque at col, about the root's origin
-  Sv<S> A[Levels<M>::N][NV];  // A[body][col]: its acceleration per unit torque at col, likewise (Levels)
+  Sv<Scalar> Sw[NV], Uw[NV];
+  Scalar Dinv[NV][6];
+  Sv<Scalar> F[NV];  // F[col]: force on the subtree owning col per unit torque at col, about the root's origin
+  Sv<Scalar> A[Levels<Robot>::N][NV];  // A[body][col]: its acceleration per unit torque at col, likewise (Levels)
 };
 
 // Backward step of body i: U, Dinv, the subtree block of rows i of Minv, and IA passed to the
 // parent.
-template <int N, class M, class S> TG_HD void minv_backward(int i, MinvWork<M, S>& w, S* Minv) {
-  const auto& d = data<M, S>();
-  constexpr int NV = M::NV;
+template <int N, class Robot, class Scalar> TG_HD void minv_backward(int i, MinvWork<Robot, Scalar>& w, Scalar* Minv) {
+  const auto& d = data<Robot, Scalar>();
+  constexpr int NV = Robot::NV;
   const int vi = d.vi[i], p = d.parent[i];
-  const SE3<S> X{w.K->oMi[i].R, w.K->oMi[i].p - w.K->oMi[0].p};  // joint i seen from the root's origin
-  Sv<S> U[N];  // about joint i's origin
-  S D[N * N], Dinv[N * N];
+  const SE3<Scalar> X{w.K->oMi[i].R, w.K->oMi[i].p - w.K->oMi[0].p};  // joint i seen from the root's origin
+  Sv<Scalar> U[N];  // about joint i's origin
+  Scalar D[N * N], Dinv[N * N];
   for (int k = 0; k < N; ++k) {
-    const Sv<S> s = joint_axis<M, S>(i, k);
+    const Sv<Scalar> s = joint_axis<Robot, Scalar>(i, k);
     U[k] = mul(w.IA[i], sv(mul(X.R, lin(s)), mul(X.R, ang(s))));
     w.Sw[vi + k] = act_motion(X, s);
-    w.Uw[vi + k] = at_point(U[k], S(-1) * X.p);
+    w.Uw[vi + k] = at_point(U[k], Scalar(-1) * X.p);
   }
   // D = S^T U + armature: a motion-force pairing, the same about any point.
   for (int r = 0; r < N; ++r)
-    for (int k = 0; k < N; ++k) D[N * r + k] = dot(w.Sw[vi + r], w.Uw[vi + k]) + (r == k ? S(d.armature[vi + r]) : S(0));
+    for (int k = 0; k < N; ++k) D[N * r + k] = dot(w.Sw[vi + r], w.Uw[vi + k]) + (r == k ? Scalar(d.armature[vi + r]) : Scalar(0));
   spd_inverse(N, D, Dinv);
   for (int r = 0; r < N; ++r)
     for (int k = 0; k < N; ++k) w.Dinv[vi + r][k] = Dinv[N * r + k];
   // T = Dinv (e_col - S^T F[:, col]) becomes rows i of Minv; F[:, col] += U T.
   for (int col = vi; col < d.vend[i]; ++col) {
-    S rhs[N];
-    for (int r = 0; r < N; ++r) rhs[r] = (col == vi + r ? S(1) : S(0)) - dot(w.Sw[vi + r], w.F[col]);
+    Scalar rhs[N];
+    for (int r = 0; r < N; ++r) rhs[r] = (col == vi + r ? Scalar(1) : Scalar(0)) - dot(w.Sw[vi + r], w.F[col]);
     for (int r = 0; r < N; ++r) {
-      S T = 0;
+      Scalar T = 0;
       for (int k = 0; k < N; ++k) T += Dinv[N * r + k] * rhs[k];
       Minv[NV * (vi + r) + col] = T;
       if (p >= 0) w.F[col] = w.F[col] + T * w.Uw[vi + r];  // a root passes nothing on
@@ -60,30 +60,30 @@ template <int N, class M, class S> TG_HD void minv_backward(int i, MinvWork<M, S
   }
   if (p < 0) return;
   // IA_parent += IA - U Dinv U^T, about the parent's origin.
-  M6<S> Ia = w.IA[i];
+  M6<Scalar> Ia = w.IA[i];
   for (int k = 0; k < N; ++k) {
-    Sv<S> UD = sv_zero<S>();
+    Sv<Scalar> UD = sv_zero<Scalar>();
     for (int l = 0; l < N; ++l) UD = UD + Dinv[N * l + k] * U[l];
     for (int r = 0; r < 6; ++r)
       for (int c = 0; c < 6; ++c) Ia.m[6 * r + c] -= U[k].v[r] * UD.v[c];
   }
-  const M6<S> Ip = shift(Ia, w.K->oMi[i].p - w.K->oMi[p].p);
+  const M6<Scalar> Ip = shift(Ia, w.K->oMi[i].p - w.K->oMi[p].p);
   for (int k = 0; k < 36; ++k) w.IA[p].m[k] += Ip.m[k];
 }
 
 // Forward step of body i on the upper triangle: Minv_i -= Dinv U^T A_parent, A_i = A_parent + S Minv_i.
-template <int N, class M, class S> TG_HD void minv_forward(int i, MinvWork<M, S>& w, S* Minv) {
-  const auto& d = data<M, S>();
-  constexpr int NV = M::NV;
-  using L = Levels<M>;
+template <int N, class Robot, class Scalar> TG_HD void minv_forward(int i, MinvWork<Robot, Scalar>& w, Scalar* Minv) {
+  const auto& d = data<Robot, Scalar>();
+  constexpr int NV = Robot::NV;
+  using L = Levels<Robot>;
   const int vi = d.vi[i], p = d.parent[i], l = L::of(d, i), lp = L::parent(d, i);
   for (int col = vi; col < NV; ++col) {
-    S x[N];
+    Scalar x[N];
     for (int r = 0; r < N; ++r) x[r] = Minv[NV * (vi + r) + col];
-    Sv<S> a = sv_zero<S>();
+    Sv<Scalar> a = sv_zero<Scalar>();
     if (p >= 0) {
       a = w.A[lp][col];
-      S UtA[N];
+      Scalar UtA[N];
       for (int k = 0; k < N; ++k) UtA[k] = dot(w.Uw[vi + k], a);
       for (int r = 0; r < N; ++r)
         for (int k = 0; k < N; ++k) x[r] -= w.Dinv[vi + r][k] * UtA[k];
@@ -96,31 +96,31 @@ template <int N, class M, class S> TG_HD void minv_forward(int i, MinvWork<M, S>
   }
 }
 
-template <class M, class S> TG_HD void minv(const Placements<M, S>& K, S* Minv) {
-  const auto& d = data<M, S>();
-  MinvWork<M, S> w;
+template <class Robot, class Scalar> TG_HD void minv(const Placements<Robot, Scalar>& K, Scalar* Minv) {
+  const auto& d = data<Robot, Scalar>();
+  MinvWork<Robot, Scalar> w;
   w.K = &K;
-  for (int i = 0; i < M::NB; ++i) w.IA[i] = to_matrix(rotate(K.oMi[i].R, body_inertia<M, S>(i)));
-  for (int col = 0; col < M::NV; ++col) w.F[col] = sv_zero<S>();
-  for (int k = 0; k < M::NV * M::NV; ++k) Minv[k] = S(0);
-  for (int i = M::NB - 1; i >= 0; --i) {
+  for (int i = 0; i < Robot::NB; ++i) w.IA[i] = to_matrix(rotate(K.oMi[i].R, body_inertia<Robot, Scalar>(i)));
+  for (int col = 0; col < Robot::NV; ++col) w.F[col] = sv_zero<Scalar>();
+  for (int k = 0; k < Robot::NV * Robot::NV; ++k) Minv[k] = Scalar(0);
+  for (int i = Robot::NB - 1; i >= 0; --i) {
     if (d.nvj[i] == 6) minv_backward<6>(i, w, Minv);
     else if (d.nvj[i] == 1) minv_backward<1>(i, w, Minv);
-    else if constexpr (M::BALLS) minv_backward<3>(i, w, Minv);
+    else if constexpr (Robot::BALLS) minv_backward<3>(i, w, Minv);
   }
-  for (int i = 0; i < M::NB; ++i) {
+  for (int i = 0; i < Robot::NB; ++i) {
     if (d.nvj[i] == 6) minv_forward<6>(i, w, Minv);
     else if (d.nvj[i] == 1) minv_forward<1>(i, w, Minv);
-    else if constexpr (M::BALLS) minv_forward<3>(i, w, Minv);
+    else if constexpr (Robot::BALLS) minv_forward<3>(i, w, Minv);
   }
   // Mirror the upper triangle.
-  for (int r = 0; r < M::NV; ++r)
-    for (int c = 0; c < r; ++c) Minv[M::NV * r + c] = Minv[M::NV * c + r];
+  for (int r = 0; r < Robot::NV; ++r)
+    for (int c = 0; c < r; ++c) Minv[Robot::NV * r + c] = Minv[Robot::NV * c + r];
 }
 
-template <class M, class S> TG_HD void minv(const S* q, S* Minv) {
-  const Placements<M, S> K(q);
-  minv<M, S>(K, Minv);
+template <class Robot, class Scalar> TG_HD void minv(const Scalar* q, Scalar* Minv) {
+  const Placements<Robot, Scalar> K(q);
+  minv<Robot, Scalar>(K, Minv);
 }
 
 }  // namespace tg

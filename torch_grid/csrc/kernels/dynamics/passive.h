@@ -10,30 +10,30 @@
 namespace tg {
 
 // tau += p(q, qd); q in Pinocchio's layout (a 1-dof joint's coordinate sits at the same index in both).
-template <class M, class S> TG_HD void add_passive(const S* q, const S* qd, S* tau) {
-  const auto& d = data<M, S>();
-  for (int k = 0; k < M::NV; ++k) {
-    tau[k] -= S(d.damping[k]) * qd[k];
-    if (d.dof_qi[k] >= 0) tau[k] -= S(d.stiffness[k]) * (q[d.dof_qi[k]] - S(d.springref[k]));
+template <class Robot, class Scalar> TG_HD void add_passive(const Scalar* q, const Scalar* qd, Scalar* tau) {
+  const auto& d = data<Robot, Scalar>();
+  for (int k = 0; k < Robot::NV; ++k) {
+    tau[k] -= Scalar(d.damping[k]) * qd[k];
+    if (d.dof_qi[k] >= 0) tau[k] -= Scalar(d.stiffness[k]) * (q[d.dof_qi[k]] - Scalar(d.springref[k]));
   }
 }
 
 // The inverse-dynamics derivatives of ID(q, qd, qdd) - p: Dq += K, Dv += D on the diagonals (NV x NV).
-template <class M, class S> TG_HD void add_passive_diagonals(S* Dq, S* Dv) {
-  const auto& d = data<M, S>();
-  for (int k = 0; k < M::NV; ++k) {
-    Dq[(M::NV + 1) * k] += S(d.stiffness[k]);
-    Dv[(M::NV + 1) * k] += S(d.damping[k]);
+template <class Robot, class Scalar> TG_HD void add_passive_diagonals(Scalar* Dq, Scalar* Dv) {
+  const auto& d = data<Robot, Scalar>();
+  for (int k = 0; k < Robot::NV; ++k) {
+    Dq[(Robot::NV + 1) * k] += Scalar(d.stiffness[k]);
+    Dv[(Robot::NV + 1) * k] += Scalar(d.damping[k]);
   }
 }
 
 // The forward-dynamics derivatives of FD(q, qd, tau + p): dq -= M^-1 K, dqd -= M^-1 D (column scalings).
-template <class M, class S> TG_HD void add_passive_columns(const S* Minv, S* dq, S* dqd) {
-  const auto& d = data<M, S>();
-  for (int r = 0; r < M::NV; ++r)
-    for (int c = 0; c < M::NV; ++c) {
-      dq[M::NV * r + c] -= Minv[M::NV * r + c] * S(d.stiffness[c]);
-      dqd[M::NV * r + c] -= Minv[M::NV * r + c] * S(d.damping[c]);
+template <class Robot, class Scalar> TG_HD void add_passive_columns(const Scalar* Minv, Scalar* dq, Scalar* dqd) {
+  const auto& d = data<Robot, Scalar>();
+  for (int r = 0; r < Robot::NV; ++r)
+    for (int c = 0; c < Robot::NV; ++c) {
+      dq[Robot::NV * r + c] -= Minv[Robot::NV * r + c] * Scalar(d.stiffness[c]);
+      dqd[Robot::NV * r + c] -= Minv[Robot::NV * r + c] * Scalar(d.damping[c]);
     }
 }
 

@@ -36,18 +36,18 @@ struct AllColumns {
 // K x RB), X_t K x CB (row stride XS), the inner index k = ks[0..K); ADD adds to out, otherwise overwrites
 // it. The weights scale the block between terms, w_0 S_0 + w_1 S_1 = w_1 (S_1 + (w_0 / w_1) S_0), not each
 // product (nonzero w).
-template <int XS, int OS, int RB, int CB, bool ADD, bool TG = false, class S, class Ks = AllColumns>
-TG_HD_NOINLINE void block_products(int nt, int K, const S* const* g, int gs, const S* w, const S* const* X, S* out,
+template <int XS, int OS, int RB, int CB, bool ADD, bool TG = false, class Scalar, class Ks = AllColumns>
+TG_HD_NOINLINE void block_products(int nt, int K, const Scalar* const* g, int gs, const Scalar* w, const Scalar* const* X, Scalar* out,
                                    Ks ks = {}) {
-  S acc[RB][CB];
+  Scalar acc[RB][CB];
   TG_UNROLL
   for (int r = 0; r < RB; ++r) {
     TG_KEEP_LOOP
-    for (int c = 0; c < CB; ++c) acc[r][c] = S(0);
+    for (int c = 0; c < CB; ++c) acc[r][c] = Scalar(0);
   }
   for (int t = 0; t < nt; ++t) {
     if (t > 0) {
-      const S ratio = w[t - 1] / w[t];
+      const Scalar ratio = w[t - 1] / w[t];
       TG_UNROLL
       for (int r = 0; r < RB; ++r) {
         TG_KEEP_LOOP
@@ -56,16 +56,16 @@ TG_HD_NOINLINE void block_products(int nt, int K, const S* const* g, int gs, con
     }
     for (int n = 0; n < K; ++n) {
       const int k = ks[n];
-      const S* x = X[t] + XS * k;
+      const Scalar* x = X[t] + XS * k;
       TG_UNROLL
       for (int r = 0; r < RB; ++r) {
-        const S gr = TG ? g[t][gs * k + r] : g[t][gs * r + k];
+        const Scalar gr = TG ? g[t][gs * k + r] : g[t][gs * r + k];
         TG_KEEP_LOOP
         for (int c = 0; c < CB; ++c) acc[r][c] += gr * x[c];
       }
     }
   }
-  const S last = nt > 0 ? w[nt - 1] : S(0);
+  const Scalar last = nt > 0 ? w[nt - 1] : Scalar(0);
   TG_UNROLL
   for (int r = 0; r < RB; ++r) {
     TG_KEEP_LOOP
@@ -75,11 +75,11 @@ TG_HD_NOINLINE void block_products(int nt, int K, const S* const* g, int gs, con
 
 // An RB-row block over COLS columns: blocks of kProductCols, then the rest in vector-sized pieces (8, 4,
 // 2, 1), since an odd-width block is not vectorized.
-template <int XS, int OS, int RB, int COLS, bool ADD, bool TG = false, class S, class Ks = AllColumns>
-TG_HD void row_block_products(int nt, int K, const S* const* g, int gs, const S* w, const S* const* X, S* out,
+template <int XS, int OS, int RB, int COLS, bool ADD, bool TG = false, class Scalar, class Ks = AllColumns>
+TG_HD void row_block_products(int nt, int K, const Scalar* const* g, int gs, const Scalar* w, const Scalar* const* X, Scalar* out,
                               Ks ks = {}) {
   constexpr int CB = kProductCols, RC = COLS % CB;
-  const S* x[4];
+  const Scalar* x[4];
   for (int c0 = 0; c0 < COLS - RC; c0 += CB) {
     for (int t = 0; t < nt; ++t) x[t] = X[t] + c0;
     block_products<XS, OS, RB, CB, ADD, TG>(nt, K, g, gs, w, x, out + c0, ks);
@@ -97,10 +97,10 @@ TG_HD void row_block_products(int nt, int K, const S* const* g, int gs, const S*
 
 // out (ROWS x COLS, row stride OS) (+)= sum_t w_t g_t X_t for up to 4 terms: g_t ROWS x K (row stride
 // gs; with TG, g_t^T for g_t K x ROWS), X_t K x COLS (row stride XS).
-template <int ROWS, int COLS, int XS, int OS, bool ADD, bool TG = false, class S>
-TG_HD void products(int nt, int K, const S* const* g, int gs, const S* w, const S* const* X, S* out) {
+template <int ROWS, int COLS, int XS, int OS, bool ADD, bool TG = false, class Scalar>
+TG_HD void products(int nt, int K, const Scalar* const* g, int gs, const Scalar* w, const Scalar* const* X, Scalar* out) {
   constexpr int RB = kProductRows, RR = ROWS % RB;
-  const S* gr[4];
+  const Scalar* gr[4];
   for (int r0 = 0; r0 < ROWS - RR; r0 += RB) {
     for (int t = 0; t < nt; ++t) gr[t] = g[t] + (TG ? r0 : gs * r0);
     row_block_products<XS, OS, RB, COLS, ADD, TG>(nt, K, gr, gs, w, X, out + OS * r0);
@@ -115,9 +115,9 @@ TG_HD void products(int nt, int K, const S* const* g, int gs, const S* w, const 
 // on different branches of the tree (d tau/dq, d tau/dqd): the rows' ancestors below r0 (dof_ancestors), then
 // [r0, the end of their subtrees) (dofs are numbered depth first, dof_end). Into ks, ascending; returns
 // their count.
-template <class M, class S> TG_HD int related_columns(int r0, int r1, int* ks) {
-  const auto& d = data<M, S>();
-  bool mark[M::NV];
+template <class Robot, class Scalar> TG_HD int related_columns(int r0, int r1, int* ks) {
+  const auto& d = data<Robot, Scalar>();
+  bool mark[Robot::NV];
   for (int k = 0; k < r0; ++k) mark[k] = false;
   int end = r1;
   for (int r = r0; r < r1; ++r) {
@@ -136,17 +136,17 @@ template <class M, class S> TG_HD int related_columns(int r0, int r1, int* ks) {
 
 // The related columns of every block of kProductRows rows (related_columns), found once for a kernel's many
 // tree products on a CPU; a GPU thread, whose blocks are single rows, finds each as it goes.
-template <class M, class S> struct TreeBlocks {
-  static constexpr int NV = M::NV, RB = kProductRows, NBLK = (NV + RB - 1) / RB;
+template <class Robot, class Scalar> struct TreeBlocks {
+  static constexpr int NV = Robot::NV, RB = kProductRows, NBLK = (NV + RB - 1) / RB;
 #ifdef __CUDA_ARCH__
   TG_HD const int* columns(int b, int* buf, int& n) const {
-    n = related_columns<M, S>(RB * b, RB * b + RB < NV ? RB * b + RB : NV, buf);
+    n = related_columns<Robot, Scalar>(RB * b, RB * b + RB < NV ? RB * b + RB : NV, buf);
     return buf;
   }
 #else
   int count[NBLK], ks[NBLK][NV];
   TreeBlocks() {
-    for (int b = 0; b < NBLK; ++b) count[b] = related_columns<M, S>(RB * b, RB * b + RB < NV ? RB * b + RB : NV, ks[b]);
+    for (int b = 0; b < NBLK; ++b) count[b] = related_columns<Robot, Scalar>(RB * b, RB * b + RB < NV ? RB * b + RB : NV, ks[b]);
   }
   const int* columns(int b, int*, int& n) const {
     n = count[b];
@@ -158,11 +158,11 @@ template <class M, class S> struct TreeBlocks {
 // out (NV x COLS, row stride OS) (+)= sum_t w_t g_t X_t for up to 4 terms, each g_t NV x NV (row stride NV;
 // with TG, g_t^T) zero between dofs on different branches: each block of rows runs over its related columns
 // (tb's) alone.
-template <class M, int COLS, int XS, int OS, bool ADD, bool TG = false, class S>
-TG_HD void tree_products(const TreeBlocks<M, S>& tb, int nt, const S* const* g, const S* w, const S* const* X, S* out) {
-  constexpr int NV = M::NV, RB = kProductRows, RR = NV % RB;
+template <class Robot, int COLS, int XS, int OS, bool ADD, bool TG = false, class Scalar>
+TG_HD void tree_products(const TreeBlocks<Robot, Scalar>& tb, int nt, const Scalar* const* g, const Scalar* w, const Scalar* const* X, Scalar* out) {
+  constexpr int NV = Robot::NV, RB = kProductRows, RR = NV % RB;
   int buf[NV], n;
-  const S* gr[4];
+  const Scalar* gr[4];
   for (int r0 = 0; r0 < NV - RR; r0 += RB) {
     const int* ks = tb.columns(r0 / RB, buf, n);
     for (int t = 0; t < nt; ++t) gr[t] = g[t] + (TG ? r0 : NV * r0);

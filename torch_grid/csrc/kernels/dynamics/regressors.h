@@ -8,23 +8,23 @@
 namespace tg {
 
 // Body force f = I a + v x* (I v) as 10 columns, one per dynamic parameter (joint frame).
-template <class S> TG_HD void body_force_regressor(const Sv<S>& v, const Sv<S>& a, Sv<S>* cols) {
-  const Vec3<S> vl = lin(v), va = ang(v), al = lin(a), aa = ang(a);
-  const Vec3<S> zero = v3(S(0), S(0), S(0));
+template <class Scalar> TG_HD void body_force_regressor(const Sv<Scalar>& v, const Sv<Scalar>& a, Sv<Scalar>* cols) {
+  const Vec3<Scalar> vl = lin(v), va = ang(v), al = lin(a), aa = ang(a);
+  const Vec3<Scalar> zero = v3(Scalar(0), Scalar(0), Scalar(0));
   cols[0] = sv(al + cross(va, vl), zero);
   for (int k = 0; k < 3; ++k) {
-    Vec3<S> e = zero;
-    e.x[k] = S(1);
+    Vec3<Scalar> e = zero;
+    e.x[k] = Scalar(1);
     // I v with h = e: [v_a x e; e x v_l]; then v x* (I v) added to I a.
-    const Vec3<S> p = cross(va, e), n = cross(e, vl);
+    const Vec3<Scalar> p = cross(va, e), n = cross(e, vl);
     cols[1 + k] = sv(cross(aa, e) + cross(va, p), cross(e, al) + cross(va, n) + cross(vl, p));
   }
   // I_o basis (symmetric): xx, xy, yy, xz, yz, zz.
   const int rows[6] = {0, 0, 1, 0, 1, 2}, colsk[6] = {0, 1, 1, 2, 2, 2};
   for (int k = 0; k < 6; ++k) {
-    Mat3<S> E{};
-    E.m[3 * rows[k] + colsk[k]] = S(1);
-    E.m[3 * colsk[k] + rows[k]] = S(1);
+    Mat3<Scalar> E{};
+    E.m[3 * rows[k] + colsk[k]] = Scalar(1);
+    E.m[3 * colsk[k] + rows[k]] = Scalar(1);
     cols[4 + k] = sv(zero, mul(E, aa) + cross(va, mul(E, va)));
   }
 }
@@ -32,22 +32,22 @@ template <class S> TG_HD void body_force_regressor(const Sv<S>& v, const Sv<S>& 
 // Y (NV x 10 NB): column block i holds body i's regressor, carried to each joint above it; the
 // entries that can be nonzero go to put(row, column, value) (Y's other entries are zero).
 // liMi: the joint placements (JointPlacements, or a shared Placements pass).
-template <class M, class S, class P, class Put>
-TG_HD_INLINE void inverse_dynamics_regressor_entries(P& liMi, const S* qd, const S* qdd, Put&& put) {
-  const auto& d = data<M, S>();
-  Sv<S> v[M::NB], a[M::NB];
-  for (int i = 0; i < M::NB; ++i) {
+template <class Robot, class Scalar, class P, class Put>
+TG_HD_INLINE void inverse_dynamics_regressor_entries(P& liMi, const Scalar* qd, const Scalar* qdd, Put&& put) {
+  const auto& d = data<Robot, Scalar>();
+  Sv<Scalar> v[Robot::NB], a[Robot::NB];
+  for (int i = 0; i < Robot::NB; ++i) {
     const int p = d.parent[i];
-    const Sv<S> vJ = joint_motion<M, S>(i, qd);
+    const Sv<Scalar> vJ = joint_motion<Robot, Scalar>(i, qd);
     const auto& X = liMi.place(i);
     v[i] = p < 0 ? vJ : actinv_motion(X, v[p]) + vJ;
-    a[i] = actinv_motion(X, p < 0 ? base_acceleration<M, S>() : a[p]) + joint_motion<M, S>(i, qdd) +
+    a[i] = actinv_motion(X, p < 0 ? base_acceleration<Robot, Scalar>() : a[p]) + joint_motion<Robot, Scalar>(i, qdd) +
            cross_motion(v[i], vJ);
-    Sv<S> f[10];
+    Sv<Scalar> f[10];
     body_force_regressor(v[i], a[i], f);
     for (int j = i;;) {
       for (int l = 0; l < d.nvj[j]; ++l) {
-        const Sv<S> s = joint_axis<M, S>(j, l);
+        const Sv<Scalar> s = joint_axis<Robot, Scalar>(j, l);
         for (int c = 0; c < 10; ++c) put(d.vi[j] + l, 10 * i + c, dot(s, f[c]));
       }
       if (d.parent[j] < 0) break;
@@ -58,51 +58,51 @@ TG_HD_INLINE void inverse_dynamics_regressor_entries(P& liMi, const S* qd, const
   }
 }
 
-template <class M, class S, class P> TG_HD_INLINE void inverse_dynamics_regressor_placed(P& liMi, const S* qd, const S* qdd, S* Y) {
-  constexpr int NP = 10 * M::NB;
-  for (int k = 0; k < M::NV * NP; ++k) Y[k] = S(0);
-  inverse_dynamics_regressor_entries<M, S>(liMi, qd, qdd, [Y](int r, int c, const S& y) { Y[NP * r + c] = y; });
+template <class Robot, class Scalar, class P> TG_HD_INLINE void inverse_dynamics_regressor_placed(P& liMi, const Scalar* qd, const Scalar* qdd, Scalar* Y) {
+  constexpr int NP = 10 * Robot::NB;
+  for (int k = 0; k < Robot::NV * NP; ++k) Y[k] = Scalar(0);
+  inverse_dynamics_regressor_entries<Robot, Scalar>(liMi, qd, qdd, [Y](int r, int c, const Scalar& y) { Y[NP * r + c] = y; });
 }
 
-template <class M, class S> TG_HD void inverse_dynamics_regressor(const S* q, const S* qd, const S* qdd, S* Y) {
-  JointPlacements<M, S> liMi(q);
-  inverse_dynamics_regressor_placed<M, S>(liMi, qd, qdd, Y);
+template <class Robot, class Scalar> TG_HD void inverse_dynamics_regressor(const Scalar* q, const Scalar* qd, const Scalar* qdd, Scalar* Y) {
+  JointPlacements<Robot, Scalar> liMi(q);
+  inverse_dynamics_regressor_placed<Robot, Scalar>(liMi, qd, qdd, Y);
 }
 
-template <class M, class S>
-TG_HD void inverse_dynamics_regressor(const Placements<M, S>& K, const S* qd, const S* qdd, S* Y) {
-  inverse_dynamics_regressor_placed<M, S>(K, qd, qdd, Y);
+template <class Robot, class Scalar>
+TG_HD void inverse_dynamics_regressor(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* qdd, Scalar* Y) {
+  inverse_dynamics_regressor_placed<Robot, Scalar>(K, qd, qdd, Y);
 }
 
 // Kinetic energy KE = Yk . pi (10 NB): per body [|v_l|^2 / 2, v_l x v_a, v_a v_a^T / 2 (sym)].
-template <class M, class S> TG_HD void kinetic_energy_regressor(const S* q, const S* qd, S* Yk) {
-  S v[6 * M::NB];
-  body_velocities<M, S>(q, qd, v);
-  for (int i = 0; i < M::NB; ++i) {
-    const Vec3<S> vl = load3(v + 6 * i), w = load3(v + 6 * i + 3), h = cross(vl, w);
-    S* y = Yk + 10 * i;
-    y[0] = S(0.5) * dot(vl, vl);
+template <class Robot, class Scalar> TG_HD void kinetic_energy_regressor(const Scalar* q, const Scalar* qd, Scalar* Yk) {
+  Scalar v[6 * Robot::NB];
+  body_velocities<Robot, Scalar>(q, qd, v);
+  for (int i = 0; i < Robot::NB; ++i) {
+    const Vec3<Scalar> vl = load3(v + 6 * i), w = load3(v + 6 * i + 3), h = cross(vl, w);
+    Scalar* y = Yk + 10 * i;
+    y[0] = Scalar(0.5) * dot(vl, vl);
     for (int k = 0; k < 3; ++k) y[1 + k] = h.x[k];
-    y[4] = S(0.5) * w.x[0] * w.x[0];
+    y[4] = Scalar(0.5) * w.x[0] * w.x[0];
     y[5] = w.x[0] * w.x[1];
-    y[6] = S(0.5) * w.x[1] * w.x[1];
+    y[6] = Scalar(0.5) * w.x[1] * w.x[1];
     y[7] = w.x[0] * w.x[2];
     y[8] = w.x[1] * w.x[2];
-    y[9] = S(0.5) * w.x[2] * w.x[2];
+    y[9] = Scalar(0.5) * w.x[2] * w.x[2];
   }
 }
 
 // Potential energy PE = Yp . pi (10 NB): PE_i = -g . (m p_i + R_i h), p_i, R_i the joint frame's placement.
-template <class M, class S> TG_HD void potential_energy_regressor(const S* q, S* Yp) {
-  const auto& d = data<M, S>();
-  SE3<S> liMi[M::NB], oMi[M::NB];
-  forward_kinematics<M, S>(q, liMi, oMi);
-  const Vec3<S> g = v3(S(d.gravity[0]), S(d.gravity[1]), S(d.gravity[2]));
-  for (int i = 0; i < M::NB; ++i) {
-    S* y = Yp + 10 * i;
+template <class Robot, class Scalar> TG_HD void potential_energy_regressor(const Scalar* q, Scalar* Yp) {
+  const auto& d = data<Robot, Scalar>();
+  SE3<Scalar> liMi[Robot::NB], oMi[Robot::NB];
+  forward_kinematics<Robot, Scalar>(q, liMi, oMi);
+  const Vec3<Scalar> g = v3(Scalar(d.gravity[0]), Scalar(d.gravity[1]), Scalar(d.gravity[2]));
+  for (int i = 0; i < Robot::NB; ++i) {
+    Scalar* y = Yp + 10 * i;
     y[0] = -dot(g, oMi[i].p);
-    store3(S(-1) * mulT(oMi[i].R, g), y + 1);
-    for (int k = 4; k < 10; ++k) y[k] = S(0);
+    store3(Scalar(-1) * mulT(oMi[i].R, g), y + 1);
+    for (int k = 4; k < 10; ++k) y[k] = Scalar(0);
   }
 }
 

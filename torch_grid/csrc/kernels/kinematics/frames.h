@@ -8,30 +8,30 @@ namespace tg {
 enum Reference : int { WORLD = 0, LOCAL = 1, LOCAL_WORLD_ALIGNED = 2 };
 
 // Positions (NF x 3) and rotations (NF x 3 x 3) of every frame.
-template <class M, class S> TG_HD void frames_forward_kinematics(const S* q, S* pos, S* rot) {
-  SE3<S> liMi[M::NB], oMi[M::NB];
-  forward_kinematics<M, S>(q, liMi, oMi);
-  for (int f = 0; f < M::NF; ++f) {
-    const SE3<S> X = frame_placement<M, S>(f, oMi);
+template <class Robot, class Scalar> TG_HD void frames_forward_kinematics(const Scalar* q, Scalar* pos, Scalar* rot) {
+  SE3<Scalar> liMi[Robot::NB], oMi[Robot::NB];
+  forward_kinematics<Robot, Scalar>(q, liMi, oMi);
+  for (int f = 0; f < Robot::NF; ++f) {
+    const SE3<Scalar> X = frame_placement<Robot, Scalar>(f, oMi);
     store3(X.p, pos + 3 * f);
     for (int k = 0; k < 9; ++k) rot[9 * f + k] = X.R.m[k];
   }
 }
 
 // Roll-pitch-yaw angles with R = Rz(yaw) Ry(pitch) Rx(roll), pitch in [-pi/2, pi/2].
-template <class S> TG_HD Vec3<S> rpy(const Mat3<S>& R) {
-  const S r = atan2(R.m[7], R.m[8]);
-  const S p = atan2(-R.m[6], sqrt(R.m[7] * R.m[7] + R.m[8] * R.m[8]));
-  const S y = atan2(R.m[3], R.m[0]);
+template <class Scalar> TG_HD Vec3<Scalar> rpy(const Mat3<Scalar>& R) {
+  const Scalar r = atan2(R.m[7], R.m[8]);
+  const Scalar p = atan2(-R.m[6], sqrt(R.m[7] * R.m[7] + R.m[8] * R.m[8]));
+  const Scalar y = atan2(R.m[3], R.m[0]);
   return v3(r, p, y);
 }
 
 // [xyz, rpy] of the n frames listed in `frames`, out is (n x 6).
-template <class M, class S> TG_HD void end_effector_pose(const S* q, const int* frames, int n, S* out) {
-  SE3<S> liMi[M::NB], oMi[M::NB];
-  forward_kinematics<M, S>(q, liMi, oMi);
+template <class Robot, class Scalar> TG_HD void end_effector_pose(const Scalar* q, const int* frames, int n, Scalar* out) {
+  SE3<Scalar> liMi[Robot::NB], oMi[Robot::NB];
+  forward_kinematics<Robot, Scalar>(q, liMi, oMi);
   for (int k = 0; k < n; ++k) {
-    const SE3<S> X = frame_placement<M, S>(frames[k], oMi);
+    const SE3<Scalar> X = frame_placement<Robot, Scalar>(frames[k], oMi);
     store3(X.p, out + 6 * k);
     store3(rpy(X.R), out + 6 * k + 3);
   }
@@ -39,36 +39,36 @@ template <class M, class S> TG_HD void end_effector_pose(const S* q, const int* 
 
 // Jacobian (6 x NV, rows [linear; angular]) of frame f in the given reference, from the world
 // placements oMi of (at least) the bodies supporting the frame.
-template <class M, class S> TG_HD void frame_jacobian(const SE3<S>* oMi, int f, int reference, S* J) {
-  const auto& d = data<M, S>();
-  const SE3<S> oMf = frame_placement<M, S>(f, oMi);
-  for (int k = 0; k < 6 * M::NV; ++k) J[k] = S(0);
+template <class Robot, class Scalar> TG_HD void frame_jacobian(const SE3<Scalar>* oMi, int f, int reference, Scalar* J) {
+  const auto& d = data<Robot, Scalar>();
+  const SE3<Scalar> oMf = frame_placement<Robot, Scalar>(f, oMi);
+  for (int k = 0; k < 6 * Robot::NV; ++k) J[k] = Scalar(0);
   // Each joint on the chain contributes its world axis, expressed as asked.
   for (int j = d.fparent[f]; j >= 0; j = d.parent[j]) {
     for (int k = 0; k < d.nvj[j]; ++k) {
-      const Sv<S> s = placed_axis<M, S>(oMi[j], j, k);
-      Vec3<S> l = lin(s), w = ang(s);
+      const Sv<Scalar> s = placed_axis<Robot, Scalar>(oMi[j], j, k);
+      Vec3<Scalar> l = lin(s), w = ang(s);
       if (reference != WORLD) l = l + cross(w, oMf.p);
       if (reference == LOCAL) {
         l = mulT(oMf.R, l);
         w = mulT(oMf.R, w);
       }
       for (int r = 0; r < 3; ++r) {
-        J[M::NV * r + d.vi[j] + k] = l.x[r];
-        J[M::NV * (3 + r) + d.vi[j] + k] = w.x[r];
+        J[Robot::NV * r + d.vi[j] + k] = l.x[r];
+        J[Robot::NV * (3 + r) + d.vi[j] + k] = w.x[r];
       }
     }
   }
 }
 
 // The same from q: only the bodies supporting the frame are placed.
-template <class M, class S> TG_HD void frame_jacobian(const S* q, int f, int reference, S* J) {
-  const auto& d = data<M, S>();
-  int chain[M::NB], n = 0;  // support chain, frame's body first
+template <class Robot, class Scalar> TG_HD void frame_jacobian(const Scalar* q, int f, int reference, Scalar* J) {
+  const auto& d = data<Robot, Scalar>();
+  int chain[Robot::NB], n = 0;  // support chain, frame's body first
   for (int j = d.fparent[f]; j >= 0; j = d.parent[j]) chain[n++] = j;
-  SE3<S> oMi[M::NB];
-  chain_placements<M, S>(q, chain, n, oMi);
-  frame_jacobian<M, S>(oMi, f, reference, J);
+  SE3<Scalar> oMi[Robot::NB];
+  chain_placements<Robot, Scalar>(q, chain, n, oMi);
+  frame_jacobian<Robot, Scalar>(oMi, f, reference, J);
 }
 
 // The gradient along the tangent of <G, J(q)> for frame f's Jacobian J in the given reference and a
@@ -80,37 +80,37 @@ template <class M, class S> TG_HD void frame_jacobian(const S* q, int f, int ref
 //   WORLD                  grad_k = S_k . P_k
 //   LOCAL_WORLD_ALIGNED    grad_k = S_k . P_k + c . (linear velocity of p under S_k), c = sum_j G_lin,j x w_j
 //   LOCAL                  grad_k = S_k . (P_k - T)   (a local column moves with the joints below it only)
-template <class M, class S> TG_HD void frame_jacobian_vjp(const S* q, int f, int reference, const S* G, S* out) {
-  const auto& d = data<M, S>();
-  for (int k = 0; k < M::NV; ++k) out[k] = S(0);
-  int chain[M::NB], n = 0;  // support chain, frame's body first
+template <class Robot, class Scalar> TG_HD void frame_jacobian_vjp(const Scalar* q, int f, int reference, const Scalar* G, Scalar* out) {
+  const auto& d = data<Robot, Scalar>();
+  for (int k = 0; k < Robot::NV; ++k) out[k] = Scalar(0);
+  int chain[Robot::NB], n = 0;  // support chain, frame's body first
   for (int j = d.fparent[f]; j >= 0; j = d.parent[j]) chain[n++] = j;
-  SE3<S> oMi[M::NB];
-  chain_placements<M, S>(q, chain, n, oMi);
-  const SE3<S> oMf = frame_placement<M, S>(f, oMi);
+  SE3<Scalar> oMi[Robot::NB];
+  chain_placements<Robot, Scalar>(q, chain, n, oMi);
+  const SE3<Scalar> oMf = frame_placement<Robot, Scalar>(f, oMi);
   // from the frame's body up: P sums S x* F over the columns of this joint and of the joints below
   // it; c sums G_lin x w over the chain (LOCAL_WORLD_ALIGNED)
-  Sv<S> P = sv_zero<S>();
-  Vec3<S> c = v3(S(0), S(0), S(0));
+  Sv<Scalar> P = sv_zero<Scalar>();
+  Vec3<Scalar> c = v3(Scalar(0), Scalar(0), Scalar(0));
   for (int m = 0; m < n; ++m) {
     const int j = chain[m];
     for (int k = 0; k < d.nvj[j]; ++k) {
       const int col = d.vi[j] + k;
-      const Sv<S> s = placed_axis<M, S>(oMi[j], j, k);
-      const Vec3<S> gl = v3(G[col], G[M::NV + col], G[2 * M::NV + col]);
-      const Vec3<S> ga = v3(G[3 * M::NV + col], G[4 * M::NV + col], G[5 * M::NV + col]);
-      const Sv<S> F = reference == WORLD ? sv(gl, ga) : reference == LOCAL ? act_force(oMf, sv(gl, ga))
+      const Sv<Scalar> s = placed_axis<Robot, Scalar>(oMi[j], j, k);
+      const Vec3<Scalar> gl = v3(G[col], G[Robot::NV + col], G[2 * Robot::NV + col]);
+      const Vec3<Scalar> ga = v3(G[3 * Robot::NV + col], G[4 * Robot::NV + col], G[5 * Robot::NV + col]);
+      const Sv<Scalar> F = reference == WORLD ? sv(gl, ga) : reference == LOCAL ? act_force(oMf, sv(gl, ga))
                                                                              : sv(gl, ga + cross(oMf.p, gl));
       P = P + cross_force(s, F);
       c = c + cross(gl, ang(s));
     }
-    for (int k = 0; k < d.nvj[j]; ++k) out[d.vi[j] + k] = dot(placed_axis<M, S>(oMi[j], j, k), P);
+    for (int k = 0; k < d.nvj[j]; ++k) out[d.vi[j] + k] = dot(placed_axis<Robot, Scalar>(oMi[j], j, k), P);
   }
   // the whole chain's terms: T = P at the root (LOCAL), c (LOCAL_WORLD_ALIGNED)
   if (reference != WORLD)
     for (int m = 0; m < n; ++m)
       for (int k = 0; k < d.nvj[chain[m]]; ++k) {
-        const Sv<S> s = placed_axis<M, S>(oMi[chain[m]], chain[m], k);
+        const Sv<Scalar> s = placed_axis<Robot, Scalar>(oMi[chain[m]], chain[m], k);
         out[d.vi[chain[m]] + k] += reference == LOCAL ? -dot(s, P) : dot(c, lin(s) + cross(ang(s), oMf.p));
       }
 }
@@ -120,40 +120,40 @@ template <class M, class S> TG_HD void frame_jacobian_vjp(const S* q, int f, int
 // above it and with the other axes of its own joint, dS_j/dq_k = S_k x S_j; the frame origin p moves
 // with column k of the local-world-aligned Jacobian; a local column turns with the frame, so only the
 // joints below j move it.
-template <class M, class S> TG_HD void frame_kinematic_hessian(const S* q, int f, int reference, S* H) {
-  const auto& d = data<M, S>();
-  constexpr int NV = M::NV;
-  for (int k = 0; k < 6 * NV * NV; ++k) H[k] = S(0);
-  int chain[M::NB], n = 0;  // support chain, frame's body first
+template <class Robot, class Scalar> TG_HD void frame_kinematic_hessian(const Scalar* q, int f, int reference, Scalar* H) {
+  const auto& d = data<Robot, Scalar>();
+  constexpr int NV = Robot::NV;
+  for (int k = 0; k < 6 * NV * NV; ++k) H[k] = Scalar(0);
+  int chain[Robot::NB], n = 0;  // support chain, frame's body first
   for (int j = d.fparent[f]; j >= 0; j = d.parent[j]) chain[n++] = j;
-  SE3<S> oMi[M::NB];
-  chain_placements<M, S>(q, chain, n, oMi);
-  const SE3<S> oMf = frame_placement<M, S>(f, oMi);
-  auto put = [&](int j, int k, const Sv<S>& x) {
+  SE3<Scalar> oMi[Robot::NB];
+  chain_placements<Robot, Scalar>(q, chain, n, oMi);
+  const SE3<Scalar> oMf = frame_placement<Robot, Scalar>(f, oMi);
+  auto put = [&](int j, int k, const Sv<Scalar>& x) {
     for (int r = 0; r < 6; ++r) H[NV * (NV * r + j) + k] = x.v[r];
   };
   for (int mj = 0; mj < n; ++mj)
     for (int lj = 0; lj < d.nvj[chain[mj]]; ++lj) {
       const int bj = chain[mj], j = d.vi[bj] + lj;
-      const Sv<S> Sj = placed_axis<M, S>(oMi[bj], bj, lj);
+      const Sv<Scalar> Sj = placed_axis<Robot, Scalar>(oMi[bj], bj, lj);
       for (int mk = 0; mk < n; ++mk)
         for (int lk = 0; lk < d.nvj[chain[mk]]; ++lk) {
           const int bk = chain[mk], k = d.vi[bk] + lk;
-          const Sv<S> Sk = placed_axis<M, S>(oMi[bk], bk, lk);
+          const Sv<Scalar> Sk = placed_axis<Robot, Scalar>(oMi[bk], bk, lk);
           const bool turns = mk >= mj;  // k's joint is j's or above it
-          const Sv<S> dS = cross_motion(Sk, Sj);
+          const Sv<Scalar> dS = cross_motion(Sk, Sj);
           if (reference == WORLD) {
             if (turns) put(j, k, dS);
           } else if (reference == LOCAL) {
             // Ad(oMf^-1) (dS_j - S_k x S_j): zero unless k's joint is below j's
             if (!turns) {
-              const Vec3<S> l = mulT(oMf.R, S(-1) * (lin(dS) + cross(ang(dS), oMf.p))), a = mulT(oMf.R, S(-1) * ang(dS));
+              const Vec3<Scalar> l = mulT(oMf.R, Scalar(-1) * (lin(dS) + cross(ang(dS), oMf.p))), a = mulT(oMf.R, Scalar(-1) * ang(dS));
               put(j, k, sv(l, a));
             }
           } else {
             // [dS_lin + dS_ang x p + w_j x pdot_k; dS_ang], pdot_k the origin's velocity under column k
-            const Vec3<S> pdot = lin(Sk) + cross(ang(Sk), oMf.p);
-            Vec3<S> l = cross(ang(Sj), pdot), a = v3(S(0), S(0), S(0));
+            const Vec3<Scalar> pdot = lin(Sk) + cross(ang(Sk), oMf.p);
+            Vec3<Scalar> l = cross(ang(Sj), pdot), a = v3(Scalar(0), Scalar(0), Scalar(0));
             if (turns) {
               l = l + lin(dS) + cross(ang(dS), oMf.p);
               a = ang(dS);
@@ -168,19 +168,19 @@ template <class M, class S> TG_HD void frame_kinematic_hessian(const S* q, int f
 // [linear; angular] weights: the gradient of sum_f w_f . (frame velocity) with respect to qd.
 // Each weight acts as the spatial force [w_lin; p_f x w_lin + w_ang] at the world origin; a
 // joint collects the forces of its subtree, projected on its world axes.
-template <class M, class S> TG_HD void frames_vjp(const S* q, const S* w, S* out) {
-  const auto& d = data<M, S>();
-  SE3<S> liMi[M::NB], oMi[M::NB];
-  forward_kinematics<M, S>(q, liMi, oMi);
-  Sv<S> F[M::NB];
-  for (int i = 0; i < M::NB; ++i) F[i] = sv_zero<S>();
-  for (int f = 0; f < M::NF; ++f) {
+template <class Robot, class Scalar> TG_HD void frames_vjp(const Scalar* q, const Scalar* w, Scalar* out) {
+  const auto& d = data<Robot, Scalar>();
+  SE3<Scalar> liMi[Robot::NB], oMi[Robot::NB];
+  forward_kinematics<Robot, Scalar>(q, liMi, oMi);
+  Sv<Scalar> F[Robot::NB];
+  for (int i = 0; i < Robot::NB; ++i) F[i] = sv_zero<Scalar>();
+  for (int f = 0; f < Robot::NF; ++f) {
     if (d.fparent[f] < 0) continue;  // world frames do not move
-    const Vec3<S> p = frame_placement<M, S>(f, oMi).p, wl = load3(w + 6 * f), wa = load3(w + 6 * f + 3);
+    const Vec3<Scalar> p = frame_placement<Robot, Scalar>(f, oMi).p, wl = load3(w + 6 * f), wa = load3(w + 6 * f + 3);
     F[d.fparent[f]] = F[d.fparent[f]] + sv(wl, cross(p, wl) + wa);
   }
-  for (int i = M::NB - 1; i >= 0; --i) {
-    for (int k = 0; k < d.nvj[i]; ++k) out[d.vi[i] + k] = dot(placed_axis<M, S>(oMi[i], i, k), F[i]);
+  for (int i = Robot::NB - 1; i >= 0; --i) {
+    for (int k = 0; k < d.nvj[i]; ++k) out[d.vi[i] + k] = dot(placed_axis<Robot, Scalar>(oMi[i], i, k), F[i]);
     if (d.parent[i] >= 0) F[d.parent[i]] = F[d.parent[i]] + F[i];
   }
 }
@@ -188,30 +188,30 @@ template <class M, class S> TG_HD void frames_vjp(const S* q, const S* w, S* out
 // Time derivative of frame_jacobian (6 x NV) at velocity qd, and the Jacobian itself (J may be
 // null). A world axis S_j moves with its body: dS_j/dt = v_j x S_j (world velocities); the frame
 // origin p moves at pdot, and a LOCAL Jacobian also turns with the frame's angular velocity w.
-template <class M, class S>
-TG_HD void frame_jacobian_dot(const S* q, const S* qd, int f, int reference, S* Jdot, S* J) {
-  const auto& d = data<M, S>();
-  int chain[M::NB], n = 0;  // support chain, frame's body first
+template <class Robot, class Scalar>
+TG_HD void frame_jacobian_dot(const Scalar* q, const Scalar* qd, int f, int reference, Scalar* Jdot, Scalar* J) {
+  const auto& d = data<Robot, Scalar>();
+  int chain[Robot::NB], n = 0;  // support chain, frame's body first
   for (int j = d.fparent[f]; j >= 0; j = d.parent[j]) chain[n++] = j;
-  SE3<S> oMi[M::NB];
-  Sv<S> v[M::NB];
-  chain_placements<M, S>(q, chain, n, oMi);
+  SE3<Scalar> oMi[Robot::NB];
+  Sv<Scalar> v[Robot::NB];
+  chain_placements<Robot, Scalar>(q, chain, n, oMi);
   for (int k = n - 1; k >= 0; --k) {
     const int i = chain[k];
-    v[i] = act_motion(oMi[i], joint_motion<M, S>(i, qd)) + (k == n - 1 ? sv_zero<S>() : v[chain[k + 1]]);
+    v[i] = act_motion(oMi[i], joint_motion<Robot, Scalar>(i, qd)) + (k == n - 1 ? sv_zero<Scalar>() : v[chain[k + 1]]);
   }
-  const SE3<S> oMf = frame_placement<M, S>(f, oMi);
-  const Sv<S> vf = n > 0 ? v[chain[0]] : sv_zero<S>();
-  const Vec3<S> w = ang(vf), pdot = lin(vf) + cross(w, oMf.p);
-  for (int k = 0; k < 6 * M::NV; ++k) {
-    Jdot[k] = S(0);
-    if (J) J[k] = S(0);
+  const SE3<Scalar> oMf = frame_placement<Robot, Scalar>(f, oMi);
+  const Sv<Scalar> vf = n > 0 ? v[chain[0]] : sv_zero<Scalar>();
+  const Vec3<Scalar> w = ang(vf), pdot = lin(vf) + cross(w, oMf.p);
+  for (int k = 0; k < 6 * Robot::NV; ++k) {
+    Jdot[k] = Scalar(0);
+    if (J) J[k] = Scalar(0);
   }
   for (int c = 0; c < n; ++c) {
     const int j = chain[c];
     for (int k = 0; k < d.nvj[j]; ++k) {
-      const Sv<S> s = placed_axis<M, S>(oMi[j], j, k), sd = cross_motion(v[j], s);
-      Vec3<S> l = lin(s), a = ang(s), ld = lin(sd), ad = ang(sd);
+      const Sv<Scalar> s = placed_axis<Robot, Scalar>(oMi[j], j, k), sd = cross_motion(v[j], s);
+      Vec3<Scalar> l = lin(s), a = ang(s), ld = lin(sd), ad = ang(sd);
       if (reference != WORLD) {
         ld = ld + cross(ad, oMf.p) + cross(a, pdot);
         l = l + cross(a, oMf.p);
@@ -223,11 +223,11 @@ TG_HD void frame_jacobian_dot(const S* q, const S* qd, int f, int reference, S* 
         a = mulT(oMf.R, a);
       }
       for (int r = 0; r < 3; ++r) {
-        Jdot[M::NV * r + d.vi[j] + k] = ld.x[r];
-        Jdot[M::NV * (3 + r) + d.vi[j] + k] = ad.x[r];
+        Jdot[Robot::NV * r + d.vi[j] + k] = ld.x[r];
+        Jdot[Robot::NV * (3 + r) + d.vi[j] + k] = ad.x[r];
         if (J) {
-          J[M::NV * r + d.vi[j] + k] = l.x[r];
-          J[M::NV * (3 + r) + d.vi[j] + k] = a.x[r];
+          J[Robot::NV * r + d.vi[j] + k] = l.x[r];
+          J[Robot::NV * (3 + r) + d.vi[j] + k] = a.x[r];
         }
       }
     }
@@ -236,15 +236,15 @@ TG_HD void frame_jacobian_dot(const S* q, const S* qd, int f, int reference, S* 
 
 // d tau / d f_ext (NV x NB x 6): tau = ... - sum_k J_k^T f_k with J_k body k's Jacobian in its joint
 // frame, so column (k, c) is minus row c of J_k: joint j's axis seen from body k's frame.
-template <class M, class S> TG_HD void external_force_jacobian(const Placements<M, S>& K, S* out) {
-  const auto& d = data<M, S>();
-  constexpr int NF6 = 6 * M::NB;
-  const SE3<S>* oMi = K.oMi;
-  for (int k = 0; k < M::NV * NF6; ++k) out[k] = S(0);
-  for (int k = 0; k < M::NB; ++k)
+template <class Robot, class Scalar> TG_HD void external_force_jacobian(const Placements<Robot, Scalar>& K, Scalar* out) {
+  const auto& d = data<Robot, Scalar>();
+  constexpr int NF6 = 6 * Robot::NB;
+  const SE3<Scalar>* oMi = K.oMi;
+  for (int k = 0; k < Robot::NV * NF6; ++k) out[k] = Scalar(0);
+  for (int k = 0; k < Robot::NB; ++k)
     for (int j = k; j >= 0; j = d.parent[j])
       for (int l = 0; l < d.nvj[j]; ++l) {
-        const Sv<S> s = actinv_motion(oMi[k], placed_axis<M, S>(oMi[j], j, l));
+        const Sv<Scalar> s = actinv_motion(oMi[k], placed_axis<Robot, Scalar>(oMi[j], j, l));
         for (int c = 0; c < 6; ++c) out[NF6 * (d.vi[j] + l) + 6 * k + c] = -s.v[c];
       }
 }

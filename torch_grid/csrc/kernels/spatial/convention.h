@@ -10,50 +10,50 @@
 
 namespace tg {
 
-template <class M, class S, int C> struct Conv {
-  static constexpr bool active = (C == MUJOCO) && M::NFREE > 0;  // a free joint's velocity is reframed
-  static constexpr int NB3 = 3 * (M::NFREE > 0 ? M::NFREE : 1);  // columns of Mb below
-  S q[M::NQ];                                       // configuration in Pinocchio's layout
-  Mat3<S> R[M::NFREE > 0 ? M::NFREE : 1];           // each free joint's rotation
-  int vi[M::NFREE > 0 ? M::NFREE : 1];              // and its first dof
+template <class Robot, class Scalar, int C> struct Conv {
+  static constexpr bool active = (C == MUJOCO) && Robot::NFREE > 0;  // a free joint's velocity is reframed
+  static constexpr int NB3 = 3 * (Robot::NFREE > 0 ? Robot::NFREE : 1);  // columns of Mb below
+  Scalar q[Robot::NQ];                                       // configuration in Pinocchio's layout
+  Mat3<Scalar> R[Robot::NFREE > 0 ? Robot::NFREE : 1];           // each free joint's rotation
+  int vi[Robot::NFREE > 0 ? Robot::NFREE : 1];              // and its first dof
 
-  TG_HD explicit Conv(const S* q_in) {
-    const auto& d = data<M, S>();
-    for (int k = 0; k < M::NQ; ++k) q[k] = q_in[k];
+  TG_HD explicit Conv(const Scalar* q_in) {
+    const auto& d = data<Robot, Scalar>();
+    for (int k = 0; k < Robot::NQ; ++k) q[k] = q_in[k];
     if constexpr (active)
-      for (int f = 0; f < M::NFREE; ++f) {
+      for (int f = 0; f < Robot::NFREE; ++f) {
         const int i = d.free_joint[f], a = d.qi[i] + 3;
         // wxyz -> xyzw
         q[a] = q_in[a + 1]; q[a + 1] = q_in[a + 2]; q[a + 2] = q_in[a + 3]; q[a + 3] = q_in[a];
         R[f] = quat_rotation(q[a], q[a + 1], q[a + 2], q[a + 3]);
         vi[f] = d.vi[i];
       }
-    if constexpr (C == MUJOCO && M::BALLS)
-      for (int i = 0; i < M::NB; ++i)
+    if constexpr (C == MUJOCO && Robot::BALLS)
+      for (int i = 0; i < Robot::NB; ++i)
         if (d.jtype[i] == BALL) {
-          const S* in = q_in + d.qi[i];
-          S* out = q + d.qi[i];
+          const Scalar* in = q_in + d.qi[i];
+          Scalar* out = q + d.qi[i];
           out[0] = in[1]; out[1] = in[2]; out[2] = in[3]; out[3] = in[0];
         }
   }
   // Inputs: each returns the input in Pinocchio's convention, `in` itself when there is nothing to
   // convert, else `buf` (NV) filled.
   // Velocity or generalized force in: each free joint's linear part R^T x.
-  TG_HD const S* velocity(const S* in, S* buf) const {
+  TG_HD const Scalar* velocity(const Scalar* in, Scalar* buf) const {
     if constexpr (active) {
-      for (int k = 0; k < M::NV; ++k) buf[k] = in[k];
-      for (int f = 0; f < M::NFREE; ++f) store3(mulT(R[f], load3(in + vi[f])), buf + vi[f]);
+      for (int k = 0; k < Robot::NV; ++k) buf[k] = in[k];
+      for (int f = 0; f < Robot::NFREE; ++f) store3(mulT(R[f], load3(in + vi[f])), buf + vi[f]);
       return buf;
     } else {
       return in;
     }
   }
-  TG_HD const S* force(const S* in, S* buf) const { return velocity(in, buf); }
+  TG_HD const Scalar* force(const Scalar* in, Scalar* buf) const { return velocity(in, buf); }
   // Acceleration in: a_lin = R^T a_mujoco - w x v_lin (v already in Pinocchio's convention).
-  TG_HD const S* acceleration(const S* v, const S* in, S* buf) const {
+  TG_HD const Scalar* acceleration(const Scalar* v, const Scalar* in, Scalar* buf) const {
     if constexpr (active) {
-      for (int k = 0; k < M::NV; ++k) buf[k] = in[k];
-      for (int f = 0; f < M::NFREE; ++f) {
+      for (int k = 0; k < Robot::NV; ++k) buf[k] = in[k];
+      for (int f = 0; f < Robot::NFREE; ++f) {
         const int b = vi[f];
         store3(mulT(R[f], load3(in + b)) - cross(load3(v + b + 3), load3(v + b)), buf + b);
       }
@@ -63,50 +63,50 @@ template <class M, class S, int C> struct Conv {
     }
   }
   // Generalized force out (covector): each free joint's linear rows R x.
-  TG_HD void force_out(S* tau) const {
+  TG_HD void force_out(Scalar* tau) const {
     if constexpr (active)
-      for (int f = 0; f < M::NFREE; ++f) store3(mul(R[f], load3(tau + vi[f])), tau + vi[f]);
+      for (int f = 0; f < Robot::NFREE; ++f) store3(mul(R[f], load3(tau + vi[f])), tau + vi[f]);
   }
   // Joint velocity out: v_lin = R v_lin (a velocity maps as a force does, by G).
-  TG_HD void velocity_out(S* v) const { force_out(v); }
+  TG_HD void velocity_out(Scalar* v) const { force_out(v); }
   // Joint acceleration out: qdd_lin = R (qdd_lin + w x v_lin).
-  TG_HD void acceleration_out(const S* v, S* qdd) const {
+  TG_HD void acceleration_out(const Scalar* v, Scalar* qdd) const {
     if constexpr (active)
-      for (int f = 0; f < M::NFREE; ++f) {
+      for (int f = 0; f < Robot::NFREE; ++f) {
         const int b = vi[f];
         store3(mul(R[f], load3(qdd + b) + cross(load3(v + b + 3), load3(v + b))), qdd + b);
       }
   }
   // Matrix (rows x NV) out: each free joint's linear columns right-multiplied by R^T.
-  TG_HD void columns_out(S* J, int rows) const {
+  TG_HD void columns_out(Scalar* J, int rows) const {
     if constexpr (active)
-      for (int f = 0; f < M::NFREE; ++f)
-        for (int r = 0; r < rows; ++r) store3(mul(R[f], load3(J + M::NV * r + vi[f])), J + M::NV * r + vi[f]);
+      for (int f = 0; f < Robot::NFREE; ++f)
+        for (int r = 0; r < rows; ++r) store3(mul(R[f], load3(J + Robot::NV * r + vi[f])), J + Robot::NV * r + vi[f]);
   }
   // Jacobian time derivative out: d/dt (J G^-1) = Jdot G^-1 + J d(G^-1)/dt, and d(R^T)/dt = -[w]x R^T
   // with w the free joint's local angular velocity (qd in Pinocchio's convention).
-  TG_HD void jacobian_dot_out(const S* qd, const S* J, S* Jdot, int rows) const {
+  TG_HD void jacobian_dot_out(const Scalar* qd, const Scalar* J, Scalar* Jdot, int rows) const {
     if constexpr (active)
-      for (int f = 0; f < M::NFREE; ++f) {
+      for (int f = 0; f < Robot::NFREE; ++f) {
         const int b = vi[f];
-        const Vec3<S> w = load3(qd + b + 3);
+        const Vec3<Scalar> w = load3(qd + b + 3);
         for (int r = 0; r < rows; ++r) {
           // row r of J [w]x is J_r x w
-          const Vec3<S> jd = load3(Jdot + M::NV * r + b), j = load3(J + M::NV * r + b);
-          store3(mul(R[f], jd - cross(j, w)), Jdot + M::NV * r + b);
+          const Vec3<Scalar> jd = load3(Jdot + Robot::NV * r + b), j = load3(J + Robot::NV * r + b);
+          store3(mul(R[f], jd - cross(j, w)), Jdot + Robot::NV * r + b);
         }
       }
   }
   // Centroidal momentum derivative out: MuJoCo holds qvel fixed, so turning a free joint also turns
   // Pinocchio's v_lin (Jv_q[:, ang a] = -(e_a x v_lin)): dh/dq_mujoco = dh/dq G^-1 + A_pin Jv_q.
-  TG_HD void momentum_gradient_out(const S* v, const S* A, S* dh) const {
+  TG_HD void momentum_gradient_out(const Scalar* v, const Scalar* A, Scalar* dh) const {
     if constexpr (active) {
-      for (int f = 0; f < M::NFREE; ++f) {
+      for (int f = 0; f < Robot::NFREE; ++f) {
         const int b = vi[f];
-        const Vec3<S> vl = load3(v + b);
+        const Vec3<Scalar> vl = load3(v + b);
         for (int r = 0; r < 6; ++r) {
-          const Vec3<S> a = load3(A + M::NV * r + b);
-          for (int c = 0; c < 3; ++c) dh[M::NV * r + b + 3 + c] += dot(a, cross(vl, unit3<S>(c)));
+          const Vec3<Scalar> a = load3(A + Robot::NV * r + b);
+          for (int c = 0; c < 3; ++c) dh[Robot::NV * r + b + 3 + c] += dot(a, cross(vl, unit3<Scalar>(c)));
         }
       }
       columns_out(dh, 6);
@@ -114,18 +114,18 @@ template <class M, class S, int C> struct Conv {
   }
   // The same for a vector-Jacobian product: lambda^T (MuJoCo's d tau/dq, d tau/dqd) from Pinocchio's
   // mu^T d tau/dq, mu^T d tau/dqd with mu = G^T lambda, and M mu and tau (Pinocchio's).
-  TG_HD void inverse_dynamics_vjp_out(const S* v, const S* a, const S* tau, const S* Mmu, const S* mu, S* g_q, S* g_qd) const {
+  TG_HD void inverse_dynamics_vjp_out(const Scalar* v, const Scalar* a, const Scalar* tau, const Scalar* Mmu, const Scalar* mu, Scalar* g_q, Scalar* g_qd) const {
     if constexpr (active) {
-      Vec3<S> gv[M::NFREE];  // Pinocchio's g_qd, linear parts
-      for (int f = 0; f < M::NFREE; ++f) gv[f] = load3(g_qd + vi[f]);
+      Vec3<Scalar> gv[Robot::NFREE];  // Pinocchio's g_qd, linear parts
+      for (int f = 0; f < Robot::NFREE; ++f) gv[f] = load3(g_qd + vi[f]);
       force_out(g_q);  // x^T G^-1: linear parts rotated by R
       force_out(g_qd);
-      for (int f = 0; f < M::NFREE; ++f) {
+      for (int f = 0; f < Robot::NFREE; ++f) {
         const int b = vi[f];
         const GradientColumns g = gradient_columns(f, v, a);
-        const Vec3<S> mm = load3(Mmu + b), ml = load3(mu + b), tl = load3(tau + b);
+        const Vec3<Scalar> mm = load3(Mmu + b), ml = load3(mu + b), tl = load3(tau + b);
         for (int c = 0; c < 3; ++c) {
-          g_q[b + 3 + c] += dot(gv[f], g.Jv[c]) + dot(mm, g.Jaq[c]) + dot(ml, cross(unit3<S>(c), tl));
+          g_q[b + 3 + c] += dot(gv[f], g.Jv[c]) + dot(mm, g.Jaq[c]) + dot(ml, cross(unit3<Scalar>(c), tl));
           g_qd[b + c] += dot(mm, g.Jav_lin[c]);
           g_qd[b + 3 + c] += dot(mm, g.Jav_ang[c]);
         }
@@ -134,27 +134,27 @@ template <class M, class S, int C> struct Conv {
   }
   // Coriolis matrix out: C_mujoco = G (C G^T + M K) with K qd = [v_lin x w; 0] per free joint, Pinocchio's
   // acceleration at MuJoCo's qacc = 0, so that C_mujoco qd + g_mujoco = MuJoCo's bias force; Mb as below.
-  TG_HD void coriolis_out(const S* v, const S* Mb, S* Cq) const {
+  TG_HD void coriolis_out(const Scalar* v, const Scalar* Mb, Scalar* Cq) const {
     if constexpr (active) {
-      columns_out(Cq, M::NV);
-      for (int f = 0; f < M::NFREE; ++f) {
+      columns_out(Cq, Robot::NV);
+      for (int f = 0; f < Robot::NFREE; ++f) {
         const int b = vi[f];
-        const Vec3<S> vl = load3(v + b);
-        for (int r = 0; r < M::NV; ++r) {
-          const Vec3<S> m = load3(Mb + NB3 * r + 3 * f);
-          for (int c = 0; c < 3; ++c) Cq[M::NV * r + b + 3 + c] += dot(m, cross(vl, unit3<S>(c)));
+        const Vec3<Scalar> vl = load3(v + b);
+        for (int r = 0; r < Robot::NV; ++r) {
+          const Vec3<Scalar> m = load3(Mb + NB3 * r + 3 * f);
+          for (int c = 0; c < 3; ++c) Cq[Robot::NV * r + b + 3 + c] += dot(m, cross(vl, unit3<Scalar>(c)));
         }
       }
-      force_rows_out(Cq, M::NV);
+      force_rows_out(Cq, Robot::NV);
     }
   }
   // Matrix (NV x cols) of generalized forces out: each free joint's linear rows left-multiplied by R (G X).
-  TG_HD void force_rows_out(S* X, int cols) const {
+  TG_HD void force_rows_out(Scalar* X, int cols) const {
     if constexpr (active)
-      for (int f = 0; f < M::NFREE; ++f) {
-        S* x0 = X + cols * vi[f];
+      for (int f = 0; f < Robot::NFREE; ++f) {
+        Scalar* x0 = X + cols * vi[f];
         for (int c = 0; c < cols; ++c) {
-          const Vec3<S> x = mul(R[f], v3(x0[c], x0[cols + c], x0[2 * cols + c]));
+          const Vec3<Scalar> x = mul(R[f], v3(x0[c], x0[cols + c], x0[2 * cols + c]));
           x0[c] = x.x[0];
           x0[cols + c] = x.x[1];
           x0[2 * cols + c] = x.x[2];
@@ -162,22 +162,22 @@ template <class M, class S, int C> struct Conv {
       }
   }
   // The weight of Pinocchio's entry (r, c) in sum(W * X_mujoco) for X_mujoco = force_rows_out(X): (G^T W)[r, c].
-  template <class T> TG_HD S force_rows_weight(const T* W, int r, int c, int cols) const {
+  template <class T> TG_HD Scalar force_rows_weight(const T* W, int r, int c, int cols) const {
     if constexpr (active)
-      for (int f = 0; f < M::NFREE; ++f) {
+      for (int f = 0; f < Robot::NFREE; ++f) {
         const int k = r - vi[f];
         if (k >= 0 && k < 3) {
           const T* w0 = W + cols * vi[f] + c;
           return R[f].m[k] * w0[0] + R[f].m[3 + k] * w0[cols] + R[f].m[6 + k] * w0[2 * cols];
         }
       }
-    return S(W[cols * r + c]);
+    return Scalar(W[cols * r + c]);
   }
   // Symmetric NV x NV matrix out: congruence G X G^T.
-  TG_HD void congruence_out(S* X) const {
+  TG_HD void congruence_out(Scalar* X) const {
     if constexpr (active) {
-      columns_out(X, M::NV);
-      force_rows_out(X, M::NV);
+      columns_out(X, Robot::NV);
+      force_rows_out(X, Robot::NV);
     }
   }
 
@@ -191,17 +191,17 @@ template <class M, class S, int C> struct Conv {
   //   Ja_v[:, lin a] = -w x (R^T e_a),  Ja_v[:, ang a] = -(e_a x v_lin),  pref[lin, ang a] = R (e_a x tau_lin).
   // Columns (the free joint's linear rows only) of Jv_q, Ja_q and Ja_v above, for its rotation c = 0..2.
   struct GradientColumns {
-    Vec3<S> Jv[3], Jaq[3], Jav_lin[3], Jav_ang[3];
+    Vec3<Scalar> Jv[3], Jaq[3], Jav_lin[3], Jav_ang[3];
   };
-  TG_HD GradientColumns gradient_columns(int f, const S* v, const S* a) const {
+  TG_HD GradientColumns gradient_columns(int f, const Scalar* v, const Scalar* a) const {
     const int b = vi[f];
-    const Vec3<S> vl = load3(v + b), w = load3(v + b + 3), al = load3(a + b);
+    const Vec3<Scalar> vl = load3(v + b), w = load3(v + b + 3), al = load3(a + b);
     GradientColumns g;
     for (int c = 0; c < 3; ++c) {
-      const Vec3<S> e = unit3<S>(c);
+      const Vec3<Scalar> e = unit3<Scalar>(c);
       g.Jv[c] = cross(vl, e);
       g.Jaq[c] = cross(al, e) - cross(e, cross(w, vl)) + cross(w, cross(e, vl));
-      g.Jav_lin[c] = S(-1) * cross(w, mulT(R[f], e));
+      g.Jav_lin[c] = Scalar(-1) * cross(w, mulT(R[f], e));
       g.Jav_ang[c] = cross(vl, e);
     }
     return g;
@@ -209,15 +209,15 @@ template <class M, class S, int C> struct Conv {
 
   // Mb: the free joints' linear columns of Pinocchio's M (NV x 3 NFREE, free joint f's at 3f), all of
   // M these terms read.
-  TG_HD void inverse_dynamics_derivatives_out(const S* v, const S* a, const S* tau, const S* Mb, S* dq, S* dv) const {
+  TG_HD void inverse_dynamics_derivatives_out(const Scalar* v, const Scalar* a, const Scalar* tau, const Scalar* Mb, Scalar* dq, Scalar* dv) const {
     if constexpr (active) {
-      constexpr int NV = M::NV;
+      constexpr int NV = Robot::NV;
       // The Jv_q and Ja terms read Pinocchio's dtau/dqd and M before any reframe.
-      S add_q[NV][NB3], add_vl[NV][NB3], add_va[NV][NB3];
-      for (int f = 0; f < M::NFREE; ++f) {
+      Scalar add_q[NV][NB3], add_vl[NV][NB3], add_va[NV][NB3];
+      for (int f = 0; f < Robot::NFREE; ++f) {
         const GradientColumns g = gradient_columns(f, v, a);
         for (int r = 0; r < NV; ++r) {
-          const Vec3<S> Mr = load3(Mb + NB3 * r + 3 * f), dvr = load3(dv + NV * r + vi[f]);
+          const Vec3<Scalar> Mr = load3(Mb + NB3 * r + 3 * f), dvr = load3(dv + NV * r + vi[f]);
           for (int c = 0; c < 3; ++c) {
             add_q[r][3 * f + c] = dot(dvr, g.Jv[c]) + dot(Mr, g.Jaq[c]);
             add_vl[r][3 * f + c] = dot(Mr, g.Jav_lin[c]);
@@ -227,7 +227,7 @@ template <class M, class S, int C> struct Conv {
       }
       columns_out(dq, NV);  // X G^-1
       columns_out(dv, NV);
-      for (int f = 0; f < M::NFREE; ++f) {
+      for (int f = 0; f < Robot::NFREE; ++f) {
         const int b = vi[f];
         for (int r = 0; r < NV; ++r)
           for (int c = 0; c < 3; ++c) {
@@ -238,11 +238,11 @@ template <class M, class S, int C> struct Conv {
       }
       force_rows_out(dq, NV);  // G (.)
       force_rows_out(dv, NV);
-      for (int f = 0; f < M::NFREE; ++f) {
+      for (int f = 0; f < Robot::NFREE; ++f) {
         const int b = vi[f];
-        const Vec3<S> tl = load3(tau + b);
+        const Vec3<Scalar> tl = load3(tau + b);
         for (int c = 0; c < 3; ++c) {
-          const Vec3<S> pref = mul(R[f], cross(unit3<S>(c), tl));
+          const Vec3<Scalar> pref = mul(R[f], cross(unit3<Scalar>(c), tl));
           for (int r = 0; r < 3; ++r) dq[NV * (b + r) + b + 3 + c] += pref.x[r];
         }
       }

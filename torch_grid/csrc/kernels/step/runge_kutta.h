@@ -63,32 +63,32 @@ template <class T, int C> TG_HD void dexp_inverse_joint(int n, const T* theta, c
 // rho, -Jr^-1 L(w, Jr^-1 x_ang) (step.h); along w, one forward-mode pass of the closed form (a dozen 3 x 3
 // products) carrying the three directions. A ball joint (n = 3) or Pinocchio's free joint (n = 6):
 // dexp_inverse_jacobians below adds MuJoCo's free joint.
-template <class S, int C> TG_HD void dexp_inverse_jacobians_lie(int n, const S* theta, const S* x, S* c, S* Dtheta, S* Dx) {
-  const Vec3<S> w = load3(theta + n - 3);
-  const So3Coefficients<S> k = so3_coefficients(w);
-  const Mat3<S> Ji = so3_terms(w, S(0.5), k.beta);
-  for (int e = 0; e < n * n; ++e) Dx[e] = S(0);
+template <class Scalar, int C> TG_HD void dexp_inverse_jacobians_lie(int n, const Scalar* theta, const Scalar* x, Scalar* c, Scalar* Dtheta, Scalar* Dx) {
+  const Vec3<Scalar> w = load3(theta + n - 3);
+  const So3Coefficients<Scalar> k = so3_coefficients(w);
+  const Mat3<Scalar> Ji = so3_terms(w, Scalar(0.5), k.beta);
+  for (int e = 0; e < n * n; ++e) Dx[e] = Scalar(0);
   put3(Dx, n, n - 3, n - 3, Ji);
   if (n == 6) {
-    const Mat3<S> JQJ = mul(Ji, mul(se3_coupling(load3(theta), w, k), Ji));
+    const Mat3<Scalar> JQJ = mul(Ji, mul(se3_coupling(load3(theta), w, k), Ji));
     put3(Dx, 6, 0, 0, Ji);
     for (int r = 0; r < 3; ++r)
       for (int m = 0; m < 3; ++m) Dx[6 * r + 3 + m] = -JQJ.m[3 * r + m];
-    const Mat3<S> JL = mul(Ji, se3_coupling_along_rho(w, mul(Ji, load3(x + 3)), k));
+    const Mat3<Scalar> JL = mul(Ji, se3_coupling_along_rho(w, mul(Ji, load3(x + 3)), k));
     for (int r = 0; r < 3; ++r)
-      for (int m = 0; m < 3; ++m) Dtheta[6 * r + m] = -JL.m[3 * r + m], Dtheta[6 * (r + 3) + m] = S(0);
+      for (int m = 0; m < 3; ++m) Dtheta[6 * r + m] = -JL.m[3 * r + m], Dtheta[6 * (r + 3) + m] = Scalar(0);
   }
   for (int a = 0; a < n; ++a) {
-    S sum = S(0);
+    Scalar sum = Scalar(0);
     for (int b = 0; b < n; ++b) sum += Dx[n * a + b] * x[b];
     c[a] = sum;
   }
-  Jet<S, 3> th[6], xx[6], out[6];
+  Jet<Scalar, 3> th[6], xx[6], out[6];
   for (int m = 0; m < n; ++m) {
-    th[m] = Jet<S, 3>(theta[m]), xx[m] = Jet<S, 3>(x[m]);
-    if (m >= n - 3) th[m].d[m - (n - 3)] = S(1);
+    th[m] = Jet<Scalar, 3>(theta[m]), xx[m] = Jet<Scalar, 3>(x[m]);
+    if (m >= n - 3) th[m].d[m - (n - 3)] = Scalar(1);
   }
-  dexp_inverse_joint<Jet<S, 3>, C>(n, th, xx, out);
+  dexp_inverse_joint<Jet<Scalar, 3>, C>(n, th, xx, out);
   for (int m = 0; m < n; ++m)
     for (int k = 0; k < 3; ++k) Dtheta[n * m + n - 3 + k] = out[m].d[k];
 }
@@ -96,26 +96,26 @@ template <class S, int C> TG_HD void dexp_inverse_jacobians_lie(int n, const S* 
 // dexp_inverse_jacobians_lie, and MuJoCo's free joint: its position carried as it is, its rotation as a
 // ball's. (Not by recursion: a recursive function is not inlined on a GPU, and its frames go on a call
 // stack of the driver's default size, which they overflowed.)
-template <class S, int C> TG_HD void dexp_inverse_jacobians(int n, const S* theta, const S* x, S* c, S* Dtheta, S* Dx) {
+template <class Scalar, int C> TG_HD void dexp_inverse_jacobians(int n, const Scalar* theta, const Scalar* x, Scalar* c, Scalar* Dtheta, Scalar* Dx) {
   if (C == MUJOCO && n == 6) {
-    S Dt3[9], Dx3[9];
-    dexp_inverse_jacobians_lie<S, C>(3, theta + 3, x + 3, c + 3, Dt3, Dx3);
+    Scalar Dt3[9], Dx3[9];
+    dexp_inverse_jacobians_lie<Scalar, C>(3, theta + 3, x + 3, c + 3, Dt3, Dx3);
     for (int a = 0; a < 6; ++a)
       for (int b = 0; b < 6; ++b) {
         const bool ang = a >= 3 && b >= 3;
-        Dtheta[6 * a + b] = ang ? Dt3[3 * (a - 3) + b - 3] : S(0);
-        Dx[6 * a + b] = ang ? Dx3[3 * (a - 3) + b - 3] : S(a == b);
+        Dtheta[6 * a + b] = ang ? Dt3[3 * (a - 3) + b - 3] : Scalar(0);
+        Dx[6 * a + b] = ang ? Dx3[3 * (a - 3) + b - 3] : Scalar(a == b);
       }
     for (int m = 0; m < 3; ++m) c[m] = x[m];
     return;
   }
-  dexp_inverse_jacobians_lie<S, C>(n, theta, x, c, Dtheta, Dx);
+  dexp_inverse_jacobians_lie<Scalar, C>(n, theta, x, c, Dtheta, Dx);
 }
 
 // out (n x COLS) (+)= sum_t G_t^T X_t for a quaternion joint's n x n blocks G_t (n = 3 or 6) and n-row X_t.
-template <int COLS, class S>
-TG_HD void joint_adjoint(int n, int nt, const S* const* G, const S* const* X, S* out, bool add) {
-  const S one[4] = {S(1), S(1), S(1), S(1)};
+template <int COLS, class Scalar>
+TG_HD void joint_adjoint(int n, int nt, const Scalar* const* G, const Scalar* const* X, Scalar* out, bool add) {
+  const Scalar one[4] = {Scalar(1), Scalar(1), Scalar(1), Scalar(1)};
   if (n == 6)
     add ? products<6, COLS, COLS, COLS, true, true>(nt, 6, G, 6, one, X, out)
         : products<6, COLS, COLS, COLS, false, true>(nt, 6, G, 6, one, X, out);
@@ -127,32 +127,32 @@ TG_HD void joint_adjoint(int n, int nt, const S* const* G, const S* const* X, S*
 // A stage's dynamics at cs (v, tau in Pinocchio's convention): acc = FD(q, v, tau), D_q and D_v at it and
 // the L^T D L factor of M (ltdl.h), all in the convention: M_c = G M G^T, so that
 // M_c^-1 G (tau - bias) = G qdd. With passive, tau + p and the derivatives of ID - p (passive.h).
-template <class M, class S, int C>
-TG_HD void rk_stage(const Conv<M, S, C>& cs, const S* v, const S* tau, const S* fext, bool passive, S* Dq, S* Dv, S* H,
-                    S* acc) {
-  constexpr int NV = M::NV;
-  const Placements<M, S> K(cs.q);
-  S zero[NV], buf[Conv<M, S, C>::active ? NV : 1];
-  crba<M, S>(K, H);
+template <class Robot, class Scalar, int C>
+TG_HD void rk_stage(const Conv<Robot, Scalar, C>& cs, const Scalar* v, const Scalar* tau, const Scalar* fext, bool passive, Scalar* Dq, Scalar* Dv, Scalar* H,
+                    Scalar* acc) {
+  constexpr int NV = Robot::NV;
+  const Placements<Robot, Scalar> K(cs.q);
+  Scalar zero[NV], buf[Conv<Robot, Scalar, C>::active ? NV : 1];
+  crba<Robot, Scalar>(K, H);
   cs.congruence_out(H);
-  ltdl_factor<M, S>(H);
-  for (int k = 0; k < NV; ++k) zero[k] = S(0);
-  rnea<M, S>(K, v, zero, fext, acc);
+  ltdl_factor<Robot, Scalar>(H);
+  for (int k = 0; k < NV; ++k) zero[k] = Scalar(0);
+  rnea<Robot, Scalar>(K, v, zero, fext, acc);
   for (int k = 0; k < NV; ++k) acc[k] = tau[k] - acc[k];
-  if (passive) add_passive<M, S>(cs.q, v, acc);
+  if (passive) add_passive<Robot, Scalar>(cs.q, v, acc);
   cs.force_out(acc);
-  ltdl_solve<M, S>(H, acc);
-  const S* qdd = cs.velocity(acc, buf);  // G^T
-  inverse_dynamics_derivatives<M, S, C, false>(K, v, qdd, fext, cs, Dq, Dv);  // read on the tree's entries alone
-  if (passive) add_passive_diagonals<M, S>(Dq, Dv);
+  ltdl_solve<Robot, Scalar>(H, acc);
+  const Scalar* qdd = cs.velocity(acc, buf);  // G^T
+  inverse_dynamics_derivatives<Robot, Scalar, C, false>(K, v, qdd, fext, cs, Dq, Dv);  // read on the tree's entries alone
+  if (passive) add_passive_diagonals<Robot, Scalar>(Dq, Dv);
   if (qdd != acc)
     for (int k = 0; k < NV; ++k) acc[k] = qdd[k];
   cs.acceleration_out(v, acc);
 }
 
 // y += x and, for k < nf, to[k] += w[k] x (written, not added, where fresh), in one pass over N entries.
-template <int N, class S>
-TG_HD void spread(const S* x, S* y, int nf, S* const* to, const S* w, const bool* fresh) {
+template <int N, class Scalar>
+TG_HD void spread(const Scalar* x, Scalar* y, int nf, Scalar* const* to, const Scalar* w, const bool* fresh) {
   if (nf == 0) {
     for (int e = 0; e < N; ++e) y[e] += x[e];
   } else if (fresh[0]) {
@@ -161,7 +161,7 @@ TG_HD void spread(const S* x, S* y, int nf, S* const* to, const S* w, const bool
     for (int e = 0; e < N; ++e) y[e] += x[e], to[0][e] += w[0] * x[e];
   }
   for (int k = 1; k < nf; ++k)
-    for (int e = 0; e < N; ++e) to[k][e] = (fresh[k] ? S(0) : to[k][e]) + w[k] * x[e];
+    for (int e = 0; e < N; ++e) to[k][e] = (fresh[k] ? Scalar(0) : to[k][e]) + w[k] * x[e];
 }
 
 // Stage i's adjoints (NV x 2 NV each, a column per output row, q' then qd'), from abar and cbar, its
@@ -172,57 +172,57 @@ TG_HD void spread(const S* x, S* y, int nf, S* const* to, const S* w, const bool
 // abar_j += w vbar_i (written, not added, where fresh), ubar_i = Jv^T qbar_i + D_u^T cbar. At a
 // vector-space joint Jq, Jv and D_v' are the identity and D_u zero, so qbar_i and vbar_i are spread as they
 // are, and a quaternion joint's rows mended.
-template <class M, class S, int C>
-TG_HD void rk_adjoint_stage(const TreeBlocks<M, S>& tb, const S* q, const S* u, const S* v, const S* Dq, const S* Dv,
-                            const S* H, bool first, bool last, S* abar, S* cbar, S* U, int nf, S* const* fa, S* const* fc,
-                            const S* fw, const bool* fresh, S* qbar, S* qdbar, S* taubar) {
-  constexpr int NV = M::NV, K2 = 2 * NV, NA = NV * K2;
-  const auto& d = data<M, S>();
-  const S minus[1] = {S(-1)};
-  const S* gq[1] = {Dq};
-  const S* gv[1] = {Dv};
+template <class Robot, class Scalar, int C>
+TG_HD void rk_adjoint_stage(const TreeBlocks<Robot, Scalar>& tb, const Scalar* q, const Scalar* u, const Scalar* v, const Scalar* Dq, const Scalar* Dv,
+                            const Scalar* H, bool first, bool last, Scalar* abar, Scalar* cbar, Scalar* U, int nf, Scalar* const* fa, Scalar* const* fc,
+                            const Scalar* fw, const bool* fresh, Scalar* qbar, Scalar* qdbar, Scalar* taubar) {
+  constexpr int NV = Robot::NV, K2 = 2 * NV, NA = NV * K2;
+  const auto& d = data<Robot, Scalar>();
+  const Scalar minus[1] = {Scalar(-1)};
+  const Scalar* gq[1] = {Dq};
+  const Scalar* gv[1] = {Dv};
   if (last) {
-    ltdl_solve_columns<M, K2, NV>(H, abar, NV, taubar);
+    ltdl_solve_columns<Robot, K2, NV>(H, abar, NV, taubar);
     for (int r = 0; r < NV; ++r)
-      for (int c = 0; c < NV; ++c) U[K2 * r + c] = S(0);
-    const S* X[1] = {abar + NV};
-    tree_products<M, NV, K2, K2, false, true>(tb, 1, gq, minus, X, U + NV);
+      for (int c = 0; c < NV; ++c) U[K2 * r + c] = Scalar(0);
+    const Scalar* X[1] = {abar + NV};
+    tree_products<Robot, NV, K2, K2, false, true>(tb, 1, gq, minus, X, U + NV);
   } else {
-    ltdl_solve_rows<M, K2>(H, abar, taubar);
-    const S* X[1] = {abar};
-    tree_products<M, K2, K2, K2, false, true>(tb, 1, gq, minus, X, U);
+    ltdl_solve_rows<Robot, K2>(H, abar, taubar);
+    const Scalar* X[1] = {abar};
+    tree_products<Robot, K2, K2, K2, false, true>(tb, 1, gq, minus, X, U);
   }
   spread<NA>(U, qbar, nf, fc, fw, fresh);
   // a quaternion joint's rows: qbar += (Jq - I)^T qbar_i, cbar_j += w (ubar_i - qbar_i), cbar = D_v'^T cbar
   // (nothing at the first stage: at u = 0 Jq, Jv and D_v' are the identity, and it feeds no stage)
-  for (int jn = 0; jn < (first ? 0 : M::NB); ++jn) {
-    S Jq[36], Jv[36], Du[36], Dx[36], c[6], qs[M::NQ], blk[6 * K2];
-    const int n = integrate_joint<M, S, C>(jn, q, u, qs, Jq, Jv), vi = d.vi[jn];
+  for (int jn = 0; jn < (first ? 0 : Robot::NB); ++jn) {
+    Scalar Jq[36], Jv[36], Du[36], Dx[36], c[6], qs[Robot::NQ], blk[6 * K2];
+    const int n = integrate_joint<Robot, Scalar, C>(jn, q, u, qs, Jq, Jv), vi = d.vi[jn];
     if (!n) continue;
-    dexp_inverse_jacobians<S, C>(n, u + vi, v + vi, c, Du, Dx);
-    S* const Ur = U + K2 * vi;
-    S* const Cr = cbar + K2 * vi;
-    for (int a = 0; a < n; ++a) Jq[n * a + a] -= S(1), Jv[n * a + a] -= S(1);
-    const S* g1[1] = {Jq};
-    const S* x1[1] = {Ur};
+    dexp_inverse_jacobians<Scalar, C>(n, u + vi, v + vi, c, Du, Dx);
+    Scalar* const Ur = U + K2 * vi;
+    Scalar* const Cr = cbar + K2 * vi;
+    for (int a = 0; a < n; ++a) Jq[n * a + a] -= Scalar(1), Jv[n * a + a] -= Scalar(1);
+    const Scalar* g1[1] = {Jq};
+    const Scalar* x1[1] = {Ur};
     joint_adjoint<K2>(n, 1, g1, x1, qbar + K2 * vi, true);
-    const S* g2[2] = {Jv, Du};
-    const S* x2[2] = {Ur, Cr};
+    const Scalar* g2[2] = {Jv, Du};
+    const Scalar* x2[2] = {Ur, Cr};
     joint_adjoint<K2>(n, 2, g2, x2, blk, false);
     for (int k = 0; k < nf; ++k)
       for (int e = 0; e < n * K2; ++e) fc[k][K2 * vi + e] += fw[k] * blk[e];
-    const S* g3[1] = {Dx};
-    const S* x3[1] = {Cr};
+    const Scalar* g3[1] = {Dx};
+    const Scalar* x3[1] = {Cr};
     joint_adjoint<K2>(n, 1, g3, x3, blk, false);
     for (int e = 0; e < n * K2; ++e) Cr[e] = blk[e];
   }
   // vbar_i = cbar - D_v^T mu, in place
   if (last) {
-    const S* X[1] = {abar + NV};
-    tree_products<M, NV, K2, K2, true, true>(tb, 1, gv, minus, X, cbar + NV);
+    const Scalar* X[1] = {abar + NV};
+    tree_products<Robot, NV, K2, K2, true, true>(tb, 1, gv, minus, X, cbar + NV);
   } else {
-    const S* X[1] = {abar};
-    tree_products<M, K2, K2, K2, true, true>(tb, 1, gv, minus, X, cbar);
+    const Scalar* X[1] = {abar};
+    tree_products<Robot, K2, K2, K2, true, true>(tb, 1, gv, minus, X, cbar);
   }
   spread<NA>(cbar, qdbar, nf, fa, fw, fresh);
 }
@@ -233,107 +233,107 @@ TG_HD void rk_adjoint_stage(const TreeBlocks<M, S>& tb, const S* q, const S* u, 
 // and M's factor (NV x NV each), slots of pending adjoints abar_j, cbar_j (NV x 2 NV each; a stage's slot
 // differs from those of the stages it feeds: rk4's stage i feeds stage i - 1 alone, so two slots alternate;
 // rk3 has one a stage), then ubar_i and the step's Jv blocks.
-template <class M, class S, int C>
-TG_HD void rk_step(const Conv<M, S, C>& cv, const S* qd, const S* tau, const S* fext, S h, int scheme, bool passive,
-                   S* q_next, S* qd_next, S* A, S* B, S* work) {
-  constexpr int NV = M::NV, K2 = 2 * NV, NN = NV * NV, NA = NV * K2;
-  const auto& d = data<M, S>();
+template <class Robot, class Scalar, int C>
+TG_HD void rk_step(const Conv<Robot, Scalar, C>& cv, const Scalar* qd, const Scalar* tau, const Scalar* fext, Scalar h, int scheme, bool passive,
+                   Scalar* q_next, Scalar* qd_next, Scalar* A, Scalar* B, Scalar* work) {
+  constexpr int NV = Robot::NV, K2 = 2 * NV, NN = NV * NV, NA = NV * K2;
+  const auto& d = data<Robot, Scalar>();
   const RkTableau T = rk_tableau(scheme);
   const int s = T.stages, nslots = s == 3 ? 3 : 2;
-  S* const slots = work + 3 * NN * s;
-  S* const U = slots + 2 * NA * nslots;
+  Scalar* const slots = work + 3 * NN * s;
+  Scalar* const U = slots + 2 * NA * nslots;
   const auto slot = [&](int j) { return slots + 2 * NA * (s == 3 ? j : j % 2); };
-  S v0[NV], tau_c[NV], acc[4][NV], car[4][NV], u[4][NV], v[4][NV], qs[M::NQ], un[NV];
+  Scalar v0[NV], tau_c[NV], acc[4][NV], car[4][NV], u[4][NV], v[4][NV], qs[Robot::NQ], un[NV];
   for (int k = 0; k < NV; ++k) v0[k] = qd[k], tau_c[k] = tau[k];
   cv.velocity_out(v0);
   cv.force_out(tau_c);
   // the stages' values and dynamics
   for (int i = 0; i < s; ++i) {
     for (int k = 0; k < NV; ++k) {
-      S th = S(0), ac = S(0);
-      for (int j = 0; j < i; ++j) th += S(T.a[i][j]) * car[j][k], ac += S(T.a[i][j]) * acc[j][k];
+      Scalar th = Scalar(0), ac = Scalar(0);
+      for (int j = 0; j < i; ++j) th += Scalar(T.a[i][j]) * car[j][k], ac += Scalar(T.a[i][j]) * acc[j][k];
       u[i][k] = h * th;
       v[i][k] = v0[k] + h * ac;
     }
-    for (int jn = 0; jn < M::NB; ++jn) {
-      const int n = integrate_joint<M, S, C>(jn, cv.q, u[i], qs, nullptr, nullptr), vi = d.vi[jn];
+    for (int jn = 0; jn < Robot::NB; ++jn) {
+      const int n = integrate_joint<Robot, Scalar, C>(jn, cv.q, u[i], qs, nullptr, nullptr), vi = d.vi[jn];
       if (n)
-        dexp_inverse_joint<S, C>(n, u[i] + vi, v[i] + vi, car[i] + vi);
+        dexp_inverse_joint<Scalar, C>(n, u[i] + vi, v[i] + vi, car[i] + vi);
       else
         for (int a = 0; a < d.nvj[jn]; ++a) car[i][vi + a] = v[i][vi + a];
     }
-    S* const Dq = work + 3 * NN * i;
+    Scalar* const Dq = work + 3 * NN * i;
     if (i == 0) {
-      rk_stage<M, S, C>(cv, qd, tau, fext, passive, Dq, Dq + NN, Dq + 2 * NN, acc[0]);
+      rk_stage<Robot, Scalar, C>(cv, qd, tau, fext, passive, Dq, Dq + NN, Dq + 2 * NN, acc[0]);
     } else {
-      const Conv<M, S, C> cs(qs);
-      S vb[Conv<M, S, C>::active ? NV : 1], tb[Conv<M, S, C>::active ? NV : 1];
-      rk_stage<M, S, C>(cs, cs.velocity(v[i], vb), cs.force(tau_c, tb), fext, passive, Dq, Dq + NN, Dq + 2 * NN,
+      const Conv<Robot, Scalar, C> cs(qs);
+      Scalar vb[Conv<Robot, Scalar, C>::active ? NV : 1], tb[Conv<Robot, Scalar, C>::active ? NV : 1];
+      rk_stage<Robot, Scalar, C>(cs, cs.velocity(v[i], vb), cs.force(tau_c, tb), fext, passive, Dq, Dq + NN, Dq + 2 * NN,
                         acc[i]);
     }
   }
   // the step: q' = q (+) u', qd' = qd + dt sum_j b_j acc_j
   for (int k = 0; k < NV; ++k) {
-    S th = S(0), ac = S(0);
-    for (int j = 0; j < s; ++j) th += S(T.b[j]) * car[j][k], ac += S(T.b[j]) * acc[j][k];
+    Scalar th = Scalar(0), ac = Scalar(0);
+    for (int j = 0; j < s; ++j) th += Scalar(T.b[j]) * car[j][k], ac += Scalar(T.b[j]) * acc[j][k];
     un[k] = h * th;
     qd_next[k] = v0[k] + h * ac;
   }
   // adjoints: qbar = Jq'^T on the q' columns, qdbar = I on the qd' ones (A's storage, as A^T), taubar (B's,
   // as B^T)
-  S* const qbar = A;
-  S* const qdbar = A + NA;
-  S* const taubar = B;
-  for (int e = 0; e < 2 * NA; ++e) A[e] = S(0);
-  for (int e = 0; e < NA; ++e) taubar[e] = S(0);
-  for (int k = 0; k < NV; ++k) qdbar[K2 * k + NV + k] = S(1);
-  S* const Jvs = U + NA;  // the step's Jv at each quaternion joint, n x n after one another (at most 6 NV)
-  for (int jn = 0, o = 0; jn < M::NB; ++jn) {
-    S Jq[36];
-    const int n = integrate_joint<M, S, C>(jn, cv.q, un, q_next, Jq, Jvs + o), vi = d.vi[jn];
+  Scalar* const qbar = A;
+  Scalar* const qdbar = A + NA;
+  Scalar* const taubar = B;
+  for (int e = 0; e < 2 * NA; ++e) A[e] = Scalar(0);
+  for (int e = 0; e < NA; ++e) taubar[e] = Scalar(0);
+  for (int k = 0; k < NV; ++k) qdbar[K2 * k + NV + k] = Scalar(1);
+  Scalar* const Jvs = U + NA;  // the step's Jv at each quaternion joint, n x n after one another (at most 6 NV)
+  for (int jn = 0, o = 0; jn < Robot::NB; ++jn) {
+    Scalar Jq[36];
+    const int n = integrate_joint<Robot, Scalar, C>(jn, cv.q, un, q_next, Jq, Jvs + o), vi = d.vi[jn];
     for (int a = 0; a < (n ? n : d.nvj[jn]); ++a)
-      for (int b = 0; b < (n ? n : d.nvj[jn]); ++b) qbar[K2 * (vi + a) + vi + b] = n ? Jq[n * b + a] : S(a == b);
+      for (int b = 0; b < (n ? n : d.nvj[jn]); ++b) qbar[K2 * (vi + a) + vi + b] = n ? Jq[n * b + a] : Scalar(a == b);
     o += n * n;
   }
-  const TreeBlocks<M, S> tb;
+  const TreeBlocks<Robot, Scalar> tb;
   bool fed[4] = {false, false, false, false};
   for (int i = s - 1; i >= 0; --i) {
-    S* const abar = slot(i);
-    S* const cbar = abar + NA;
+    Scalar* const abar = slot(i);
+    Scalar* const cbar = abar + NA;
     // the output's own terms: qd' = ... + dt b_i acc_i, u' = ... + dt b_i c_i
     if (!fed[i])
-      for (int e = 0; e < 2 * NA; ++e) abar[e] = S(0);
-    const S hb = h * S(T.b[i]);
+      for (int e = 0; e < 2 * NA; ++e) abar[e] = Scalar(0);
+    const Scalar hb = h * Scalar(T.b[i]);
     for (int k = 0; k < NV; ++k) abar[K2 * k + NV + k] += hb;
-    for (int jn = 0, o = 0; jn < M::NB; ++jn) {
+    for (int jn = 0, o = 0; jn < Robot::NB; ++jn) {
       const int t = d.jtype[jn], n = t == FREE ? 6 : t == BALL ? 3 : 0, vi = d.vi[jn];
       for (int a = 0; a < (n ? n : d.nvj[jn]); ++a)
-        for (int b = 0; b < (n ? n : d.nvj[jn]); ++b) cbar[K2 * (vi + a) + vi + b] += hb * (n ? Jvs[o + n * b + a] : S(a == b));
+        for (int b = 0; b < (n ? n : d.nvj[jn]); ++b) cbar[K2 * (vi + a) + vi + b] += hb * (n ? Jvs[o + n * b + a] : Scalar(a == b));
       o += n * n;
     }
     // the earlier stages it feeds: v_i = qd + dt sum_j a_ij acc_j, u_i = dt sum_j a_ij c_j
-    S* fa[2];
-    S* fc[2];
-    S fw[2];
+    Scalar* fa[2];
+    Scalar* fc[2];
+    Scalar fw[2];
     bool fresh[2];
     int nf = 0;
     for (int j = 0; j < i; ++j)
       if (T.a[i][j] != 0) {
-        fa[nf] = slot(j), fc[nf] = slot(j) + NA, fw[nf] = h * S(T.a[i][j]), fresh[nf++] = !fed[j];
+        fa[nf] = slot(j), fc[nf] = slot(j) + NA, fw[nf] = h * Scalar(T.a[i][j]), fresh[nf++] = !fed[j];
         fed[j] = true;
       }
-    const S* const Dq = work + 3 * NN * i;
-    rk_adjoint_stage<M, S, C>(tb, cv.q, u[i], v[i], Dq, Dq + NN, Dq + 2 * NN, i == 0, i == s - 1, abar, cbar, U, nf,
+    const Scalar* const Dq = work + 3 * NN * i;
+    rk_adjoint_stage<Robot, Scalar, C>(tb, cv.q, u[i], v[i], Dq, Dq + NN, Dq + 2 * NN, i == 0, i == s - 1, abar, cbar, U, nf,
                               fa, fc, fw, fresh, qbar, qdbar, taubar);
   }
   // A and B from their transposes
   for (int r = 0; r < K2; ++r)
     for (int c = 0; c < r; ++c) {
-      const S x = A[K2 * r + c];
+      const Scalar x = A[K2 * r + c];
       A[K2 * r + c] = A[K2 * c + r];
       A[K2 * c + r] = x;
     }
-  S* const Bt = slot(0);
+  Scalar* const Bt = slot(0);
   for (int e = 0; e < NA; ++e) Bt[e] = taubar[e];
   for (int r = 0; r < K2; ++r)
     for (int k = 0; k < NV; ++k) B[NV * r + k] = Bt[K2 * k + r];

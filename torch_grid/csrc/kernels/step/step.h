@@ -18,138 +18,138 @@ namespace tg {
 
 // SO(3)'s coefficients at the angle t = |u|, by their Taylor series near 0 (truncation ~ t^6), else from one
 // sine and cosine of t / 2.
-template <class S> struct So3Coefficients {
-  S sin_half, cos_half;  // sin(t/2) / t, cos(t/2): exp3(u) = [sin_half u; cos_half] (xyzw)
-  S a, b;                // (1 - cos t) / t^2, (t - sin t) / t^3
-  S c2, c3;              // (t^2 + 2 cos t - 2) / (2 t^4), (2 t - 3 sin t + t cos t) / (2 t^5)
-  S beta;                // (1 - (t/2) cot(t/2)) / t^2: Jr(u)^-1 = I + [u] / 2 + beta [u]^2
+template <class Scalar> struct So3Coefficients {
+  Scalar sin_half, cos_half;  // sin(t/2) / t, cos(t/2): exp3(u) = [sin_half u; cos_half] (xyzw)
+  Scalar a, b;                // (1 - cos t) / t^2, (t - sin t) / t^3
+  Scalar c2, c3;              // (t^2 + 2 cos t - 2) / (2 t^4), (2 t - 3 sin t + t cos t) / (2 t^5)
+  Scalar beta;                // (1 - (t/2) cot(t/2)) / t^2: Jr(u)^-1 = I + [u] / 2 + beta [u]^2
 };
 
-template <class S> TG_HD So3Coefficients<S> so3_coefficients(Vec3<S> u) {
-  const S t2 = dot(u, u), t4 = t2 * t2;
-  if (t2 < S(1e-4))
-    return {S(0.5) - t2 / S(48) + t4 / S(3840), S(1) - t2 / S(8) + t4 / S(384),
-            S(0.5) - t2 / S(24) + t4 / S(720), S(1) / S(6) - t2 / S(120) + t4 / S(5040),
-            S(1) / S(24) - t2 / S(720) + t4 / S(40320), S(1) / S(120) - t2 / S(2520) + t4 / S(120960),
-            S(1) / S(12) + t2 / S(720) + t4 / S(30240)};
-  const S t = sqrt(t2), sh = sin(t / S(2)), ch = cos(t / S(2));
-  const S s = S(2) * sh * ch, c = S(1) - S(2) * sh * sh;  // sin t, cos t
-  return {sh / t, ch, S(2) * sh * sh / t2, (t - s) / (t2 * t), (t2 + S(2) * c - S(2)) / (S(2) * t4),
-          (S(2) * t - S(3) * s + t * c) / (S(2) * t4 * t), (S(1) - t * ch / (S(2) * sh)) / t2};
+template <class Scalar> TG_HD So3Coefficients<Scalar> so3_coefficients(Vec3<Scalar> u) {
+  const Scalar t2 = dot(u, u), t4 = t2 * t2;
+  if (t2 < Scalar(1e-4))
+    return {Scalar(0.5) - t2 / Scalar(48) + t4 / Scalar(3840), Scalar(1) - t2 / Scalar(8) + t4 / Scalar(384),
+            Scalar(0.5) - t2 / Scalar(24) + t4 / Scalar(720), Scalar(1) / Scalar(6) - t2 / Scalar(120) + t4 / Scalar(5040),
+            Scalar(1) / Scalar(24) - t2 / Scalar(720) + t4 / Scalar(40320), Scalar(1) / Scalar(120) - t2 / Scalar(2520) + t4 / Scalar(120960),
+            Scalar(1) / Scalar(12) + t2 / Scalar(720) + t4 / Scalar(30240)};
+  const Scalar t = sqrt(t2), sh = sin(t / Scalar(2)), ch = cos(t / Scalar(2));
+  const Scalar s = Scalar(2) * sh * ch, c = Scalar(1) - Scalar(2) * sh * sh;  // sin t, cos t
+  return {sh / t, ch, Scalar(2) * sh * sh / t2, (t - s) / (t2 * t), (t2 + Scalar(2) * c - Scalar(2)) / (Scalar(2) * t4),
+          (Scalar(2) * t - Scalar(3) * s + t * c) / (Scalar(2) * t4 * t), (Scalar(1) - t * ch / (Scalar(2) * sh)) / t2};
 }
 
-template <class S> TG_HD Mat3<S> lincomb3(S x, const Mat3<S>& A, S y, const Mat3<S>& B) {
-  Mat3<S> C;
+template <class Scalar> TG_HD Mat3<Scalar> lincomb3(Scalar x, const Mat3<Scalar>& A, Scalar y, const Mat3<Scalar>& B) {
+  Mat3<Scalar> C;
   for (int k = 0; k < 9; ++k) C.m[k] = x * A.m[k] + y * B.m[k];
   return C;
 }
 
-template <class S> TG_HD Mat3<S> transpose3(const Mat3<S>& A) {
+template <class Scalar> TG_HD Mat3<Scalar> transpose3(const Mat3<Scalar>& A) {
   return {{A.m[0], A.m[3], A.m[6], A.m[1], A.m[4], A.m[7], A.m[2], A.m[5], A.m[8]}};
 }
 
 // I + x [u] + y [u]^2
-template <class S> TG_HD Mat3<S> so3_terms(Vec3<S> u, S x, S y) {
-  const Mat3<S> U = skew(u);
-  return lincomb3(S(1), identity3<S>(), S(1), lincomb3(x, U, y, mul(U, U)));
+template <class Scalar> TG_HD Mat3<Scalar> so3_terms(Vec3<Scalar> u, Scalar x, Scalar y) {
+  const Mat3<Scalar> U = skew(u);
+  return lincomb3(Scalar(1), identity3<Scalar>(), Scalar(1), lincomb3(x, U, y, mul(U, U)));
 }
 
 // Quaternion product a b (xyzw).
-template <class S> TG_HD void quat_mul(const S* a, const S* b, S* out) {
-  const Vec3<S> av = load3(a), bv = load3(b);
+template <class Scalar> TG_HD void quat_mul(const Scalar* a, const Scalar* b, Scalar* out) {
+  const Vec3<Scalar> av = load3(a), bv = load3(b);
   store3(a[3] * bv + b[3] * av + cross(av, bv), out);
   out[3] = a[3] * b[3] - dot(av, bv);
 }
 
 // Barfoot's Q(rho, w) of SE(3)'s left Jacobian, the coupling block of the right one at (-rho, -w).
-template <class S> TG_HD Mat3<S> se3_coupling(Vec3<S> rho, Vec3<S> w, const So3Coefficients<S>& k) {
-  const Mat3<S> P = skew(S(-1) * rho), W = skew(S(-1) * w);
-  const Mat3<S> WP = mul(W, P), PW = mul(P, W), WPW = mul(WP, W);
-  const Mat3<S> first = lincomb3(S(1), lincomb3(S(1), WP, S(1), PW), S(1), WPW);
-  const Mat3<S> second = lincomb3(S(1), lincomb3(S(1), mul(W, WP), S(1), mul(PW, W)), S(-3), WPW);
-  const Mat3<S> third = lincomb3(S(1), mul(WPW, W), S(1), mul(W, WPW));
-  return lincomb3(S(1), lincomb3(S(0.5), P, k.b, first), S(1), lincomb3(k.c2, second, k.c3, third));
+template <class Scalar> TG_HD Mat3<Scalar> se3_coupling(Vec3<Scalar> rho, Vec3<Scalar> w, const So3Coefficients<Scalar>& k) {
+  const Mat3<Scalar> P = skew(Scalar(-1) * rho), W = skew(Scalar(-1) * w);
+  const Mat3<Scalar> WP = mul(W, P), PW = mul(P, W), WPW = mul(WP, W);
+  const Mat3<Scalar> first = lincomb3(Scalar(1), lincomb3(Scalar(1), WP, Scalar(1), PW), Scalar(1), WPW);
+  const Mat3<Scalar> second = lincomb3(Scalar(1), lincomb3(Scalar(1), mul(W, WP), Scalar(1), mul(PW, W)), Scalar(-3), WPW);
+  const Mat3<Scalar> third = lincomb3(Scalar(1), mul(WPW, W), Scalar(1), mul(W, WPW));
+  return lincomb3(Scalar(1), lincomb3(Scalar(0.5), P, k.b, first), Scalar(1), lincomb3(k.c2, second, k.c3, third));
 }
 
 // Q(rho, w) y by cross products from the right (P z = -rho x z, W z = -w x z), where only its product with
 // one vector is needed.
-template <class S> TG_HD Vec3<S> se3_coupling_times(Vec3<S> rho, Vec3<S> w, const So3Coefficients<S>& k, Vec3<S> y) {
-  const Vec3<S> r = S(-1) * rho, m = S(-1) * w;
-  const Vec3<S> Py = cross(r, y), Wy = cross(m, y), WPy = cross(m, Py), PWy = cross(r, Wy);
-  const Vec3<S> WPWy = cross(m, PWy), WWy = cross(m, Wy);
-  const Vec3<S> first = WPy + PWy + WPWy;
-  const Vec3<S> second = cross(m, WPy) + cross(r, WWy) - S(3) * WPWy;
-  const Vec3<S> third = cross(m, cross(r, WWy)) + cross(m, WPWy);
-  return S(0.5) * Py + k.b * first + k.c2 * second + k.c3 * third;
+template <class Scalar> TG_HD Vec3<Scalar> se3_coupling_times(Vec3<Scalar> rho, Vec3<Scalar> w, const So3Coefficients<Scalar>& k, Vec3<Scalar> y) {
+  const Vec3<Scalar> r = Scalar(-1) * rho, m = Scalar(-1) * w;
+  const Vec3<Scalar> Py = cross(r, y), Wy = cross(m, y), WPy = cross(m, Py), PWy = cross(r, Wy);
+  const Vec3<Scalar> WPWy = cross(m, PWy), WWy = cross(m, Wy);
+  const Vec3<Scalar> first = WPy + PWy + WPWy;
+  const Vec3<Scalar> second = cross(m, WPy) + cross(r, WWy) - Scalar(3) * WPWy;
+  const Vec3<Scalar> third = cross(m, cross(r, WWy)) + cross(m, WPWy);
+  return Scalar(0.5) * Py + k.b * first + k.c2 * second + k.c3 * third;
 }
 
 // L(w, y) with Q(rho, w) y = L(w, y) rho (Q is linear in rho): each P = [-rho] of Q's terms, applied to the
 // vector z after it, is [z] rho, so with y1 = W y, y2 = W y1 and S_m = [y_m],
 // L = S0 / 2 + b S1 + c2 S2 + W (b S0 + (b - 3 c2) S1 + c3 S2 + W (c2 S0 + c3 S1)).
-template <class S> TG_HD Mat3<S> se3_coupling_along_rho(Vec3<S> w, Vec3<S> y, const So3Coefficients<S>& k) {
-  const Mat3<S> W = skew(S(-1) * w);
-  const Vec3<S> y1 = mul(W, y), y2 = mul(W, y1);
-  const Mat3<S> S0 = skew(y), S1 = skew(y1), S2 = skew(y2);
-  const Mat3<S> inner = mul(W, lincomb3(k.c2, S0, k.c3, S1));
-  const Mat3<S> outer = lincomb3(k.b, S0, S(1), lincomb3(k.b - S(3) * k.c2, S1, k.c3, S2));
-  const Mat3<S> own = lincomb3(S(0.5), S0, S(1), lincomb3(k.b, S1, k.c2, S2));
-  return lincomb3(S(1), own, S(1), mul(W, lincomb3(S(1), outer, S(1), inner)));
+template <class Scalar> TG_HD Mat3<Scalar> se3_coupling_along_rho(Vec3<Scalar> w, Vec3<Scalar> y, const So3Coefficients<Scalar>& k) {
+  const Mat3<Scalar> W = skew(Scalar(-1) * w);
+  const Vec3<Scalar> y1 = mul(W, y), y2 = mul(W, y1);
+  const Mat3<Scalar> S0 = skew(y), S1 = skew(y1), S2 = skew(y2);
+  const Mat3<Scalar> inner = mul(W, lincomb3(k.c2, S0, k.c3, S1));
+  const Mat3<Scalar> outer = lincomb3(k.b, S0, Scalar(1), lincomb3(k.b - Scalar(3) * k.c2, S1, k.c3, S2));
+  const Mat3<Scalar> own = lincomb3(Scalar(0.5), S0, Scalar(1), lincomb3(k.b, S1, k.c2, S2));
+  return lincomb3(Scalar(1), own, Scalar(1), mul(W, lincomb3(Scalar(1), outer, Scalar(1), inner)));
 }
 
 // n x n block (n = 3 or 6, row-major, stride n) from 3 x 3 blocks at (r, c).
-template <class S> TG_HD void put3(S* X, int n, int r, int c, const Mat3<S>& B) {
+template <class Scalar> TG_HD void put3(Scalar* X, int n, int r, int c, const Mat3<Scalar>& B) {
   for (int i = 0; i < 3; ++i)
     for (int j = 0; j < 3; ++j) X[n * (r + i) + c + j] = B.m[3 * i + j];
 }
 
 // Joint i's part of q' = q (+) u (q in Pinocchio's layout, q' in the convention's) and, at a
 // quaternion joint, its n x n blocks Jq, Jv unless Jq is null (n = 3 or 6; returns n, 0 at the other joints).
-template <class M, class S, int C> TG_HD int integrate_joint(int i, const S* q, const S* u, S* q_next, S* Jq, S* Jv) {
-  const auto& d = data<M, S>();
+template <class Robot, class Scalar, int C> TG_HD int integrate_joint(int i, const Scalar* q, const Scalar* u, Scalar* q_next, Scalar* Jq, Scalar* Jv) {
+  const auto& d = data<Robot, Scalar>();
   const int qi = d.qi[i], vi = d.vi[i], t = d.jtype[i];
   if (t != FREE && t != BALL) {
     q_next[qi] = q[qi] + u[vi];
     return 0;
   }
   const int n = t == FREE ? 6 : 3, qa = t == FREE ? qi + 3 : qi;
-  const Vec3<S> w = load3(u + vi + n - 3);
-  const So3Coefficients<S> k = so3_coefficients(w);
-  S quat[4], e[4], turned[4];
+  const Vec3<Scalar> w = load3(u + vi + n - 3);
+  const So3Coefficients<Scalar> k = so3_coefficients(w);
+  Scalar quat[4], e[4], turned[4];
   // read normalised as quat_rotation reads it: a norm below QUAT_MIN_NORM is the identity, a NaN or
   // infinite one NaN in every component (q / inf would leave finite zeros beside an infinite entry's NaN)
-  const S norm = sqrt(q[qa] * q[qa] + q[qa + 1] * q[qa + 1] + q[qa + 2] * q[qa + 2] + q[qa + 3] * q[qa + 3]);
-  const bool zero = norm < S(QUAT_MIN_NORM);
-  const S scale = norm < S(INFINITY) ? norm : norm * S(NAN);
-  for (int c = 0; c < 4; ++c) quat[c] = zero ? S(c == 3) : q[qa + c] / scale;
+  const Scalar norm = sqrt(q[qa] * q[qa] + q[qa + 1] * q[qa + 1] + q[qa + 2] * q[qa + 2] + q[qa + 3] * q[qa + 3]);
+  const bool zero = norm < Scalar(QUAT_MIN_NORM);
+  const Scalar scale = norm < Scalar(INFINITY) ? norm : norm * Scalar(NAN);
+  for (int c = 0; c < 4; ++c) quat[c] = zero ? Scalar(c == 3) : q[qa + c] / scale;
   store3(k.sin_half * w, e);
   e[3] = k.cos_half;
   quat_mul(quat, e, turned);
-  Mat3<S> Rt, Jr;
+  Mat3<Scalar> Rt, Jr;
   if (Jq) {
     Rt = transpose3(quat_rotation(e[0], e[1], e[2], e[3])), Jr = so3_terms(w, -k.a, k.b);
-    for (int r = 0; r < n * n; ++r) Jq[r] = Jv[r] = S(0);
+    for (int r = 0; r < n * n; ++r) Jq[r] = Jv[r] = Scalar(0);
     put3(Jq, n, n - 3, n - 3, Rt);
     put3(Jv, n, n - 3, n - 3, Jr);
   }
   if (t == FREE) {
-    const Vec3<S> p = load3(q + qi), ul = load3(u + vi);
+    const Vec3<Scalar> p = load3(q + qi), ul = load3(u + vi);
     if constexpr (C == MUJOCO) {
       store3(p + ul, q_next + qi);
-      if (Jq) put3(Jq, 6, 0, 0, identity3<S>()), put3(Jv, 6, 0, 0, identity3<S>());
+      if (Jq) put3(Jq, 6, 0, 0, identity3<Scalar>()), put3(Jv, 6, 0, 0, identity3<Scalar>());
     } else {  // M exp6(u): p + R V u_lin, the quaternion kept in the input's hemisphere as Pinocchio's
-      const Vec3<S> Vu = mul(so3_terms(w, k.a, k.b), ul);
+      const Vec3<Scalar> Vu = mul(so3_terms(w, k.a, k.b), ul);
       store3(p + mul(quat_rotation(quat[0], quat[1], quat[2], quat[3]), Vu), q_next + qi);
-      if (e[3] < S(0))
+      if (e[3] < Scalar(0))
         for (int c = 0; c < 4; ++c) turned[c] = -turned[c];
       if (Jq) {
         put3(Jq, 6, 0, 0, Rt);
-        put3(Jq, 6, 0, 3, mul(Rt, skew(S(-1) * Vu)));
+        put3(Jq, 6, 0, 3, mul(Rt, skew(Scalar(-1) * Vu)));
         put3(Jv, 6, 0, 0, Jr);
         put3(Jv, 6, 0, 3, se3_coupling(ul, w, k));
       }
     }
   }
-  S* out = q_next + qa;
+  Scalar* out = q_next + qa;
   if constexpr (C == MUJOCO) {  // wxyz
     out[0] = turned[3]; out[1] = turned[0]; out[2] = turned[1]; out[3] = turned[2];
   } else {
@@ -162,43 +162,43 @@ template <class M, class S, int C> TG_HD int integrate_joint(int i, const S* q, 
 // NV x NV each; B's first NV rows: da/dtau), which the rows of qd' are made of before those rows are
 // overwritten; v and acc are qd and a in the convention, q in Pinocchio's layout.
 // Outputs: q_next (NQ), qd_next (NV), A (2 NV x 2 NV), B (2 NV x NV), row-major.
-template <class M, class S, int C>
-TG_HD void euler_step(const S* q, const S* v, const S* acc, S h, int scheme, S* q_next, S* qd_next, S* A, S* B) {
-  constexpr int NV = M::NV, N2 = 2 * NV;
-  const auto& d = data<M, S>();
-  const S* Gq = A;
-  const S* Gv = A + NV * NV;
-  const S* Gt = B;
+template <class Robot, class Scalar, int C>
+TG_HD void euler_step(const Scalar* q, const Scalar* v, const Scalar* acc, Scalar h, int scheme, Scalar* q_next, Scalar* qd_next, Scalar* A, Scalar* B) {
+  constexpr int NV = Robot::NV, N2 = 2 * NV;
+  const auto& d = data<Robot, Scalar>();
+  const Scalar* Gq = A;
+  const Scalar* Gv = A + NV * NV;
+  const Scalar* Gt = B;
   // qd' = qd + dt a;  dqd'/dz = dt G + [0 I 0], the rows NV.. of A and B
   for (int r = 0; r < NV; ++r) {
     qd_next[r] = v[r] + h * acc[r];
-    S* Ar = A + N2 * (NV + r);
-    S* Br = B + NV * (NV + r);
+    Scalar* Ar = A + N2 * (NV + r);
+    Scalar* Br = B + NV * (NV + r);
     for (int c = 0; c < NV; ++c) {
       Ar[c] = h * Gq[NV * r + c];
-      Ar[NV + c] = h * Gv[NV * r + c] + (c == r ? S(1) : S(0));
+      Ar[NV + c] = h * Gv[NV * r + c] + (c == r ? Scalar(1) : Scalar(0));
       Br[c] = h * Gt[NV * r + c];
     }
   }
   // q' = q (+) u, u = dt w;  dq'/dz = Jq [I 0 0] + dt Jv dw/dz, dw/dz = dqd'/dz (semi-implicit) or [0 I 0]
-  S u[NV];
+  Scalar u[NV];
   for (int r = 0; r < NV; ++r) u[r] = h * (scheme ? qd_next[r] : v[r]);
-  for (int i = 0; i < M::NB; ++i) {
-    S Jq[36], Jv[36];
-    const int n = integrate_joint<M, S, C>(i, q, u, q_next, Jq, Jv);
+  for (int i = 0; i < Robot::NB; ++i) {
+    Scalar Jq[36], Jv[36];
+    const int n = integrate_joint<Robot, Scalar, C>(i, q, u, q_next, Jq, Jv);
     const int vi = d.vi[i], rows = n ? n : d.nvj[i];
     for (int a = 0; a < rows; ++a) {
-      S* Ar = A + N2 * (vi + a);
-      S* Br = B + NV * (vi + a);
-      for (int c = 0; c < N2; ++c) Ar[c] = S(0);
-      for (int c = 0; c < NV; ++c) Br[c] = S(0);
+      Scalar* Ar = A + N2 * (vi + a);
+      Scalar* Br = B + NV * (vi + a);
+      for (int c = 0; c < N2; ++c) Ar[c] = Scalar(0);
+      for (int c = 0; c < NV; ++c) Br[c] = Scalar(0);
       for (int b = 0; b < (n ? n : 1); ++b) {
-        const S jv = h * (n ? Jv[n * a + b] : S(1)), jq = n ? Jq[n * a + b] : S(1);
+        const Scalar jv = h * (n ? Jv[n * a + b] : Scalar(1)), jq = n ? Jq[n * a + b] : Scalar(1);
         const int row = n ? vi + b : vi + a;
         Ar[row] += jq;
         if (scheme) {
-          const S* Dr = A + N2 * (NV + row);
-          const S* Er = B + NV * (NV + row);
+          const Scalar* Dr = A + N2 * (NV + row);
+          const Scalar* Er = B + NV * (NV + row);
           for (int c = 0; c < N2; ++c) Ar[c] += jv * Dr[c];
           for (int c = 0; c < NV; ++c) Br[c] += jv * Er[c];
         } else {
