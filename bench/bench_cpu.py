@@ -105,7 +105,7 @@ def call_overhead(number: int = 20000) -> list[tuple[str, float]]:
 
     return [("Robot.inverse_dynamics, batch (1, 7)", best(lambda: robot.inverse_dynamics(q, qd, qdd))),
             ("Robot.inverse_dynamics, unbatched (7,)", best(lambda: robot.inverse_dynamics(q1, qd1, qdd1))),
-            ("torch.ops op (through its autograd kernel)", best(lambda: op(q, qd, qdd, None, 0))),
+            ("torch.ops op (through its autograd kernel)", best(lambda: op(q, qd, qdd, None, None, 0))),
             ("pinocchio.rnea from Python", best(lambda: pin.rnea(model, data, x, x, x)))]
 
 

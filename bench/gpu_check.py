@@ -8,10 +8,10 @@ bench/gpu_prebuild.py, which also compiles their CUDA units ahead into .gpu/preb
 archive is there, a build takes each object whose digest matches the unit it generates, and compiles
 the others). Stages run as separate processes, each with its own time limit, so a crash or hang in one
 leaves the others' results: the builds; per robot, every function's values (float64 and float32, both
-conventions), batch sizes and memory layouts, gradients, double backward, forward mode and vmap; the
-device stages (streams, CUDA graphs, torch.compile, the examples, the local-memory reservation and the
-budget refusal); the figures; compute-sanitizer's memcheck and initcheck; the kernels' resources
-(cuobjdump) and one kernel's achieved occupancy (ncu). Into --out (default $OUT, else bench/gpu):
+conventions), batch sizes and memory layouts, gradients, double backward, forward mode and vmap, and
+the functions given inertial parameters; the device stages (streams, CUDA graphs, torch.compile, the
+examples, the local-memory reservation and the budget refusal); the figures; compute-sanitizer's
+memcheck and initcheck; the kernels' resources (cuobjdump) and one kernel's achieved occupancy (ncu). Into --out (default $OUT, else bench/gpu):
 check.log, results.json (one record per figure), resources.txt, sanitizer.log and ncu.txt.
 
 --cpu runs the same checks with the CPU standing in for the GPU (small batches; the CUDA-only checks
@@ -40,7 +40,7 @@ sys.path.insert(0, str(HERE))
 from gpu_models import MODELS, MODELS_DIR  # noqa: E402
 
 PREBUILT = ROOT / ".gpu" / "prebuilt.tar.xz"
-PER_ROBOT = ("values", "batches", "gradients")
+PER_ROBOT = ("values", "batches", "gradients", "parameters")
 
 
 # -- one stage, in its own process ----------------------------------------------------------------
@@ -81,6 +81,8 @@ def run_stage(stage: str, robot: str | None, cpu: bool, threads: int) -> int:
         correctness.layouts(checks, r, device)
     elif stage == "gradients":
         correctness.gradients(checks, _robot(robot), device, 5)
+    elif stage == "parameters":
+        correctness.parameters(checks, _robot(robot), device)
     elif stage == "device":
         gpu_device.streams(checks, _robot("go2"), device)
         gpu_device.graphs(checks, _robot("go2"), device)

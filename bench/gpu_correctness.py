@@ -294,3 +294,52 @@ def gradients(checks: Checks, robot, device: torch.device, batch: int) -> None:
             sd = torch.func.vmap(lambda a, b, c: view.step_derivatives(a, b, c, 0.01, "rk4"))(q, qd, x)
             return fd, jac, sd
         checks.run(f"{conv} vmap", lambda: compare(vmapped(device), vmapped("cpu"), GRAD_TOL, device))
+
+
+def _inertial_parameters(robot) -> torch.Tensor:
+    """(3, nbodies, 10): per-sample parameters near the robot's own, each link's inertia scaled."""
+    own = robot.inertial_parameters().view(robot.nbodies, 10)
+    return own * torch.tensor([[0.9], [1.0], [1.2]], dtype=torch.float64).unsqueeze(-1)
+
+
+def parameters(checks: Checks, robot, device: torch.device) -> None:
+    """The functions given inertial parameters (params=, per sample) on the device against the CPU, float64:
+    values, the gradient with respect to the parameters and the state, and the forward mode along them."""
+    params = _inertial_parameters(robot)
+    calls = {
+        "inverse_dynamics": lambda v, q, qd, x, p: v.inverse_dynamics(q, qd, x, params=p),
+        "forward_dynamics": lambda v, q, qd, x, p: v.forward_dynamics(q, qd, x, params=p),
+        "crba": lambda v, q, qd, x, p: v.crba(q, params=p),
+        "minv": lambda v, q, qd, x, p: v.minv(q, params=p),
+        "energy": lambda v, q, qd, x, p: v.energy(q, qd, params=p),
+        "com": lambda v, q, qd, x, p: v.com(q, params=p),
+        "ccrba": lambda v, q, qd, x, p: v.ccrba(q, qd, params=p),
+        "coriolis_matrix": lambda v, q, qd, x, p: v.coriolis_matrix(q, qd, params=p),
+        "inverse_dynamics_derivatives": lambda v, q, qd, x, p: v.inverse_dynamics_derivatives(q, qd, x, params=p),
+        "forward_dynamics_derivatives": lambda v, q, qd, x, p: v.forward_dynamics_derivatives(q, qd, x, params=p),
+        "step[rk4]": lambda v, q, qd, x, p: v.step(q, qd, x, 0.01, "rk4", params=p),
+        "step_derivatives[semi_implicit_euler]":
+            lambda v, q, qd, x, p: v.step_derivatives(q, qd, x, 0.01, "semi_implicit_euler", params=p),
+        "step_derivatives[rk4]": lambda v, q, qd, x, p: v.step_derivatives(q, qd, x, 0.01, "rk4", params=p),
+    }
+    for conv, view in views(robot):
+        q, qd, x, _ = states(view, 3, seed=4)
+        inputs = [q, qd, x, params]
+        for name, call in calls.items():
+            checks.run(f"{conv} params {name}", lambda call=call: compare(call(view, *on(inputs, device)), call(view, *inputs),
+                                                                          F64_TOL, device, torch.float64))
+            if name.startswith("step_derivatives"):
+                continue
+
+            def grad(dev, call=call):
+                leaves = [t.clone().requires_grad_(True) for t in on(inputs, dev)]
+                out = [t for t in tensors(call(view, *leaves)) if t.requires_grad]
+                grads = torch.autograd.grad(out, leaves, _weights(out), allow_unused=True)
+                return [g if g is not None else torch.zeros_like(leaf) for g, leaf in zip(grads, leaves)]
+            checks.run(f"{conv} params backward {name}", lambda grad=grad: compare(grad(device), grad("cpu"), GRAD_TOL, device))
+
+            def jvp(dev, call=call):
+                tangent = torch.randn(params.shape, dtype=torch.float64, generator=torch.Generator().manual_seed(6))
+                q_, qd_, x_, p_ = on(inputs, dev)
+                return torch.func.jvp(lambda p: tuple(tensors(call(view, q_, qd_, x_, p))), (p_,), (tangent.to(dev),))
+            checks.run(f"{conv} params forward mode {name}", lambda jvp=jvp: compare(jvp(device), jvp("cpu"), GRAD_TOL, device))

@@ -140,18 +140,20 @@ def test_raw_op_checks_arguments(robots):
     robot = robots["go2"]
     q, qd = _state(robot, 2)
     with pytest.raises(RuntimeError, match=r"qd must have shape \(\.\.\., 18\)"):
-        robot._ops.inverse_dynamics(q, qd[:, :-1], qd, None, 0)
+        robot._ops.inverse_dynamics(q, qd[:, :-1], qd, None, None, 0)
     with pytest.raises(RuntimeError, match="does not broadcast"):
-        robot._ops.inverse_dynamics(q, torch.cat([qd, qd, qd]), qd, None, 0)
-    expanded = robot._ops.inverse_dynamics(q, qd[:1].expand(2, -1), qd[1], None, 0)
-    assert torch.equal(robot._ops.inverse_dynamics(q, qd[:1], qd[1], None, 0), expanded)
-    grid = robot._ops.inverse_dynamics(q[:, None], qd[None], qd[1], None, 0)  # (2, 1) with (1, 2): (2, 2)
+        robot._ops.inverse_dynamics(q, torch.cat([qd, qd, qd]), qd, None, None, 0)
+    expanded = robot._ops.inverse_dynamics(q, qd[:1].expand(2, -1), qd[1], None, None, 0)
+    assert torch.equal(robot._ops.inverse_dynamics(q, qd[:1], qd[1], None, None, 0), expanded)
+    grid = robot._ops.inverse_dynamics(q[:, None], qd[None], qd[1], None, None, 0)  # (2, 1) with (1, 2): (2, 2)
     assert grid.shape == (2, 2, robot.nv)
-    assert torch.equal(grid[1, 0], robot._ops.inverse_dynamics(q[1], qd[0], qd[1], None, 0))
+    assert torch.equal(grid[1, 0], robot._ops.inverse_dynamics(q[1], qd[0], qd[1], None, None, 0))
     with pytest.raises(RuntimeError, match="frame"):
         robot._ops.frame_jacobian(q, 10_000, 2, 0)
+    with pytest.raises(RuntimeError, match=r"params must have shape \(\.\.\., 13, 10\)"):
+        robot._ops.crba(q, torch.zeros(13, 9, dtype=q.dtype), 0)
     with pytest.raises(RuntimeError, match="convention"):
-        robot._ops.crba(q, 5)
+        robot._ops.crba(q, None, 5)
 
 
 def test_float32_on_the_cpu_is_float64_rounded(robots):
@@ -165,15 +167,17 @@ def test_float32_on_the_cpu_is_float64_rounded(robots):
     f = torch.randn(150, robot.nbodies, 6, generator=g).float()
     w = torch.randn(150, robot.nv, robot.nv, generator=g).float()
     ops = robot._ops
+    params = (robot.inertial_parameters().view(robot.nbodies, 10) * 1.1).float()
     calls = [
-        lambda q, qd, qdd, f, w: ops.inverse_dynamics(q, qd, qdd, None, 1),  # qdd shared by the batch
-        lambda q, qd, qdd, f, w: ops.inverse_dynamics(q, qd, qdd, f, 0),
-        lambda q, qd, qdd, f, w: ops.crba(q, 1),
+        lambda q, qd, qdd, f, w: ops.inverse_dynamics(q, qd, qdd, None, None, 1),  # qdd shared by the batch
+        lambda q, qd, qdd, f, w: ops.inverse_dynamics(q, qd, qdd, f, None, 0),
+        lambda q, qd, qdd, f, w: ops.crba(q, None, 1),
+        lambda q, qd, qdd, f, w: ops.forward_dynamics(q, qd, qdd, f, params.to(q.dtype), 1),  # shared parameters
         lambda q, qd, qdd, f, w: ops.frame_jacobian(q, 7, 2, 1),
-        lambda q, qd, qdd, f, w: ops.inverse_dynamics_derivatives(q, qd, qdd, f, 1),
+        lambda q, qd, qdd, f, w: ops.inverse_dynamics_derivatives(q, qd, qdd, f, None, 1),
         lambda q, qd, qdd, f, w: ops.inverse_dynamics_regressor(q, qd, qdd.expand_as(qd), 1),  # 3 samples a chunk
         lambda q, qd, qdd, f, w: ops.frame_jacobian_backward(q, 7, 2, None, 1, 1),
-        lambda q, qd, qdd, f, w: ops.coriolis_matrix_backward(q, qd, w, 3, 1),
+        lambda q, qd, qdd, f, w: ops.coriolis_matrix_backward(q, qd, None, w, 3, 1),
     ]
     for call in calls:
         single = call(q, qd, qdd, f, w)
@@ -297,4 +301,4 @@ def test_pin_only_build(tmp_path):
     with pytest.raises(ValueError, match="enable_mujoco_kernels"):
         floating.convention = "mujoco"
     with pytest.raises(RuntimeError, match="enable_mujoco_kernels"):
-        floating._ops.crba(floating.random_configuration(1), 1)
+        floating._ops.crba(floating.random_configuration(1), None, 1)

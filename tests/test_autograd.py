@@ -26,7 +26,7 @@ def _states(robot, batch, seed, convention):
 def test_every_differentiable_function_is_checked(robots):
     """Every public function returning tensors of q is in the table above (so gradcheck covers it)."""
     public = {n for n in dir(robots["iiwa14"].pin) if not n.startswith("_") and callable(getattr(robots["iiwa14"].pin, n))}
-    not_differentiable = {"inertial_parameters", "neutral_configuration", "random_configuration", "frame_index",
+    not_differentiable = {"inertial_parameters", "neutral_configuration", "random_configuration", "frame_index", "with_parameters",
                           "rnea", "aba",  # constants and samplers; rnea/aba alias two functions in the table
                           "inverse_dynamics_second_derivatives", "forward_dynamics_second_derivatives",  # a third derivative
                           "frame_kinematic_hessian", "end_effector_pose_second_derivatives", "step_second_derivatives"}
@@ -137,7 +137,7 @@ def test_internal_ops_refuse_to_back_propagate(robots):
     robot = robots["iiwa14"]
     q, qd, x, _ = _states(robot, 2, 10, "pin")
     q.requires_grad_(True)
-    out = robot._ops.inverse_dynamics_vjp_full_jvp(q, qd, x, None, x, torch.ones_like(q), None, 0)[0]
+    out = robot._ops.inverse_dynamics_vjp_full_jvp(q, qd, x, None, x, None, torch.ones_like(q), None, 0)[0]
     with pytest.raises(NotImplementedError, match="inverse_dynamics_vjp_full_jvp has no derivative"):
         out.sum().backward()
 
@@ -151,11 +151,11 @@ def test_full_vjp_outputs(robots, name, convention):
     ops, c = robot._ops, int(convention == "mujoco")
     q, qd, qdd, f = _states(robot, 3, 14, convention)
     lam = torch.randn_like(qd)
-    g_q, g_qd, m_lam, tau = ops.inverse_dynamics_vjp_full(q, qd, qdd, f, lam, c)
-    ref_q, ref_qd = ops.inverse_dynamics_vjp(q, qd, qdd, f, lam, c)
+    g_q, g_qd, m_lam, tau = ops.inverse_dynamics_vjp_full(q, qd, qdd, f, lam, None, c)
+    ref_q, ref_qd = ops.inverse_dynamics_vjp(q, qd, qdd, f, lam, None, c)
     assert torch.allclose(g_q, ref_q, rtol=1e-12, atol=1e-12) and torch.allclose(g_qd, ref_qd, rtol=1e-12, atol=1e-12)
-    assert torch.allclose(m_lam, (ops.crba(q, c) @ lam.unsqueeze(-1)).squeeze(-1), rtol=1e-12, atol=1e-12)
-    assert torch.allclose(tau, ops.inverse_dynamics(q, qd, qdd, f, c), rtol=1e-12, atol=1e-12)
+    assert torch.allclose(m_lam, (ops.crba(q, None, c) @ lam.unsqueeze(-1)).squeeze(-1), rtol=1e-12, atol=1e-12)
+    assert torch.allclose(tau, ops.inverse_dynamics(q, qd, qdd, f, None, c), rtol=1e-12, atol=1e-12)
 
 
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
@@ -168,9 +168,10 @@ def test_jvp_kernels_match_central_differences(robots, name, convention):
     q, qd, qdd, f = _states(robot, 3, 11, convention)
     lam = torch.randn_like(qd)
     dq, dqd = torch.randn_like(q), torch.randn_like(qd)
+    params = 1.1 * robot.inertial_parameters().view(robot.nbodies, 10)  # the kernels with parameters given
     cases = {
-        "inverse_dynamics_vjp_full": ((q, qd, qdd, f, lam), (dq, dqd, None, None, None)),
-        "inverse_dynamics": ((q, qd, qdd, f), (dq, dqd, None, None)),
+        "inverse_dynamics_vjp_full": ((q, qd, qdd, f, lam, params), (dq, dqd, None, None, None, None)),
+        "inverse_dynamics": ((q, qd, qdd, f, params), (dq, dqd, None, None, None)),
         "body_velocities": ((q, qd), (dq, None)),
     }
     h = 1e-6

@@ -416,10 +416,10 @@ def test_vector_jacobian_products_match_the_matrices(robots, name, convention):
     q, qd, qdd, f = _states(robot, batch=3, seed=23, convention=convention)
     lam = torch.randn(3, robot.nv, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
     dq, dqd = view.inverse_dynamics_derivatives(q, qd, qdd, f)
-    g_q, g_qd = robot._ops.inverse_dynamics_vjp(q, qd, qdd, f, lam, view._convention)
+    g_q, g_qd = robot._ops.inverse_dynamics_vjp(q, qd, qdd, f, lam, None, view._convention)
     assert rel_err(g_q, (lam.unsqueeze(-2) @ dq).squeeze(-2)) <= 1e-12
     assert rel_err(g_qd, (lam.unsqueeze(-2) @ dqd).squeeze(-2)) <= 1e-12
-    assert rel_err(robot._ops.inertia_solve(q, lam, view._convention), (view.minv(q) @ lam.unsqueeze(-1)).squeeze(-1)) <= 1e-12
+    assert rel_err(robot._ops.inertia_solve(q, lam, None, view._convention), (view.minv(q) @ lam.unsqueeze(-1)).squeeze(-1)) <= 1e-12
 
 
 @pytest.mark.parametrize("name", FLOATING)

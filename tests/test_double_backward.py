@@ -98,11 +98,11 @@ def test_mass_product_gradient(robots, balls, name):
     g = torch.Generator().manual_seed(5)
     q = robot.random_configuration(3, generator=g)
     a, lam = (torch.randn(3, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
-    ours = robot._ops.mass_product_vjp(q, a, lam, 0)
-    assert rel_err(ours, robot._ops.crba_vjp(q, lam.unsqueeze(-1) * a.unsqueeze(-2), 0)) <= 1e-12
+    ours = robot._ops.mass_product_vjp(q, a, lam, None, 0)
+    assert rel_err(ours, robot._ops.crba_vjp(q, lam.unsqueeze(-1) * a.unsqueeze(-2), None, 0)) <= 1e-12
     inputs = [t[:1].clone().requires_grad_(True) for t in (1.3 * q, a, lam)]
     for call in (robot._ops.mass_product_vjp, lambda *x: robot._func.call("mass_product_vjp", *x)):
-        assert torch.autograd.gradcheck(lambda *x: call(*x, 0), inputs, eps=1e-6, atol=1e-6, rtol=1e-5,
+        assert torch.autograd.gradcheck(lambda *x: call(*x, None, 0), inputs, eps=1e-6, atol=1e-6, rtol=1e-5,
                                         check_forward_ad=call is not robot._ops.mass_product_vjp)
 
 

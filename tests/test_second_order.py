@@ -117,7 +117,7 @@ def test_crba_backward_is_the_contracted_mass_matrix_derivative(robots, pin_mode
     W = torch.randn(3, robot.nv, robot.nv, dtype=torch.float64, generator=torch.Generator().manual_seed(2))
     dM = robot.pin.inverse_dynamics_second_derivatives(q, qd, qdd)[3]
     expected = torch.einsum("bij,bijk->bk", W, dM)
-    assert rel_err(robot._ops.crba_vjp(q, W, 0), expected) <= 1e-12
+    assert rel_err(robot._ops.crba_vjp(q, W, None, 0), expected) <= 1e-12
     leaf = q.clone().requires_grad_(True)
     grad, = torch.autograd.grad(robot.pin.crba(leaf), leaf, W)
     assert rel_err(grad, tangent_to_ambient(robot.model.kernel_model, q, expected, 0)) <= 1e-12
@@ -138,7 +138,7 @@ def test_inverse_dynamics_derivatives_backward_contracts_the_second_order_tensor
     g = torch.Generator().manual_seed(3)
     Gq, Gv = (torch.randn(3, robot.nv, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
     d2q, d2v, dqdv, dadq = robot.pin.inverse_dynamics_second_derivatives(q, qd, qdd, f)
-    gq, gqd, gqdd, gf = robot._ops.inverse_dynamics_derivatives_vjp(q, qd, qdd, f, Gq, Gv, 0)
+    gq, gqd, gqdd, gf = robot._ops.inverse_dynamics_derivatives_vjp(q, qd, qdd, f, Gq, Gv, None, 0)
     assert rel_err(gq, torch.einsum("bij,bijk->bk", Gq, d2q) + torch.einsum("bij,bikj->bk", Gv, dqdv)) <= 1e-12
     assert rel_err(gqd, torch.einsum("bij,bijk->bk", Gq, dqdv) + torch.einsum("bij,bijk->bk", Gv, d2v)) <= 1e-12
     assert rel_err(gqdd, torch.einsum("bij,bimj->bm", Gq, dadq)) <= 1e-12

@@ -260,13 +260,13 @@ def test_step_kernels_are_the_torch_composition(robots, name, convention):
             assert rel_err(a[compared], b.detach()[compared]) <= 1e-12, (integrator, what)
     conv, h = int(convention == "mujoco"), dt.unsqueeze(-1)
     with pytest.raises(RuntimeError, match="scheme must be 0 .euler. or 1 .semi-implicit euler., got 2"):
-        robot._ops.step_derivatives(q, qd, tau, None, h, 2, 0, conv)
+        robot._ops.step_derivatives(q, qd, tau, None, h, None, 2, 0, conv)
     with pytest.raises(RuntimeError, match=r"scheme must be 2 \(midpoint\), 3 \(rk3\) or 4 \(rk4\), got 1"):
-        robot._ops.rk_step_derivatives(q, qd, tau, None, h, 1, 0, conv)
+        robot._ops.rk_step_derivatives(q, qd, tau, None, h, None, 1, 0, conv)
     with pytest.raises(RuntimeError, match=r"passive must be 0 \(none\), 1 \(explicit\) or 2 .*got 3"):
-        robot._ops.step_derivatives(q, qd, tau, None, h, 1, 3, conv)
+        robot._ops.step_derivatives(q, qd, tau, None, h, None, 1, 3, conv)
     for op, scheme in ((robot._ops.step_derivatives, 1), (robot._ops.rk_step_derivatives, 4)):
-        out = op(q, qd, tau.clone().requires_grad_(), None, h, scheme, 0, conv)
+        out = op(q, qd, tau.clone().requires_grad_(), None, h, None, scheme, 0, conv)
         with pytest.raises(NotImplementedError, match="step_derivatives kernel has no derivative; differentiate Robot.st"):
             out[2].sum().backward()
 

@@ -14,6 +14,7 @@ from .ops.autograd import register_autograd
 from .ops.build import build as _build
 from .ops.build import release_kept_blocks
 from .optim.costs import log_barrier, quadratic_barrier
+from .optim.inertial import log_cholesky_to_parameters, parameters_to_log_cholesky, pseudo_inertia
 from .robot import Robot, RobotView
 from .space import conventions
 from .step.integrators import INTEGRATORS
@@ -21,7 +22,8 @@ from .step.integrators import INTEGRATORS
 _sys.modules[f"{__name__}.conventions"] = conventions  # `import torch_grid.conventions`: the public module
 
 __all__ = ["load", "Robot", "RobotView", "RobotModel", "Joint", "Frame", "conventions", "from_pinocchio", "BUNDLED",
-           "INTEGRATORS", "log_barrier", "quadratic_barrier", "empty_cache"]
+           "INTEGRATORS", "log_barrier", "quadratic_barrier", "empty_cache", "pseudo_inertia", "log_cholesky_to_parameters",
+           "parameters_to_log_cholesky"]
 __version__ = "0.1.0"
 
 

@@ -14,21 +14,21 @@ import torch
 from .former import CONVENTIONS, FORMER_NAMES, convention_name
 from .model.description import RobotModel, inertia_about_origin
 from .ops import mujoco_second_order
-from .ops.arguments import check_batch_shape, check_dt, check_tensor, checked, forward_mode, reference_code
+from .ops.arguments import check_batch_shape, check_dt, check_tensor, forward_mode, reference_code
+from .ops.dispatch import dispatch, kernel_call
 from .ops.fd_second_order import second_order
-from .ops.func import FORWARD_MODE, FuncOps, traced_transform
+from .ops.func import FuncOps
 from .ops.mimic import Coupling
 from .ops.pose import PoseDerivatives
 from .ops.table import OPS, model_sizes
 from .optim.costs import CostFunctions
 from .optim.horizon import HorizonFunctions
+from .optim.inertial import check_physical
 from .space import lie
 from .space.lie import Space
 from .step.compiled import step_op
 from .step.integrators import StepFunctions
 from .step.passive import PassiveForces
-
-_CPU, _CUDA = torch._C.DispatchKeySet(torch._C.DispatchKey.CPU), torch._C.DispatchKeySet(torch._C.DispatchKey.CUDA)
 
 
 class ConfigurationFunctions:
@@ -70,6 +70,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
 
     _robot: "Robot"
     _convention: int
+    _params: torch.Tensor | None = None  # bound by with_parameters
 
     def __getattr__(self, name: str):
         # a former name of a function (FORMER_NAMES): the function, with a DeprecationWarning
@@ -98,67 +99,72 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
                                "argument is one of these names or its index.")
     robot = property(lambda self: self._robot, doc="The Robot these functions belong to (a Robot's is itself).")
 
-    def inverse_dynamics(self, q, qd, qdd, f_ext=None) -> torch.Tensor:
+    def inverse_dynamics(self, q, qd, qdd, f_ext=None, params=None) -> torch.Tensor:
         """Joint forces tau (..., nv) = M qdd + C qd + g - J^T f_ext (- passive_forces, when included).
 
         q (..., nq), qd (..., nv), qdd (..., nv); f_ext (..., nbodies, 6): a spatial force
-        [force; torque] on each body, in its joint frame (Pinocchio's fext without the universe).
+        [force; torque] on each body, in its joint frame (Pinocchio's fext without the universe);
+        params (..., nbodies, 10): the bodies' inertial parameters (with_parameters), the robot's own
+        when None.
         """
-        tau = self._call("inverse_dynamics", q, qd, qdd, f_ext)
+        tau = dispatch(self, "inverse_dynamics", q, qd, qdd, f_ext, self._parameters(params))
         return tau - self._robot._passive(q, qd) if self._robot._with_passive else tau
 
     rnea = inverse_dynamics
 
-    def forward_dynamics(self, q, qd, tau, f_ext=None) -> torch.Tensor:
+    def forward_dynamics(self, q, qd, tau, f_ext=None, params=None) -> torch.Tensor:
         """Joint accelerations qdd (..., nv) by the articulated-body algorithm, under tau (+ passive_forces,
-        when included); f_ext as in inverse_dynamics."""
+        when included); f_ext and params as in inverse_dynamics."""
         if self._robot._with_passive:
             tau = tau + self._robot._passive(q, qd)
-        return self._call("forward_dynamics", q, qd, tau, f_ext)
+        return dispatch(self, "forward_dynamics", q, qd, tau, f_ext, self._parameters(params))
 
     aba = forward_dynamics
 
-    def crba(self, q) -> torch.Tensor:
-        """Joint-space inertia matrix M (..., nv, nv), full and symmetric."""
-        return self._call("crba", q)
+    def crba(self, q, params=None) -> torch.Tensor:
+        """Joint-space inertia matrix M (..., nv, nv), full and symmetric; params as in inverse_dynamics."""
+        return dispatch(self, "crba", q, self._parameters(params))
 
-    def minv(self, q) -> torch.Tensor:
-        """Inverse inertia matrix M^-1 (..., nv, nv), computed directly (not by inverting M)."""
-        return self._call("minv", q)
+    def minv(self, q, params=None) -> torch.Tensor:
+        """Inverse inertia matrix M^-1 (..., nv, nv), computed directly (not by inverting M); params as in
+        inverse_dynamics."""
+        return dispatch(self, "minv", q, self._parameters(params))
 
-    def generalized_gravity(self, q) -> torch.Tensor:
-        """Gravity joint forces g(q) (..., nv)."""
-        return self._call("generalized_gravity", q)
+    def generalized_gravity(self, q, params=None) -> torch.Tensor:
+        """Gravity joint forces g(q) (..., nv); params as in inverse_dynamics."""
+        return dispatch(self, "generalized_gravity", q, self._parameters(params))
 
-    def nonlinear_effects(self, q, qd) -> torch.Tensor:
-        """C(q, qd) qd + g(q) (..., nv): inverse dynamics at zero acceleration."""
-        return self._call("nonlinear_effects", q, qd)
+    def nonlinear_effects(self, q, qd, params=None) -> torch.Tensor:
+        """C(q, qd) qd + g(q) (..., nv): inverse dynamics at zero acceleration; params as in inverse_dynamics."""
+        return dispatch(self, "nonlinear_effects", q, qd, self._parameters(params))
 
-    def energy(self, q, qd) -> torch.Tensor:
-        """[kinetic, potential, mechanical] energy (..., 3); potential is zero at the world origin."""
-        return self._call("energy", q, qd)
+    def energy(self, q, qd, params=None) -> torch.Tensor:
+        """[kinetic, potential, mechanical] energy (..., 3); potential is zero at the world origin;
+        params as in inverse_dynamics."""
+        return dispatch(self, "energy", q, qd, self._parameters(params))
 
-    def com(self, q) -> torch.Tensor:
-        """Centre of mass of the whole robot in the world frame (..., 3)."""
-        return self._call("com", q)
+    def com(self, q, params=None) -> torch.Tensor:
+        """Centre of mass of the whole robot in the world frame (..., 3); params as in inverse_dynamics."""
+        return dispatch(self, "com", q, self._parameters(params))
 
-    def jacobian_com(self, q) -> torch.Tensor:
-        """Centre-of-mass Jacobian d com / d qd (..., 3, nv)."""
-        return self._call("jacobian_com", q)
+    def jacobian_com(self, q, params=None) -> torch.Tensor:
+        """Centre-of-mass Jacobian d com / d qd (..., 3, nv); params as in inverse_dynamics."""
+        return dispatch(self, "jacobian_com", q, self._parameters(params))
 
-    def ccrba(self, q, qd) -> tuple[torch.Tensor, torch.Tensor]:
-        """Centroidal momentum matrix A (..., 6, nv) and momentum h = A qd (..., 6), [linear; angular]."""
-        return self._call("ccrba", q, qd)
+    def ccrba(self, q, qd, params=None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Centroidal momentum matrix A (..., 6, nv) and momentum h = A qd (..., 6), [linear; angular];
+        params as in inverse_dynamics."""
+        return dispatch(self, "ccrba", q, qd, self._parameters(params))
 
     def forward_kinematics(self, q) -> tuple[torch.Tensor, torch.Tensor]:
         """World positions (..., nframes, 3) and rotations (..., nframes, 3, 3) of every frame in frame_names."""
-        return self._call("forward_kinematics", q)
+        return dispatch(self, "forward_kinematics", q)
 
     def end_effector_pose(self, q, frames: Sequence[str | int]) -> torch.Tensor:
         """[x, y, z, roll, pitch, yaw] (..., len(frames), 6) of each listed frame, R = Rz(yaw) Ry(pitch) Rx(roll)."""
         if isinstance(frames, (str, int)):
             raise TypeError(f"end_effector_pose: frames must be a list of frame names or indices, got {frames!r}")
-        return self._call("end_effector_pose", q, [self._robot.frame_index(f, "frames") for f in frames])
+        return dispatch(self, "end_effector_pose", q, [self._robot.frame_index(f, "frames") for f in frames])
 
     def frame_jacobian(self, q, frame: str | int, reference: str = "local_world_aligned") -> torch.Tensor:
         """Jacobian (..., 6, nv), rows [linear; angular], of a frame, as Pinocchio's getFrameJacobian.
@@ -166,7 +172,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         reference: "local_world_aligned" (frame origin, world axes), "local" (frame axes) or
         "world" (spatial velocity at the world origin).
         """
-        return self._call("frame_jacobian", q, self._robot.frame_index(frame, "frame"), reference_code(reference))
+        return dispatch(self, "frame_jacobian", q, self._robot.frame_index(frame, "frame"), reference_code(reference))
 
     def frame_kinematic_hessian(self, q, frame: str | int, reference: str = "local_world_aligned") -> torch.Tensor:
         """Kinematic Hessian (..., 6, nv, nv) of a frame: H[..., :, j, k] = d J[..., :, j] / dq_k along the
@@ -175,44 +181,48 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         index, ref = self._robot.frame_index(frame, "frame"), reference_code(reference)
         if self._differs():
             return mujoco_second_order.frame_kinematic_hessian(self._robot, q, index, ref)
-        return self._call("frame_kinematic_hessian", q, index, ref)
+        return dispatch(self, "frame_kinematic_hessian", q, index, ref)
 
     def frame_jacobian_dot(self, q, qd, frame: str | int, reference: str = "local_world_aligned") -> torch.Tensor:
         """Time derivative (..., 6, nv) of frame_jacobian at velocity qd (Pinocchio's
         getFrameJacobianTimeVariation); in MuJoCo's convention, of its Jacobian with qvel fixed."""
-        return self._call("frame_jacobian_dot", q, qd, self._robot.frame_index(frame, "frame"), reference_code(reference))
+        return dispatch(self, "frame_jacobian_dot", q, qd, self._robot.frame_index(frame, "frame"), reference_code(reference))
 
     def body_velocities(self, q, qd) -> torch.Tensor:
         """Spatial velocity [linear; angular] (..., nbodies, 6) of each body, in its joint frame."""
-        return self._call("body_velocities", q, qd)
+        return dispatch(self, "body_velocities", q, qd)
 
-    def inverse_dynamics_derivatives(self, q, qd, qdd, f_ext=None) -> tuple[torch.Tensor, torch.Tensor]:
+    def inverse_dynamics_derivatives(self, q, qd, qdd, f_ext=None, params=None) -> tuple[torch.Tensor, torch.Tensor]:
         """Analytic (d tau / dq, d tau / dqd), each (..., nv, nv), of inverse_dynamics.
 
         Derivatives along the tangent space: for a floating base in Pinocchio's convention, the
         local increment q (+) dq (as pinocchio.computeRNEADerivatives); in MuJoCo's convention,
-        mj_integratePos's increment, with qvel and qacc held fixed in MuJoCo's frame.
+        mj_integratePos's increment, with qvel and qacc held fixed in MuJoCo's frame. f_ext and params
+        as in inverse_dynamics.
         """
-        dq, dqd = self._call("inverse_dynamics_derivatives", q, qd, qdd, f_ext)
+        dq, dqd = dispatch(self, "inverse_dynamics_derivatives", q, qd, qdd, f_ext, self._parameters(params))
         if not self._robot._with_passive:
             return dq, dqd
         # - passive_forces adds stiffness and damping to the diagonals.
         damping, stiffness, _ = self._robot._passive.coefficients(dq)
         return dq + torch.diag_embed(stiffness), dqd + torch.diag_embed(damping)
 
-    def forward_dynamics_derivatives(self, q, qd, tau, f_ext=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def forward_dynamics_derivatives(self, q, qd, tau, f_ext=None,
+                                     params=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Analytic (d qdd / dq, d qdd / dqd, d qdd / dtau), each (..., nv, nv), of forward_dynamics.
 
         Tangent derivatives as in inverse_dynamics_derivatives; d qdd / dtau = M^-1.
         """
+        params = self._parameters(params)
         if not self._robot._with_passive:
-            return self._call("forward_dynamics_derivatives", q, qd, tau, f_ext)
+            return dispatch(self, "forward_dynamics_derivatives", q, qd, tau, f_ext, params)
         # qdd = FD(q, qd, tau + passive(q, qd)): the chain rule through the passive forces' diagonals.
-        dq, dqd, minv = self._call("forward_dynamics_derivatives", q, qd, tau + self._robot._passive(q, qd), f_ext)
+        dq, dqd, minv = dispatch(self, "forward_dynamics_derivatives", q, qd, tau + self._robot._passive(q, qd), f_ext,
+                                 params)
         damping, stiffness, _ = self._robot._passive.coefficients(minv)
         return dq - minv * stiffness, dqd - minv * damping, minv
 
-    def inverse_dynamics_second_derivatives(self, q, qd, qdd, f_ext=None) -> tuple[torch.Tensor, ...]:
+    def inverse_dynamics_second_derivatives(self, q, qd, qdd, f_ext=None, params=None) -> tuple[torch.Tensor, ...]:
         """Analytic second derivatives of inverse_dynamics, each (..., nv, nv, nv), tau's index first:
 
             d2tau_dq2[i, j, k]   = d/dq_k  (d tau / dq)[i, j]
@@ -227,11 +237,12 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         qvel and qacc held fixed in MuJoCo's frame; with free joints, composed in torch from Pinocchio's
         tensors (torch_grid/ops/mujoco_second_order.py).
         """
+        params = self._parameters(params)
         if self._differs():
-            return mujoco_second_order.inverse_dynamics_second_derivatives_mujoco(self._robot, q, qd, qdd, f_ext)
-        return self._call("inverse_dynamics_second_derivatives", q, qd, qdd, f_ext)
+            return mujoco_second_order.inverse_dynamics_second_derivatives_mujoco(self._robot, q, qd, qdd, f_ext, params)
+        return dispatch(self, "inverse_dynamics_second_derivatives", q, qd, qdd, f_ext, params)
 
-    def forward_dynamics_second_derivatives(self, q, qd, tau, f_ext=None) -> tuple[torch.Tensor, ...]:
+    def forward_dynamics_second_derivatives(self, q, qd, tau, f_ext=None, params=None) -> tuple[torch.Tensor, ...]:
         """Second derivatives of forward_dynamics, each (..., nv, nv, nv), in the layout of
         inverse_dynamics_second_derivatives: (d2qdd_dq2, d2qdd_dqd2, d2qdd_dqdqd, d2qdd_dtaudq) with
         d2qdd_dtaudq[i, j, k] = d/dq_k (M^-1)[i, j].
@@ -242,9 +253,9 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         (dM/dx only along q), from inverse_dynamics_second_derivatives and forward_dynamics_derivatives, in
         either convention.
         """
-        qdd = self.forward_dynamics(q, qd, tau, f_ext)
-        z_q, z_qd, minv = self.forward_dynamics_derivatives(q, qd, tau, f_ext)
-        return second_order(self.inverse_dynamics_second_derivatives(q, qd, qdd, f_ext), z_q, z_qd, minv)
+        qdd = self.forward_dynamics(q, qd, tau, f_ext, params)
+        z_q, z_qd, minv = self.forward_dynamics_derivatives(q, qd, tau, f_ext, params)
+        return second_order(self.inverse_dynamics_second_derivatives(q, qd, qdd, f_ext, params), z_q, z_qd, minv)
 
     def _differs(self) -> bool:
         """Whether this view is MuJoCo's convention of a robot on which it differs from Pinocchio's."""
@@ -263,13 +274,14 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         """d inverse_dynamics / d f_ext (..., nv, nbodies, 6) = -J_k^T, J_k body k's Jacobian in its joint frame."""
         if forward_mode((q,)):
             return -self._body_jacobians(q)
-        return self._call("inverse_dynamics_external_force_derivatives", q)
+        return dispatch(self, "inverse_dynamics_external_force_derivatives", q)
 
-    def forward_dynamics_external_force_derivatives(self, q) -> torch.Tensor:
-        """d forward_dynamics / d f_ext (..., nv, nbodies, 6) = M^-1 J_k^T."""
-        if forward_mode((q,)):
-            return (self.minv(q) @ self._body_jacobians(q).flatten(-2)).unflatten(-1, (self._robot.nbodies, 6))
-        return self._call("forward_dynamics_external_force_derivatives", q)
+    def forward_dynamics_external_force_derivatives(self, q, params=None) -> torch.Tensor:
+        """d forward_dynamics / d f_ext (..., nv, nbodies, 6) = M^-1 J_k^T; params as in inverse_dynamics."""
+        params = self._parameters(params)
+        if forward_mode((q, params)):
+            return (self.minv(q, params) @ self._body_jacobians(q).flatten(-2)).unflatten(-1, (self._robot.nbodies, 6))
+        return dispatch(self, "forward_dynamics_external_force_derivatives", q, params)
 
     def _body_jacobians(self, q) -> torch.Tensor:
         """(..., nv, nbodies, 6): [m, k] = J_k e_m, from body_velocities (linear in qd), which has a forward
@@ -277,71 +289,81 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         eye = torch.eye(self._robot.nv, dtype=q.dtype, device=q.device)
         return self.body_velocities(q.unsqueeze(-2), eye)
 
-    def osc_inertia(self, q, frame: str | int, reference: str = "local_world_aligned") -> torch.Tensor:
+    def osc_inertia(self, q, frame: str | int, reference: str = "local_world_aligned", params=None) -> torch.Tensor:
         """Operational-space inertia Lambda = (J M^-1 J^T)^-1 (..., 6, 6) of a frame, J its Jacobian in
         `reference` (as frame_jacobian). Lambda exists only where J has full rank 6: a frame moved by
         fewer than 6 dofs raises ValueError; at a singular configuration of a frame that has 6 or more,
-        the entries are inf or NaN, as the inverse of a singular matrix."""
+        the entries are inf or NaN, as the inverse of a singular matrix. params as in inverse_dynamics."""
         robot = self._robot
         index = robot.frame_index(frame, "frame")
         dofs = robot._frame_dofs(index)
         if dofs < 6:
             raise ValueError(f"osc_inertia: frame {robot.frame_names[index]!r} is moved by {dofs} dofs; its operational-"
                              "space inertia exists only for a frame with full 6-dof mobility")
-        if forward_mode((q,)):  # composed of ops that have a forward mode (the kernel has none)
+        params = self._parameters(params)
+        if forward_mode((q, params)):  # composed of ops that have a forward mode (the kernel has none)
             J = self.frame_jacobian(q, index, reference)
-            return torch.linalg.inv(J @ self.minv(q) @ J.mT)
-        return self._call("osc_inertia", q, index, reference_code(reference))
+            return torch.linalg.inv(J @ self.minv(q, params) @ J.mT)
+        return dispatch(self, "osc_inertia", q, index, reference_code(reference), params)
 
-    def cmm_time_variation(self, q, qd) -> torch.Tensor:
+    def cmm_time_variation(self, q, qd, params=None) -> torch.Tensor:
         """Time derivative dA/dt (..., 6, nv) of the centroidal momentum matrix (Pinocchio's
-        computeCentroidalMapTimeVariation); in MuJoCo's convention, of its A at fixed qvel."""
-        return self._call("cmm_time_variation", q, qd)
+        computeCentroidalMapTimeVariation); in MuJoCo's convention, of its A at fixed qvel; params as in
+        inverse_dynamics."""
+        return dispatch(self, "cmm_time_variation", q, qd, self._parameters(params))
 
-    def dccrba(self, q, qd) -> torch.Tensor:
+    def dccrba(self, q, qd, params=None) -> torch.Tensor:
         """d h / dq (..., 6, nv) of the centroidal momentum h = A qd, qd held fixed (in MuJoCo's
-        convention, qvel fixed in MuJoCo's frame); dh/dqd is A itself."""
-        return self._call("dccrba", q, qd)
+        convention, qvel fixed in MuJoCo's frame); dh/dqd is A itself; params as in inverse_dynamics."""
+        return dispatch(self, "dccrba", q, qd, self._parameters(params))
 
-    def centroidal_map_derivatives(self, q) -> torch.Tensor:
+    def centroidal_map_derivatives(self, q, params=None) -> torch.Tensor:
         """d A / dq (..., 6, nv, nv) of the centroidal momentum matrix: [..., i, j, k] = d A_ij / dq_k
         along the tangent (as dccrba). Column j of A is the momentum at qd = e_j, so this is
-        dccrba at each unit velocity: nv times its cost."""
+        dccrba at each unit velocity: nv times its cost. params as in inverse_dynamics."""
+        params = self._parameters(params)
         nv = self._robot.nv
         check_tensor("centroidal_map_derivatives", "q", q, (self._robot.nq,), q)
         unit = torch.eye(nv, dtype=q.dtype, device=q.device)
-        dh = self.dccrba(q.unsqueeze(-2).expand(*q.shape[:-1], nv, q.shape[-1]), unit.expand(*q.shape[:-1], nv, nv))
+        dh = self.dccrba(q.unsqueeze(-2).expand(*q.shape[:-1], nv, q.shape[-1]), unit.expand(*q.shape[:-1], nv, nv),
+                         None if params is None else params.unsqueeze(-3))
         return dh.movedim(-3, -2)
 
-    def coriolis_matrix(self, q, qd) -> torch.Tensor:
+    def coriolis_matrix(self, q, qd, params=None) -> torch.Tensor:
         """C (..., nv, nv) with C qd + g = nonlinear_effects: Pinocchio's computeCoriolisMatrix (dM/dt - 2C
         skew-symmetric). In MuJoCo's convention C = G (C_pin G^T + M K), K qd the base acceleration
-        MuJoCo's qacc = 0 means, so that C qd + g is MuJoCo's bias force."""
-        return self._call("coriolis_matrix", q, qd)
+        MuJoCo's qacc = 0 means, so that C qd + g is MuJoCo's bias force. params as in inverse_dynamics."""
+        return dispatch(self, "coriolis_matrix", q, qd, self._parameters(params))
 
     def inverse_dynamics_regressor(self, q, qd, qdd) -> torch.Tensor:
         """Y (..., nv, 10 nbodies) with inverse_dynamics(q, qd, qdd) = Y @ inertial_parameters()."""
-        return self._call("inverse_dynamics_regressor", q, qd, qdd)
+        return dispatch(self, "inverse_dynamics_regressor", q, qd, qdd)
 
     def kinetic_energy_regressor(self, q, qd) -> torch.Tensor:
         """(..., 10 nbodies) with kinetic energy = regressor @ inertial_parameters()."""
-        return self._call("kinetic_energy_regressor", q, qd)
+        return dispatch(self, "kinetic_energy_regressor", q, qd)
 
     def potential_energy_regressor(self, q) -> torch.Tensor:
         """(..., 10 nbodies) with potential energy = regressor @ inertial_parameters()."""
-        return self._call("potential_energy_regressor", q)
+        return dispatch(self, "potential_energy_regressor", q)
 
-    def forward_dynamics_parameter_derivatives(self, q, qd, tau) -> torch.Tensor:
-        """d forward_dynamics / d inertial_parameters (..., nv, 10 nbodies) = -M^-1 Y at qdd = FD."""
-        if forward_mode((q, qd, tau)):  # composed of ops that have a forward mode (the kernel has none)
-            return -(self.minv(q) @ self.inverse_dynamics_regressor(q, qd, self.forward_dynamics(q, qd, tau)))
+    def forward_dynamics_parameter_derivatives(self, q, qd, tau, params=None) -> torch.Tensor:
+        """d forward_dynamics / d inertial_parameters (..., nv, 10 nbodies) = -M^-1 Y at qdd = FD, at the
+        parameters params (as in inverse_dynamics)."""
+        params = self._parameters(params)
+        if forward_mode((q, qd, tau, params)):  # composed of ops that have a forward mode (the kernel has none)
+            qdd = self.forward_dynamics(q, qd, tau, params=params)
+            return -(self.minv(q, params) @ self.inverse_dynamics_regressor(q, qd, qdd))
         if self._robot._with_passive:
             tau = tau + self._robot._passive(q, qd)
-        return self._call("forward_dynamics_parameter_derivatives", q, qd, tau)
+        return dispatch(self, "forward_dynamics_parameter_derivatives", q, qd, tau, params)
 
     def inertial_parameters(self, dtype: torch.dtype = torch.float64, device="cpu") -> torch.Tensor:
         """(10 nbodies,) each body's [m, m c, I_xx, I_xy, I_yy, I_xz, I_yz, I_zz] in Pinocchio's order:
-        c the centre of mass and I the rotational inertia about the joint frame origin."""
+        c the centre of mass and I the rotational inertia about the joint frame origin; on a view of
+        with_parameters, its parameters, (..., 10 nbodies)."""
+        if self._params is not None:
+            return self._params.flatten(-2).to(dtype=dtype, device=device)
         rows = []
         for j in self._robot.model.joints:
             I = inertia_about_origin(j.mass, j.com, j.inertia)
@@ -403,44 +425,37 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         coupling = self._robot._coupling
         return q if coupling is None else coupling.reduce_q(q)
 
-    def _call(self, name: str, *args):
-        coupling = self._robot._coupling
-        if coupling is None:
-            return self._kernel_call(name, *args)
-        return coupling.call(self._kernel_call, name, checked(name, coupling.tensor_args[name], args))
+    def with_parameters(self, params: torch.Tensor, check: bool = False) -> "RobotView":
+        """A view of these functions computing with the inertial parameters `params` instead of the robot's
+        own: every function whose value depends on them uses them, and the others raise.
+
+        Args:
+            params: (..., nbodies, 10), each body's [m, m c, I_xx, I_xy, I_yy, I_xz, I_yz, I_zz] in
+                Pinocchio's order (c the centre of mass in the joint frame, I the rotational inertia about
+                the joint frame origin), as inertial_parameters().view(nbodies, 10); leading dimensions
+                broadcast against the states' (one set per sample for domain randomisation). Gradients
+                flow back to it.
+            check: raise ValueError, naming the body, where the parameters are not physically consistent
+                (a negative mass, or a pseudo-inertia that is not positive semidefinite).
+
+        Returns:
+            A RobotView in this one's convention.
+        """
+        nbodies = self._robot.nbodies
+        if not isinstance(params, torch.Tensor) or params.dim() < 2 or tuple(params.shape[-2:]) != (nbodies, 10):
+            shape = tuple(params.shape) if isinstance(params, torch.Tensor) else type(params).__name__
+            raise ValueError(f"with_parameters: params must be a tensor of shape (..., {nbodies}, 10), got {shape}")
+        if check:
+            check_physical(params, [j.name for j in self._robot.model.joints])
+        return RobotView(self._robot, self._convention, params)
+
+    def _parameters(self, params: torch.Tensor | None) -> torch.Tensor | None:
+        """The inertial parameters a call computes with: its own argument, else the view's."""
+        return self._params if params is None else params
 
     def _kernel_call(self, name: str, *args):
         """Op `name` of the kernels (every joint independent), in this view's convention."""
-        robot = self._robot
-        op = getattr(robot._ops, name)
-        if torch.compiler.is_compiling():
-            if traced_transform():
-                return _func_call_eagerly(robot._func, name, *checked(name, robot._tensor_args[name], args),
-                                          self._convention)
-            return op(*checked(name, robot._tensor_args[name], args), self._convention)
-        stack = torch._C._functorch.get_interpreter_stack()
-        forward = forward_mode(args, stack)
-        if forward and name not in FORWARD_MODE:
-            # without this check forward mode would return zero tangents
-            raise NotImplementedError(f"torch_grid: {name} has no forward-mode derivative (torch.func.jvp, jacfwd, "
-                                      "hessian, torch.autograd.forward_ad); use reverse mode (backward, torch.func.jacrev)")
-        if stack or forward:  # each op through an autograd.Function that torch.func and forward AD transform
-            return robot._func.call(name, *checked(name, robot._tensor_args[name], args), self._convention)
-        if torch.is_grad_enabled() and torch._C._any_requires_grad(*args):
-            return op(*checked(name, robot._tensor_args[name], args), self._convention)
-        # Nothing to differentiate: go straight to the CPU or CUDA kernel, past the (Python) autograd
-        # kernel that is most of a small call's cost, and let the glue check the arguments and broadcast
-        # their batch shapes. Only when it refuses them are they checked here, to word the error (the
-        # argument, what was expected and what was received).
-        q = args[0]
-        keyset = (_CPU if q.is_cpu else _CUDA if q.is_cuda else None) if isinstance(q, torch.Tensor) else None
-        if keyset is None:
-            return op(*checked(name, robot._tensor_args[name], args), self._convention)
-        try:
-            return op.default.redispatch(keyset, *args, self._convention)
-        except RuntimeError:
-            args = checked(name, robot._tensor_args[name], args)
-        return op.default.redispatch(keyset, *args, self._convention)
+        return kernel_call(self, name, *args)
 
 
 class RobotView(_Functions):
@@ -451,10 +466,12 @@ class RobotView(_Functions):
     holds no state of its own: it is cheap to make and safe to share between threads.
     """
 
-    def __init__(self, robot: "Robot", convention: int):
-        """Made by `robot.pin` and `robot.mujoco`; convention: 0 (Pinocchio's) or 1 (MuJoCo's)."""
+    def __init__(self, robot: "Robot", convention: int, params: torch.Tensor | None = None):
+        """Made by `robot.pin`, `robot.mujoco` and `with_parameters`; convention: 0 (Pinocchio's) or 1
+        (MuJoCo's); params: the inertial parameters the view computes with (None: the robot's)."""
         self._robot = robot
         self._convention = convention
+        self._params = params
 
     @property
     def convention(self) -> str:
@@ -462,7 +479,8 @@ class RobotView(_Functions):
         return "mujoco" if self._convention else "pin"
 
     def __repr__(self) -> str:
-        return f"<{self._robot.name} functions, {self.convention} convention>"
+        given = ", given inertial parameters" if self._params is not None else ""
+        return f"<{self._robot.name} functions, {self.convention} convention{given}>"
 
 
 class Robot(_Functions):
@@ -572,11 +590,3 @@ def _restore(model_json: str, convention: str, enable_mujoco_kernels: bool, pass
 
     return load(RobotModel.from_dict(json.loads(model_json)), convention=convention,
                 enable_mujoco_kernels=enable_mujoco_kernels, passive_forces=passive_forces)
-
-
-@torch.compiler.disable
-def _func_call_eagerly(func: FuncOps, name: str, *args):
-    """An op under torch.func's grad or jvp, or on forward-mode dual tensors, while torch.compile traces:
-    through its autograd.Function, run eagerly (torch.compile traces neither that Function's transforms
-    nor the op's registered autograd under them: the op alone would fail, or return a wrong tangent)."""
-    return func.call(name, *args)

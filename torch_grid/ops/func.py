@@ -22,6 +22,7 @@ from ..model.description import RobotModel
 from ..space.tangent import tangent_to_ambient
 from .autograd import backward_formula, mass_product_jvp, repeat
 from .mujoco_second_order import kinematic_hessian_from_ops, second_order_from_ops
+from .parameters import repeat_params
 from .table import KERNEL_JVP, OPS
 
 
@@ -149,56 +150,72 @@ class FuncOps:
             "backward": staticmethod(backward), "jvp": staticmethod(jvp), "vmap": staticmethod(vmap)})
 
 
-def _inverse_dynamics_vjp_jvp(ops, _out, q, qd, qdd, f_ext, lam, convention, t_q, t_qd, t_qdd, t_f, t_lam, _):
+def _inverse_dynamics_vjp_jvp(ops, _out, q, qd, qdd, f_ext, lam, params, convention, t_q, t_qd, t_qdd, t_f, t_lam,
+                              t_params, _):
     """The tangent of (g_q, g_qd) = lam^T d tau / d(q, qd): along q and qd by the dual-number kernel;
     it is linear in lam; along qdd and f_ext, the q-gradient of lam . (M t_qdd) and of lam . (-J^T t_f),
-    inverse dynamics at rest less gravity (they do not depend on qd)."""
+    inverse dynamics at rest less gravity (they do not depend on qd); along pi, the same vector-Jacobian
+    product with the parameters t_pi, less that of the terms free of pi (at zero parameters)."""
     zero = torch.zeros_like(qd)
-    d_q, d_qd = ops.inverse_dynamics_vjp_full_jvp(q, qd, qdd, f_ext, lam, t_q, t_qd, convention)[:2]
+    d_q, d_qd = ops.inverse_dynamics_vjp_full_jvp(q, qd, qdd, f_ext, lam, params, t_q, t_qd, convention)[:2]
     if t_lam is not None:
-        g_q, g_qd = ops.inverse_dynamics_vjp(q, qd, qdd, f_ext, t_lam, convention)
+        g_q, g_qd = ops.inverse_dynamics_vjp(q, qd, qdd, f_ext, t_lam, params, convention)
         d_q, d_qd = d_q + g_q, d_qd + g_qd
+    if t_params is not None:  # linear in pi, less the terms free of it (MuJoCo's turns the armature's)
+        g_q, g_qd = ops.inverse_dynamics_vjp(q, qd, qdd, None, lam, t_params, convention)
+        r_q, r_qd = ops.inverse_dynamics_vjp(q, qd, qdd, None, lam, torch.zeros_like(t_params), convention)
+        d_q, d_qd = d_q + g_q - r_q, d_qd + g_qd - r_qd
     if t_qdd is not None or t_f is not None:
-        rest = ops.inverse_dynamics_vjp(q, zero, zero, None, lam, convention)[0]
+        rest = ops.inverse_dynamics_vjp(q, zero, zero, None, lam, params, convention)[0]
         if t_qdd is not None:
-            d_q = d_q + ops.inverse_dynamics_vjp(q, zero, t_qdd, None, lam, convention)[0] - rest
+            d_q = d_q + ops.inverse_dynamics_vjp(q, zero, t_qdd, None, lam, params, convention)[0] - rest
         if t_f is not None:
-            d_q = d_q + ops.inverse_dynamics_vjp(q, zero, zero, t_f, lam, convention)[0] - rest
+            d_q = d_q + ops.inverse_dynamics_vjp(q, zero, zero, t_f, lam, params, convention)[0] - rest
     return d_q, d_qd
 
 
-def _crba_vjp_jvp(ops, _out, q, weight, convention, t_q, t_w, _):
-    """The tangent of g = the tangent gradient of <W, M(q)>: linear in W; along q, that of the ID
-    products M e_m = ID(q, 0, e_m) - g(q) with cotangents W[:, m] (the dual-number kernel)."""
+def _crba_vjp_jvp(ops, _out, q, weight, params, convention, t_q, t_w, t_params, _):
+    """The tangent of g = the tangent gradient of <W, M(q)>: linear in W and in pi (M less the armature,
+    which q does not move, is linear in pi); along q, that of the ID products M e_m = ID(q, 0, e_m) - g(q)
+    with cotangents W[:, m] (the dual-number kernel)."""
     nv = weight.shape[-1]
     batch = torch.broadcast_shapes(q.shape[:-1], weight.shape[:-2])
-    d = q.new_zeros(*batch, nv) if t_w is None else ops.crba_vjp(q, t_w, convention)
+    d = q.new_zeros(*batch, nv) if t_w is None else ops.crba_vjp(q, t_w, params, convention)
+    if t_params is not None:
+        d = d + ops.crba_vjp(q, weight, t_params, convention)
     if t_q is not None:
         unit = torch.eye(nv, dtype=q.dtype, device=q.device).expand(*q.shape[:-1], nv, nv)
         zero = torch.zeros_like(unit)
         lam = weight.mT
-        products = ops.inverse_dynamics_vjp_full_jvp(repeat(q, nv, 1), zero, unit, None, lam, repeat(t_q, nv, 1),
-                                                     None, convention)[0]
-        rest = ops.inverse_dynamics_vjp_full_jvp(q, zero[..., 0, :], zero[..., 0, :], None, lam.sum(-2), t_q,
+        products = ops.inverse_dynamics_vjp_full_jvp(repeat(q, nv, 1), zero, unit, None, lam, repeat_params(params),
+                                                     repeat(t_q, nv, 1), None, convention)[0]
+        rest = ops.inverse_dynamics_vjp_full_jvp(q, zero[..., 0, :], zero[..., 0, :], None, lam.sum(-2), params, t_q,
                                                  None, convention)[0]
         d = d + products.sum(-2) - rest
     return d
 
 
-def _mass_product_vjp_jvp(ops, _out, q, a, lam, convention, t_q, t_a, t_lam, _):
+def _mass_product_vjp_jvp(ops, _out, q, a, lam, params, convention, t_q, t_a, t_lam, t_params, _):
     """g = the q-gradient of lam . (ID(q, 0, a) - ID(q, 0, 0)): the tangents of those two products."""
     zero = torch.zeros_like(a)
-    d = _inverse_dynamics_vjp_jvp(ops, None, q, zero, a, None, lam, convention, t_q, None, t_a, None, t_lam, None)[0]
-    rest = _inverse_dynamics_vjp_jvp(ops, None, q, zero, zero, None, lam, convention, t_q, None, None, None, t_lam, None)[0]
+    d = _inverse_dynamics_vjp_jvp(ops, None, q, zero, a, None, lam, params, convention, t_q, None, t_a, None, t_lam,
+                                  t_params, None)[0]
+    rest = _inverse_dynamics_vjp_jvp(ops, None, q, zero, zero, None, lam, params, convention, t_q, None, None, None, t_lam,
+                                     t_params, None)[0]
     return d - rest
 
 
-def _inertia_solve_jvp(ops, y, q, x, convention, t_q, t_x, _):
-    """y = M^-1 x: dy = M^-1 (t_x - D_t(M) y)."""
+def _inertia_solve_jvp(ops, y, q, x, params, convention, t_q, t_x, t_params, _):
+    """y = M^-1 x: dy = M^-1 (t_x - D_t(M) y), D_t(M) y along pi being (Y(q, 0, y) - Y(q, 0, 0)) t_pi."""
     rhs = torch.zeros_like(x) if t_x is None else t_x
     if t_q is not None:
-        rhs = rhs - mass_product_jvp(ops, q, y, t_q, convention)
-    return ops.inertia_solve(q, rhs, convention)
+        rhs = rhs - mass_product_jvp(ops, q, y, t_q, params, convention)
+    if t_params is not None:
+        zero = torch.zeros_like(y)
+        t = t_params.flatten(-2).unsqueeze(-1)
+        rhs = rhs - ((ops.inverse_dynamics_regressor(q, zero, y, convention) -
+                      ops.inverse_dynamics_regressor(q, zero, zero, convention)) @ t).squeeze(-1)
+    return ops.inertia_solve(q, rhs, params, convention)
 
 
 def _tangent_space(model, q, t_q, convention):
@@ -223,41 +240,46 @@ def _frame_jacobian_jvp(ops, J, q, frame, reference, convention, t_q, _f, _r, _c
     return (H @ t.unsqueeze(-1).unsqueeze(-3)).squeeze(-1)
 
 
-def _gradient_tangents(ops, q, qd, qdd, f_ext, convention, u, t_qd, t_qdd):
+def _gradient_tangents(ops, q, qd, qdd, f_ext, params, convention, u, t_qd, t_qdd):
     """The derivatives of (dtau/dq, dtau/dqd, M) along (u in the tangent space, t_qd, t_qdd): the
     second-order kernel contracted with them; in MuJoCo's convention of a robot with quaternion
     joints, its tensors (torch_grid/ops/mujoco_second_order.py) contracted in torch."""
     model = ops._model
     if not (convention and model.conventions_differ):
-        return ops.inverse_dynamics_derivatives_tangent(q, qd, qdd, f_ext, u, t_qd, t_qdd, convention)
-    d2q, d2v, dqdv, dM = second_order_from_ops(ops, model, q, qd, qdd, f_ext)
+        return ops.inverse_dynamics_derivatives_tangent(q, qd, qdd, f_ext, u, t_qd, t_qdd, params, convention)
+    d2q, d2v, dqdv, dM = second_order_from_ops(ops, model, q, qd, qdd, f_ext, params)
     dA = (torch.einsum("...ijk,...k->...ij", d2q, u) + torch.einsum("...ijk,...k->...ij", dqdv, t_qd) +
           torch.einsum("...imj,...m->...ij", dM, t_qdd))
     dB = torch.einsum("...ijk,...k->...ij", d2v, t_qd) + torch.einsum("...ikj,...k->...ij", dqdv, u)
     return dA, dB, torch.einsum("...ijk,...k->...ij", dM, u)
 
 
-def _affine_in_force(op, q, qd, x, f_ext, t_f, convention):
-    """The tangent along f_ext of an op affine in it: op(..., t_f) - op(..., None)."""
-    with_t, without = op(q, qd, x, t_f, convention), op(q, qd, x, None, convention)
+def _affine(op, t, zero):
+    """The tangent along one input of an op affine in it: op(t) - op(zero)."""
+    with_t, without = op(t), op(zero)
     return tuple(a - b for a, b in zip(with_t, without)) if isinstance(with_t, tuple) else with_t - without
 
 
-def _inverse_dynamics_derivatives_jvp(ops, _out, q, qd, qdd, f_ext, convention, t_q, t_qd, t_qdd, t_f, _):
+def _inverse_dynamics_derivatives_jvp(ops, _out, q, qd, qdd, f_ext, params, convention, t_q, t_qd, t_qdd, t_f, t_params,
+                                      _):
     """The tangent of (dtau/dq, dtau/dqd): the second-order tensors along (q, qd, qdd), contracted in
-    the kernel; along f_ext, dtau/dq is affine in it."""
+    the kernel; dtau/dq is affine in f_ext, and both are in pi."""
     zero = torch.zeros_like(qd)
     u = _tangent_space(ops._model, q, t_q, convention)
-    dA, dB, _ = _gradient_tangents(ops, q, qd, qdd, f_ext, convention, u, zero if t_qd is None else t_qd,
+    dA, dB, _ = _gradient_tangents(ops, q, qd, qdd, f_ext, params, convention, u, zero if t_qd is None else t_qd,
                                    zero if t_qdd is None else t_qdd)
     if t_f is not None:
-        dA = dA + _affine_in_force(ops.inverse_dynamics_derivatives, q, qd, qdd, f_ext, t_f, convention)[0]
+        dA = dA + _affine(lambda f: ops.inverse_dynamics_derivatives(q, qd, qdd, f, params, convention), t_f, None)[0]
+    if t_params is not None:
+        dA_p, dB_p = _affine(lambda p: ops.inverse_dynamics_derivatives(q, qd, qdd, f_ext, p, convention), t_params,
+                             torch.zeros_like(t_params))
+        dA, dB = dA + dA_p, dB + dB_p
     return dA, dB
 
 
-def _forward_dynamics_derivatives_jvp(ops, out, q, qd, tau, f_ext, convention, t_q, t_qd, t_tau, t_f, _):
+def _forward_dynamics_derivatives_jvp(ops, out, q, qd, tau, f_ext, params, convention, t_q, t_qd, t_tau, t_f, t_params, _):
     """(Z_q, Z_qd, M^-1) = (-M^-1 dtau/dq, -M^-1 dtau/dqd, M^-1) at qdd = FD: with dqdd the tangent of
-    qdd and (dA, dB, dM) those of dtau/dq, dtau/dqd, M along (q, qd, dqdd), dZ = -M^-1 (dA + dM Z) and
+    qdd and (dA, dB, dM) those of dtau/dq, dtau/dqd, M along (q, qd, dqdd, pi), dZ = -M^-1 (dA + dM Z) and
     d(M^-1) = -M^-1 dM M^-1."""
     z_q, z_qd, minv = out
     zero = torch.zeros_like(qd)
@@ -265,11 +287,19 @@ def _forward_dynamics_derivatives_jvp(ops, out, q, qd, tau, f_ext, convention, t
     mv = lambda m, x: (m @ x.unsqueeze(-1)).squeeze(-1)  # noqa: E731
     dqdd = mv(z_q, u) + (zero if t_qd is None else mv(z_qd, t_qd)) + (zero if t_tau is None else mv(minv, t_tau))
     if t_f is not None:
-        dqdd = dqdd + _affine_in_force(ops.forward_dynamics, q, qd, tau, f_ext, t_f, convention)
-    qdd = ops.forward_dynamics(q, qd, tau, f_ext, convention)
-    dA, dB, dM = _gradient_tangents(ops, q, qd, qdd, f_ext, convention, u, zero if t_qd is None else t_qd, dqdd)
+        dqdd = dqdd + _affine(lambda f: ops.forward_dynamics(q, qd, tau, f, params, convention), t_f, None)
+    qdd = ops.forward_dynamics(q, qd, tau, f_ext, params, convention)
+    if t_params is not None:  # d qdd / d pi t = -M^-1 Y t
+        dqdd = dqdd - mv(minv, (ops.inverse_dynamics_regressor(q, qd, qdd, convention) @ t_params.flatten(-2).unsqueeze(-1)
+                                ).squeeze(-1))
+    dA, dB, dM = _gradient_tangents(ops, q, qd, qdd, f_ext, params, convention, u, zero if t_qd is None else t_qd, dqdd)
     if t_f is not None:
-        dA = dA + _affine_in_force(ops.inverse_dynamics_derivatives, q, qd, qdd, f_ext, t_f, convention)[0]
+        dA = dA + _affine(lambda f: ops.inverse_dynamics_derivatives(q, qd, qdd, f, params, convention), t_f, None)[0]
+    if t_params is not None:  # at fixed qdd, dtau/dq, dtau/dqd and M are affine in pi
+        zero_p = torch.zeros_like(t_params)
+        dA_p, dB_p = _affine(lambda p: ops.inverse_dynamics_derivatives(q, qd, qdd, f_ext, p, convention), t_params, zero_p)
+        dA, dB = dA + dA_p, dB + dB_p
+        dM = dM + _affine(lambda p: ops.crba(q, p, convention), t_params, zero_p)
     return -minv @ (dA + dM @ z_q), -minv @ (dB + dM @ z_qd), -minv @ dM @ minv
 
 
@@ -286,8 +316,8 @@ def _linear_jvp(name: str) -> Callable:
 
 
 def _kernel_jvp(name: str) -> Callable:
-    """The tangent of an op by its dual-number kernel `<name>_jvp`, along its first inputs (q, or q and qd,
-    or q, qd and qdd)."""
+    """The tangent of an op by its dual-number kernel `<name>_jvp`, along its tensor inputs (every one of them,
+    table.check_table), which come first."""
     spec = OPS[f"{name}_jvp"]
     wrt = len(spec.jvp_wrt)
 

@@ -148,9 +148,9 @@ class Coupling:
             return torch.einsum("...abc,ai,bj,ck->...ijk", x, G, G, G)
         return x
 
-    def inverse_inertia(self, kernel_call: Callable, q: torch.Tensor) -> torch.Tensor:
+    def inverse_inertia(self, kernel_call: Callable, q: torch.Tensor, params=None) -> torch.Tensor:
         """(G^T M_full G)^-1 (..., nv, nv), by a Cholesky factorisation."""
-        return torch.cholesky_inverse(torch.linalg.cholesky(self.both(kernel_call("crba", self.q(q)))))
+        return torch.cholesky_inverse(torch.linalg.cholesky(self.both(kernel_call("crba", self.q(q), params))))
 
 
 def _resolved(m: Mimic, mimics: tuple[Mimic, ...]) -> Mimic:
@@ -163,46 +163,46 @@ def _resolved(m: Mimic, mimics: tuple[Mimic, ...]) -> Mimic:
     return m
 
 
-def _forward_dynamics(c: Coupling, call: Callable, q, qd, tau, f_ext=None):
+def _forward_dynamics(c: Coupling, call: Callable, q, qd, tau, f_ext=None, params=None):
     """M qdd = tau - (ID(q, qd, 0) in reduced coordinates): the bias includes gravity and f_ext."""
     q_full, qd_full = c.q(q), c.v(qd)
-    M = c.both(call("crba", q_full))
-    bias = c.rows(call("inverse_dynamics", q_full, qd_full, torch.zeros_like(qd_full), f_ext), -1)
+    M = c.both(call("crba", q_full, params))
+    bias = c.rows(call("inverse_dynamics", q_full, qd_full, torch.zeros_like(qd_full), f_ext, params), -1)
     # by Cholesky (M is symmetric positive definite): torch.linalg.solve returned garbage under vmap of
     # jacfwd (torch 2.13)
     return torch.cholesky_solve((tau - bias).unsqueeze(-1), torch.linalg.cholesky(M)).squeeze(-1)
 
 
-def _minv(c: Coupling, call: Callable, q):
-    return c.inverse_inertia(call, q)
+def _minv(c: Coupling, call: Callable, q, params=None):
+    return c.inverse_inertia(call, q, params)
 
 
-def _forward_dynamics_derivatives(c: Coupling, call: Callable, q, qd, tau, f_ext=None):
+def _forward_dynamics_derivatives(c: Coupling, call: Callable, q, qd, tau, f_ext=None, params=None):
     """d qdd / dx = -M^-1 d tau / dx at qdd = FD(q, qd, tau); d qdd / d tau = M^-1."""
-    qdd = _forward_dynamics(c, call, q, qd, tau, f_ext)
-    dq, dqd = call("inverse_dynamics_derivatives", c.q(q), c.v(qd), c.v(qdd), f_ext)
-    minv = c.inverse_inertia(call, q)
+    qdd = _forward_dynamics(c, call, q, qd, tau, f_ext, params)
+    dq, dqd = call("inverse_dynamics_derivatives", c.q(q), c.v(qd), c.v(qdd), f_ext, params)
+    minv = c.inverse_inertia(call, q, params)
     return -minv @ c.both(dq), -minv @ c.both(dqd), minv
 
 
-def _forward_dynamics_external_force_derivatives(c: Coupling, call: Callable, q):
+def _forward_dynamics_external_force_derivatives(c: Coupling, call: Callable, q, params=None):
     """d qdd / d f_ext = -M^-1 d tau / d f_ext."""
     dtau = c.rows(call("inverse_dynamics_external_force_derivatives", c.q(q)), -3)
-    minv = c.inverse_inertia(call, q)
+    minv = c.inverse_inertia(call, q, params)
     return -(minv @ dtau.flatten(-2)).unflatten(-1, dtau.shape[-2:])
 
 
-def _forward_dynamics_parameter_derivatives(c: Coupling, call: Callable, q, qd, tau):
+def _forward_dynamics_parameter_derivatives(c: Coupling, call: Callable, q, qd, tau, params=None):
     """-M^-1 Y(q, qd, qdd) at qdd = FD(q, qd, tau)."""
-    qdd = _forward_dynamics(c, call, q, qd, tau)
+    qdd = _forward_dynamics(c, call, q, qd, tau, None, params)
     Y = c.rows(call("inverse_dynamics_regressor", c.q(q), c.v(qd), c.v(qdd)), -2)
-    return -c.inverse_inertia(call, q) @ Y
+    return -c.inverse_inertia(call, q, params) @ Y
 
 
-def _osc_inertia(c: Coupling, call: Callable, q, frame: int, reference: int):
+def _osc_inertia(c: Coupling, call: Callable, q, frame: int, reference: int, params=None):
     """(J M^-1 J^T)^-1 with the reduced J and M."""
     J = c.columns(call("frame_jacobian", c.q(q), frame, reference))
-    return torch.linalg.inv(J @ c.inverse_inertia(call, q) @ J.mT)
+    return torch.linalg.inv(J @ c.inverse_inertia(call, q, params) @ J.mT)
 
 
 _SPECIAL = {

@@ -193,12 +193,13 @@ def kinematic_hessian(model, q_pin, J, H):
     return out
 
 
-def inverse_dynamics_second_derivatives_mujoco(robot, q, qd, qdd, f_ext):
+def inverse_dynamics_second_derivatives_mujoco(robot, q, qd, qdd, f_ext, params=None):
     """Robot.mujoco.inverse_dynamics_second_derivatives of a robot with quaternion joints."""
-    return second_order_from_ops(_PinCalls(robot.pin), _model(robot, "inverse_dynamics_second_derivatives"), q, qd, qdd, f_ext)
+    return second_order_from_ops(_PinCalls(robot.pin), _model(robot, "inverse_dynamics_second_derivatives"), q, qd, qdd, f_ext,
+                                 params)
 
 
-def second_order_from_ops(ops, model, q, qd, qdd, f_ext):
+def second_order_from_ops(ops, model, q, qd, qdd, f_ext, params=None):
     """MuJoCo's four tensors at MuJoCo's (q, qd, qdd), from Pinocchio's ops (convention 0) at the
     converted state. Passive joint forces (hinge and slide) do not reach them: they are linear, and
     no term here reads their rows."""
@@ -209,10 +210,10 @@ def second_order_from_ops(ops, model, q, qd, qdd, f_ext):
     q_pin = q_mujoco_to_pin(q, balls=ball_joints(model), free=free)
     v_pin = v_mujoco_to_pin(q_pin, qd, free=free)
     a_pin = a_mujoco_to_pin(q_pin, v_pin, qdd, free=free)
-    tau = ops.inverse_dynamics(q_pin, v_pin, a_pin, f_ext, 0)
-    A, B = ops.inverse_dynamics_derivatives(q_pin, v_pin, a_pin, f_ext, 0)
-    second = ops.inverse_dynamics_second_derivatives(q_pin, v_pin, a_pin, f_ext, 0)
-    return inverse_dynamics_second_derivatives(model, q_pin, v_pin, qdd, tau, A, B, ops.crba(q_pin, 0), second)
+    tau = ops.inverse_dynamics(q_pin, v_pin, a_pin, f_ext, params, 0)
+    A, B = ops.inverse_dynamics_derivatives(q_pin, v_pin, a_pin, f_ext, params, 0)
+    second = ops.inverse_dynamics_second_derivatives(q_pin, v_pin, a_pin, f_ext, params, 0)
+    return inverse_dynamics_second_derivatives(model, q_pin, v_pin, qdd, tau, A, B, ops.crba(q_pin, params, 0), second)
 
 
 def frame_kinematic_hessian(robot, q, frame: int, reference: int):
@@ -246,7 +247,7 @@ def _model(robot, name: str):
     return robot.model
 
 
-def crba_vjp(ops, model, q, W, M):
+def crba_vjp(ops, model, q, W, M, params=None):
     """The gradient along MuJoCo's tangent of <W, M_mujoco(q)>, M_mujoco = G M G^T the op's output: Pinocchio's
     kernel for <G^T W G, M> mapped by G (a MuJoCo direction k is Pinocchio's G^T e_k), plus, for a free
     joint's rotation c, G's own turn: 2 <sym(W), Gdot_c M G^T> = 2 tr([e_c]x C), C = (M G^T)_lin sym(W)_lin^T R.
@@ -261,7 +262,7 @@ def crba_vjp(ops, model, q, W, M):
     inner = rows.clone()
     for f in frees:
         inner[..., :, f.lin] = rows[..., :, f.lin] @ f.R
-    g = ops.crba_vjp(q_pin, inner, 0)
+    g = ops.crba_vjp(q_pin, inner, params, 0)
     parts, k = [], 0
     for f in frees:
         MGt = f.R.mT @ M[..., f.lin, :]  # rows of G^T M_mujoco = M G^T

@@ -6,7 +6,7 @@ from typing import Sequence
 
 import torch
 
-from .autograd import rpy_rate_solve
+from ..space.rpy import rpy_rate_solve
 
 
 class PoseDerivatives:

@@ -16,9 +16,11 @@ from ..model.description import RobotModel
 # Tensor argument kinds: their trailing shape (None: the argument's own `shape`). The kind also says
 # how the MuJoCo convention's input becomes Pinocchio's, which every kernel computes in: the
 # configuration's quaternion is reordered; a velocity, force or acceleration has its base-linear part
-# rotated (the acceleration with a term of the op's velocity); the others are the same in both.
+# rotated (the acceleration with a term of the op's velocity); the others are the same in both, the
+# bodies' inertial parameters (kind "parameters", Pinocchio's order, in the joint frames) among them.
 TENSOR_KINDS = {"configuration": ("nq",), "velocity": ("nv",), "acceleration": ("nv",), "force": ("nv",),
-                "body_forces": ("nbodies", 6), "frame_weights": ("nframes", 6), "plain": None}
+                "body_forces": ("nbodies", 6), "frame_weights": ("nframes", 6), "parameters": ("nbodies", 10),
+                "plain": None}
 INTEGER_KINDS = ("frame", "frames", "reference", "mask", "scheme", "tableau", "passive")
 # Output kinds, and the reframe each gets in the MuJoCo convention, applied by the generated binding:
 # force G x; acceleration G (x + base term); congruence G X G^T (nv x nv); columns X G^T (k x nv);
@@ -127,31 +129,35 @@ JVP_KINDS = ("backward", "rule", "dual", "none")
 
 Q, QD, QDD, TAU = Arg("q", "configuration"), Arg("qd", "velocity"), Arg("qdd", "acceleration"), Arg("tau", "force")
 FEXT = Arg("f_ext", "body_forces", True)
+# the bodies' inertial parameters; absent: the robot's own, compiled in
+PARAMS = Arg("params", "parameters", True)
 FRAME, REFERENCE = Arg("frame", "frame"), Arg("reference", "reference")
 # the joints' damping and springs in a step: 0 left out, 1 explicit, 2 with the damping implicit in the Euler step
 PASSIVE = Arg("passive", "passive")
 NV, NVxNV, NV3 = ("nv",), ("nv", "nv"), ("nv", "nv", "nv")
 _VALUE_OPS = (
-        OpSpec("inverse_dynamics", "InverseDynamics", (Q, QD, QDD, FEXT), (Out("tau", "force", NV),),
+        OpSpec("inverse_dynamics", "InverseDynamics", (Q, QD, QDD, FEXT, PARAMS), (Out("tau", "force", NV),),
                backward="formula", jvp="backward", dual_jvp=("q", "qd")),
-        OpSpec("forward_dynamics", "ForwardDynamics", (Q, QD, TAU, FEXT), (Out("qdd", "acceleration", NV),),
+        OpSpec("forward_dynamics", "ForwardDynamics", (Q, QD, TAU, FEXT, PARAMS), (Out("qdd", "acceleration", NV),),
                backward="formula", jvp="backward"),
-        OpSpec("crba", "Crba", (Q,), (Out("M", "congruence", NVxNV),), backward="formula", jvp="backward"),
-        OpSpec("crba_vjp", "CrbaVjp", (Q, Arg("weight", "plain", shape=NVxNV)), (Out("grad_q", "plain", NV),),
+        OpSpec("crba", "Crba", (Q, PARAMS), (Out("M", "congruence", NVxNV),), backward="formula", jvp="backward"),
+        OpSpec("crba_vjp", "CrbaVjp", (Q, Arg("weight", "plain", shape=NVxNV), PARAMS), (Out("grad_q", "plain", NV),),
                mujoco_twin=False, backward="formula", jvp="rule"),
-        OpSpec("mass_product_vjp", "MassProductVjp", (Q, Arg("a", "plain", shape=NV), Arg("cotangent", "plain", shape=NV)),
+        OpSpec("mass_product_vjp", "MassProductVjp",
+               (Q, Arg("a", "plain", shape=NV), Arg("cotangent", "plain", shape=NV), PARAMS),
                (Out("grad_q", "plain", NV),), mujoco_twin=False, backward="formula", jvp="rule"),
-        OpSpec("minv", "Minv", (Q,), (Out("Minv", "congruence", NVxNV),), backward="formula", jvp="backward"),
-        OpSpec("generalized_gravity", "GeneralizedGravity", (Q,), (Out("g", "force", NV),),
+        OpSpec("minv", "Minv", (Q, PARAMS), (Out("Minv", "congruence", NVxNV),), backward="formula", jvp="backward"),
+        OpSpec("generalized_gravity", "GeneralizedGravity", (Q, PARAMS), (Out("g", "force", NV),),
                backward="formula", jvp="backward"),
-        OpSpec("nonlinear_effects", "NonlinearEffects", (Q, QD), (Out("nle", "twin", NV),),
+        OpSpec("nonlinear_effects", "NonlinearEffects", (Q, QD, PARAMS), (Out("nle", "twin", NV),),
                backward="formula", jvp="backward"),
-        OpSpec("energy", "Energy", (Q, QD), (Out("energy", "plain", (3,)),), backward="formula", jvp="backward"),
-        OpSpec("com", "Com", (Q,), (Out("com", "plain", (3,)),), "kinematics", backward="formula", jvp="backward"),
-        OpSpec("jacobian_com", "JacobianCom", (Q,), (Out("J", "columns", (3, "nv")),), "kinematics",
-               backward="dual", jvp="dual", dual_jvp=("q",)),
-        OpSpec("ccrba", "Ccrba", (Q, QD), (Out("A", "columns", (6, "nv")), Out("h", "plain", (6,))), "kinematics",
-               backward="composed", jvp="dual", dual_jvp=("q", "qd")),
+        OpSpec("energy", "Energy", (Q, QD, PARAMS), (Out("energy", "plain", (3,)),), backward="formula", jvp="backward"),
+        OpSpec("com", "Com", (Q, PARAMS), (Out("com", "plain", (3,)),), "kinematics", backward="formula", jvp="dual",
+               dual_backward=True, dual_jvp=("q", "params")),
+        OpSpec("jacobian_com", "JacobianCom", (Q, PARAMS), (Out("J", "columns", (3, "nv")),), "kinematics",
+               backward="dual", jvp="dual", dual_jvp=("q", "params")),
+        OpSpec("ccrba", "Ccrba", (Q, QD, PARAMS), (Out("A", "columns", (6, "nv")), Out("h", "plain", (6,))), "kinematics",
+               backward="composed", jvp="dual", dual_jvp=("q", "qd", "params"), dual_backward=True),
         OpSpec("forward_kinematics", "ForwardKinematics", (Q,),
                (Out("positions", "plain", ("nframes", 3)), Out("rotations", "plain", ("nframes", 3, 3))), "kinematics",
                backward="formula", jvp="backward"),
@@ -165,54 +171,55 @@ _VALUE_OPS = (
                "kinematics", mujoco_twin=False),
         OpSpec("frame_jacobian_dot", "FrameJacobianDot", (Q, QD, FRAME, REFERENCE), (Out("Jdot", "twin", (6, "nv")),),
                "kinematics", backward="dual", jvp="dual", dual_jvp=("q", "qd")),
-        OpSpec("inverse_dynamics_vjp", "InverseDynamicsVjp", (Q, QD, QDD, FEXT, Arg("cotangent", "force")),
+        OpSpec("inverse_dynamics_vjp", "InverseDynamicsVjp", (Q, QD, QDD, FEXT, Arg("cotangent", "force"), PARAMS),
                (Out("grad_q", "twin", NV), Out("grad_qd", "twin", NV)), backward="formula", jvp="rule"),
-        OpSpec("inverse_dynamics_vjp_full", "InverseDynamicsVjpFull", (Q, QD, QDD, FEXT, Arg("cotangent", "force")),
+        OpSpec("inverse_dynamics_vjp_full", "InverseDynamicsVjpFull", (Q, QD, QDD, FEXT, Arg("cotangent", "force"), PARAMS),
                (Out("grad_q", "twin", NV), Out("grad_qd", "twin", NV), Out("grad_qdd", "force", NV),
                 Out("tau", "force", NV)), "derivatives", dual_jvp=("q", "qd")),
-        OpSpec("inertia_solve", "InertiaSolve", (Q, Arg("x", "force")), (Out("y", "force", NV),),
+        OpSpec("inertia_solve", "InertiaSolve", (Q, Arg("x", "force"), PARAMS), (Out("y", "force", NV),),
                backward="formula", jvp="rule"),
         OpSpec("body_velocities", "BodyVelocities", (Q, QD), (Out("v", "plain", ("nbodies", 6)),), "kinematics",
                backward="dual", jvp="rule", dual_jvp=("q",)),
         OpSpec("frames_vjp", "FramesVjp", (Q, Arg("weights", "frame_weights")), (Out("tau", "force", NV),), "kinematics",
                backward="dual", jvp="rule", dual_jvp=("q",)),
-        OpSpec("inverse_dynamics_derivatives", "InverseDynamicsDerivatives", (Q, QD, QDD, FEXT),
+        OpSpec("inverse_dynamics_derivatives", "InverseDynamicsDerivatives", (Q, QD, QDD, FEXT, PARAMS),
                (Out("dtau_dq", "twin", NVxNV), Out("dtau_dqd", "twin", NVxNV)), "derivatives",
                backward="composed", jvp="rule"),
-        OpSpec("inverse_dynamics_second_derivatives", "InverseDynamicsSecondDerivatives", (Q, QD, QDD, FEXT),
+        OpSpec("inverse_dynamics_second_derivatives", "InverseDynamicsSecondDerivatives", (Q, QD, QDD, FEXT, PARAMS),
                (Out("d2tau_dq2", "plain", NV3), Out("d2tau_dqd2", "plain", NV3), Out("d2tau_dqdqd", "plain", NV3),
                 Out("dM_dq", "plain", NV3)), "second_order", mujoco_twin=False),
         OpSpec("inverse_dynamics_derivatives_vjp", "InverseDynamicsDerivativesVjp",
-               (Q, QD, QDD, FEXT, Arg("grad_dtau_dq", "plain", shape=NVxNV), Arg("grad_dtau_dqd", "plain", shape=NVxNV)),
+               (Q, QD, QDD, FEXT, Arg("grad_dtau_dq", "plain", shape=NVxNV), Arg("grad_dtau_dqd", "plain", shape=NVxNV), PARAMS),
                (Out("grad_q", "plain", NV), Out("grad_qd", "plain", NV), Out("grad_qdd", "plain", NV),
                 Out("grad_f_ext", "plain", ("nbodies", 6))), "second_order", mujoco_twin=False),
         OpSpec("inverse_dynamics_derivatives_tangent", "InverseDynamicsDerivativesTangent",
-               (Q, QD, QDD, FEXT, Arg("t_q", "plain", shape=NV), Arg("t_qd", "plain", shape=NV), Arg("t_qdd", "plain", shape=NV)),
+               (Q, QD, QDD, FEXT, Arg("t_q", "plain", shape=NV), Arg("t_qd", "plain", shape=NV), Arg("t_qdd", "plain", shape=NV),
+                PARAMS),
                (Out("dtau_dq_dot", "plain", NVxNV), Out("dtau_dqd_dot", "plain", NVxNV), Out("M_dot", "plain", NVxNV)),
                "second_order", mujoco_twin=False),
-        OpSpec("forward_dynamics_derivatives", "ForwardDynamicsDerivatives", (Q, QD, TAU, FEXT),
+        OpSpec("forward_dynamics_derivatives", "ForwardDynamicsDerivatives", (Q, QD, TAU, FEXT, PARAMS),
                (Out("dqdd_dq", "twin", NVxNV), Out("dqdd_dqd", "twin", NVxNV), Out("dqdd_dtau", "twin", NVxNV)),
                "derivatives", backward="composed", jvp="rule"),
         OpSpec("step_derivatives", "StepDerivatives",
-               (Q, QD, TAU, FEXT, Arg("dt", "plain", shape=(1,)), Arg("scheme", "scheme"), PASSIVE),
+               (Q, QD, TAU, FEXT, Arg("dt", "plain", shape=(1,)), PARAMS, Arg("scheme", "scheme"), PASSIVE),
                (Out("q_next", "twin", ("nq",)), Out("qd_next", "twin", NV), Out("A", "twin", (2, "nv", 2, "nv")),
                 Out("B", "twin", (2, "nv", "nv"))), "derivatives", backward="step"),
         OpSpec("rk_step_derivatives", "RkStepDerivatives",
-               (Q, QD, TAU, FEXT, Arg("dt", "plain", shape=(1,)), Arg("scheme", "tableau"), PASSIVE),
+               (Q, QD, TAU, FEXT, Arg("dt", "plain", shape=(1,)), PARAMS, Arg("scheme", "tableau"), PASSIVE),
                (Out("q_next", "twin", ("nq",)), Out("qd_next", "twin", NV), Out("A", "twin", (2, "nv", 2, "nv")),
                 Out("B", "twin", (2, "nv", "nv")), Out("work", "workspace", (8, "nv", 3, "nv"))), "derivatives", backward="step"),
         OpSpec("inverse_dynamics_external_force_derivatives", "InverseDynamicsExternalForceDerivatives", (Q,),
                (Out("dtau_dfext", "force_rows", ("nv", "nbodies", 6)),), "derivatives", backward="composed"),
-        OpSpec("forward_dynamics_external_force_derivatives", "ForwardDynamicsExternalForceDerivatives", (Q,),
+        OpSpec("forward_dynamics_external_force_derivatives", "ForwardDynamicsExternalForceDerivatives", (Q, PARAMS),
                (Out("dqdd_dfext", "force_rows", ("nv", "nbodies", 6)),), "derivatives", backward="composed"),
-        OpSpec("osc_inertia", "OscInertia", (Q, FRAME, REFERENCE), (Out("Lambda", "plain", (6, 6)),), "derivatives",
+        OpSpec("osc_inertia", "OscInertia", (Q, FRAME, REFERENCE, PARAMS), (Out("Lambda", "plain", (6, 6)),), "derivatives",
                backward="composed"),
-        OpSpec("cmm_time_variation", "CmmTimeVariation", (Q, QD), (Out("Adot", "twin", (6, "nv")),), "kinematics",
-               backward="dual", jvp="dual", dual_jvp=("q", "qd")),
-        OpSpec("dccrba", "Dccrba", (Q, QD), (Out("dh_dq", "twin", (6, "nv")),), "kinematics",
-               backward="dual", jvp="dual", dual_jvp=("q", "qd")),
-        OpSpec("coriolis_matrix", "CoriolisMatrix", (Q, QD), (Out("C", "twin", NVxNV),), "derivatives",
-               backward="dual", jvp="dual", dual_jvp=("q", "qd")),
+        OpSpec("cmm_time_variation", "CmmTimeVariation", (Q, QD, PARAMS), (Out("Adot", "twin", (6, "nv")),), "kinematics",
+               backward="dual", jvp="dual", dual_jvp=("q", "qd", "params")),
+        OpSpec("dccrba", "Dccrba", (Q, QD, PARAMS), (Out("dh_dq", "twin", (6, "nv")),), "kinematics",
+               backward="dual", jvp="dual", dual_jvp=("q", "qd", "params")),
+        OpSpec("coriolis_matrix", "CoriolisMatrix", (Q, QD, PARAMS), (Out("C", "twin", NVxNV),), "derivatives",
+               backward="dual", jvp="dual", dual_jvp=("q", "qd", "params")),
         OpSpec("inverse_dynamics_regressor", "InverseDynamicsRegressor", (Q, QD, QDD), (Out("Y", "force_rows", ("nv", "nparams")),),
                "regressors",
                backward="dual", jvp="dual", dual_jvp=("q", "qd", "qdd"), contracted=True, jvp_in_place=True),
@@ -220,7 +227,7 @@ _VALUE_OPS = (
                backward="dual", jvp="dual", dual_jvp=("q", "qd")),
         OpSpec("potential_energy_regressor", "PotentialEnergyRegressor", (Q,), (Out("Yp", "plain", ("nparams",)),), "regressors",
                backward="dual", jvp="dual", dual_jvp=("q",)),
-        OpSpec("forward_dynamics_parameter_derivatives", "ForwardDynamicsParameterDerivatives", (Q, QD, TAU),
+        OpSpec("forward_dynamics_parameter_derivatives", "ForwardDynamicsParameterDerivatives", (Q, QD, TAU, PARAMS),
                (Out("dqdd_dparams", "force_rows", ("nv", "nparams")),), "regressors", backward="composed"),
 )
 
@@ -261,6 +268,12 @@ def forward_mode_jvp(op: OpSpec, wrt: tuple[str, ...]) -> OpSpec:
 # products the forward-mode rules of others are made of.
 KERNEL_JVP = {op.name: op.dual_jvp for op in _VALUE_OPS if op.jvp == "dual"}
 FORWARD_MODE_JVP = tuple((op.name, op.dual_jvp) for op in _VALUE_OPS if op.dual_jvp and op.jvp != "dual")
+
+# The ops whose values do not depend on the bodies' inertias (kinematics, the regressors): those without a
+# "parameters" argument (check_table), which a view of Robot.with_parameters runs as they are.
+INERTIA_FREE = ("forward_kinematics", "end_effector_pose", "frame_jacobian", "frame_jacobian_vjp", "frame_kinematic_hessian",
+                "frame_jacobian_dot", "body_velocities", "frames_vjp", "inverse_dynamics_external_force_derivatives",
+                "inverse_dynamics_regressor", "kinetic_energy_regressor", "potential_energy_regressor")
 
 OPS: dict[str, OpSpec] = {op.name: op for op in _VALUE_OPS}
 OPS.update({f"{name}_backward": forward_mode_backward(OPS[name]) for name in FORWARD_MODE_BACKWARD})
@@ -306,12 +319,17 @@ def check_table(table: dict[str, OpSpec]) -> None:
         if op.backward not in BACKWARD_KINDS or op.jvp not in JVP_KINDS:
             raise ValueError(f"op {op.name}: backward must be one of {BACKWARD_KINDS} and jvp one of {JVP_KINDS}, got "
                              f"{op.backward!r} and {op.jvp!r}")
-        if op.jvp == "dual" and not op.dual_jvp:
-            raise ValueError(f"op {op.name}: a forward mode by dual numbers needs the inputs of its kernel (dual_jvp)")
+        if op.jvp == "dual" and list(op.dual_jvp) != [a.name for a in op.tensor_args]:
+            raise ValueError(f"op {op.name}: a forward mode by dual numbers is along every tensor input, in order (dual_jvp "
+                             f"{op.dual_jvp}, inputs {[a.name for a in op.tensor_args]})")
         if op.contracted and (not op.has_dual_backward or len(op.outputs) != 1 or
                               op.outputs[0].kind not in ("force_rows", "plain")):
             raise ValueError(f"op {op.name}: a contracted op has a forward-mode backward and one output of kind "
                              "'force_rows' or 'plain'")
+        value = table.get(op.forward_mode_of or op.jvp_of, op)
+        if (value.name in INERTIA_FREE) == any(a.kind == "parameters" for a in value.args):
+            raise ValueError(f"op {value.name}: an op takes the inertial parameters (an argument of kind 'parameters') "
+                             "exactly when its value depends on them, and is otherwise listed in INERTIA_FREE")
         if op.derived and any(d == "nsel" for a in op.tensor_args for d in a.trailing):
             raise ValueError(f"op {op.name}: a forward-mode kernel needs compile-time sizes, not 'nsel'")
 

@@ -1,2 +1,3 @@
-"""The optimisation layer: costs and barriers, the horizon call for trajectory optimisation and the
-mpc.pytorch adapter. It imports the layers below (model, space, ops, step)."""
+"""The optimisation layer: costs and barriers, the horizon call for trajectory optimisation, the
+mpc.pytorch adapter and physically consistent inertial parameters (inertial). It imports the layers below
+(model, space, ops, step)."""

@@ -55,15 +55,17 @@ class CostFunctions:
         jacobian = dexp_inverse_block("free", r, 0) @ self.frame_jacobian(q, index, "local")
         return _weighted(r, _state_rows(jacobian, qd), _checked_weights("frame_placement_cost", weights, 6))
 
-    def com_cost(self, q, qd, target, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """r = center of mass - target (..., 3), weights (..., 3)."""
-        return _weighted(self.com(q) - target, _state_rows(self.jacobian_com(q), qd), _checked_weights("com_cost", weights, 3))
+    def com_cost(self, q, qd, target, weights, params=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """r = center of mass - target (..., 3), weights (..., 3); params as in inverse_dynamics."""
+        return _weighted(self.com(q, params) - target, _state_rows(self.jacobian_com(q, params), qd),
+                         _checked_weights("com_cost", weights, 3))
 
-    def momentum_cost(self, q, qd, target, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def momentum_cost(self, q, qd, target, weights, params=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = centroidal momentum h(q, qd) [linear; angular] - target (..., 6), weights (..., 6): both its q
-        block (dccrba) and its qd block (A)."""
-        A, h = self.ccrba(q, qd)
-        return _weighted(h - target, torch.cat([self.dccrba(q, qd), A], dim=-1), _checked_weights("momentum_cost", weights, 6))
+        block (dccrba) and its qd block (A); params as in inverse_dynamics."""
+        A, h = self.ccrba(q, qd, params)
+        return _weighted(h - target, torch.cat([self.dccrba(q, qd, params), A], dim=-1),
+                         _checked_weights("momentum_cost", weights, 6))
 
 
 def quadratic_barrier(x: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, weights: torch.Tensor):

@@ -18,7 +18,7 @@ class HorizonFunctions:
 
     def horizon(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dt, integrator: str = "semi_implicit_euler",
                 costs: Sequence[tuple[str, dict]] = (), step_hessian: bool = False,
-                f_ext: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+                f_ext: torch.Tensor | None = None, params: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """Per knot: the next state, the step's Jacobians A, B (and, with step_hessian, its Hessian) and the
         sum of the listed costs with its derivatives.
 
@@ -27,8 +27,11 @@ class HorizonFunctions:
         (CONTROL_COSTS, taking (tau, **kwargs)); their references and weights broadcast against (..., T).
         Returns q_next, qd_next, A (..., T, 2nv, 2nv), B (..., T, 2nv, nv), [H (..., T, 2nv, 3nv, 3nv)],
         cost (..., T), lx (..., T, 2nv), lu (..., T, nv), lxx (..., T, 2nv, 2nv), luu (..., T, nv, nv) and
-        lxu (..., T, 2nv, nv) (zero: no listed cost couples state and control).
+        lxu (..., T, 2nv, nv) (zero: no listed cost couples state and control). params: the inertial
+        parameters (..., nbodies, 10), broadcast against (..., T) as the states, as in inverse_dynamics.
         """
+        if params is not None:
+            return self.with_parameters(params).horizon(q, qd, tau, dt, integrator, costs, step_hessian, f_ext)
         q_next, qd_next, A, B = self._step_and_derivatives(q, qd, tau, dt, integrator, f_ext, "horizon")
         out = {"q_next": q_next, "qd_next": qd_next, "A": A, "B": B}
         if step_hessian:

@@ -52,13 +52,17 @@ class StepFunctions:
     """The plant step of a robot's views (mixed into robot._Functions with ConfigurationFunctions)."""
 
     def step(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dt, integrator: str = "semi_implicit_euler",
-             f_ext: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+             f_ext: torch.Tensor | None = None, params: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """(q', qd') `(..., nq)`, `(..., nv)`: one step of dt (a number or a (...,) tensor) with tau (and
         f_ext) held over it; integrator one of INTEGRATORS. The joints' passive forces, when included, act
         at every stage; semi_implicit_euler takes their damping implicitly where the model's eulerdamp is
-        on (MuJoCo's Euler step, `load(..., eulerdamp=...)`)."""
+        on (MuJoCo's Euler step, `load(..., eulerdamp=...)`). params: the inertial parameters, as in
+        inverse_dynamics."""
+        if params is not None:
+            return self.with_parameters(params).step(q, qd, tau, dt, integrator, f_ext)
         _check("step", integrator, q, qd, tau, dt)
-        if torch.compiler.is_compiling() and opaque():  # one op, not the composition's nodes
+        # one op, not the composition's nodes (the op computes with the robot's own inertial parameters)
+        if torch.compiler.is_compiling() and opaque() and self._params is None:
             return compiled_step(self, q, qd, tau, dt, integrator, f_ext)
         if torch.compiler.is_compiling() and forward_ad._current_level >= 0:
             return _step_eagerly(self, q, qd, tau, dt, integrator, f_ext)
@@ -80,23 +84,27 @@ class StepFunctions:
 
     def step_derivatives(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dt,
                          integrator: str = "semi_implicit_euler",
-                         f_ext: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                         f_ext: torch.Tensor | None = None,
+                         params: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """(A `(..., 2 nv, 2 nv)`, B `(..., 2 nv, nv)`): the derivatives of step's [q'; qd'] with respect to
-        [q; qd] and tau, along the tangent spaces (q' compared by difference, q moved by integrate)."""
-        return self._step_and_derivatives(q, qd, tau, dt, integrator, f_ext)[2:]
+        [q; qd] and tau, along the tangent spaces (q' compared by difference, q moved by integrate); params
+        as in step."""
+        view = self if params is None else self.with_parameters(params)
+        return view._step_and_derivatives(q, qd, tau, dt, integrator, f_ext)[2:]
 
     def _step_and_derivatives(self, q, qd, tau, dt, integrator, f_ext, op="step_derivatives"):
         """(q', qd', A, B): step and step_derivatives from one pass over the stages; in one kernel call
         when nothing asks for their derivatives (the kernels have no backward)."""
         _check(op, integrator, q, qd, tau, dt)
-        if self._robot._coupling is None and not _differentiated(q, qd, tau, dt, f_ext):
+        params = self._params  # a view's of with_parameters
+        if self._robot._coupling is None and not _differentiated(q, qd, tau, dt, f_ext, params):
             h = dt_column(dt, qd)
             passive = _passive_code(self._robot, integrator)
             if integrator in FUSED:
-                q_next, qd_next, A, B = self._kernel_call("step_derivatives", q, qd, tau, f_ext, h, FUSED[integrator],
-                                                          passive)
+                q_next, qd_next, A, B = self._kernel_call("step_derivatives", q, qd, tau, f_ext, h, params,
+                                                          FUSED[integrator], passive)
             else:  # the stages' derivatives in a workspace: one per CPU thread, one per sample on CUDA
-                q_next, qd_next, A, B, _ = self._kernel_call("rk_step_derivatives", q, qd, tau, f_ext, h,
+                q_next, qd_next, A, B, _ = self._kernel_call("rk_step_derivatives", q, qd, tau, f_ext, h, params,
                                                              RK_FUSED[integrator], passive)
             return q_next, qd_next, A.flatten(-4, -3).flatten(-2), B.flatten(-3, -2)
         return _in_chunks(lambda *args: self._step_derivatives(*args, integrator), q, qd, tau, dt, f_ext)
@@ -158,14 +166,16 @@ class StepFunctions:
 
     def step_second_derivatives(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dt,
                                 integrator: str = "semi_implicit_euler",
-                                f_ext: torch.Tensor | None = None) -> torch.Tensor:
+                                f_ext: torch.Tensor | None = None, params: torch.Tensor | None = None) -> torch.Tensor:
         """(..., 2 nv, 3 nv, 3 nv): the Hessian at z = 0 of z -> [difference(q', q'(z)); qd'(z) - qd'] with
         (q'(z), qd'(z)) = step(q (+) z_q, qd + z_qd, tau + z_tau), symmetric in its last two indices. The
         Euler schemes: in closed form from forward_dynamics_second_derivatives (step_hessian.py); the Runge-Kutta
         schemes: the second-order chain rule through the stages, from each stage's forward-dynamics gradient
-        and second derivatives and the configuration space's closed forms (rk_hessian.py)."""
+        and second derivatives and the configuration space's closed forms (rk_hessian.py). params as in step."""
+        if params is not None:
+            return self.with_parameters(params).step_second_derivatives(q, qd, tau, dt, integrator, f_ext)
         _check("step_second_derivatives", integrator, q, qd, tau, dt)
-        if _differentiated(q, qd, tau, dt, f_ext):
+        if _differentiated(q, qd, tau, dt, f_ext, self._params):
             if transforming():
                 raise NotImplementedError("step_second_derivatives does not run under torch.func transforms (vmap, "
                                           "grad, jacrev, ...): it takes any leading batch shape; call it on the batch")

@@ -27,36 +27,36 @@
 namespace tg {
 
 template <class Robot, class Scalar> struct InverseDynamics {
-  TG_HD static void run(const InverseDynamicsArgs<Scalar>& a) { rnea<Robot, Scalar>(a.q, a.qd, a.qdd, a.f_ext, a.tau); }
+  TG_HD static void run(const InverseDynamicsArgs<Scalar>& a) { rnea<Robot, Scalar>(a.q, a.qd, a.qdd, a.f_ext, a.tau, {a.params}); }
 };
 
 template <class Robot, class Scalar> struct ForwardDynamics {
-  TG_HD static void run(const ForwardDynamicsArgs<Scalar>& a) { aba<Robot, Scalar>(a.q, a.qd, a.tau, a.f_ext, a.qdd); }
+  TG_HD static void run(const ForwardDynamicsArgs<Scalar>& a) { aba<Robot, Scalar>(a.q, a.qd, a.tau, a.f_ext, a.qdd, {a.params}); }
 };
 
 template <class Robot, class Scalar> struct Crba {
-  TG_HD static void run(const CrbaArgs<Scalar>& a) { crba<Robot, Scalar>(a.q, a.M); }
+  TG_HD static void run(const CrbaArgs<Scalar>& a) { crba<Robot, Scalar>(a.q, a.M, {a.params}); }
 };
 
 template <class Robot, class Scalar> struct CrbaVjp {
-  TG_HD static void run(const CrbaVjpArgs<Scalar>& a) { crba_vjp<Robot, Scalar>(a.q, a.weight, a.grad_q); }
+  TG_HD static void run(const CrbaVjpArgs<Scalar>& a) { crba_vjp<Robot, Scalar>(a.q, a.weight, a.grad_q, {a.params}); }
 };
 
 template <class Robot, class Scalar> struct MassProductVjp {
   TG_HD static void run(const MassProductVjpArgs<Scalar>& a) {
-    mass_product_vjp<Robot, Scalar>(Placements<Robot, Scalar>(a.q), a.a, a.cotangent, a.grad_q);
+    mass_product_vjp<Robot, Scalar>(Placements<Robot, Scalar>(a.q), a.a, a.cotangent, a.grad_q, {a.params});
   }
 };
 
 template <class Robot, class Scalar> struct Minv {
-  TG_HD static void run(const MinvArgs<Scalar>& a) { minv<Robot, Scalar>(a.q, a.Minv); }
+  TG_HD static void run(const MinvArgs<Scalar>& a) { minv<Robot, Scalar>(a.q, a.Minv, {a.params}); }
 };
 
 template <class Robot, class Scalar> struct GeneralizedGravity {
   TG_HD static void run(const GeneralizedGravityArgs<Scalar>& a) {
     Scalar zero[Robot::NV];
     for (int k = 0; k < Robot::NV; ++k) zero[k] = Scalar(0);
-    rnea<Robot, Scalar>(a.q, zero, zero, nullptr, a.g);
+    rnea<Robot, Scalar>(a.q, zero, zero, nullptr, a.g, {a.params});
   }
 };
 
@@ -66,25 +66,25 @@ template <class Robot, class Scalar> struct NonlinearEffects {
   template <int C> TG_HD static void run(const NonlinearEffectsArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
     Scalar zero[Robot::NV], buf[Robot::NV];
     for (int k = 0; k < Robot::NV; ++k) zero[k] = Scalar(0);
-    rnea<Robot, Scalar>(a.q, a.qd, cv.acceleration(a.qd, zero, buf), nullptr, a.nle);
+    rnea<Robot, Scalar>(a.q, a.qd, cv.acceleration(a.qd, zero, buf), nullptr, a.nle, {a.params});
     cv.force_out(a.nle);
   }
 };
 
 template <class Robot, class Scalar> struct Energy {
-  TG_HD static void run(const EnergyArgs<Scalar>& a) { energy<Robot, Scalar>(a.q, a.qd, a.energy); }
+  TG_HD static void run(const EnergyArgs<Scalar>& a) { energy<Robot, Scalar>(a.q, a.qd, a.energy, {a.params}); }
 };
 
 template <class Robot, class Scalar> struct Com {
-  TG_HD static void run(const ComArgs<Scalar>& a) { com<Robot, Scalar>(a.q, a.com); }
+  TG_HD static void run(const ComArgs<Scalar>& a) { com<Robot, Scalar>(a.q, a.com, {a.params}); }
 };
 
 template <class Robot, class Scalar> struct JacobianCom {
-  TG_HD static void run(const JacobianComArgs<Scalar>& a) { jacobian_com<Robot, Scalar>(a.q, a.J); }
+  TG_HD static void run(const JacobianComArgs<Scalar>& a) { jacobian_com<Robot, Scalar>(a.q, a.J, {a.params}); }
 };
 
 template <class Robot, class Scalar> struct Ccrba {
-  TG_HD static void run(const CcrbaArgs<Scalar>& a) { ccrba<Robot, Scalar>(a.q, a.qd, a.A, a.h); }
+  TG_HD static void run(const CcrbaArgs<Scalar>& a) { ccrba<Robot, Scalar>(a.q, a.qd, a.A, a.h, {a.params}); }
 };
 
 template <class Robot, class Scalar> struct ForwardKinematics {
@@ -129,7 +129,7 @@ template <class Robot, class Scalar> struct InverseDynamicsVjp {
   template <int C> TG_HD static void run(const InverseDynamicsVjpArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
     Scalar tau[Robot::NV], Mmu[Conv<Robot, Scalar, C>::active ? Robot::NV : 1];
     rnea_vjp<false, Robot, Scalar>(Placements<Robot, Scalar>(a.q), a.qd, a.qdd, a.f_ext, a.cotangent, tau, a.grad_q, a.grad_qd,
-                          Conv<Robot, Scalar, C>::active ? Mmu : nullptr);
+                                   Conv<Robot, Scalar, C>::active ? Mmu : nullptr, {a.params});
     if constexpr (Conv<Robot, Scalar, C>::active) cv.inverse_dynamics_vjp_out(a.qd, a.qdd, tau, Mmu, a.cotangent, a.grad_q, a.grad_qd);
   }
 };
@@ -139,7 +139,7 @@ template <class Robot, class Scalar> struct InverseDynamicsVjp {
 template <class Robot, class Scalar> struct InverseDynamicsVjpFull {
   template <int C> TG_HD static void run(const InverseDynamicsVjpFullArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
     rnea_vjp<false, Robot, Scalar>(Placements<Robot, Scalar>(a.q), a.qd, a.qdd, a.f_ext, a.cotangent, a.tau, a.grad_q, a.grad_qd,
-                          a.grad_qdd);
+                                   a.grad_qdd, {a.params});
     cv.inverse_dynamics_vjp_out(a.qd, a.qdd, a.tau, a.grad_qdd, a.cotangent, a.grad_q, a.grad_qd);
   }
 };
@@ -149,7 +149,7 @@ template <class Robot, class Scalar> struct InverseDynamicsVjpFull {
 template <class Robot, class Scalar> struct InertiaSolve {
   TG_HD static void run(const InertiaSolveArgs<Scalar>& a) {
     Scalar H[Robot::NV * Robot::NV];
-    crba<Robot, Scalar>(a.q, H);
+    crba<Robot, Scalar>(a.q, H, {a.params});
     ltdl_factor<Robot, Scalar>(H);
     for (int k = 0; k < Robot::NV; ++k) a.y[k] = a.x[k];
     ltdl_solve<Robot, Scalar>(H, a.y);
@@ -167,7 +167,7 @@ template <class Robot, class Scalar> struct FramesVjp {
 template <class Robot, class Scalar> struct InverseDynamicsDerivatives {
   template <int C> TG_HD static void run(const InverseDynamicsDerivativesArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
     const Placements<Robot, Scalar> K(a.q);
-    inverse_dynamics_derivatives<Robot, Scalar>(K, a.qd, a.qdd, a.f_ext, cv, a.dtau_dq, a.dtau_dqd);
+    inverse_dynamics_derivatives<Robot, Scalar>(K, a.qd, a.qdd, a.f_ext, cv, a.dtau_dq, a.dtau_dqd, {a.params});
   }
 };
 
@@ -177,7 +177,7 @@ template <class Robot, class Scalar> struct InverseDynamicsSecondDerivatives {
   TG_HD static void run(const InverseDynamicsSecondDerivativesArgs<Scalar>& a) {
     const Placements<Robot, Scalar> K(a.q);
     RneaDerivativesWork<Robot, Scalar> W;
-    rnea_derivatives_setup<Robot, Scalar>(K, a.qd, a.qdd, a.f_ext, W);
+    rnea_derivatives_setup<Robot, Scalar>(K, a.qd, a.qdd, a.f_ext, W, {a.params});
     rnea_second_order<Robot, Scalar>(W, a.d2tau_dq2, a.d2tau_dqd2, a.d2tau_dqdqd, a.dM_dq, a.outputs_zeroed);
   }
 };
@@ -188,7 +188,7 @@ template <class Robot, class Scalar> struct InverseDynamicsDerivativesVjp {
   TG_HD static void run(const InverseDynamicsDerivativesVjpArgs<Scalar>& a) {
     const Placements<Robot, Scalar> K(a.q);
     RneaDerivativesWork<Robot, Scalar> W;
-    rnea_derivatives_setup<Robot, Scalar>(K, a.qd, a.qdd, a.f_ext, W);
+    rnea_derivatives_setup<Robot, Scalar>(K, a.qd, a.qdd, a.f_ext, W, {a.params});
     rnea_second_order_contract<Robot, Scalar>(W, a.grad_dtau_dq, a.grad_dtau_dqd, a.grad_q, a.grad_qd, a.grad_qdd,
                                      a.grad_f_ext);
   }
@@ -200,7 +200,7 @@ template <class Robot, class Scalar> struct InverseDynamicsDerivativesTangent {
   TG_HD static void run(const InverseDynamicsDerivativesTangentArgs<Scalar>& a) {
     const Placements<Robot, Scalar> K(a.q);
     RneaDerivativesWork<Robot, Scalar> W;
-    rnea_derivatives_setup<Robot, Scalar>(K, a.qd, a.qdd, a.f_ext, W);
+    rnea_derivatives_setup<Robot, Scalar>(K, a.qd, a.qdd, a.f_ext, W, {a.params});
     rnea_second_order_tangent<Robot, Scalar>(W, a.t_q, a.t_qd, a.t_qdd, a.dtau_dq_dot, a.dtau_dqd_dot, a.M_dot);
   }
 };
@@ -209,7 +209,7 @@ template <class Robot, class Scalar> struct ForwardDynamicsDerivatives {
   template <int C> TG_HD static void run(const ForwardDynamicsDerivativesArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
     Scalar qdd[Robot::NV];
     forward_dynamics_derivatives<Robot, Scalar>(Placements<Robot, Scalar>(a.q), a.qd, a.tau, a.f_ext, cv, a.dqdd_dq, a.dqdd_dqd, a.dqdd_dtau,
-                                    qdd);
+                                                qdd, {a.params});
   }
 };
 
@@ -226,11 +226,11 @@ template <class Robot, class Scalar> struct StepDerivatives {
     Scalar* const dqd = a.A + NV * NV;
     if constexpr (Robot::PASSIVE) {
       if (a.passive == 2)
-        damped_dynamics_derivatives<Robot, Scalar>(K, cv, a.q, a.qd, a.tau, a.f_ext, a.dt[0], dq, dqd, a.B, qdd);
+        damped_dynamics_derivatives<Robot, Scalar>(K, cv, a.q, a.qd, a.tau, a.f_ext, a.dt[0], dq, dqd, a.B, qdd, {a.params});
       else
-        passive_dynamics_derivatives<Robot, Scalar>(K, cv, a.q, a.qd, a.tau, a.f_ext, a.passive, dq, dqd, a.B, qdd);
+        passive_dynamics_derivatives<Robot, Scalar>(K, cv, a.q, a.qd, a.tau, a.f_ext, a.passive, dq, dqd, a.B, qdd, {a.params});
     } else {
-      forward_dynamics_derivatives<Robot, Scalar>(K, a.qd, a.tau, a.f_ext, cv, dq, dqd, a.B, qdd);
+      forward_dynamics_derivatives<Robot, Scalar>(K, a.qd, a.tau, a.f_ext, cv, dq, dqd, a.B, qdd, {a.params});
     }
     for (int k = 0; k < NV; ++k) v[k] = a.qd[k];
     cv.velocity_out(v);
@@ -244,7 +244,7 @@ template <class Robot, class Scalar> struct StepDerivatives {
 template <class Robot, class Scalar> struct RkStepDerivatives {
   template <int C> TG_HD static void run(const RkStepDerivativesArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
     rk_step<Robot, Scalar, C>(cv, a.qd, a.tau, a.f_ext, a.dt[0], a.scheme, Robot::PASSIVE && a.passive, a.q_next, a.qd_next, a.A,
-                     a.B, a.work);
+                              a.B, a.work, {a.params});
   }
 };
 
@@ -260,7 +260,7 @@ template <class Robot, class Scalar> struct ForwardDynamicsExternalForceDerivati
   TG_HD static void run(const ForwardDynamicsExternalForceDerivativesArgs<Scalar>& a) {
     const Placements<Robot, Scalar> K(a.q);
     Scalar Minv[Robot::NV * Robot::NV];
-    minv<Robot, Scalar>(K, Minv);
+    minv<Robot, Scalar>(K, Minv, {a.params});
     external_force_jacobian<Robot, Scalar>(K, a.dqdd_dfext);
     negate_left_multiply<Robot, Scalar, 6 * Robot::NB>(Minv, a.dqdd_dfext);
   }
@@ -271,7 +271,7 @@ template <class Robot, class Scalar> struct OscInertia {
   TG_HD static void run(const OscInertiaArgs<Scalar>& a) {
     const Placements<Robot, Scalar> K(a.q);
     Scalar Minv[Robot::NV * Robot::NV], J[6 * Robot::NV], JMinv[6 * Robot::NV], A[36];
-    minv<Robot, Scalar>(K, Minv);
+    minv<Robot, Scalar>(K, Minv, {a.params});
     frame_jacobian<Robot, Scalar>(K.oMi, a.frame, a.reference, J);
     for (int r = 0; r < 6; ++r)
       for (int c = 0; c < Robot::NV; ++c) {
@@ -294,20 +294,20 @@ template <class Robot, class Scalar> struct CmmTimeVariation {
   template <int C> TG_HD static void run(const CmmTimeVariationArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
     if constexpr (Conv<Robot, Scalar, C>::active) {
       Scalar A[6 * Robot::NV];
-      cmm_time_variation<Robot, Scalar>(a.q, a.qd, a.Adot, A);
+      cmm_time_variation<Robot, Scalar>(a.q, a.qd, a.Adot, A, {a.params});
       cv.jacobian_dot_out(a.qd, A, a.Adot, 6);
     } else {
-      cmm_time_variation<Robot, Scalar>(a.q, a.qd, a.Adot, nullptr);
+      cmm_time_variation<Robot, Scalar>(a.q, a.qd, a.Adot, nullptr, {a.params});
     }
   }
 };
 
 template <class Robot, class Scalar> struct Dccrba {
   template <int C> TG_HD static void run(const DccrbaArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
-    dccrba<Robot, Scalar>(a.q, a.qd, a.dh_dq);
+    dccrba<Robot, Scalar>(a.q, a.qd, a.dh_dq, {a.params});
     if constexpr (Conv<Robot, Scalar, C>::active) {
       Scalar A[6 * Robot::NV], Adot[6 * Robot::NV];
-      cmm_time_variation<Robot, Scalar>(a.q, a.qd, Adot, A);
+      cmm_time_variation<Robot, Scalar>(a.q, a.qd, Adot, A, {a.params});
       cv.momentum_gradient_out(a.qd, A, a.dh_dq);
     }
   }
@@ -317,7 +317,7 @@ template <class Robot, class Scalar> struct CoriolisMatrix {
   template <int C> TG_HD static void run(const CoriolisMatrixArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
     const Placements<Robot, Scalar> K(a.q);
     VelocityWork<Robot, Scalar> W;
-    velocity_setup<Robot, Scalar>(K, a.qd, W);
+    velocity_setup<Robot, Scalar>(K, a.qd, W, {a.params});
     coriolis_matrix<Robot, Scalar>(W, a.C);
     if constexpr (Conv<Robot, Scalar, C>::active) {
       Scalar Mb[Robot::NV * Conv<Robot, Scalar, C>::NB3];
@@ -357,8 +357,8 @@ template <class Robot, class Scalar> struct ForwardDynamicsParameterDerivatives 
   TG_HD static void run(const ForwardDynamicsParameterDerivativesArgs<Scalar>& a) {
     const Placements<Robot, Scalar> K(a.q);
     Scalar qdd[Robot::NV], Minv[Robot::NV * Robot::NV];
-    minv<Robot, Scalar>(K, Minv);
-    forward_dynamics_from_minv<Robot, Scalar>(K, a.qd, a.tau, nullptr, Minv, qdd);
+    minv<Robot, Scalar>(K, Minv, {a.params});
+    forward_dynamics_from_minv<Robot, Scalar>(K, a.qd, a.tau, nullptr, Minv, qdd, {a.params});
     inverse_dynamics_regressor<Robot, Scalar>(K, a.qd, qdd, a.dqdd_dparams);
     negate_left_multiply<Robot, Scalar, 10 * Robot::NB>(Minv, a.dqdd_dparams);
   }

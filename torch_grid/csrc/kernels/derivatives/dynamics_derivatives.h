@@ -36,10 +36,11 @@ template <class Robot, class Scalar, int COLS> TG_HD void negate_left_multiply(c
 
 // qdd = M^-1 (tau - nle(q, qd, f_ext)) from a computed M^-1 (Pinocchio's convention).
 template <class Robot, class Scalar> TG_HD void forward_dynamics_from_minv(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* tau,
-                                                                 const Scalar* fext, const Scalar* Minv, Scalar* qdd) {
+                                                                 const Scalar* fext, const Scalar* Minv, Scalar* qdd,
+                                                                 const InertialParameters<Robot, Scalar>& pi = {}) {
   Scalar zero[Robot::NV], nle[Robot::NV];
   for (int k = 0; k < Robot::NV; ++k) zero[k] = Scalar(0);
-  rnea<Robot, Scalar>(K, qd, zero, fext, nle);
+  rnea<Robot, Scalar>(K, qd, zero, fext, nle, pi);
   for (int r = 0; r < Robot::NV; ++r) {
     Scalar acc = 0;
     for (int k = 0; k < Robot::NV; ++k) acc += Minv[Robot::NV * r + k] * (tau[k] - nle[k]);
@@ -54,9 +55,10 @@ template <class Robot, class Scalar> TG_HD void forward_dynamics_from_minv(const
 // the caller's minv).
 template <class Robot, class Scalar, int C, bool Zero = true>
 TG_HD void inverse_dynamics_derivatives(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* qdd, const Scalar* fext,
-                                        const Conv<Robot, Scalar, C>& cv, Scalar* dtau_dq, Scalar* dtau_dqd) {
+                                        const Conv<Robot, Scalar, C>& cv, Scalar* dtau_dq, Scalar* dtau_dqd,
+                                        const InertialParameters<Robot, Scalar>& pi = {}) {
   RneaDerivativesWork<Robot, Scalar> W;
-  rnea_derivatives_setup<Robot, Scalar>(K, qd, qdd, fext, W);
+  rnea_derivatives_setup<Robot, Scalar>(K, qd, qdd, fext, W, pi);
   Scalar tau[Robot::NV];
   rnea_derivatives<Robot, Scalar, Zero>(W, tau, dtau_dq, dtau_dqd);
   if constexpr (Conv<Robot, Scalar, C>::active) {
@@ -72,10 +74,11 @@ TG_HD void inverse_dynamics_derivatives(const Placements<Robot, Scalar>& K, cons
 // dqdd/dq, dqdd/dqd, dqdd/dtau (NV x NV each, in the convention) and qdd (in Pinocchio's).
 template <class Robot, class Scalar, int C>
 TG_HD void forward_dynamics_derivatives(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* tau, const Scalar* fext,
-                                     const Conv<Robot, Scalar, C>& cv, Scalar* dq, Scalar* dqd, Scalar* dtau, Scalar* qdd) {
-  minv<Robot, Scalar>(K, dtau);  // needed anyway, so qdd comes from it rather than from ABA
-  forward_dynamics_from_minv<Robot, Scalar>(K, qd, tau, fext, dtau, qdd);
-  inverse_dynamics_derivatives<Robot, Scalar>(K, qd, qdd, fext, cv, dq, dqd);
+                                     const Conv<Robot, Scalar, C>& cv, Scalar* dq, Scalar* dqd, Scalar* dtau, Scalar* qdd,
+                                     const InertialParameters<Robot, Scalar>& pi = {}) {
+  minv<Robot, Scalar>(K, dtau, pi);  // needed anyway, so qdd comes from it rather than from ABA
+  forward_dynamics_from_minv<Robot, Scalar>(K, qd, tau, fext, dtau, qdd, pi);
+  inverse_dynamics_derivatives<Robot, Scalar>(K, qd, qdd, fext, cv, dq, dqd, pi);
   cv.congruence_out(dtau);
   negate_left_multiply<Robot, Scalar, Robot::NV>(dtau, dq);
   negate_left_multiply<Robot, Scalar, Robot::NV>(dtau, dqd);
@@ -88,17 +91,18 @@ TG_HD void forward_dynamics_derivatives(const Placements<Robot, Scalar>& K, cons
 // dqdd/dq, dqdd/dqd, dqdd/dtau (NV x NV each, in the convention) and qdd (in Pinocchio's).
 template <class Robot, class Scalar, int C>
 TG_HD void damped_dynamics_derivatives(const Placements<Robot, Scalar>& K, const Conv<Robot, Scalar, C>& cv, const Scalar* q, const Scalar* qd,
-                                    const Scalar* tau, const Scalar* fext, Scalar h, Scalar* dq, Scalar* dqd, Scalar* dtau, Scalar* qdd) {
+                                    const Scalar* tau, const Scalar* fext, Scalar h, Scalar* dq, Scalar* dqd, Scalar* dtau, Scalar* qdd,
+                                    const InertialParameters<Robot, Scalar>& pi = {}) {
   constexpr int NV = Robot::NV;
   const auto& d = data<Robot, Scalar>();
   Scalar H[NV * NV], f[NV], zero[NV], buf[Conv<Robot, Scalar, C>::active ? NV : 1];
-  crba<Robot, Scalar>(K, H);
+  crba<Robot, Scalar>(K, H, pi);
   cv.congruence_out(H);
   for (int k = 0; k < NV; ++k) H[(NV + 1) * k] += h * Scalar(d.damping[k]);
   ltdl_factor<Robot, Scalar>(H);
   // f = tau + p - b, then H_c^-1 G f = G qdd
   for (int k = 0; k < NV; ++k) zero[k] = Scalar(0);
-  rnea<Robot, Scalar>(K, qd, zero, fext, f);
+  rnea<Robot, Scalar>(K, qd, zero, fext, f, pi);
   for (int k = 0; k < NV; ++k) f[k] = tau[k] - f[k];
   add_passive<Robot, Scalar>(q, qd, f);
   cv.force_out(f);
@@ -106,7 +110,7 @@ TG_HD void damped_dynamics_derivatives(const Placements<Robot, Scalar>& K, const
   const Scalar* a = cv.velocity(f, buf);  // G^T
   for (int k = 0; k < NV; ++k) qdd[k] = a[k];
   // the derivatives: -H^-1 (dID/dx + [K D]), and H^-1 from the identity's columns
-  inverse_dynamics_derivatives<Robot, Scalar>(K, qd, qdd, fext, cv, dq, dqd);
+  inverse_dynamics_derivatives<Robot, Scalar>(K, qd, qdd, fext, cv, dq, dqd, pi);
   add_passive_diagonals<Robot, Scalar>(dq, dqd);
   for (int r = 0; r < NV; ++r)
     for (int c = 0; c < NV; ++c) dtau[NV * r + c] = Scalar(r == c), dq[NV * r + c] = -dq[NV * r + c], dqd[NV * r + c] = -dqd[NV * r + c];
@@ -119,11 +123,12 @@ TG_HD void damped_dynamics_derivatives(const Placements<Robot, Scalar>& K, const
 // without (0), at tau.
 template <class Robot, class Scalar, int C>
 TG_HD void passive_dynamics_derivatives(const Placements<Robot, Scalar>& K, const Conv<Robot, Scalar, C>& cv, const Scalar* q, const Scalar* qd,
-                                     const Scalar* tau, const Scalar* fext, int passive, Scalar* dq, Scalar* dqd, Scalar* dtau, Scalar* qdd) {
+                                     const Scalar* tau, const Scalar* fext, int passive, Scalar* dq, Scalar* dqd, Scalar* dtau, Scalar* qdd,
+                                     const InertialParameters<Robot, Scalar>& pi = {}) {
   Scalar tau_p[Robot::NV];
   for (int k = 0; k < Robot::NV; ++k) tau_p[k] = tau[k];
   if (passive) add_passive<Robot, Scalar>(q, qd, tau_p);
-  forward_dynamics_derivatives<Robot, Scalar>(K, qd, tau_p, fext, cv, dq, dqd, dtau, qdd);
+  forward_dynamics_derivatives<Robot, Scalar>(K, qd, tau_p, fext, cv, dq, dqd, dtau, qdd, pi);
   if (passive) add_passive_columns<Robot, Scalar>(dtau, dq, dqd);
 }
 

@@ -52,7 +52,8 @@ template <class Scalar> TG_HD M6<Scalar> momentum_rate_matrix(const Inertia<Scal
 
 // Body i's velocity terms: its world axes and velocity, and its own world inertia and B (summed
 // over subtrees by velocity_sums).
-template <class Robot, class Scalar> TG_HD_INLINE void velocity_step(int i, const Scalar* qd, VelocityWork<Robot, Scalar>& W) {
+template <class Robot, class Scalar> TG_HD_INLINE void velocity_step(int i, const Scalar* qd, VelocityWork<Robot, Scalar>& W,
+                                const InertialParameters<Robot, Scalar>& pi = {}) {
   const auto& d = data<Robot, Scalar>();
   const int p = d.parent[i], vi = d.vi[i];
   W.v[i] = p < 0 ? sv_zero<Scalar>() : W.v[p];
@@ -60,7 +61,7 @@ template <class Robot, class Scalar> TG_HD_INLINE void velocity_step(int i, cons
     W.s[vi + k] = act_motion(W.oMi[i], joint_axis<Robot, Scalar>(i, k));
     W.v[i] = W.v[i] + qd[vi + k] * W.s[vi + k];
   }
-  W.Yc[i] = act(W.oMi[i], body_inertia<Robot, Scalar>(i));
+  W.Yc[i] = act(W.oMi[i], pi[i]);
   W.B[i] = momentum_rate_matrix(W.Yc[i], W.v[i]);
 }
 
@@ -74,9 +75,10 @@ template <class Robot, class Scalar> TG_HD void velocity_sums(VelocityWork<Robot
   }
 }
 
-template <class Robot, class Scalar> TG_HD void velocity_setup(const Placements<Robot, Scalar>& K, const Scalar* qd, VelocityWork<Robot, Scalar>& W) {
+template <class Robot, class Scalar> TG_HD void velocity_setup(const Placements<Robot, Scalar>& K, const Scalar* qd, VelocityWork<Robot, Scalar>& W,
+                          const InertialParameters<Robot, Scalar>& pi = {}) {
   W.oMi = K.oMi;
-  for (int i = 0; i < Robot::NB; ++i) velocity_step<Robot, Scalar>(i, qd, W);
+  for (int i = 0; i < Robot::NB; ++i) velocity_step<Robot, Scalar>(i, qd, W, pi);
   velocity_sums<Robot, Scalar>(W);
 }
 
@@ -84,13 +86,13 @@ template <class Robot, class Scalar> TG_HD void velocity_setup(const Placements<
 // terms), then the subtree sums Yc, B, F.
 template <class Robot, class Scalar>
 TG_HD void rnea_derivatives_setup(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* qdd, const Scalar* fext,
-                                  RneaDerivativesWork<Robot, Scalar>& W) {
+                                  RneaDerivativesWork<Robot, Scalar>& W, const InertialParameters<Robot, Scalar>& pi = {}) {
   const auto& d = data<Robot, Scalar>();
   using L = Levels<Robot>;
   Sv<Scalar> a[L::N];  // world accelerations (gravity included), only for the children
   W.oMi = K.oMi;
   for (int i = 0; i < Robot::NB; ++i) {
-    velocity_step<Robot, Scalar>(i, qd, W);
+    velocity_step<Robot, Scalar>(i, qd, W, pi);
     const int p = d.parent[i], n = d.nvj[i], vi = d.vi[i];
     const Sv<Scalar> vp = p < 0 ? sv_zero<Scalar>() : W.v[p];
     const Sv<Scalar> ap = p < 0 ? base_acceleration<Robot, Scalar>() : a[L::parent(d, i)];
@@ -174,7 +176,7 @@ TG_HD void rnea_derivatives(const RneaDerivativesWork<Robot, Scalar>& W, Scalar*
 // gradient of lambda^T M(q) qdd (mass_product_vjp).
 template <bool Rest = false, class Robot, class Scalar>
 TG_HD void rnea_vjp(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* qdd, const Scalar* fext, const Scalar* lambda, Scalar* tau,
-                    Scalar* g_q, Scalar* g_qd, Scalar* Mlam = nullptr) {
+                    Scalar* g_q, Scalar* g_qd, Scalar* Mlam = nullptr, const InertialParameters<Robot, Scalar>& pi = {}) {
   const auto& d = data<Robot, Scalar>();
   constexpr int NB = Robot::NB;
   Sv<Scalar> s[Robot::NV], v[NB], a[NB], h[NB], F[NB], y[NB], Z[NB], R[NB];
@@ -191,7 +193,7 @@ TG_HD void rnea_vjp(const Placements<Robot, Scalar>& K, const Scalar* qd, const 
     for (int k = 0; k < d.nvj[i]; ++k) a[i] = a[i] + qdd[vi + k] * s[vi + k];
     if constexpr (!Rest)
       for (int k = 0; k < d.nvj[i]; ++k) a[i] = a[i] + qd[vi + k] * cross_motion(v[i], s[vi + k]);
-    I[i] = act(K.oMi[i], body_inertia<Robot, Scalar>(i));
+    I[i] = act(K.oMi[i], pi[i]);
     F[i] = mul(I[i], a[i]);
     if constexpr (!Rest) {
       h[i] = mul(I[i], v[i]);
@@ -237,9 +239,10 @@ TG_HD void rnea_vjp(const Placements<Robot, Scalar>& K, const Scalar* qd, const 
 
 // The gradient along the tangent of lam^T M(q) a (NV): rnea_vjp at rest without gravity.
 template <class Robot, class Scalar>
-TG_HD void mass_product_vjp(const Placements<Robot, Scalar>& K, const Scalar* acc, const Scalar* lambda, Scalar* g_q) {
+TG_HD void mass_product_vjp(const Placements<Robot, Scalar>& K, const Scalar* acc, const Scalar* lambda, Scalar* g_q,
+                           const InertialParameters<Robot, Scalar>& pi = {}) {
   Scalar tau[Robot::NV];
-  rnea_vjp<true, Robot, Scalar>(K, nullptr, acc, nullptr, lambda, tau, g_q, nullptr);
+  rnea_vjp<true, Robot, Scalar>(K, nullptr, acc, nullptr, lambda, tau, g_q, nullptr, nullptr, pi);
 }
 
 // Coriolis matrix C (NV x NV) with C qd = nonlinear effects - gravity, Pinocchio's factorisation

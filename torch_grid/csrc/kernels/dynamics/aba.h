@@ -11,7 +11,7 @@ namespace tg {
 // force) goes to the parent's level, assigned by the first child to arrive (the parent's last in
 // depth-first order) and added by the others; U = IA S is kept per dof (joint i's k-th at vi + k).
 template <class Robot, class Scalar>
-TG_HD void aba(const Scalar* q, const Scalar* qd, const Scalar* tau, const Scalar* fext, Scalar* qdd) {
+TG_HD void aba(const Scalar* q, const Scalar* qd, const Scalar* tau, const Scalar* fext, Scalar* qdd, const InertialParameters<Robot, Scalar>& pi = {}) {
   const auto& d = data<Robot, Scalar>();
   JointPlacements<Robot, Scalar> liMi(q);
   using L = Levels<Robot>;
@@ -26,14 +26,14 @@ TG_HD void aba(const Scalar* q, const Scalar* qd, const Scalar* tau, const Scala
     const Sv<Scalar> vJ = joint_motion<Robot, Scalar>(i, qd);
     va[l] = p < 0 ? vJ : actinv_motion(X, va[L::parent(d, i)]) + vJ;
     c[i] = cross_motion(va[l], vJ);
-    const Inertia<Scalar> I = body_inertia<Robot, Scalar>(i);
+    const Inertia<Scalar> I = pi[i];
     pA[i] = cross_force(va[l], mul(I, va[l]));
     if (fext) pA[i] = pA[i] - Sv<Scalar>{{fext[6 * i], fext[6 * i + 1], fext[6 * i + 2], fext[6 * i + 3], fext[6 * i + 4], fext[6 * i + 5]}};
   }
   // Backward pass: articulated inertias IA and bias forces pA, U = IA S, D = S^T U, u = tau - S^T pA.
   for (int i = Robot::NB - 1; i >= 0; --i) {
     const int n = d.nvj[i], vi = d.vi[i], l = d.depth[i];
-    M6<Scalar> IA = to_matrix(body_inertia<Robot, Scalar>(i));
+    M6<Scalar> IA = to_matrix(pi[i]);
     if (d.has_children[i]) {
       for (int k = 0; k < 36; ++k) IA.m[k] += IA_up[l].m[k];
       pA[i] = pA[i] + pA_up[l];

@@ -14,12 +14,12 @@
 
 namespace tg {
 
-template <class Robot, class Scalar> TG_HD void crba(const Placements<Robot, Scalar>& K, Scalar* Mout) {
+template <class Robot, class Scalar> TG_HD void crba(const Placements<Robot, Scalar>& K, Scalar* Mout, const InertialParameters<Robot, Scalar>& pi = {}) {
   const auto& d = data<Robot, Scalar>();
   constexpr int NV = Robot::NV;
   Inertia<Scalar> Ic[Robot::NB];  // about joint i's origin, world-aligned
   Scalar F[6][NV];            // F[:, c]: force of the subtree owning dof c per unit acceleration of c
-  for (int i = 0; i < Robot::NB; ++i) Ic[i] = rotate(K.oMi[i].R, body_inertia<Robot, Scalar>(i));
+  for (int i = 0; i < Robot::NB; ++i) Ic[i] = rotate(K.oMi[i].R, pi[i]);
   // Backward pass: the forces of joint i's columns, its rows, then its composite inertia to the parent.
   // Unrolled on the host: each body's dof ranges and axes become constants (20% of crba).
 #if !defined(__CUDACC__)
@@ -68,7 +68,9 @@ template <class Robot, class Scalar> TG_HD void crba(const Placements<Robot, Sca
   }
 }
 
-template <class Robot, class Scalar> TG_HD void crba(const Scalar* q, Scalar* Mout) { crba<Robot, Scalar>(Placements<Robot, Scalar>(q), Mout); }
+template <class Robot, class Scalar> TG_HD void crba(const Scalar* q, Scalar* Mout, const InertialParameters<Robot, Scalar>& pi = {}) {
+  crba<Robot, Scalar>(Placements<Robot, Scalar>(q), Mout, pi);
+}
 
 // The gradient along the tangent of <G, M(q)> for a weight G (NV x NV), O(n d) for a tree of depth d.
 // With world axes S and composite inertias Ic about one point (the root's origin), a block of M is
@@ -82,7 +84,7 @@ template <class Robot, class Scalar> TG_HD void crba(const Scalar* q, Scalar* Mo
 // over the joints above b) less that of S_s x* R_s (R_s = sum of w_rs F_r over the joints below a),
 // which removes the pairs with a also below c. The second is -tr((P_c + P_c^T) Ic_c [S_k x]), with P_c
 // the sum of S_r u_r^T over the joints above c, u_r = A_r + the sum of H_rs S_s within r's joint.
-template <class Robot, class Scalar> TG_HD void crba_vjp(const Scalar* q, const Scalar* G, Scalar* out) {
+template <class Robot, class Scalar> TG_HD void crba_vjp(const Scalar* q, const Scalar* G, Scalar* out, const InertialParameters<Robot, Scalar>& pi = {}) {
   const auto& d = data<Robot, Scalar>();
   constexpr int NV = Robot::NV, NB = Robot::NB;
   const Placements<Robot, Scalar> K(q);
@@ -110,7 +112,7 @@ template <class Robot, class Scalar> TG_HD void crba_vjp(const Scalar* q, const 
         for (int x = 0; x < 6; ++x)
           for (int y = 0; y < 6; ++y) P[i].m[6 * x + y] += Sw[r].v[x] * u.v[y] + u.v[x] * Sw[r].v[y];
       }
-    Ic[i] = shift(rotate(K.oMi[i].R, body_inertia<Robot, Scalar>(i)), X.p);
+    Ic[i] = shift(rotate(K.oMi[i].R, pi[i]), X.p);
     Z[i] = sv_zero<Scalar>();
   }
   // Backward pass: F_r into the R_s above, the subtree sums Z_c and Ic_c, then both terms for c's dofs.

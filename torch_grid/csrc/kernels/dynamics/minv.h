@@ -96,11 +96,11 @@ template <int N, class Robot, class Scalar> TG_HD void minv_forward(int i, MinvW
   }
 }
 
-template <class Robot, class Scalar> TG_HD void minv(const Placements<Robot, Scalar>& K, Scalar* Minv) {
+template <class Robot, class Scalar> TG_HD void minv(const Placements<Robot, Scalar>& K, Scalar* Minv, const InertialParameters<Robot, Scalar>& pi = {}) {
   const auto& d = data<Robot, Scalar>();
   MinvWork<Robot, Scalar> w;
   w.K = &K;
-  for (int i = 0; i < Robot::NB; ++i) w.IA[i] = to_matrix(rotate(K.oMi[i].R, body_inertia<Robot, Scalar>(i)));
+  for (int i = 0; i < Robot::NB; ++i) w.IA[i] = to_matrix(rotate(K.oMi[i].R, pi[i]));
   for (int col = 0; col < Robot::NV; ++col) w.F[col] = sv_zero<Scalar>();
   for (int k = 0; k < Robot::NV * Robot::NV; ++k) Minv[k] = Scalar(0);
   for (int i = Robot::NB - 1; i >= 0; --i) {
@@ -118,9 +118,9 @@ template <class Robot, class Scalar> TG_HD void minv(const Placements<Robot, Sca
     for (int c = 0; c < r; ++c) Minv[Robot::NV * r + c] = Minv[Robot::NV * c + r];
 }
 
-template <class Robot, class Scalar> TG_HD void minv(const Scalar* q, Scalar* Minv) {
+template <class Robot, class Scalar> TG_HD void minv(const Scalar* q, Scalar* Minv, const InertialParameters<Robot, Scalar>& pi = {}) {
   const Placements<Robot, Scalar> K(q);
-  minv<Robot, Scalar>(K, Minv);
+  minv<Robot, Scalar>(K, Minv, pi);
 }
 
 }  // namespace tg

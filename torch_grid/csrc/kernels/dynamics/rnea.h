@@ -9,7 +9,8 @@ namespace tg {
 // liMi: the joint placements (JointPlacements, or a shared Placements pass); qd, qdd in Pinocchio's
 // layout; fext (NB x 6, joint frames) may be null; tau is (NV). Gravity = false with qd = 0 gives M qdd.
 template <class Robot, class Scalar, bool Gravity, class P>
-TG_HD_INLINE void rnea_placed(P& liMi, const Scalar* qd, const Scalar* qdd, const Scalar* fext, Scalar* tau) {
+TG_HD_INLINE void rnea_placed(P& liMi, const Scalar* qd, const Scalar* qdd, const Scalar* fext, Scalar* tau,
+                              const InertialParameters<Robot, Scalar>& pi = {}) {
   const auto& d = data<Robot, Scalar>();
   using L = Levels<Robot>;
   Sv<Scalar> v[L::N], a[L::N], f[Robot::NB];
@@ -22,7 +23,7 @@ TG_HD_INLINE void rnea_placed(P& liMi, const Scalar* qd, const Scalar* qdd, cons
     const Sv<Scalar> a_parent = p < 0 ? (Gravity ? base_acceleration<Robot, Scalar>() : sv_zero<Scalar>()) : a[kp];
     v[k] = p < 0 ? vJ : actinv_motion(X, v[kp]) + vJ;
     a[k] = actinv_motion(X, a_parent) + aJ + cross_motion(v[k], vJ);
-    const Inertia<Scalar> I = body_inertia<Robot, Scalar>(i);
+    const Inertia<Scalar> I = pi[i];
     f[i] = mul(I, a[k]) + cross_force(v[k], mul(I, v[k]));
     if (fext) f[i] = f[i] - Sv<Scalar>{{fext[6 * i], fext[6 * i + 1], fext[6 * i + 2], fext[6 * i + 3], fext[6 * i + 4], fext[6 * i + 5]}};
   }
@@ -36,14 +37,15 @@ TG_HD_INLINE void rnea_placed(P& liMi, const Scalar* qd, const Scalar* qdd, cons
 }
 
 template <class Robot, class Scalar, bool Gravity = true>
-TG_HD void rnea(const Scalar* q, const Scalar* qd, const Scalar* qdd, const Scalar* fext, Scalar* tau) {
+TG_HD void rnea(const Scalar* q, const Scalar* qd, const Scalar* qdd, const Scalar* fext, Scalar* tau, const InertialParameters<Robot, Scalar>& pi = {}) {
   JointPlacements<Robot, Scalar> liMi(q);
-  rnea_placed<Robot, Scalar, Gravity>(liMi, qd, qdd, fext, tau);
+  rnea_placed<Robot, Scalar, Gravity>(liMi, qd, qdd, fext, tau, pi);
 }
 
 template <class Robot, class Scalar, bool Gravity = true>
-TG_HD void rnea(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* qdd, const Scalar* fext, Scalar* tau) {
-  rnea_placed<Robot, Scalar, Gravity>(K, qd, qdd, fext, tau);
+TG_HD void rnea(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* qdd, const Scalar* fext, Scalar* tau,
+                const InertialParameters<Robot, Scalar>& pi = {}) {
+  rnea_placed<Robot, Scalar, Gravity>(K, qd, qdd, fext, tau, pi);
 }
 
 }  // namespace tg

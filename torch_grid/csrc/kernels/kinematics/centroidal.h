@@ -6,43 +6,37 @@
 
 namespace tg {
 
-template <class Robot, class Scalar> TG_HD Scalar total_mass() {
-  Scalar m = 0;
-  for (int i = 0; i < Robot::NB; ++i) m += Scalar(data<Robot, Scalar>().mass[i]);
-  return m;
+// World first moment of body i: its mass times its centre of mass, m p_i + R_i h.
+template <class Robot, class Scalar>
+TG_HD Vec3<Scalar> body_moment(int i, const SE3<Scalar>* oMi, const InertialParameters<Robot, Scalar>& pi) {
+  return pi.mass(i) * oMi[i].p + mul(oMi[i].R, pi.moment(i));
 }
 
-// World position of body i's centre of mass.
-template <class Robot, class Scalar> TG_HD Vec3<Scalar> body_com(int i, const SE3<Scalar>* oMi) {
-  const auto& d = data<Robot, Scalar>();
-  return act_point(oMi[i], v3(Scalar(d.com[i][0]), Scalar(d.com[i][1]), Scalar(d.com[i][2])));
-}
-
-template <class Robot, class Scalar> TG_HD void com(const Scalar* q, Scalar* out) {
+template <class Robot, class Scalar> TG_HD void com(const Scalar* q, Scalar* out, const InertialParameters<Robot, Scalar>& pi = {}) {
   SE3<Scalar> liMi[Robot::NB], oMi[Robot::NB];
   forward_kinematics<Robot, Scalar>(q, liMi, oMi);
   Vec3<Scalar> c = v3(Scalar(0), Scalar(0), Scalar(0));
-  for (int i = 0; i < Robot::NB; ++i) c = c + Scalar(data<Robot, Scalar>().mass[i]) * body_com<Robot, Scalar>(i, oMi);
-  store3((Scalar(1) / total_mass<Robot, Scalar>()) * c, out);
+  for (int i = 0; i < Robot::NB; ++i) c = c + body_moment(i, oMi, pi);
+  store3((Scalar(1) / pi.total_mass()) * c, out);
 }
 
 // d com / d qd, (3 x NV): each joint moves its subtree's mass-weighted centre of mass.
-template <class Robot, class Scalar> TG_HD void jacobian_com(const Scalar* q, Scalar* J) {
+template <class Robot, class Scalar> TG_HD void jacobian_com(const Scalar* q, Scalar* J, const InertialParameters<Robot, Scalar>& pi = {}) {
   const auto& d = data<Robot, Scalar>();
   SE3<Scalar> liMi[Robot::NB], oMi[Robot::NB];
   forward_kinematics<Robot, Scalar>(q, liMi, oMi);
   Scalar ms[Robot::NB];
   Vec3<Scalar> mc[Robot::NB];  // subtree mass and mass-weighted centre of mass
   for (int i = 0; i < Robot::NB; ++i) {
-    ms[i] = Scalar(d.mass[i]);
-    mc[i] = ms[i] * body_com<Robot, Scalar>(i, oMi);
+    ms[i] = pi.mass(i);
+    mc[i] = body_moment(i, oMi, pi);
   }
   for (int i = Robot::NB - 1; i >= 0; --i)
     if (d.parent[i] >= 0) {
       ms[d.parent[i]] += ms[i];
       mc[d.parent[i]] = mc[d.parent[i]] + mc[i];
     }
-  const Scalar inv_m = Scalar(1) / total_mass<Robot, Scalar>();
+  const Scalar inv_m = Scalar(1) / pi.total_mass();
   for (int i = 0; i < Robot::NB; ++i)
     for (int k = 0; k < d.nvj[i]; ++k) {
       const Sv<Scalar> s = placed_axis<Robot, Scalar>(oMi[i], i, k);
@@ -52,7 +46,7 @@ template <class Robot, class Scalar> TG_HD void jacobian_com(const Scalar* q, Sc
 }
 
 // [kinetic, potential, mechanical] energy, potential relative to the world origin.
-template <class Robot, class Scalar> TG_HD void energy(const Scalar* q, const Scalar* qd, Scalar* out) {
+template <class Robot, class Scalar> TG_HD void energy(const Scalar* q, const Scalar* qd, Scalar* out, const InertialParameters<Robot, Scalar>& pi = {}) {
   const auto& d = data<Robot, Scalar>();
   SE3<Scalar> liMi[Robot::NB], oMi[Robot::NB];
   Sv<Scalar> v[Robot::NB];
@@ -62,8 +56,8 @@ template <class Robot, class Scalar> TG_HD void energy(const Scalar* q, const Sc
   for (int i = 0; i < Robot::NB; ++i) {
     const Sv<Scalar> vJ = joint_motion<Robot, Scalar>(i, qd);
     v[i] = d.parent[i] < 0 ? vJ : actinv_motion(liMi[i], v[d.parent[i]]) + vJ;
-    kinetic += Scalar(0.5) * dot(v[i], mul(body_inertia<Robot, Scalar>(i), v[i]));
-    potential -= Scalar(d.mass[i]) * dot(g, body_com<Robot, Scalar>(i, oMi));
+    kinetic += Scalar(0.5) * dot(v[i], mul(pi[i], v[i]));
+    potential -= dot(g, body_moment(i, oMi, pi));
   }
   // The rotors' (armature) kinetic energy.
   for (int k = 0; k < Robot::NV; ++k) kinetic += Scalar(0.5) * Scalar(d.armature[k]) * qd[k] * qd[k];
@@ -73,19 +67,19 @@ template <class Robot, class Scalar> TG_HD void energy(const Scalar* q, const Sc
 }
 
 // Centroidal momentum matrix A (6 x NV) and momentum h = A qd, [linear; angular about the com].
-template <class Robot, class Scalar> TG_HD void ccrba(const Scalar* q, const Scalar* qd, Scalar* A, Scalar* h) {
+template <class Robot, class Scalar> TG_HD void ccrba(const Scalar* q, const Scalar* qd, Scalar* A, Scalar* h, const InertialParameters<Robot, Scalar>& pi = {}) {
   const auto& d = data<Robot, Scalar>();
   constexpr int NV = Robot::NV;
   SE3<Scalar> liMi[Robot::NB], oMi[Robot::NB];
   forward_kinematics<Robot, Scalar>(q, liMi, oMi);
   // Composite inertia of each subtree, in the world frame.
   Inertia<Scalar> Yc[Robot::NB];
-  for (int i = 0; i < Robot::NB; ++i) Yc[i] = act(oMi[i], body_inertia<Robot, Scalar>(i));
+  for (int i = 0; i < Robot::NB; ++i) Yc[i] = act(oMi[i], pi[i]);
   for (int i = Robot::NB - 1; i >= 0; --i)
     if (d.parent[i] >= 0) Yc[d.parent[i]] = Yc[d.parent[i]] + Yc[i];
   Vec3<Scalar> c = v3(Scalar(0), Scalar(0), Scalar(0));
-  for (int i = 0; i < Robot::NB; ++i) c = c + Scalar(d.mass[i]) * body_com<Robot, Scalar>(i, oMi);
-  c = (Scalar(1) / total_mass<Robot, Scalar>()) * c;
+  for (int i = 0; i < Robot::NB; ++i) c = c + body_moment(i, oMi, pi);
+  c = (Scalar(1) / pi.total_mass()) * c;
   // Column of joint dof: momentum of its subtree moving along the world axis, moved to the com.
   for (int i = 0; i < Robot::NB; ++i)
     for (int k = 0; k < d.nvj[i]; ++k) {
@@ -114,9 +108,10 @@ template <class Robot, class Scalar> struct CentroidalWork {
   Vec3<Scalar> c;
 };
 
-template <class Robot, class Scalar> TG_HD void centroidal_setup(const Scalar* q, const Scalar* qd, CentroidalWork<Robot, Scalar>& W) {
+template <class Robot, class Scalar> TG_HD void centroidal_setup(const Scalar* q, const Scalar* qd, CentroidalWork<Robot, Scalar>& W,
+                            const InertialParameters<Robot, Scalar>& pi = {}) {
   const auto& d = data<Robot, Scalar>();
-  W.m = total_mass<Robot, Scalar>();
+  W.m = pi.total_mass();
   W.c = v3(Scalar(0), Scalar(0), Scalar(0));
   for (int i = 0; i < Robot::NB; ++i) {
     const int p = d.parent[i];
@@ -132,10 +127,10 @@ template <class Robot, class Scalar> TG_HD void centroidal_setup(const Scalar* q
       W.sdot[d.vi[i] + k] = cross_motion(W.v[i], W.s[d.vi[i] + k]);
       W.w[d.vi[i] + k] = cross_motion(vp, W.s[d.vi[i] + k]);
     }
-    W.Yc[i] = act(W.oMi[i], body_inertia<Robot, Scalar>(i));
+    W.Yc[i] = act(W.oMi[i], pi[i]);
     W.dYc[i] = inertia_rate_matrix(W.Yc[i], W.v[i]);
     W.H[i] = mul(W.Yc[i], W.v[i]);
-    W.c = W.c + Scalar(d.mass[i]) * body_com<Robot, Scalar>(i, W.oMi);
+    W.c = W.c + body_moment(i, W.oMi, pi);
   }
   W.c = (Scalar(1) / W.m) * W.c;
   for (int i = Robot::NB - 1; i >= 0; --i) {
@@ -151,10 +146,11 @@ template <class Robot, class Scalar> TG_HD void centroidal_setup(const Scalar* q
 // and A itself (may be null). Column j of A is Yc_j S_j seen at the com; dAg's is dYc_j S_j +
 // Yc_j dS_j/dt seen at the com. (The elementwise dA/dt adds -cdot x (A_j)_lin to the angular
 // rows, which sums to -cdot x m cdot = 0 against qd; Pinocchio leaves it out, and so do we.)
-template <class Robot, class Scalar> TG_HD void cmm_time_variation(const Scalar* q, const Scalar* qd, Scalar* Adot, Scalar* A) {
+template <class Robot, class Scalar> TG_HD void cmm_time_variation(const Scalar* q, const Scalar* qd, Scalar* Adot, Scalar* A,
+                                  const InertialParameters<Robot, Scalar>& pi = {}) {
   const auto& d = data<Robot, Scalar>();
   CentroidalWork<Robot, Scalar> W;
-  centroidal_setup<Robot, Scalar>(q, qd, W);
+  centroidal_setup<Robot, Scalar>(q, qd, W, pi);
   for (int i = 0; i < Robot::NB; ++i)
     for (int k = 0; k < d.nvj[i]; ++k) {
       const int col = d.vi[i] + k;
@@ -170,10 +166,10 @@ template <class Robot, class Scalar> TG_HD void cmm_time_variation(const Scalar*
 // d h / dq (6 x NV), h the centroidal momentum at fixed qd. Moving joint j carries its subtree's
 // momentum H_j by the twist s (s x* H_j) while the parent's velocity stays (Yc_j (v_parent x s));
 // the com moves by J_com's column, shifting the angular part by -(dc x h_lin).
-template <class Robot, class Scalar> TG_HD void dccrba(const Scalar* q, const Scalar* qd, Scalar* dh_dq) {
+template <class Robot, class Scalar> TG_HD void dccrba(const Scalar* q, const Scalar* qd, Scalar* dh_dq, const InertialParameters<Robot, Scalar>& pi = {}) {
   const auto& d = data<Robot, Scalar>();
   CentroidalWork<Robot, Scalar> W;
-  centroidal_setup<Robot, Scalar>(q, qd, W);
+  centroidal_setup<Robot, Scalar>(q, qd, W, pi);
   Sv<Scalar> total = sv_zero<Scalar>();
   for (int i = 0; i < Robot::NB; ++i)
     if (d.parent[i] < 0) total = total + W.H[i];
@@ -181,8 +177,8 @@ template <class Robot, class Scalar> TG_HD void dccrba(const Scalar* q, const Sc
   Scalar ms[Robot::NB];
   Vec3<Scalar> mc[Robot::NB];
   for (int i = 0; i < Robot::NB; ++i) {
-    ms[i] = Scalar(d.mass[i]);
-    mc[i] = ms[i] * body_com<Robot, Scalar>(i, W.oMi);
+    ms[i] = pi.mass(i);
+    mc[i] = body_moment(i, W.oMi, pi);
   }
   for (int i = Robot::NB - 1; i >= 0; --i)
     if (d.parent[i] >= 0) {

@@ -120,13 +120,37 @@ template <class Robot, class Scalar> TG_HD void joint_project(int i, const Sv<Sc
   for (int k = 0; k < d.nvj[i]; ++k) out[d.vi[i] + k] = dot(joint_axis<Robot, Scalar>(i, k), f);
 }
 
-// Inertia of body i about its joint frame origin.
-template <class Robot, class Scalar> TG_HD Inertia<Scalar> body_inertia(int i) {
-  const auto& d = data<Robot, Scalar>();
-  Inertia<Scalar> I{Scalar(d.mass[i]), v3(Scalar(d.h[i][0]), Scalar(d.h[i][1]), Scalar(d.h[i][2])), {}};
-  for (int k = 0; k < 9; ++k) I.Io.m[k] = Scalar(d.Io[i][k]);
-  return I;
-}
+// The bodies' inertial parameters an algorithm computes with: the robot's constants, or one sample's
+// pi (NB x 10) when given, each row in Pinocchio's order [m, h = m c, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]
+// with c the centre of mass and I the rotational inertia about the joint frame origin. The algorithms
+// take it last, defaulting to the constants.
+template <class Robot, class Scalar> struct InertialParameters {
+  const Scalar* pi = nullptr;
+
+  // Inertia of body i about its joint frame origin.
+  TG_HD Inertia<Scalar> operator[](int i) const {
+    if (pi) {
+      const Scalar* p = pi + 10 * i;
+      return {p[0], v3(p[1], p[2], p[3]), {{p[4], p[5], p[7], p[5], p[6], p[8], p[7], p[8], p[9]}}};
+    }
+    const auto& d = data<Robot, Scalar>();
+    Inertia<Scalar> I{Scalar(d.mass[i]), v3(Scalar(d.h[i][0]), Scalar(d.h[i][1]), Scalar(d.h[i][2])), {}};
+    for (int k = 0; k < 9; ++k) I.Io.m[k] = Scalar(d.Io[i][k]);
+    return I;
+  }
+  TG_HD Scalar mass(int i) const { return pi ? pi[10 * i] : Scalar(data<Robot, Scalar>().mass[i]); }
+  // First moment h = m c of body i, in its joint frame.
+  TG_HD Vec3<Scalar> moment(int i) const {
+    if (pi) return v3(pi[10 * i + 1], pi[10 * i + 2], pi[10 * i + 3]);
+    const auto& d = data<Robot, Scalar>();
+    return v3(Scalar(d.h[i][0]), Scalar(d.h[i][1]), Scalar(d.h[i][2]));
+  }
+  TG_HD Scalar total_mass() const {
+    Scalar m = 0;
+    for (int i = 0; i < Robot::NB; ++i) m += mass(i);
+    return m;
+  }
+};
 
 // Spatial gravity acceleration seen as a base acceleration: a_0 = -g.
 template <class Robot, class Scalar> TG_HD Sv<Scalar> base_acceleration() {

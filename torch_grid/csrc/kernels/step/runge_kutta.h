@@ -129,21 +129,21 @@ TG_HD void joint_adjoint(int n, int nt, const Scalar* const* G, const Scalar* co
 // M_c^-1 G (tau - bias) = G qdd. With passive, tau + p and the derivatives of ID - p (passive.h).
 template <class Robot, class Scalar, int C>
 TG_HD void rk_stage(const Conv<Robot, Scalar, C>& cs, const Scalar* v, const Scalar* tau, const Scalar* fext, bool passive, Scalar* Dq, Scalar* Dv, Scalar* H,
-                    Scalar* acc) {
+                    Scalar* acc, const InertialParameters<Robot, Scalar>& pi = {}) {
   constexpr int NV = Robot::NV;
   const Placements<Robot, Scalar> K(cs.q);
   Scalar zero[NV], buf[Conv<Robot, Scalar, C>::active ? NV : 1];
-  crba<Robot, Scalar>(K, H);
+  crba<Robot, Scalar>(K, H, pi);
   cs.congruence_out(H);
   ltdl_factor<Robot, Scalar>(H);
   for (int k = 0; k < NV; ++k) zero[k] = Scalar(0);
-  rnea<Robot, Scalar>(K, v, zero, fext, acc);
+  rnea<Robot, Scalar>(K, v, zero, fext, acc, pi);
   for (int k = 0; k < NV; ++k) acc[k] = tau[k] - acc[k];
   if (passive) add_passive<Robot, Scalar>(cs.q, v, acc);
   cs.force_out(acc);
   ltdl_solve<Robot, Scalar>(H, acc);
   const Scalar* qdd = cs.velocity(acc, buf);  // G^T
-  inverse_dynamics_derivatives<Robot, Scalar, C, false>(K, v, qdd, fext, cs, Dq, Dv);  // read on the tree's entries alone
+  inverse_dynamics_derivatives<Robot, Scalar, C, false>(K, v, qdd, fext, cs, Dq, Dv, pi);  // read on the tree's entries alone
   if (passive) add_passive_diagonals<Robot, Scalar>(Dq, Dv);
   if (qdd != acc)
     for (int k = 0; k < NV; ++k) acc[k] = qdd[k];
@@ -235,7 +235,7 @@ TG_HD void rk_adjoint_stage(const TreeBlocks<Robot, Scalar>& tb, const Scalar* q
 // rk3 has one a stage), then ubar_i and the step's Jv blocks.
 template <class Robot, class Scalar, int C>
 TG_HD void rk_step(const Conv<Robot, Scalar, C>& cv, const Scalar* qd, const Scalar* tau, const Scalar* fext, Scalar h, int scheme, bool passive,
-                   Scalar* q_next, Scalar* qd_next, Scalar* A, Scalar* B, Scalar* work) {
+                   Scalar* q_next, Scalar* qd_next, Scalar* A, Scalar* B, Scalar* work, const InertialParameters<Robot, Scalar>& pi = {}) {
   constexpr int NV = Robot::NV, K2 = 2 * NV, NN = NV * NV, NA = NV * K2;
   const auto& d = data<Robot, Scalar>();
   const RkTableau T = rk_tableau(scheme);
@@ -264,12 +264,12 @@ TG_HD void rk_step(const Conv<Robot, Scalar, C>& cv, const Scalar* qd, const Sca
     }
     Scalar* const Dq = work + 3 * NN * i;
     if (i == 0) {
-      rk_stage<Robot, Scalar, C>(cv, qd, tau, fext, passive, Dq, Dq + NN, Dq + 2 * NN, acc[0]);
+      rk_stage<Robot, Scalar, C>(cv, qd, tau, fext, passive, Dq, Dq + NN, Dq + 2 * NN, acc[0], pi);
     } else {
       const Conv<Robot, Scalar, C> cs(qs);
       Scalar vb[Conv<Robot, Scalar, C>::active ? NV : 1], tb[Conv<Robot, Scalar, C>::active ? NV : 1];
       rk_stage<Robot, Scalar, C>(cs, cs.velocity(v[i], vb), cs.force(tau_c, tb), fext, passive, Dq, Dq + NN, Dq + 2 * NN,
-                        acc[i]);
+                                 acc[i], pi);
     }
   }
   // the step: q' = q (+) u', qd' = qd + dt sum_j b_j acc_j
