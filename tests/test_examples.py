@@ -42,6 +42,9 @@ def test_horizon_is_the_per_knot_calls(robots):
     assert out["lxu"].shape == (2, 3, 2 * nv, nv) and not out["lxu"].any()
     with pytest.raises(ValueError, match="horizon: costs must name one of"):
         view.horizon(q, qd, tau, 0.02, costs=[("torque_cost", {})])
+    # one knot without a batch dimension
+    single = view.horizon(q[0, 0], qd[0, 0], tau[0, 0], 0.02, "rk4", costs)
+    assert all(torch.equal(single[k], out[k][0, 0]) for k in out)
 
 
 @pytest.mark.parametrize("problem", ["reach", "balance"])

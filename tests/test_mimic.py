@@ -135,6 +135,31 @@ def test_matches_pinocchio_mimic_model(gripper):
         assert rel_err(pos[robot.frame_index("right")], pd.oMf[pm.getFrameId("right")].translation) <= TOL
 
 
+def test_inertial_parameters_match_pinocchio_mimic_model(gripper):
+    """params= through the coupling: Pinocchio's mimic model with the same edited inertias, forward dynamics
+    as M^-1 (tau - nle) and its gradient with respect to the parameters."""
+    robot, _, pm = gripper
+    scale = torch.linspace(0.7, 1.3, robot.nbodies, dtype=torch.float64).unsqueeze(-1)
+    params = robot.inertial_parameters().view(robot.nbodies, 10) * scale
+    pm = pm.copy()
+    for i, row in enumerate(params.numpy()):
+        pm.inertias[i + 1] = pin.Inertia.FromDynamicParameters(row)
+    pd = pm.createData()
+    q, v, a, _ = _states(robot, "pin", seed=4)
+    for b in range(q.shape[0]):
+        qn, vn, an = q[b].numpy(), v[b].numpy(), a[b].numpy()
+        assert rel_err(robot.inverse_dynamics(q[b], v[b], a[b], params=params), pin.rnea(pm, pd, qn, vn, an)) <= TOL
+        M = pin.crba(pm, pd, qn)
+        assert rel_err(robot.crba(q[b], params=params), np.triu(M) + np.triu(M, 1).T) <= TOL
+        assert rel_err(robot.nonlinear_effects(q[b], v[b], params=params), pin.nonLinearEffects(pm, pd, qn, vn)) <= TOL
+        assert rel_err(robot.com(q[b], params=params), pin.centerOfMass(pm, pd, qn)) <= TOL
+    qdd = robot.forward_dynamics(q, v, a, params=params)
+    expected = torch.linalg.solve(robot.crba(q, params=params), a - robot.nonlinear_effects(q, v, params=params))
+    assert rel_err(qdd, expected) <= TOL
+    assert torch.autograd.gradcheck(lambda p: robot.forward_dynamics(q, v, a, params=p),
+                                    (params.clone().requires_grad_(True),), eps=1e-6, atol=1e-6, rtol=1e-5)
+
+
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
 def test_projection_of_the_uncoupled_robot(gripper, convention):
     robot, full, _ = gripper

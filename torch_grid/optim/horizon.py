@@ -38,7 +38,7 @@ class HorizonFunctions:
             out["H"] = self.step_second_derivatives(q, qd, tau, dt, integrator, f_ext)
         nv, batch = qd.shape[-1], A.shape[:-2]
         zeros = {"cost": (), "lx": (2 * nv,), "lu": (nv,), "lxx": (2 * nv, 2 * nv), "luu": (nv, nv), "lxu": (2 * nv, nv)}
-        terms = {k: torch.zeros(*batch, *shape, dtype=qd.dtype, device=qd.device) for k, shape in zeros.items()}
+        terms = {k: torch.zeros((*batch, *shape), dtype=qd.dtype, device=qd.device) for k, shape in zeros.items()}
         for name, kwargs in costs:
             if name in STATE_COSTS:
                 value, grad, hess = getattr(self, name)(q, qd, **kwargs)
