@@ -76,8 +76,9 @@ def check_physical(params: torch.Tensor, names: Sequence[str], tolerance: float 
     largest entry (the inertia about the centre of mass not positive, or a triangle inequality broken).
     names: the bodies' (their joints') names."""
     p = params.detach().to(torch.float64)
-    eigenvalues = torch.linalg.eigvalsh(pseudo_inertia(p))
-    scale = pseudo_inertia(p).abs().amax((-2, -1)).clamp_min(torch.finfo(torch.float64).tiny)
+    J = pseudo_inertia(p)
+    eigenvalues = torch.linalg.eigvalsh(J)
+    scale = J.abs().amax((-2, -1)).clamp_min(torch.finfo(torch.float64).tiny)
     for body, name in enumerate(names):
         mass = p[..., body, 0]
         if bool((mass < 0).any()):
