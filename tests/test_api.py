@@ -110,7 +110,7 @@ def test_convention_selection(robots):
 @pytest.mark.parametrize(
     "call, exc, words",
     [
-        (lambda r, q, v: r.inverse_dynamics(q[..., :-1], v, v), ValueError, ["q", f"(..., 19)"]),
+        (lambda r, q, v: r.inverse_dynamics(q[..., :-1], v, v), ValueError, ["q", "(..., 19)"]),
         (lambda r, q, v: r.inverse_dynamics(q, v[..., :-1], v), ValueError, ["qd", "(..., 18)"]),
         (lambda r, q, v: r.inverse_dynamics(q, v, v.float()), TypeError, ["qdd", "dtype"]),
         (lambda r, q, v: r.crba(q.long()), TypeError, ["q", "float32 or float64"]),

@@ -3,7 +3,6 @@ spaces, the Gauss-Newton Hessian against the exact one where the residual vanish
 residual against Pinocchio's log6, autograd through the values, the barriers' pieces."""
 from __future__ import annotations
 
-import numpy as np
 import pinocchio as pin
 import pytest
 import torch

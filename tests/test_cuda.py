@@ -11,7 +11,6 @@ from pathlib import Path
 import pytest
 import torch
 
-import torch_grid
 from torch_grid.ops import codegen
 from torch_grid.ops.build import CSRC
 from torch_grid.ops.table import OPS

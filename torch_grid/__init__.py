@@ -12,7 +12,7 @@ from .model.description import Frame, Joint, RobotModel, check_triangle_inequali
 from .model.parse import BUNDLED, from_pinocchio, source_to_model
 from .ops.autograd import register_autograd
 from .ops.build import build as _build
-from .ops.build import release_kept_blocks
+from .ops.build import release_kept_blocks, set_cpu_lanes
 from .optim.costs import log_barrier, quadratic_barrier
 from .optim.inertial import log_cholesky_to_parameters, parameters_to_log_cholesky, pseudo_inertia
 from .robot import Robot, RobotView
@@ -23,7 +23,7 @@ _sys.modules[f"{__name__}.conventions"] = conventions  # `import torch_grid.conv
 
 __all__ = ["load", "Robot", "RobotView", "RobotModel", "Joint", "Frame", "conventions", "from_pinocchio", "BUNDLED",
            "INTEGRATORS", "log_barrier", "quadratic_barrier", "empty_cache", "pseudo_inertia", "log_cholesky_to_parameters",
-           "parameters_to_log_cholesky"]
+           "parameters_to_log_cholesky", "set_cpu_lanes"]
 __version__ = "0.1.0"
 
 

@@ -103,10 +103,29 @@ def _load_glue(root: Path, cuda: bool) -> None:
         with _file_lock(root, f"glue-{key[:16]}", "the torch glue"):
             if not _complete(entry, library):
                 _compile_glue(root, cuda, key, entry)  # also loads it
-                _GLUE.append(library)
+                _glue_loaded(library)
                 return
     torch.ops.load_library(str(library))
+    _glue_loaded(library)
+
+
+def _glue_loaded(library: Path) -> None:
     _GLUE.append(library)
+    if not _CPU_LANES[0]:
+        torch.ops.torch_grid_glue.set_cpu_lanes(False)
+
+
+_CPU_LANES = [True]
+
+
+def set_cpu_lanes(enabled: bool) -> bool:
+    """Run CPU ops on vector lanes (several samples per instruction, the default) or one sample at a time;
+    returns the previous setting. The two compute the same values (to rounding); the switch is for
+    comparing them."""
+    previous, _CPU_LANES[0] = _CPU_LANES[0], bool(enabled)
+    if _GLUE:
+        torch.ops.torch_grid_glue.set_cpu_lanes(bool(enabled))
+    return previous
 
 
 def release_kept_blocks() -> int:
@@ -261,11 +280,13 @@ def _cxx_flags(unit: str = "") -> list[str]:
     native = ["-march=native"] if platform.machine() in ("x86_64", "AMD64") and not os.environ.get("TORCH_GRID_PORTABLE") else []
     # -O3 makes the kernels 1.4-2x faster than -O2 (bodies unrolled over the robot's constant tree);
     # the forward-mode backward units gain only 1-25% from it for twice the compile time.
-    level = "-O2" if unit.endswith(("backward_f32", "backward_f64")) else "-O3"
+    level = "-O2" if unit.endswith(("backward_f32", "backward_f64", "backward_lanes")) else "-O3"
     # No vectorized epilogues: GCC 12 -O3 ended a 512-bit loop (36 doubles of a stack array) with an
     # aligned 256-bit access at a 16-byte-aligned address, a segmentation fault (coriolis_matrix of a
     # 5-joint arm on an AVX-512 CPU). Such epilogues are a few elements; the main loops keep their width.
-    return ["-std=c++17", level, "-fno-fast-math", "-fPIC", "-fvisibility=hidden", "--param=vect-epilogues-nomask=0"] + native
+    lanes = [f"-DTG_LANES={codegen.cpu_lanes()}"] if codegen.cpu_lanes() > 1 else []
+    common = ["-std=c++17", level, "-fno-fast-math", "-fPIC", "-fvisibility=hidden", "--param=vect-epilogues-nomask=0"]
+    return common + native + lanes
 
 
 def nvcc_flags() -> list[str]:
@@ -385,7 +406,7 @@ def _file_lock(root: Path, name: str, what: str):
 def _cache_key(model: RobotModel, mujoco: bool, cuda: bool) -> str:
     h = hashlib.sha256()
     h.update(model.hash.encode())
-    h.update(f"mujoco={mujoco} cuda={cuda} flags={_cxx_flags()} {_cxx_flags('backward_f64')} {nvcc_flags() if cuda else ''}".encode())
+    h.update(f"mujoco={mujoco} cuda={cuda} lanes={codegen.cpu_lanes()} flags={_cxx_flags()} {_cxx_flags('backward_f64')} {nvcc_flags() if cuda else ''}".encode())
     h.update(_cpu_identity().encode())
     for path in sorted(CSRC.rglob("*")):
         if path.is_file():

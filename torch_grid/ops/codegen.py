@@ -4,6 +4,7 @@ hand-written kernel templates in csrc/kernels, one unit per op family and scalar
 glue (one typed wrapper per op of the op table, for any robot; compiled once)."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from ..model.description import RobotModel, inertia_about_origin
@@ -21,6 +22,7 @@ _CPU_SCALARS = ("double",)
 _CONVENTIONS = (("tg::PIN", "pin"), ("tg::MUJOCO", "mujoco"))
 
 
+
 def write_robot_sources(model: RobotModel, mujoco: bool, cuda: bool, namespace: str, directory: Path) -> list[Path]:
     """Write robot.h, the kernel units and table.cpp into `directory`; return the units to compile
     (.cpp for the host compiler, .cu for nvcc)."""
@@ -32,6 +34,8 @@ def write_robot_sources(model: RobotModel, mujoco: bool, cuda: bool, namespace: 
                 files[f"{family}_{suffix}.cpp"] = kernel_unit(model, mujoco, namespace, family, scalar, cuda=False)
             if cuda:
                 files[f"{family}_{suffix}.cu"] = kernel_unit(model, mujoco, namespace, family, scalar, cuda=True)
+        if cpu_lanes() != 1 and any(op.family == family and op.lanes for op in OPS.values()):
+            files[f"{family}_lanes.cpp"] = lanes_unit(model, mujoco, namespace, family)
     for name, text in files.items():
         (directory / name).write_text(text)
     return [directory / name for name in files if not name.endswith(".h")]
@@ -206,6 +210,31 @@ def kernel_unit(model: RobotModel, mujoco: bool, namespace: str, family: str, sc
     return _unit(includes, structs + [f"namespace {namespace} {{", *lines, f"}}  // namespace {namespace}"])
 
 
+def cpu_lanes() -> int:
+    """Samples per CPU lane group the robot libraries are built for, from TORCH_GRID_LANES: 0 (the default)
+    for as many doubles as the CPU's widest vectors hold (csrc/kernels/spatial/lanes.h); 1 for no lane
+    kernels; or 2, 4 or 8."""
+    value = os.environ.get("TORCH_GRID_LANES", "0") or "0"
+    if not value.isdigit() or int(value) not in (0, 1, 2, 4, 8):
+        raise ValueError(f"TORCH_GRID_LANES must be 0 (the CPU's widest vectors), 1 (no lane kernels), 2, 4 or 8; got {value!r}")
+    return int(value)
+
+
+def lanes_unit(model: RobotModel, mujoco: bool, namespace: str, family: str) -> str:
+    """One family's ops on vector lanes of double (csrc/batch/cpu_lanes.h): a CPU batch loop per op and
+    convention that takes groups of samples at a time, and the scalar kernel for the rest."""
+    ops = [op for op in OPS.values() if op.family == family and op.lanes]
+    lines = [f"void {_entry('lanes', op, 'f64', cname)}(const tg::Batch& b, int64_t begin, int64_t end) {{\n"
+             f"  tg::cpu_range_lanes<tg::bind::{op.kernel}, Robot, {conv}>(b, begin, end);\n}}"
+             for op in ops for conv, cname in conventions(model, mujoco and op.mujoco_twin)]
+    includes = ["bindings.h", "batch/cpu_lanes.h"]
+    structs = []
+    if any(op.derived for op in ops):
+        includes.insert(1, "kernels/derivatives/forward_mode.h")
+        structs = [forward_mode_kernels([op for op in ops if op.derived])]
+    return _unit(includes, structs + [f"namespace {namespace} {{", *lines, f"}}  // namespace {namespace}"])
+
+
 def table_unit(model: RobotModel, mujoco: bool, cuda: bool, namespace: str) -> str:
     """The robot's tg::RobotTable: sizes and every op's kernels and CPU grain, exported under one C symbol."""
     decls, entries = [], []
@@ -221,13 +250,19 @@ def table_unit(model: RobotModel, mujoco: bool, cuda: bool, namespace: str) -> s
                     decls.append(f"void {name}(const tg::Batch&, int64_t, int64_t);" if device == "cpu" else
                                  f"int {name}(const tg::Batch&, void*, int, tg::CudaAttributes*);")
 
+        if cpu_lanes() != 1 and op.lanes:
+            for _, cname in convs:
+                slots["lanes", cname] = name = _entry("lanes", op, "f64", cname)
+                decls.append(f"void {name}(const tg::Batch&, int64_t, int64_t);")
+
         def grid(device: str) -> str:
             return "{" + ", ".join("{" + ", ".join(slots.get((device, suffix, cname), "nullptr") for _, cname in _CONVENTIONS)
                                    + "}" for _, suffix in _SCALARS) + "}"
 
-        entries.append(f"    {{{grid('cpu')}, {grid('cuda')}, {cpu_grain(op, model)}}},  // {op.name}")
-    flags = f"{int(model.conventions_differ)}, {int(mujoco)}, {int(cuda)}"
-    return _unit(["batch/batch.h"], [
+        lanes = "{" + ", ".join(slots.get(("lanes", cname), "nullptr") for _, cname in _CONVENTIONS) + "}"
+        entries.append(f"    {{{grid('cpu')}, {lanes}, {grid('cuda')}, {cpu_grain(op, model)}}},  // {op.name}")
+    flags = f"{int(model.conventions_differ)}, {int(mujoco)}, {int(cuda)}, {'tg::kLanes' if cpu_lanes() != 1 else 1}"
+    return _unit(["batch/batch.h", "kernels/spatial/lanes.h"], [
         f"namespace {namespace} {{", *decls,
         "const tg::OpKernels kOps[] = {\n" + "\n".join(entries) + "\n};",
         f'const tg::RobotTable kTable = {{tg::kTableAbi, "{op_signature()}", Robot::NQ, Robot::NV, Robot::NB, '

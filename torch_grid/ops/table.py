@@ -75,6 +75,9 @@ class OpSpec:
     dual_backward: bool = False  # <op>_backward: the kernel on dual numbers, one pass per input coordinate
     dual_jvp: tuple[str, ...] = ()  # <op>_jvp: the kernel on dual numbers along the tangents of these inputs
     contracted: bool = False  # <op>_backward contracts the output with its cotangent inside the kernel
+    # CPU kernels on vector lanes, several samples per instruction (csrc/batch/cpu_lanes.h); False where
+    # gathering and scattering the samples costs more than the lanes save (bench/bench_lanes.py)
+    lanes: bool = True
 
     @property
     def has_dual_backward(self) -> bool:
@@ -164,7 +167,7 @@ _VALUE_OPS = (
         OpSpec("end_effector_pose", "EndEffectorPose", (Q, Arg("frames", "frames")), (Out("pose", "plain", ("nsel", 6)),),
                "kinematics", backward="formula", jvp="backward"),
         OpSpec("frame_jacobian", "FrameJacobian", (Q, FRAME, REFERENCE), (Out("J", "columns", (6, "nv")),), "kinematics",
-               backward="formula", dual_backward=True, jvp="rule"),
+               backward="formula", dual_backward=True, jvp="rule", lanes=False),
         OpSpec("frame_jacobian_vjp", "FrameJacobianVjp", (Q, Arg("weight", "plain", shape=(6, "nv")), FRAME, REFERENCE),
                (Out("grad_q", "plain", NV),), "kinematics", mujoco_twin=False),
         OpSpec("frame_kinematic_hessian", "FrameKinematicHessian", (Q, FRAME, REFERENCE), (Out("H", "plain", (6, "nv", "nv")),),

@@ -11,7 +11,7 @@
 namespace tg {
 
 // Limits of one call, checked by the glue: tensor inputs, outputs, integer arguments (frame
-// indices, reference, mask). A CUDA launch passes the Batch by value (2.2 KB of the 4 KB of
+// indices, reference, mask). A CUDA launch passes the Batch by value (2.3 KB of the 4 KB of
 // kernel parameters).
 constexpr int kMaxIn = 8, kMaxOut = 5, kMaxIargs = 512;
 
@@ -21,12 +21,15 @@ struct Batch {
   int64_t in_stride[kMaxIn] = {};       // elements between samples
   void* out[kMaxOut] = {};
   int64_t out_stride[kMaxOut] = {};
+  int64_t in_size[kMaxIn] = {};         // elements of one sample
   int iargs[kMaxIargs] = {};
   int n_iargs = 0;
+  int workspace = 0;                    // bit k: output k is the kernel's scratch, never read back
   // The outputs already hold zeros wherever the op's kernel writes nothing (the glue's own buffer, zeroed
   // once and refilled sample after sample by the same kernel): a kernel that writes a fixed pattern of
   // entries (inverse_dynamics_second_derivatives) then skips zero-filling the rest.
   bool zeroed = false;
+  bool poisoned = false;  // TORCH_GRID_POISON_OUTPUTS: the outputs start as NaN (a test of the kernels)
 };
 
 template <template <class, class, int> class Op, class Robot, class Scalar, int C>
@@ -67,21 +70,24 @@ struct CudaAttributes {
 using CudaFn = int (*)(const Batch& b, void* stream, int sms, CudaAttributes* attributes);
 
 // Every kernel of one op in one robot library: [scalar: 0 float, 1 double][convention: 0 pin, 1 mujoco].
-// The CPU has double kernels only (cpu[0] is null): the glue runs float32 batches through them.
+// The CPU has double kernels only (cpu[0] is null): the glue runs float32 batches through them. lanes[c]
+// runs the same kernel on RobotTable::lanes samples at a time (cpu_lanes.h; null where the op has none).
 struct OpKernels {
   CpuFn cpu[2][2];
+  CpuFn lanes[2];
   CudaFn cuda[2][2];
   int64_t grain;  // the fewest samples worth a CPU thread (ops/table.py: cpu_grain)
 };
 
 // What a robot library exports (one C symbol, named after its op namespace): its sizes and one
 // OpKernels per op, in the order of the op table whose signature it carries.
-constexpr int kTableAbi = 3;
+constexpr int kTableAbi = 4;
 struct RobotTable {
   int abi;
   const char* op_signature;  // hash of the op table the library was generated from
   int nq, nv, nb, nf;
   int converts, mujoco, cuda;  // flags: a quaternion joint (the conventions differ); MuJoCo-convention kernels built; CUDA kernels built
+  int lanes;                   // samples per vector of the CPU lane kernels (1: none)
   int nops;
   const OpKernels* ops;
 };

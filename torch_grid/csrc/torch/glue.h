@@ -11,6 +11,7 @@
 #include <torch/library.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cstdlib>
 #include <cstring>
 #include <limits>
@@ -142,6 +143,14 @@ inline int64_t release_kept_blocks() {
 #endif
 }
 
+// Whether CPU ops run on vector lanes where the robot library has lane kernels (the default), or every
+// sample on the scalar kernel (torch_grid.set_cpu_lanes): the two compute the same values.
+inline std::atomic<bool>& cpu_lanes_enabled() {
+  static std::atomic<bool> on{true};
+  return on;
+}
+inline bool set_cpu_lanes(bool on) { return cpu_lanes_enabled().exchange(on); }
+
 class Call {
  public:
   // `q` fixes the dtype and device every other argument must share.
@@ -210,6 +219,7 @@ class Call {
     if (!x.is_same(t)) keep_[k] = x;  // a copy outlives the launch
     batch_.in[k] = x.data_ptr();
     batch_.in_stride[k] = numel(batch) == 1 && n_ != 1 ? 0 : stride;
+    batch_.in_size[k] = stride;
     in_size_[k] = stride;
   }
   void input(const std::optional<at::Tensor>& t, const char* name, std::initializer_list<int64_t> trailing) {
@@ -301,6 +311,7 @@ class Call {
     at::Tensor t = at::empty(std::vector<int64_t>(trailing), at::TensorOptions().dtype(dtype_).device(device_));
     const int k = n_out_++;
     workspace_ |= 1 << k;
+    batch_.workspace = workspace_;
     batch_.out[k] = t.data_ptr();
     batch_.out_stride[k] = numel(trailing);
     return t.expand(shape);
@@ -308,6 +319,7 @@ class Call {
 
   void run(const OpKernels& kernels) {
     if (n_ == 0) return;
+    batch_.poisoned = poisoned();
     const int s = dtype_ == at::kDouble ? 1 : 0;
     // Without a quaternion joint there is nothing to convert: both conventions share the Pinocchio kernel.
     const int c = convention_ == MUJOCO && robot_.converts ? 1 : 0;
@@ -325,15 +337,19 @@ class Call {
       return;
     }
     // The CPU kernels are double (a robot library holds no others): float32 goes through as_double;
-    // float64 outputs too large for the cache are streamed.
-    const CpuFn fn = kernels.cpu[1][c];
+    // float64 outputs too large for the cache are streamed. Lane kernels take groups of lanes_ samples.
+    const bool lanes = kernels.lanes[c] && robot_.lanes > 1 && cpu_lanes_enabled().load(std::memory_order_relaxed);
+    const CpuFn fn = lanes ? kernels.lanes[c] : kernels.cpu[1][c];
+    lanes_ = lanes ? robot_.lanes : 1;
     const auto range = s == 0 ? &Call::as_double
                        : workspace_ || n_ * out_per_sample() * int64_t(sizeof(double)) > kStreamBytes ? &Call::streamed
                                                                                                       : &Call::direct;
     // As many threads as get kernels.grain samples each, the least work worth waking one for (ops/table.py: cpu_grain).
     const int64_t threads = std::max<int64_t>(1, std::min<int64_t>(at::get_num_threads(), n_ / kernels.grain));
-    at::parallel_for(0, threads, 1, [this, fn, range, threads](int64_t first, int64_t last) {
-      for (int64_t t = first; t < last; ++t) (this->*range)(fn, n_ * t / threads, n_ * (t + 1) / threads);
+    // each thread's share a whole number of lane groups, the last one's the rest
+    const auto bound = [this, threads](int64_t t) { return t == threads ? n_ : n_ * t / threads / lanes_ * lanes_; };
+    at::parallel_for(0, threads, 1, [this, fn, range, bound](int64_t first, int64_t last) {
+      for (int64_t t = first; t < last; ++t) (this->*range)(fn, bound(t), bound(t + 1));
     });
   }
 
@@ -474,6 +490,10 @@ class Call {
     return next;
   }
 
+  // n samples rounded up to whole groups of lanes: a chunk of the buffered paths is never split into
+  // a group and a scalar rest.
+  int64_t whole_groups(int64_t n) const { return (n + lanes_ - 1) / lanes_ * lanes_; }
+
   // Samples [begin, end) straight into the outputs.
   void direct(CpuFn fn, int64_t begin, int64_t end) const { fn(batch_, begin, end); }
 
@@ -485,7 +505,7 @@ class Call {
   // sample, a quarter of it written, 13 µs to zero).
   void streamed(CpuFn fn, int64_t begin, int64_t end) const {
     const int64_t per_sample = out_per_sample();
-    const int64_t chunk = std::max<int64_t>(1, std::min<int64_t>(16, (int64_t(4) << 10) / per_sample));
+    const int64_t chunk = whole_groups(std::max<int64_t>(1, std::min<int64_t>(16, (int64_t(4) << 10) / per_sample)));
     std::vector<double> buffer(static_cast<size_t>(per_sample * chunk));
     Batch d = batch_;
     d.zeroed = !poisoned();
@@ -532,7 +552,8 @@ class Call {
   void as_double(CpuFn fn, int64_t begin, int64_t end) const {
     int64_t per_sample = out_per_sample();
     for (int k = 0; k < n_in_; ++k) per_sample += batch_.in[k] ? in_size_[k] : 0;
-    const int64_t chunk = std::max<int64_t>(1, std::min<int64_t>(64, (int64_t(32) << 10) / std::max<int64_t>(per_sample, 1)));
+    const int64_t chunk =
+        whole_groups(std::max<int64_t>(1, std::min<int64_t>(64, (int64_t(32) << 10) / std::max<int64_t>(per_sample, 1))));
     std::vector<double> buffer(static_cast<size_t>(per_sample * chunk));
     Batch d = batch_;
     for (int64_t s0 = begin; s0 < end; s0 += chunk) {
@@ -583,6 +604,7 @@ class Call {
   int64_t n_ = 0;
   int n_in_ = 0, n_out_ = 0;
   int workspace_ = 0;  // bit k: output k is a workspace
+  int64_t lanes_ = 1;  // samples per group of the kernel run (1: the scalar kernel)
   at::Tensor keep_[kMaxIn];  // contiguous copies
   int64_t in_size_[kMaxIn] = {};  // elements of one sample of each input
   Batch batch_;

@@ -59,4 +59,5 @@ inline int64_t register_robot(const char* signature, int nops, DefineFn define, 
             return tg::register_robot(signature, nops, define, implement, ns, library, symbol);            \
           });                                                                                              \
     m.def("release_kept_blocks() -> int", []() -> int64_t { return tg::release_kept_blocks(); });           \
+    m.def("set_cpu_lanes(bool on) -> bool", [](bool on) -> bool { return tg::set_cpu_lanes(on); });         \
   }

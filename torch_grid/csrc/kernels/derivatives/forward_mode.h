@@ -17,6 +17,7 @@ template <class Scalar> struct Dual {
   TG_HD constexpr Dual(Scalar value, Scalar tangent) : v(value), d(tangent) {}
   template <class T, class = std::enable_if_t<std::is_arithmetic_v<T>>>
   TG_HD constexpr Dual(T value) : v(static_cast<Scalar>(value)), d(0) {}
+  TG_HD constexpr Dual(const Scalar& value) : v(value), d(0) {}
 
   TG_HD Dual& operator+=(const Dual& b) { v += b.v; d += b.d; return *this; }
   TG_HD Dual& operator-=(const Dual& b) { v -= b.v; d -= b.d; return *this; }
@@ -30,16 +31,29 @@ template <class Scalar> struct Dual {
     const Scalar r = a.v / b.v;
     return {r, (a.d - r * b.d) / b.v};
   }
-  // Branches follow the values, so a kernel takes the same path as on plain numbers.
-  TG_HD friend bool operator<(const Dual& a, const Dual& b) { return a.v < b.v; }
-  TG_HD friend bool operator>(const Dual& a, const Dual& b) { return a.v > b.v; }
-  TG_HD friend bool operator<=(const Dual& a, const Dual& b) { return a.v <= b.v; }
-  TG_HD friend bool operator>=(const Dual& a, const Dual& b) { return a.v >= b.v; }
-  TG_HD friend bool operator==(const Dual& a, const Dual& b) { return a.v == b.v; }
-  TG_HD friend bool operator!=(const Dual& a, const Dual& b) { return a.v != b.v; }
+  // with a value of the underlying scalar (a vector of lanes: lanes.h)
+  TG_HD friend Dual operator+(const Dual& a, const Scalar& b) { return {a.v + b, a.d}; }
+  TG_HD friend Dual operator+(const Scalar& a, const Dual& b) { return {a + b.v, b.d}; }
+  TG_HD friend Dual operator-(const Dual& a, const Scalar& b) { return {a.v - b, a.d}; }
+  TG_HD friend Dual operator-(const Scalar& a, const Dual& b) { return {a - b.v, -b.d}; }
+  TG_HD friend Dual operator*(const Dual& a, const Scalar& b) { return {a.v * b, a.d * b}; }
+  TG_HD friend Dual operator*(const Scalar& a, const Dual& b) { return {a * b.v, a * b.d}; }
+  TG_HD friend Dual operator/(const Dual& a, const Scalar& b) { return {a.v / b, a.d / b}; }
+  // Branches and selects follow the values, so a kernel takes the same path as on plain numbers (a
+  // bool, or a mask of lanes on dual numbers of lanes).
+  TG_HD friend auto operator<(const Dual& a, const Dual& b) { return a.v < b.v; }
+  TG_HD friend auto operator>(const Dual& a, const Dual& b) { return a.v > b.v; }
+  TG_HD friend auto operator<=(const Dual& a, const Dual& b) { return a.v <= b.v; }
+  TG_HD friend auto operator>=(const Dual& a, const Dual& b) { return a.v >= b.v; }
 };
 
-template <class Scalar> struct BaseScalar<Dual<Scalar>> { using type = Scalar; };
+template <class Scalar> struct BaseScalar<Dual<Scalar>> { using type = typename BaseScalar<Scalar>::type; };
+
+// A choice per lane on dual numbers of lanes (a choice on a bool is spatial.h's).
+template <class Mask, class Scalar, class = std::enable_if_t<!std::is_same_v<Mask, bool>>>
+TG_HD Dual<Scalar> select(const Mask& c, const Dual<Scalar>& a, const Dual<Scalar>& b) {
+  return {select(c, a.v, b.v), select(c, a.d, b.d)};
+}
 
 // Mixed arithmetic with plain numbers (literals and the robot's constants).
 #define TG_DUAL_MIXED(op)                                                                                   \
@@ -74,6 +88,7 @@ template <class Scalar, int N> struct Jet {
   Jet() = default;
   template <class T, class = std::enable_if_t<std::is_arithmetic_v<T>>>
   TG_HD constexpr Jet(T value) : v(static_cast<Scalar>(value)), d{} {}
+  TG_HD constexpr Jet(const Scalar& value) : v(value), d{} {}
 
   TG_HD friend Jet operator-(const Jet& a) {
     Jet r;
@@ -107,11 +122,19 @@ template <class Scalar, int N> struct Jet {
   }
   TG_HD Jet& operator+=(const Jet& b) { return *this = *this + b; }
   TG_HD Jet& operator-=(const Jet& b) { return *this = *this - b; }
-  TG_HD friend bool operator<(const Jet& a, const Jet& b) { return a.v < b.v; }
-  TG_HD friend bool operator>(const Jet& a, const Jet& b) { return a.v > b.v; }
+  TG_HD friend auto operator<(const Jet& a, const Jet& b) { return a.v < b.v; }
+  TG_HD friend auto operator>(const Jet& a, const Jet& b) { return a.v > b.v; }
 };
 
-template <class Scalar, int N> struct BaseScalar<Jet<Scalar, N>> { using type = Scalar; };
+template <class Scalar, int N> struct BaseScalar<Jet<Scalar, N>> { using type = typename BaseScalar<Scalar>::type; };
+
+template <class Mask, class Scalar, int N, class = std::enable_if_t<!std::is_same_v<Mask, bool>>>
+TG_HD Jet<Scalar, N> select(const Mask& c, const Jet<Scalar, N>& a, const Jet<Scalar, N>& b) {
+  Jet<Scalar, N> r;
+  r.v = select(c, a.v, b.v);
+  for (int k = 0; k < N; ++k) r.d[k] = select(c, a.d[k], b.d[k]);
+  return r;
+}
 
 // f(a) from f(a.v) and f'(a.v)
 template <class Scalar, int N> TG_HD Jet<Scalar, N> jet_chain(const Jet<Scalar, N>& a, Scalar f, Scalar df) {

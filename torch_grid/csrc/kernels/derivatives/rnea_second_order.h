@@ -73,29 +73,28 @@ TG_HD PairTerms<Scalar> pair_terms(const RneaDerivativesWork<Robot, Scalar>& W, 
 }
 
 // Eight values that one instruction adds or multiplies on a CPU with 512-bit vectors (GCC's vector
-// extension); a plain array on a GPU thread.
-#if defined(__GNUC__) && !defined(__CUDACC__)
-template <class Scalar> struct Lanes {
-  typedef Scalar V __attribute__((vector_size(8 * sizeof(Scalar))));
-  V x;
-  TG_HD Scalar operator[](int l) const { return x[l]; }
-  TG_HD void fma(Scalar a, const Lanes& b) { x += a * b.x; }
-  TG_HD void fma(const Lanes& a, const Lanes& b) { x += a.x * b.x; }
-};
-#else
-template <class Scalar> struct Lanes {
+// extension); a plain array on a GPU thread, and for a scalar that is itself a vector of samples.
+template <class Scalar, class = void> struct Octet {
   Scalar x[8];
   TG_HD Scalar operator[](int l) const { return x[l]; }
-  TG_HD void fma(Scalar a, const Lanes& b) {
+  TG_HD void fma(Scalar a, const Octet& b) {
     for (int l = 0; l < 8; ++l) x[l] += a * b.x[l];
   }
-  TG_HD void fma(const Lanes& a, const Lanes& b) {
+  TG_HD void fma(const Octet& a, const Octet& b) {
     for (int l = 0; l < 8; ++l) x[l] += a.x[l] * b.x[l];
   }
 };
+#if defined(__GNUC__) && !defined(__CUDACC__)
+template <class Scalar> struct Octet<Scalar, std::enable_if_t<std::is_floating_point_v<Scalar>>> {
+  typedef Scalar V __attribute__((vector_size(8 * sizeof(Scalar))));
+  V x;
+  Scalar operator[](int l) const { return x[l]; }
+  void fma(Scalar a, const Octet& b) { x += a * b.x; }
+  void fma(const Octet& a, const Octet& b) { x += a.x * b.x; }
+};
 #endif
-template <class Scalar> TG_HD Lanes<Scalar> lanes(Scalar a, Scalar b, Scalar c, Scalar d, Scalar e, Scalar f, Scalar g, Scalar h) {
-  Lanes<Scalar> L;
+template <class Scalar> TG_HD Octet<Scalar> octet(Scalar a, Scalar b, Scalar c, Scalar d, Scalar e, Scalar f, Scalar g, Scalar h) {
+  Octet<Scalar> L;
   L.x[0] = a, L.x[1] = b, L.x[2] = c, L.x[3] = d, L.x[4] = e, L.x[5] = f, L.x[6] = g, L.x[7] = h;
   return L;
 }
@@ -105,16 +104,16 @@ template <class Scalar> TG_HD Lanes<Scalar> lanes(Scalar a, Scalar b, Scalar c, 
 // rate_qv, rate_vq, Bs_Sb; and two = sum_r mixed_c[r] p2[r], mixed_c[r] = (S, psid x3, psidd x2,
 // alpha x2)[r] of c, with lanes (against S) rate_qv_above, or same_body_vv for a pair in one body,
 // (psid) BsT_Sb, wb_part, dBT_Sb, (psidd) Sb_ICs, DT_Sb, (alpha) DT_Sb, Sb_ICs.
-template <class Scalar> struct PairLanes {
-  Lanes<Scalar> p1[6], p2[6];
+template <class Scalar> struct PairOctet {
+  Octet<Scalar> p1[6], p2[6];
 };
 
-template <class Scalar> TG_HD void pair_lanes(const PairTerms<Scalar>& P, bool same_body, PairLanes<Scalar>& L) {
+template <class Scalar> TG_HD void pair_octet(const PairTerms<Scalar>& P, bool same_body, PairOctet<Scalar>& L) {
   const Sv<Scalar>& above = same_body ? P.same_body_vv : P.rate_qv_above;
   for (int r = 0; r < 6; ++r) {
-    L.p1[r] = lanes(P.BsT_Sb.v[r], P.D_Sb.v[r], P.dBT_Sb.v[r], P.rate_q.v[r], P.Sb_ICs.v[r], P.rate_qv.v[r],
+    L.p1[r] = octet(P.BsT_Sb.v[r], P.D_Sb.v[r], P.dBT_Sb.v[r], P.rate_q.v[r], P.Sb_ICs.v[r], P.rate_qv.v[r],
                     P.rate_vq.v[r], P.Bs_Sb.v[r]);
-    L.p2[r] = lanes(above.v[r], P.BsT_Sb.v[r], P.wb_part.v[r], P.dBT_Sb.v[r], P.Sb_ICs.v[r], P.DT_Sb.v[r], P.DT_Sb.v[r],
+    L.p2[r] = octet(above.v[r], P.BsT_Sb.v[r], P.wb_part.v[r], P.dBT_Sb.v[r], P.Sb_ICs.v[r], P.DT_Sb.v[r], P.DT_Sb.v[r],
                     P.Sb_ICs.v[r]);
   }
 }
@@ -126,18 +125,18 @@ enum SecondOrderTensor : int { D2Q = 0, D2V = 1, DQDV = 2, DADQ = 3 };
 // each: put(tensor, i, j, k, value). Entries of columns on different branches are zero.
 template <class Robot, class Scalar, class Put> TG_HD void rnea_second_order_visit(const RneaDerivativesWork<Robot, Scalar>& W, Put&& put) {
   const auto& d = data<Robot, Scalar>();
-  // column c's row r in the lanes of PairLanes::p2: a table on the CPU, built as met on a GPU thread
-  const auto column_lanes = [&W](int c, int r) {
-    return lanes(W.s[c].v[r], W.w[c].v[r], W.w[c].v[r], W.w[c].v[r], W.u[c].v[r], W.u[c].v[r], W.alpha[c].v[r],
+  // column c's row r in the lanes of PairOctet::p2: a table on the CPU, built as met on a GPU thread
+  const auto column_octet = [&W](int c, int r) {
+    return octet(W.s[c].v[r], W.w[c].v[r], W.w[c].v[r], W.w[c].v[r], W.u[c].v[r], W.u[c].v[r], W.alpha[c].v[r],
                  W.alpha[c].v[r]);
   };
 #ifdef __CUDA_ARCH__
-  const auto mixed = column_lanes;
+  const auto mixed = column_octet;
 #else
-  Lanes<Scalar> table[Robot::NV][6];
+  Octet<Scalar> table[Robot::NV][6];
   for (int c = 0; c < Robot::NV; ++c)
-    for (int r = 0; r < 6; ++r) table[c][r] = column_lanes(c, r);
-  const auto mixed = [&table](int c, int r) -> const Lanes<Scalar>& { return table[c][r]; };
+    for (int r = 0; r < 6; ++r) table[c][r] = column_octet(c, r);
+  const auto mixed = [&table](int c, int r) -> const Octet<Scalar>& { return table[c][r]; };
 #endif
   for (int i = 0; i < Robot::NB; ++i)
     for (int a = d.vi[i]; a < d.vi[i] + d.nvj[i]; ++a) {
@@ -145,11 +144,11 @@ template <class Robot, class Scalar, class Put> TG_HD void rnea_second_order_vis
       for (int j = i; j >= 0; j = d.parent[j])
         for (int b = d.vi[j]; b < d.vi[j] + d.nvj[j]; ++b) {
           const PairTerms<Scalar> P = pair_terms<Robot, Scalar>(W, A, i, a, b);
-          PairLanes<Scalar> L;
-          pair_lanes(P, j == i, L);
+          PairOctet<Scalar> L;
+          pair_octet(P, j == i, L);
           for (int k = j; k >= 0; k = d.parent[k])
             for (int c = d.vi[k]; c < d.vi[k] + d.nvj[k]; ++c) {
-              Lanes<Scalar> one = lanes<Scalar>(0, 0, 0, 0, 0, 0, 0, 0), two = one;
+              Octet<Scalar> one = octet<Scalar>(0, 0, 0, 0, 0, 0, 0, 0), two = one;
               for (int r = 0; r < 6; ++r) {
                 one.fma(W.s[c].v[r], L.p1[r]);
                 two.fma(mixed(c, r), L.p2[r]);

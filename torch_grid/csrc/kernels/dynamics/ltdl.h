@@ -5,6 +5,8 @@
 // in row k, and stay so. M and its factor share the storage (row-major NV x NV, lower triangle read).
 #pragma once
 
+#include <type_traits>
+
 #include "kernels/dynamics/products.h"
 
 namespace tg {
@@ -44,51 +46,8 @@ template <class Robot, class Scalar> TG_HD void ltdl_solve(const Scalar* H, Scal
 }
 
 // x (COLS entries) := a x - sum_m c[m] X[ks[m]] over n rows of X (row stride XS), also added to t if given.
-// On a CPU x is held in registers as 8-lane vectors (GCC's vector extension) while the rows stream past:
-// each FMA then has a dozen independent others beside it, where a few columns at a time would wait on the
-// one before. A GPU thread updates x in place.
-#if defined(__GNUC__) && !defined(__CUDACC__)
 template <int XS, int COLS, class Scalar>
-inline void less_rows(int n, const int* ks, const Scalar* c, const Scalar* X, Scalar* x, Scalar a = Scalar(1), Scalar* t = nullptr) {
-  typedef Scalar V __attribute__((vector_size(8 * sizeof(Scalar))));
-  constexpr int NL = COLS / 8, T = COLS % 8;
-  V acc[NL > 0 ? NL : 1];
-  Scalar tail[T > 0 ? T : 1];
-#pragma GCC unroll 16
-  for (int l = 0; l < NL; ++l) {
-    __builtin_memcpy(&acc[l], x + 8 * l, sizeof(V));
-    acc[l] *= a;
-  }
-  for (int e = 0; e < T; ++e) tail[e] = a * x[8 * NL + e];
-  for (int m = 0; m < n; ++m) {
-    const Scalar cm = c[m];
-    const Scalar* xr = X + XS * ks[m];
-#pragma GCC unroll 16
-    for (int l = 0; l < NL; ++l) {
-      V y;
-      __builtin_memcpy(&y, xr + 8 * l, sizeof(V));
-      acc[l] -= cm * y;
-    }
-    for (int e = 0; e < T; ++e) tail[e] -= cm * xr[8 * NL + e];
-  }
-#pragma GCC unroll 16
-  for (int l = 0; l < NL; ++l) __builtin_memcpy(x + 8 * l, &acc[l], sizeof(V));
-  for (int e = 0; e < T; ++e) x[8 * NL + e] = tail[e];
-  if (t) {
-#pragma GCC unroll 16
-    for (int l = 0; l < NL; ++l) {
-      V y;
-      __builtin_memcpy(&y, t + 8 * l, sizeof(V));
-      y += acc[l];
-      __builtin_memcpy(t + 8 * l, &y, sizeof(V));
-    }
-    for (int e = 0; e < T; ++e) t[8 * NL + e] += tail[e];
-  }
-}
-constexpr int kSolveCols = 128;
-#else
-template <int XS, int COLS, class Scalar>
-TG_HD void less_rows(int n, const int* ks, const Scalar* c, const Scalar* X, Scalar* x, Scalar a = Scalar(1), Scalar* t = nullptr) {
+TG_HD void less_rows_plain(int n, const int* ks, const Scalar* c, const Scalar* X, Scalar* x, Scalar a = Scalar(1), Scalar* t = nullptr) {
   for (int e = 0; e < COLS; ++e) x[e] *= a;
   for (int m = 0; m < n; ++m) {
     const Scalar cm = c[m];
@@ -97,6 +56,57 @@ TG_HD void less_rows(int n, const int* ks, const Scalar* c, const Scalar* X, Sca
   }
   if (t)
     for (int e = 0; e < COLS; ++e) t[e] += x[e];
+}
+// On a CPU x is held in registers as 8-lane vectors (GCC's vector extension) while the rows stream past:
+// each FMA then has a dozen independent others beside it, where a few columns at a time would wait on the
+// one before. A GPU thread, or a scalar that is itself a vector of samples, updates x in place.
+#if defined(__GNUC__) && !defined(__CUDACC__)
+template <int XS, int COLS, class Scalar>
+inline void less_rows(int n, const int* ks, const Scalar* c, const Scalar* X, Scalar* x, Scalar a = Scalar(1), Scalar* t = nullptr) {
+  if constexpr (!std::is_floating_point_v<Scalar>) {  // a scalar of lanes (lanes.h) is a vector already
+    less_rows_plain<XS, COLS>(n, ks, c, X, x, a, t);
+  } else {
+    typedef Scalar V __attribute__((vector_size(8 * sizeof(Scalar))));
+    constexpr int NL = COLS / 8, T = COLS % 8;
+    V acc[NL > 0 ? NL : 1];
+    Scalar tail[T > 0 ? T : 1];
+#pragma GCC unroll 16
+    for (int l = 0; l < NL; ++l) {
+      __builtin_memcpy(&acc[l], x + 8 * l, sizeof(V));
+      acc[l] *= a;
+    }
+    for (int e = 0; e < T; ++e) tail[e] = a * x[8 * NL + e];
+    for (int m = 0; m < n; ++m) {
+      const Scalar cm = c[m];
+      const Scalar* xr = X + XS * ks[m];
+#pragma GCC unroll 16
+      for (int l = 0; l < NL; ++l) {
+        V y;
+        __builtin_memcpy(&y, xr + 8 * l, sizeof(V));
+        acc[l] -= cm * y;
+      }
+      for (int e = 0; e < T; ++e) tail[e] -= cm * xr[8 * NL + e];
+    }
+#pragma GCC unroll 16
+    for (int l = 0; l < NL; ++l) __builtin_memcpy(x + 8 * l, &acc[l], sizeof(V));
+    for (int e = 0; e < T; ++e) x[8 * NL + e] = tail[e];
+    if (t) {
+#pragma GCC unroll 16
+      for (int l = 0; l < NL; ++l) {
+        V y;
+        __builtin_memcpy(&y, t + 8 * l, sizeof(V));
+        y += acc[l];
+        __builtin_memcpy(t + 8 * l, &y, sizeof(V));
+      }
+      for (int e = 0; e < T; ++e) t[8 * NL + e] += tail[e];
+    }
+  }
+}
+constexpr int kSolveCols = 128;
+#else
+template <int XS, int COLS, class Scalar>
+TG_HD void less_rows(int n, const int* ks, const Scalar* c, const Scalar* X, Scalar* x, Scalar a = Scalar(1), Scalar* t = nullptr) {
+  less_rows_plain<XS, COLS>(n, ks, c, X, x, a, t);
 }
 constexpr int kSolveCols = 16;
 #endif

@@ -6,6 +6,7 @@
 #pragma once
 
 #include <cmath>
+#include <type_traits>
 
 #if defined(__CUDACC__)
 #define TG_HD __host__ __device__ __forceinline__
@@ -31,6 +32,13 @@ using std::sin;
 using std::sqrt;
 
 enum Convention : int { PIN = 0, MUJOCO = 1 };
+
+// A choice per sample: c ? a : b. On a plain scalar c is a bool; on a vector of samples (lanes.h) a
+// mask with one choice per lane, so kernels write their data-dependent choices this way. all() and
+// any() let a kernel skip work no sample needs.
+template <class Scalar> TG_HD Scalar select(bool c, const Scalar& a, const Scalar& b) { return c ? a : b; }
+TG_HD bool all(bool c) { return c; }
+TG_HD bool any(bool c) { return c; }
 
 // The plain floating-point type under a scalar (forward_mode.h specialises it for dual numbers).
 template <class Scalar> struct BaseScalar { using type = Scalar; };
@@ -96,18 +104,18 @@ constexpr double QUAT_MIN_NORM = 1e-15;
 // Rotation of the quaternion (x, y, z, w), normalised first so any non-zero quaternion is valid. A
 // quaternion of norm below QUAT_MIN_NORM (zero) is the identity, as in MuJoCo's mj_normalizeQuat; one
 // with a NaN or infinite entry is NaN throughout, so that a diverged state is never read as a rotation.
+// Both cases are selects rather than branches, so that each lane of a Lanes scalar takes its own.
 template <class Scalar> TG_HD Mat3<Scalar> quat_rotation(Scalar x, Scalar y, Scalar z, Scalar w) {
   const Scalar n2 = x * x + y * y + z * z + w * w;
-  if (n2 < Scalar(QUAT_MIN_NORM * QUAT_MIN_NORM)) return identity3<Scalar>();
-  if (!(n2 < Scalar(INFINITY))) {
-    const Scalar nan = n2 * Scalar(NAN);  // NaN in a dual number's tangent too
-    return {{nan, nan, nan, nan, nan, nan, nan, nan, nan}};
-  }
-  // The unit-quaternion formula with its factor 2 replaced by 2 / |q|^2: no square root.
-  const Scalar k = Scalar(2) / n2;
-  return {{Scalar(1) - k * (y * y + z * z), k * (x * y - z * w), k * (x * z + y * w),
-           k * (x * y + z * w), Scalar(1) - k * (x * x + z * z), k * (y * z - x * w),
-           k * (x * z - y * w), k * (y * z + x * w), Scalar(1) - k * (x * x + y * y)}};
+  const auto zero = n2 < Scalar(QUAT_MIN_NORM * QUAT_MIN_NORM);
+  if (all(zero)) return identity3<Scalar>();
+  // The unit-quaternion formula with its factor 2 replaced by 2 / |q|^2: no square root. NaN for a NaN
+  // or infinite norm (in a dual number's tangent too).
+  const Scalar k = select(n2 < Scalar(INFINITY), Scalar(2) / n2, n2 * Scalar(NAN));
+  const Scalar one(1), nil(0);
+  return {{select(zero, one, Scalar(1) - k * (y * y + z * z)), select(zero, nil, k * (x * y - z * w)), select(zero, nil, k * (x * z + y * w)),
+           select(zero, nil, k * (x * y + z * w)), select(zero, one, Scalar(1) - k * (x * x + z * z)), select(zero, nil, k * (y * z - x * w)),
+           select(zero, nil, k * (x * z - y * w)), select(zero, nil, k * (y * z + x * w)), select(zero, one, Scalar(1) - k * (x * x + y * y))}};
 }
 
 // -- placements --------------------------------------------------------------------------

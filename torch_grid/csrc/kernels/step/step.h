@@ -27,15 +27,23 @@ template <class Scalar> struct So3Coefficients {
 
 template <class Scalar> TG_HD So3Coefficients<Scalar> so3_coefficients(Vec3<Scalar> u) {
   const Scalar t2 = dot(u, u), t4 = t2 * t2;
-  if (t2 < Scalar(1e-4))
-    return {Scalar(0.5) - t2 / Scalar(48) + t4 / Scalar(3840), Scalar(1) - t2 / Scalar(8) + t4 / Scalar(384),
-            Scalar(0.5) - t2 / Scalar(24) + t4 / Scalar(720), Scalar(1) / Scalar(6) - t2 / Scalar(120) + t4 / Scalar(5040),
-            Scalar(1) / Scalar(24) - t2 / Scalar(720) + t4 / Scalar(40320), Scalar(1) / Scalar(120) - t2 / Scalar(2520) + t4 / Scalar(120960),
-            Scalar(1) / Scalar(12) + t2 / Scalar(720) + t4 / Scalar(30240)};
+  const auto small = t2 < Scalar(1e-4);
+  const So3Coefficients<Scalar> series = {
+      Scalar(0.5) - t2 / Scalar(48) + t4 / Scalar(3840), Scalar(1) - t2 / Scalar(8) + t4 / Scalar(384),
+      Scalar(0.5) - t2 / Scalar(24) + t4 / Scalar(720), Scalar(1) / Scalar(6) - t2 / Scalar(120) + t4 / Scalar(5040),
+      Scalar(1) / Scalar(24) - t2 / Scalar(720) + t4 / Scalar(40320), Scalar(1) / Scalar(120) - t2 / Scalar(2520) + t4 / Scalar(120960),
+      Scalar(1) / Scalar(12) + t2 / Scalar(720) + t4 / Scalar(30240)};
+  if (all(small)) return series;
   const Scalar t = sqrt(t2), sh = sin(t / Scalar(2)), ch = cos(t / Scalar(2));
   const Scalar s = Scalar(2) * sh * ch, c = Scalar(1) - Scalar(2) * sh * sh;  // sin t, cos t
-  return {sh / t, ch, Scalar(2) * sh * sh / t2, (t - s) / (t2 * t), (t2 + Scalar(2) * c - Scalar(2)) / (Scalar(2) * t4),
-          (Scalar(2) * t - Scalar(3) * s + t * c) / (Scalar(2) * t4 * t), (Scalar(1) - t * ch / (Scalar(2) * sh)) / t2};
+  const So3Coefficients<Scalar> closed = {
+      sh / t, ch, Scalar(2) * sh * sh / t2, (t - s) / (t2 * t), (t2 + Scalar(2) * c - Scalar(2)) / (Scalar(2) * t4),
+      (Scalar(2) * t - Scalar(3) * s + t * c) / (Scalar(2) * t4 * t), (Scalar(1) - t * ch / (Scalar(2) * sh)) / t2};
+  if (!any(small)) return closed;
+  // lanes of samples on both sides of the threshold: each its own
+  return {select(small, series.sin_half, closed.sin_half), select(small, series.cos_half, closed.cos_half),
+          select(small, series.a, closed.a), select(small, series.b, closed.b), select(small, series.c2, closed.c2),
+          select(small, series.c3, closed.c3), select(small, series.beta, closed.beta)};
 }
 
 template <class Scalar> TG_HD Mat3<Scalar> lincomb3(Scalar x, const Mat3<Scalar>& A, Scalar y, const Mat3<Scalar>& B) {
@@ -118,9 +126,9 @@ template <class Robot, class Scalar, int C> TG_HD int integrate_joint(int i, con
   // read normalised as quat_rotation reads it: a norm below QUAT_MIN_NORM is the identity, a NaN or
   // infinite one NaN in every component (q / inf would leave finite zeros beside an infinite entry's NaN)
   const Scalar norm = sqrt(q[qa] * q[qa] + q[qa + 1] * q[qa + 1] + q[qa + 2] * q[qa + 2] + q[qa + 3] * q[qa + 3]);
-  const bool zero = norm < Scalar(QUAT_MIN_NORM);
-  const Scalar scale = norm < Scalar(INFINITY) ? norm : norm * Scalar(NAN);
-  for (int c = 0; c < 4; ++c) quat[c] = zero ? Scalar(c == 3) : q[qa + c] / scale;
+  const auto zero = norm < Scalar(QUAT_MIN_NORM);
+  const Scalar scale = select(norm < Scalar(INFINITY), norm, norm * Scalar(NAN));
+  for (int c = 0; c < 4; ++c) quat[c] = select(zero, Scalar(c == 3), q[qa + c] / scale);
   store3(k.sin_half * w, e);
   e[3] = k.cos_half;
   quat_mul(quat, e, turned);
@@ -139,8 +147,8 @@ template <class Robot, class Scalar, int C> TG_HD int integrate_joint(int i, con
     } else {  // M exp6(u): p + R V u_lin, the quaternion kept in the input's hemisphere as Pinocchio's
       const Vec3<Scalar> Vu = mul(so3_terms(w, k.a, k.b), ul);
       store3(p + mul(quat_rotation(quat[0], quat[1], quat[2], quat[3]), Vu), q_next + qi);
-      if (e[3] < Scalar(0))
-        for (int c = 0; c < 4; ++c) turned[c] = -turned[c];
+      const auto flip = e[3] < Scalar(0);
+      for (int c = 0; c < 4; ++c) turned[c] = select(flip, -turned[c], turned[c]);
       if (Jq) {
         put3(Jq, 6, 0, 0, Rt);
         put3(Jq, 6, 0, 3, mul(Rt, skew(Scalar(-1) * Vu)));

@@ -1,0 +1,98 @@
+// CPU side of the batch layer on vector lanes: kLanes samples at a time run one kernel whose scalar is
+// Lanes<double, kLanes> (lanes.h). Each group's inputs are gathered structure-of-arrays (lane l holds
+// sample s0 + l), the kernel runs once, its outputs are scattered back; the samples left over (fewer
+// than a group) take the scalar kernel, so a batch of one costs what it did.
+#pragma once
+
+#include <cmath>
+#include <limits>
+#include <vector>
+
+#include "batch/cpu_range.h"
+#include "kernels/spatial/lanes.h"
+
+namespace tg {
+
+// A thread's lanes of one op's inputs and outputs, kept between calls; key names the op whose layout
+// (and zeros) it holds.
+template <class L> struct LaneBuffer {
+  std::vector<L> data;
+  const void* key = nullptr;
+  int64_t total = 0;
+  int present = 0;
+  bool zeroed = false;
+  int workspace = 0;
+};
+template <class L> LaneBuffer<L>& lane_buffer() {
+  thread_local LaneBuffer<L> buffer;
+  return buffer;
+}
+
+// y[l * size + j] = x[j][l]: the group's output back to sample-major, W x W blocks transposed in
+// registers (a lane's entries leave as one contiguous vector store each).
+template <int W> inline void scatter(const Lanes<double, W>* x, int64_t size, double* y) {
+  using V = typename Lanes<double, W>::V;
+  int64_t j0 = 0;
+  for (; j0 + W <= size; j0 += W) {
+    V block[W];
+    for (int jj = 0; jj < W; ++jj) block[jj] = x[j0 + jj].x;
+    for (int l = 0; l < W; ++l) {
+      V row;
+      for (int jj = 0; jj < W; ++jj) row[jj] = block[jj][l];
+      __builtin_memcpy(y + l * size + j0, &row, sizeof row);
+    }
+  }
+  for (int l = 0; l < W; ++l)
+    for (int64_t j = j0; j < size; ++j) y[l * size + j] = x[j].x[l];
+}
+
+template <template <class, class, int> class Op, class Robot, int C>
+void cpu_range_lanes(const Batch& b, int64_t begin, int64_t end) {
+  constexpr int W = kLanes;
+  using L = Lanes<double, W>;
+  const int64_t groups_end = begin + (end - begin) / W * W;
+  if (groups_end > begin) {
+    // one buffer of lanes for every input and output of a sample
+    int64_t offset[kMaxIn + kMaxOut] = {}, total = 0;
+    for (int k = 0; k < kMaxIn; ++k) offset[k] = total, total += b.in[k] ? b.in_size[k] : 0;
+    for (int k = 0; k < kMaxOut; ++k) offset[kMaxIn + k] = total, total += b.out[k] ? b.out_stride[k] : 0;
+    // The thread's buffer: the glue's buffered paths call again for each chunk of a batch, and find it
+    // as the last call left it.
+    LaneBuffer<L>& buffer = lane_buffer<L>();
+    const void* key = reinterpret_cast<const void*>(&cpu_range_lanes<Op, Robot, C>);
+    int present = 0;  // which inputs and outputs the layout has
+    for (int k = 0; k < kMaxIn; ++k) present |= (b.in[k] != nullptr) << k;
+    for (int k = 0; k < kMaxOut; ++k) present |= (b.out[k] != nullptr) << (kMaxIn + k);
+    const bool fresh = buffer.key != key || buffer.total != total || buffer.present != present || buffer.zeroed != b.zeroed ||
+                       buffer.workspace != b.workspace || (b.poisoned && !b.zeroed);
+    if (fresh) buffer.data.resize(static_cast<size_t>(total));
+    const L* in[kMaxIn];
+    L* out[kMaxOut];
+    for (int k = 0; k < kMaxIn; ++k) in[k] = b.in[k] ? buffer.data.data() + offset[k] : nullptr;
+    for (int k = 0; k < kMaxOut; ++k) {
+      out[k] = b.out[k] ? buffer.data.data() + offset[kMaxIn + k] : nullptr;
+      // Zeros in its scratch, and where the kernel writes nothing if the outputs hold zeros there
+      // (Batch::zeroed: it writes the same entries for every group); otherwise NaN, so that an entry it
+      // leaves unwritten shows (refilled at every call when the outputs are poisoned).
+      const double fill = b.zeroed || (b.workspace >> k & 1) ? 0.0 : std::numeric_limits<double>::quiet_NaN();
+      if (out[k] && fresh) std::fill(out[k], out[k] + b.out_stride[k], L(fill));
+    }
+    buffer.key = key, buffer.total = total, buffer.present = present, buffer.zeroed = b.zeroed, buffer.workspace = b.workspace;
+    for (int64_t s0 = begin; s0 < groups_end; s0 += W) {
+      // gather: a shared input (stride 0) fills every lane alike
+      for (int k = 0; k < kMaxIn; ++k) {
+        if (!b.in[k]) continue;
+        const double* x = static_cast<const double*>(b.in[k]) + s0 * b.in_stride[k];
+        L* y = buffer.data.data() + offset[k];
+        for (int64_t j = 0; j < b.in_size[k]; ++j)
+          for (int l = 0; l < W; ++l) y[j].x[l] = x[l * b.in_stride[k] + j];
+      }
+      Op<Robot, L, C>::run(in, out, b.iargs, b.n_iargs, b.zeroed);
+      for (int k = 0; k < kMaxOut; ++k)
+        if (b.out[k] && !(b.workspace >> k & 1)) scatter(out[k], b.out_stride[k], static_cast<double*>(b.out[k]) + s0 * b.out_stride[k]);
+    }
+  }
+  cpu_range<Op, Robot, double, C>(b, groups_end, end);
+}
+
+}  // namespace tg
