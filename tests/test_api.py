@@ -219,7 +219,8 @@ def test_mid_size_cpu_outputs_reuse_their_blocks_and_empty_cache_frees_them(robo
     block, nbytes = first.data_ptr(), first.nbytes
     del first
     again = robot.crba(q)
-    assert again.data_ptr() == block and torch.equal(again, torch.cat([robot.crba(part) for part in q.split(100)]))
+    # parts of a whole number of lane groups: each sample takes the same path (lanes or the scalar tail) in both
+    assert again.data_ptr() == block and torch.equal(again, torch.cat([robot.crba(part) for part in q.split(104)]))
     del again
     assert torch_grid.empty_cache() >= nbytes
     assert torch_grid.empty_cache() == 0

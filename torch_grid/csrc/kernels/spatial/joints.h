@@ -16,11 +16,15 @@ enum JointType : int { FREE = 0, REVOLUTE = 1, PRISMATIC = 2, BALL = 3 };
 template <class Scalar> struct CosSin {
   Scalar c, s;
 };
-// A revolute angle's cosine and sine: computed when asked (one library call), or taken from a pass
-// that computed every joint's at once (joint_sincos).
+// A revolute angle's cosine and sine: computed when asked (sincos_n of one angle: the same values as a
+// pass over every joint's, joint_sincos, and on vector lanes as on one sample), or taken from that pass.
 template <class Scalar> struct TrigOf {
   const Scalar* t;
-  TG_HD CosSin<Scalar> operator()() const { return {cos(*t), sin(*t)}; }
+  TG_HD CosSin<Scalar> operator()() const {
+    CosSin<Scalar> cs;
+    sincos_n(1, t, &cs.s, &cs.c);
+    return cs;
+  }
 };
 template <class Scalar> struct TrigFrom {
   Scalar c, s;

@@ -111,6 +111,13 @@ template <class T, int W> inline void sincos_n(int n, const Lanes<T, W>* x, Lane
     constexpr double kTwoOverPi = 0.63661977236758134308;
     constexpr double kPio2a = 1.5707963267948966192, kPio2b = 6.123233995736766e-17, kPio2c = -1.4973849048591698e-33;
     constexpr double kRound = 6755399441055744.0;
+    // a * b + c rounded once in every lane, as std::fma on one number (one vector instruction with FMA)
+    const auto fma = [](const V& a, const auto& b, const auto& c) {
+      const V bv = V{} + b, cv = V{} + c;
+      V r;
+      for (int l = 0; l < W; ++l) r[l] = std::fma(a[l], bv[l], cv[l]);
+      return r;
+    };
     I narrow = V{} == V{};  // lanes whose every angle the polynomial reduces exactly
     for (int i = 0; i < n; ++i) {
       V a = x[i].x;
@@ -124,27 +131,28 @@ template <class T, int W> inline void sincos_n(int n, const Lanes<T, W>* x, Lane
       const V k = kr - kRound;
       I quadrant;
       std::memcpy(&quadrant, &kr, sizeof quadrant);
-      V r = xi - k * kPio2a;
-      r = r - k * kPio2b;
-      r = r - k * kPio2c;
+      const V nk = -k;
+      V r = fma(nk, kPio2a, xi);
+      r = fma(nk, kPio2b, r);
+      r = fma(nk, kPio2c, r);
       const V r2 = r * r;
       V ps = V{} - 1.0 / 1307674368000.0;
-      ps = ps * r2 + 1.0 / 6227020800.0;
-      ps = ps * r2 - 1.0 / 39916800.0;
-      ps = ps * r2 + 1.0 / 362880.0;
-      ps = ps * r2 - 1.0 / 5040.0;
-      ps = ps * r2 + 1.0 / 120.0;
-      ps = ps * r2 - 1.0 / 6.0;
-      const V sr = ps * r2 * r + r;
+      ps = fma(ps, r2, 1.0 / 6227020800.0);
+      ps = fma(ps, r2, -1.0 / 39916800.0);
+      ps = fma(ps, r2, 1.0 / 362880.0);
+      ps = fma(ps, r2, -1.0 / 5040.0);
+      ps = fma(ps, r2, 1.0 / 120.0);
+      ps = fma(ps, r2, -1.0 / 6.0);
+      const V sr = fma(ps * r2, r, r);
       V pc = V{} + 1.0 / 20922789888000.0;
-      pc = pc * r2 - 1.0 / 87178291200.0;
-      pc = pc * r2 + 1.0 / 479001600.0;
-      pc = pc * r2 - 1.0 / 3628800.0;
-      pc = pc * r2 + 1.0 / 40320.0;
-      pc = pc * r2 - 1.0 / 720.0;
-      pc = pc * r2 + 1.0 / 24.0;
-      pc = pc * r2 - 0.5;
-      const V cr = pc * r2 + 1.0;
+      pc = fma(pc, r2, -1.0 / 87178291200.0);
+      pc = fma(pc, r2, 1.0 / 479001600.0);
+      pc = fma(pc, r2, -1.0 / 3628800.0);
+      pc = fma(pc, r2, 1.0 / 40320.0);
+      pc = fma(pc, r2, -1.0 / 720.0);
+      pc = fma(pc, r2, 1.0 / 24.0);
+      pc = fma(pc, r2, -0.5);
+      const V cr = fma(pc, r2, 1.0);
       // sin(r + k pi/2), cos(r + k pi/2) for k = 0, 1, 2, 3 mod 4
       const I odd = (quadrant & 1) != 0;
       const V sv = odd ? cr : sr, cv = odd ? sr : cr;
@@ -165,15 +173,17 @@ template <class T, int W> inline void sincos_n(int n, const Lanes<T, W>* x, Lane
       }
   }
 }
+// One sine or cosine, lane by lane with the C library's, as sin and cos of a plain number are (sincos_n
+// is the fast path for many angles, on either).
 template <class T, int W> inline Lanes<T, W> sin(const Lanes<T, W>& a) {
-  Lanes<T, W> s, c;
-  sincos_n(1, &a, &s, &c);
-  return s;
+  Lanes<T, W> r;
+  for (int l = 0; l < W; ++l) r.x[l] = std::sin(a.x[l]);
+  return r;
 }
 template <class T, int W> inline Lanes<T, W> cos(const Lanes<T, W>& a) {
-  Lanes<T, W> s, c;
-  sincos_n(1, &a, &s, &c);
-  return c;
+  Lanes<T, W> r;
+  for (int l = 0; l < W; ++l) r.x[l] = std::cos(a.x[l]);
+  return r;
 }
 
 }  // namespace tg

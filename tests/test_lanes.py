@@ -1,0 +1,141 @@
+"""CPU vector lanes: every op of the op table, in both conventions, computes on the lane kernels (groups
+of samples, the default) what it computes on the scalar kernels (torch_grid.set_cpu_lanes(False)), on
+robots with a fixed base, a free joint and ball joints; batch tails, broadcast inputs, float32, NaN and
+infinite samples and zero quaternions included.
+
+The two paths round differently: GCC contracts a * b + c into one FMA, and vectorizes the scalar code,
+differently in the two, so they are not bitwise equal. Each output agrees to 1e-14 of its largest entry,
+or, where the op amplifies rounding (cancellation in derivatives through M^-1), to within twice the most
+the scalar path itself moves when its inputs move by one ulp (three random such moves). Lanes are independent: a sample's value in a
+group does not depend on the other samples there (bitwise), whatever they hold.
+"""
+from __future__ import annotations
+
+import pytest
+import torch
+
+import torch_grid
+from lane_inputs import op_arguments
+from torch_grid.ops.table import OPS
+
+ROBOTS = ["iiwa14", "go2", "trees", "damped_floating"]
+LANES = 8  # the widest groups (AVX-512); narrower CPUs have more groups in the same batch
+BATCH = 2 * LANES + 3  # whole groups and a scalar tail
+
+
+def _outputs(out) -> tuple[torch.Tensor, ...]:
+    return tuple(out) if isinstance(out, (tuple, list)) else (out,)
+
+
+def _call(robot, spec, args, convention: int, lanes: bool) -> tuple[torch.Tensor, ...]:
+    previous = torch_grid.set_cpu_lanes(lanes)
+    try:
+        out = _outputs(getattr(robot._ops, spec.name)(*args, convention))
+    finally:
+        torch_grid.set_cpu_lanes(previous)
+    return tuple(o for o, kind in zip(out, (o.kind for o in spec.outputs)) if kind != "workspace")
+
+
+def _one_ulp(args, generator: torch.Generator) -> list:
+    """The tensor arguments moved by at most one ulp each (a relative 2^-52, random sign)."""
+    return [a * (1 + 2.0 ** -52 * torch.randint(-1, 2, a.shape, generator=generator, dtype=a.dtype))
+            if isinstance(a, torch.Tensor) else a for a in args]
+
+
+def _cases(robots):
+    for name in ROBOTS:
+        robot = robots[name]
+        for spec in OPS.values():
+            for convention in (0, 1):
+                if convention and robot.model.conventions_differ and not spec.mujoco_twin:
+                    continue  # refused: no MuJoCo-convention kernel
+                yield name, robot, spec, convention
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_lanes_compute_what_the_scalar_kernels_compute(robots, name: str) -> None:
+    failures = []
+    for _, robot, spec, convention in (c for c in _cases(robots) if c[0] == name):
+        g = torch.Generator().manual_seed(7)
+        args = op_arguments(robot, spec, BATCH, g, convention)
+        scalar = _call(robot, spec, args, convention, lanes=False)
+        moved = [_call(robot, spec, _one_ulp(args, g), convention, lanes=False) for _ in range(3)]
+        lanes = _call(robot, spec, args, convention, lanes=True)
+        for k, (s, lane) in enumerate(zip(scalar, lanes)):
+            assert torch.isfinite(s).all(), (spec.name, k)
+            sensitivity = max((m[k] - s).abs().amax() for m in moved)
+            bound = 1e-14 * s.abs().amax() + 2 * sensitivity
+            error = (lane - s).abs().amax()
+            if not error <= bound:
+                failures.append(f"{spec.name} (convention {convention}) output {k}: {error:.3g} > {bound:.3g}")
+    assert not failures, "\n".join(failures)
+
+
+def _poison(spec, args) -> list:
+    """Samples 1 and 3 of the arguments spoiled: a NaN and an infinity in the op's last tensor input but
+    the inertial parameters."""
+    args = [a.clone() if isinstance(a, torch.Tensor) else a for a in args]
+    positions = [k for k, a in enumerate(spec.args) if a.is_tensor and a.kind != "parameters"]
+    last = args[positions[-1]]
+    last.view(last.shape[0], -1)[1, 0] = float("nan")
+    last.view(last.shape[0], -1)[3, -1] = float("inf")
+    return args
+
+
+@pytest.mark.parametrize("name", ["go2", "trees"])
+def test_a_spoiled_sample_leaves_the_other_lanes_exact(robots, name: str) -> None:
+    robot = robots[name]
+    failures = []
+    for _, robot, spec, convention in (c for c in _cases(robots) if c[0] == name):
+        g = torch.Generator().manual_seed(11)
+        args = op_arguments(robot, spec, BATCH, g, convention)
+        clean = _call(robot, spec, args, convention, lanes=True)
+        spoiled_args = _poison(spec, args)
+        spoiled = _call(robot, spec, spoiled_args, convention, lanes=True)
+        scalar = _call(robot, spec, spoiled_args, convention, lanes=False)
+        keep = [s for s in range(BATCH) if s not in (1, 3)]
+        for k, (c, s, sc) in enumerate(zip(clean, spoiled, scalar)):
+            if not torch.equal(c[keep], s[keep]):
+                failures.append(f"{spec.name} (convention {convention}) output {k}: other samples changed")
+            bad = torch.isfinite(s[[1, 3]]) != torch.isfinite(sc[[1, 3]])
+            if bad.any():
+                failures.append(f"{spec.name} (convention {convention}) output {k}: a spoiled sample non-finite where "
+                                "the scalar kernel's is finite, or the reverse")
+    assert not failures, "\n".join(failures)
+
+
+def test_zero_quaternion_is_the_identity_in_every_lane(robots) -> None:
+    robot = robots["go2"]
+    q = robot.random_configuration(BATCH, generator=torch.Generator().manual_seed(3))
+    q[::3, 3:7] = 0.0
+    lanes = _call(robot, OPS["forward_kinematics"], [q], 0, lanes=True)
+    scalar = _call(robot, OPS["forward_kinematics"], [q], 0, lanes=False)
+    for lane, s in zip(lanes, scalar):
+        torch.testing.assert_close(lane, s, rtol=0, atol=1e-14)
+    identity = q.clone()
+    identity[::3, 3:7] = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=q.dtype)
+    torch.testing.assert_close(lanes[1], _call(robot, OPS["forward_kinematics"], [identity], 0, lanes=True)[1], rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32], ids=["float64", "float32"])
+def test_broadcast_inputs_and_batch_shapes_take_the_lanes(robots, dtype: torch.dtype) -> None:
+    robot = robots["go2"]
+    g = torch.Generator().manual_seed(5)
+    q = robot.random_configuration(3, 7, generator=g).to(dtype)
+    qd = torch.randn(robot.nv, dtype=torch.float64, generator=g).to(dtype)  # one sample for all
+    tau = torch.randn(3, 7, robot.nv, dtype=torch.float64, generator=g).to(dtype)
+    lanes = robot.forward_dynamics(q, qd, tau)
+    expanded = robot.forward_dynamics(q, qd.expand(3, 7, -1).contiguous(), tau)
+    assert torch.equal(lanes, expanded)
+    previous = torch_grid.set_cpu_lanes(False)
+    try:
+        scalar = robot.forward_dynamics(q, qd, tau)
+    finally:
+        torch_grid.set_cpu_lanes(previous)
+    tol = 1e-12 if dtype == torch.float64 else 1e-5
+    torch.testing.assert_close(lanes, scalar, rtol=tol, atol=tol)
+
+
+def test_set_cpu_lanes_returns_the_previous_setting() -> None:
+    assert torch_grid.set_cpu_lanes(False) is True
+    assert torch_grid.set_cpu_lanes(True) is False
