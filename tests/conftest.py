@@ -1,6 +1,7 @@
 """Session fixtures: each robot (and its kernels) is built once per test session, on first use."""
 from __future__ import annotations
 
+import os
 import sys
 import warnings
 from pathlib import Path
@@ -13,6 +14,11 @@ import oracles  # noqa: E402
 from mjcf_models import DAMPED_FLOATING, DAMPED_PLANAR, TREES  # noqa: E402
 
 _ERD = oracles.erd_dir()
+
+# The suite's robots are built without the CPU lane kernels (TORCH_GRID_LANES=1: half the build), so every
+# test runs the scalar kernels; tests/test_lanes.py builds its robots with them (`lane_robots`) and holds
+# each op of the lane kernels to the scalar one's values.
+os.environ.setdefault("TORCH_GRID_LANES", "1")
 
 # name -> (torch_grid.load source, floating_base argument)
 ROBOT_SPECS = {
@@ -68,6 +74,24 @@ def _mj_sim(name):
 @pytest.fixture(scope="session")
 def robots():
     return LazyCache(_load_robot)
+
+
+def _load_lane_robot(name):
+    previous = os.environ.get("TORCH_GRID_LANES")
+    os.environ["TORCH_GRID_LANES"] = "0"  # the default: as many lanes as the CPU's vectors hold
+    try:
+        return _load_robot(name)
+    finally:
+        if previous is None:
+            del os.environ["TORCH_GRID_LANES"]
+        else:
+            os.environ["TORCH_GRID_LANES"] = previous
+
+
+@pytest.fixture(scope="session")
+def lane_robots():
+    """The robots of `robots`, built with the CPU lane kernels (a separate build and op namespace)."""
+    return LazyCache(_load_lane_robot)
 
 
 @pytest.fixture(scope="session")

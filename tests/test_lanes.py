@@ -53,9 +53,9 @@ def _cases(robots):
 
 
 @pytest.mark.parametrize("name", ROBOTS)
-def test_lanes_compute_what_the_scalar_kernels_compute(robots, name: str) -> None:
+def test_lanes_compute_what_the_scalar_kernels_compute(lane_robots, name: str) -> None:
     failures = []
-    for _, robot, spec, convention in (c for c in _cases(robots) if c[0] == name):
+    for _, robot, spec, convention in (c for c in _cases(lane_robots) if c[0] == name):
         g = torch.Generator().manual_seed(7)
         args = op_arguments(robot, spec, BATCH, g, convention)
         scalar = _call(robot, spec, args, convention, lanes=False)
@@ -83,10 +83,9 @@ def _poison(spec, args) -> list:
 
 
 @pytest.mark.parametrize("name", ["go2", "trees"])
-def test_a_spoiled_sample_leaves_the_other_lanes_exact(robots, name: str) -> None:
-    robot = robots[name]
+def test_a_spoiled_sample_leaves_the_other_lanes_exact(lane_robots, name: str) -> None:
     failures = []
-    for _, robot, spec, convention in (c for c in _cases(robots) if c[0] == name):
+    for _, robot, spec, convention in (c for c in _cases(lane_robots) if c[0] == name):
         g = torch.Generator().manual_seed(11)
         args = op_arguments(robot, spec, BATCH, g, convention)
         clean = _call(robot, spec, args, convention, lanes=True)
@@ -104,8 +103,8 @@ def test_a_spoiled_sample_leaves_the_other_lanes_exact(robots, name: str) -> Non
     assert not failures, "\n".join(failures)
 
 
-def test_zero_quaternion_is_the_identity_in_every_lane(robots) -> None:
-    robot = robots["go2"]
+def test_zero_quaternion_is_the_identity_in_every_lane(lane_robots) -> None:
+    robot = lane_robots["go2"]
     q = robot.random_configuration(BATCH, generator=torch.Generator().manual_seed(3))
     q[::3, 3:7] = 0.0
     lanes = _call(robot, OPS["forward_kinematics"], [q], 0, lanes=True)
@@ -118,8 +117,8 @@ def test_zero_quaternion_is_the_identity_in_every_lane(robots) -> None:
 
 
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32], ids=["float64", "float32"])
-def test_broadcast_inputs_and_batch_shapes_take_the_lanes(robots, dtype: torch.dtype) -> None:
-    robot = robots["go2"]
+def test_broadcast_inputs_and_batch_shapes_take_the_lanes(lane_robots, dtype: torch.dtype) -> None:
+    robot = lane_robots["go2"]
     g = torch.Generator().manual_seed(5)
     q = robot.random_configuration(3, 7, generator=g).to(dtype)
     qd = torch.randn(robot.nv, dtype=torch.float64, generator=g).to(dtype)  # one sample for all
@@ -134,6 +133,29 @@ def test_broadcast_inputs_and_batch_shapes_take_the_lanes(robots, dtype: torch.d
         torch_grid.set_cpu_lanes(previous)
     tol = 1e-12 if dtype == torch.float64 else 1e-5
     torch.testing.assert_close(lanes, scalar, rtol=tol, atol=tol)
+
+
+def test_large_outputs_and_threads_keep_each_sample_in_its_group(lane_robots) -> None:
+    """Outputs above 8 MiB go through the glue's buffer a chunk at a time, and a batch is split across
+    threads: both in whole groups, so each sample takes the path it takes in one call on one thread."""
+    robot = lane_robots["go2"]
+    q = robot.random_configuration(13_003, generator=torch.Generator().manual_seed(2))  # M: 33.7 MB
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        one = robot.crba(q)
+        torch.set_num_threads(2)
+        two = robot.crba(q)
+    finally:
+        torch.set_num_threads(threads)
+    assert torch.equal(one, two)
+    assert torch.equal(one, torch.cat([robot.crba(part) for part in q.split(1000)]))
+    previous = torch_grid.set_cpu_lanes(False)
+    try:
+        scalar = robot.crba(q)
+    finally:
+        torch_grid.set_cpu_lanes(previous)
+    torch.testing.assert_close(one, scalar, rtol=0, atol=1e-13 * scalar.abs().amax().item())
 
 
 def test_set_cpu_lanes_returns_the_previous_setting() -> None:

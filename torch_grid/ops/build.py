@@ -49,8 +49,9 @@ def default_cache_dir() -> Path:
 
 def op_namespace(model: RobotModel, mujoco: bool) -> str:
     """The torch op namespace of a robot build: stable across machines, compilers, CPUs and torch
-    versions for one model, build options and op table."""
-    h = hashlib.sha256(f"{model.hash} mujoco={mujoco} ops={ops.op_signature()}".encode()).hexdigest()
+    versions for one model, build options (TORCH_GRID_LANES among them) and op table."""
+    lanes = f" lanes={codegen.cpu_lanes()}" if codegen.cpu_lanes() != 0 else ""
+    h = hashlib.sha256(f"{model.hash} mujoco={mujoco} ops={ops.op_signature()}{lanes}".encode()).hexdigest()
     name = "".join(c if c.isascii() and c.isalnum() else "_" for c in model.name.lower())[:40]
     return f"torch_grid_{name}_{h[:16]}"  # the robot's name, so that an error naming the namespace names the robot
 
@@ -119,9 +120,19 @@ _CPU_LANES = [True]
 
 
 def set_cpu_lanes(enabled: bool) -> bool:
-    """Run CPU ops on vector lanes (several samples per instruction, the default) or one sample at a time;
-    returns the previous setting. The two compute the same values (to rounding); the switch is for
-    comparing them."""
+    """Run CPU ops on vector lanes, several samples per instruction (the default), or one sample at a time.
+
+    The lane kernels take a batch a group of samples at a time (8 with AVX-512, 4 with AVX2) and the
+    scalar kernels the rest; switched off, every sample takes the scalar kernel. Both compute the same
+    values to rounding (the compiler fuses multiply-adds differently in the two), so the switch is
+    for comparing them or timing them. It is process-wide and applies to every robot.
+
+    Args:
+        enabled: True for the lane kernels, False for the scalar ones.
+
+    Returns:
+        The previous setting.
+    """
     previous, _CPU_LANES[0] = _CPU_LANES[0], bool(enabled)
     if _GLUE:
         torch.ops.torch_grid_glue.set_cpu_lanes(bool(enabled))
