@@ -5,6 +5,8 @@ run; float32 against float64, two threads against one, and a batch of one. Write
 to bench/RESULTS.md with --write.
 
     python bench/bench_lanes.py [--write] [--robots iiwa14 ur5 panda go2 g1]
+
+Pinocchio's code-generated derivatives build once per robot (about 8 minutes for G1) into a cache.
 """
 from __future__ import annotations
 
@@ -20,6 +22,7 @@ import torch
 
 import torch_grid
 from bench_cpu import ERD, ROBOTS, cases, per_sample_us
+from pinocchio_codegen import pinocchio_codegen_times
 from pinocchio_cpp import pinocchio_cpp_times
 
 HERE = Path(__file__).resolve().parent
@@ -64,6 +67,7 @@ def robot_rows(name: str) -> tuple[list[list], dict]:
     figures of one robot."""
     src, floating, bundled = ROBOTS[name]
     pin_us = pinocchio_cpp_times(src, floating, batch=B)
+    codegen = pinocchio_codegen_times(src, floating, batch=B)
     rows, ratios = [], []
     for function, (fn, _) in cases(name).items():
         s, lane = timed(fn, False), timed(fn, True)
@@ -79,7 +83,11 @@ def robot_rows(name: str) -> tuple[list[list], dict]:
     q = robot.random_configuration(B, generator=g)
     qd, tau = (torch.randn(B, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
     q32, qd32, tau32 = q.float(), qd.float(), tau.float()
-    summary = {"geomean": math.exp(sum(map(math.log, ratios)) / len(ratios))}
+    summary = {"geomean of lanes / Pinocchio C++": math.exp(sum(map(math.log, ratios)) / len(ratios))}
+    for row in rows:
+        if row[0] in ("forward_dynamics_derivatives", "inverse_dynamics_derivatives"):
+            summary[f"{row[0]}: lanes / Pinocchio code-generated ({codegen[row[0]]:.3f} µs)"] = row[2] / codegen[row[0]]
+    summary["Pinocchio code generation, build s (both)"] = codegen["compile_s"]
     for label, fn, fn32 in (("inverse_dynamics", lambda: robot.inverse_dynamics(q, qd, tau),
                              lambda: robot.inverse_dynamics(q32, qd32, tau32)),
                             ("forward_dynamics_derivatives", lambda: robot.forward_dynamics_derivatives(q, qd, tau),
@@ -123,7 +131,8 @@ def section(results: dict) -> str:
     lines = ["## CPU vector lanes", "",
              f"Per-sample µs, B = {B}, float64, one thread; {cpu} ({instruction_set()}); torch {torch.__version__}. "
              "`scalar`: torch_grid.set_cpu_lanes(False); `lanes`: the default. Pinocchio: its C++ per call "
-             "(bench/pinocchio_cpp.py), same run.", ""]
+             "(bench/pinocchio_cpp.py), same run; its code-generated derivatives (CppADCodeGen, "
+             "bench/pinocchio_codegen.py) below each table.", ""]
     for name, (rows, summary) in results.items():
         lines += [f"### {name}", "", "| function | scalar | lanes | lanes / scalar | Pinocchio C++ | lanes / Pinocchio |",
                   "|---|---:|---:|---:|---:|---:|"]
