@@ -190,7 +190,7 @@ _VALUE_OPS = (
                backward="composed", jvp="rule"),
         OpSpec("inverse_dynamics_second_derivatives", "InverseDynamicsSecondDerivatives", (Q, QD, QDD, FEXT, PARAMS),
                (Out("d2tau_dq2", "plain", NV3), Out("d2tau_dqd2", "plain", NV3), Out("d2tau_dqdqd", "plain", NV3),
-                Out("dM_dq", "plain", NV3)), "second_order", mujoco_twin=False),
+                Out("dM_dq", "plain", NV3)), "second_order", mujoco_twin=False, lanes=False),
         OpSpec("inverse_dynamics_derivatives_vjp", "InverseDynamicsDerivativesVjp",
                (Q, QD, QDD, FEXT, Arg("grad_dtau_dq", "plain", shape=NVxNV), Arg("grad_dtau_dqd", "plain", shape=NVxNV), PARAMS),
                (Out("grad_q", "plain", NV), Out("grad_qd", "plain", NV), Out("grad_qdd", "plain", NV),
