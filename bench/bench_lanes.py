@@ -15,13 +15,12 @@ import math
 import platform
 import re
 import subprocess
-import time
 from pathlib import Path
 
 import torch
 
 import torch_grid
-from bench_cpu import ERD, ROBOTS, cases, per_sample_us
+from bench_cpu import ERD, ROBOTS, cases, per_call_us, per_sample_us
 from pinocchio_codegen import pinocchio_codegen_times
 from pinocchio_cpp import pinocchio_cpp_times
 
@@ -54,12 +53,13 @@ def extra_cases(name: str) -> dict:
     }
 
 
-def timed(fn, lanes: bool) -> float:
-    torch_grid.set_cpu_lanes(lanes)
+def timed(fn, lanes: bool, measure=None) -> float:
+    """measure(fn) (per-sample µs at B by default) with the lane kernels on or off."""
+    previous = torch_grid.set_cpu_lanes(lanes)
     try:
-        return per_sample_us(fn, B)
+        return measure(fn) if measure else per_sample_us(fn, B)
     finally:
-        torch_grid.set_cpu_lanes(True)
+        torch_grid.set_cpu_lanes(previous)
 
 
 def robot_rows(name: str) -> tuple[list[list], dict]:
@@ -100,21 +100,8 @@ def robot_rows(name: str) -> tuple[list[list], dict]:
         summary[f"2 threads speed-up, {label}"] = per_sample_us(fn, B) / two
     one = [x[:1] for x in (q, qd, tau)]
     call = lambda: robot.inverse_dynamics(*one)  # noqa: E731
-    summary["batch of one, inverse_dynamics µs (lanes on / off)"] = (timed_call(call, True), timed_call(call, False))
+    summary["batch of one, inverse_dynamics µs (lanes on / off)"] = tuple(timed(call, on, per_call_us) for on in (True, False))
     return rows, summary
-
-
-def timed_call(fn, lanes: bool, number: int = 20000) -> float:
-    torch_grid.set_cpu_lanes(lanes)
-    fn()
-    best = float("inf")
-    for _ in range(5):
-        t = time.perf_counter()
-        for _ in range(number // 5):
-            fn()
-        best = min(best, (time.perf_counter() - t) / (number // 5) * 1e6)
-    torch_grid.set_cpu_lanes(True)
-    return best
 
 
 def instruction_set() -> str:
