@@ -143,7 +143,10 @@ TG_HD void rk_stage(const Conv<Robot, Scalar, C>& cs, const Scalar* v, const Sca
   cs.force_out(acc);
   ltdl_solve<Robot, Scalar>(H, acc);
   const Scalar* qdd = cs.velocity(acc, buf);  // G^T
-  inverse_dynamics_derivatives<Robot, Scalar, C, false>(K, v, qdd, fext, cs, Dq, Dv, pi);  // read on the tree's entries alone
+  // Read on the tree's entries alone, the rest left as they were (zero), except in the convention: its reframe
+  // writes a free joint's rows and columns whole, so a non-finite sample would leave them NaN for the next one.
+  constexpr bool reframed = Conv<Robot, Scalar, C>::active;
+  inverse_dynamics_derivatives<Robot, Scalar, C, reframed>(K, v, qdd, fext, cs, Dq, Dv, pi);
   if (passive) add_passive_diagonals<Robot, Scalar>(Dq, Dv);
   if (qdd != acc)
     for (int k = 0; k < NV; ++k) acc[k] = qdd[k];
