@@ -20,12 +20,16 @@ namespace tg {
 #endif
 
 // The register block: 6 x 16 on a CPU; one row of 16 on a GPU, whose thread holds far fewer registers
-// (larger blocks spilled more in forward_dynamics_external_force_derivatives on G1).
+// (larger blocks spilled more in forward_dynamics_external_force_derivatives on G1); 4 x 4 on CPU lanes
+// (3 x 4 for AVX2's 16 registers), each entry of which is a vector register already.
+template <class Scalar> struct ProductBlock {
 #ifdef __CUDA_ARCH__
-constexpr int kProductRows = 1, kProductCols = 16;
+  static constexpr int rows = 1, cols = 16;
 #else
-constexpr int kProductRows = 6, kProductCols = 16;
+  static constexpr bool lanes = IsLanes<Scalar>::value;
+  static constexpr int rows = lanes ? (sizeof(Scalar) >= 64 ? 4 : 3) : 6, cols = lanes ? 4 : 16;
 #endif
+};
 
 // The inner index k of a block's products: every one of 0..K-1, or those of a list (`const int*`).
 struct AllColumns {
@@ -36,9 +40,55 @@ struct AllColumns {
 // K x RB), X_t K x CB (row stride XS), the inner index k = ks[0..K); ADD adds to out, otherwise overwrites
 // it. The weights scale the block between terms, w_0 S_0 + w_1 S_1 = w_1 (S_1 + (w_0 / w_1) S_0), not each
 // product (nonzero w).
+// On CPU lanes both loops unroll (the accumulators are registers), and X's row is loaded once per k.
+template <int XS, int OS, int RB, int CB, bool ADD, bool TG, class Scalar, class Ks>
+inline void lane_block_products(int nt, int K, const Scalar* const* g, int gs, const Scalar* w, const Scalar* const* X, Scalar* out,
+                                Ks ks) {
+  Scalar acc[RB][CB];
+  TG_UNROLL
+  for (int r = 0; r < RB; ++r) {
+    TG_UNROLL
+    for (int c = 0; c < CB; ++c) acc[r][c] = Scalar(0);
+  }
+  for (int t = 0; t < nt; ++t) {
+    if (t > 0) {
+      const Scalar ratio = w[t - 1] / w[t];
+      TG_UNROLL
+      for (int r = 0; r < RB; ++r) {
+        TG_UNROLL
+        for (int c = 0; c < CB; ++c) acc[r][c] *= ratio;
+      }
+    }
+    for (int n = 0; n < K; ++n) {
+      const int k = ks[n];
+      Scalar x[CB];
+      TG_UNROLL
+      for (int c = 0; c < CB; ++c) x[c] = X[t][XS * k + c];
+      TG_UNROLL
+      for (int r = 0; r < RB; ++r) {
+        const Scalar gr = TG ? g[t][gs * k + r] : g[t][gs * r + k];
+        TG_UNROLL
+        for (int c = 0; c < CB; ++c) acc[r][c] += gr * x[c];
+      }
+    }
+  }
+  const Scalar last = nt > 0 ? w[nt - 1] : Scalar(0);
+  TG_UNROLL
+  for (int r = 0; r < RB; ++r) {
+    TG_UNROLL
+    for (int c = 0; c < CB; ++c) out[OS * r + c] = ADD ? out[OS * r + c] + last * acc[r][c] : last * acc[r][c];
+  }
+}
+
 template <int XS, int OS, int RB, int CB, bool ADD, bool TG = false, class Scalar, class Ks = AllColumns>
 TG_HD_NOINLINE void block_products(int nt, int K, const Scalar* const* g, int gs, const Scalar* w, const Scalar* const* X, Scalar* out,
                                    Ks ks = {}) {
+#ifndef __CUDA_ARCH__
+  if constexpr (IsLanes<Scalar>::value) {
+    lane_block_products<XS, OS, RB, CB, ADD, TG>(nt, K, g, gs, w, X, out, ks);
+    return;
+  }
+#endif
   Scalar acc[RB][CB];
   TG_UNROLL
   for (int r = 0; r < RB; ++r) {
@@ -73,12 +123,12 @@ TG_HD_NOINLINE void block_products(int nt, int K, const Scalar* const* g, int gs
   }
 }
 
-// An RB-row block over COLS columns: blocks of kProductCols, then the rest in vector-sized pieces (8, 4,
+// An RB-row block over COLS columns: blocks of ProductBlock's columns, then the rest in vector-sized pieces (8, 4,
 // 2, 1), since an odd-width block is not vectorized.
 template <int XS, int OS, int RB, int COLS, bool ADD, bool TG = false, class Scalar, class Ks = AllColumns>
 TG_HD void row_block_products(int nt, int K, const Scalar* const* g, int gs, const Scalar* w, const Scalar* const* X, Scalar* out,
                               Ks ks = {}) {
-  constexpr int CB = kProductCols, RC = COLS % CB;
+  constexpr int CB = ProductBlock<Scalar>::cols, RC = COLS % CB;
   const Scalar* x[4];
   for (int c0 = 0; c0 < COLS - RC; c0 += CB) {
     for (int t = 0; t < nt; ++t) x[t] = X[t] + c0;
@@ -99,7 +149,7 @@ TG_HD void row_block_products(int nt, int K, const Scalar* const* g, int gs, con
 // gs; with TG, g_t^T for g_t K x ROWS), X_t K x COLS (row stride XS).
 template <int ROWS, int COLS, int XS, int OS, bool ADD, bool TG = false, class Scalar>
 TG_HD void products(int nt, int K, const Scalar* const* g, int gs, const Scalar* w, const Scalar* const* X, Scalar* out) {
-  constexpr int RB = kProductRows, RR = ROWS % RB;
+  constexpr int RB = ProductBlock<Scalar>::rows, RR = ROWS % RB;
   const Scalar* gr[4];
   for (int r0 = 0; r0 < ROWS - RR; r0 += RB) {
     for (int t = 0; t < nt; ++t) gr[t] = g[t] + (TG ? r0 : gs * r0);
@@ -134,10 +184,10 @@ template <class Robot, class Scalar> TG_HD int related_columns(int r0, int r1, i
   return n;
 }
 
-// The related columns of every block of kProductRows rows (related_columns), found once for a kernel's many
+// The related columns of every block of ProductBlock's rows (related_columns), found once for a kernel's many
 // tree products on a CPU; a GPU thread, whose blocks are single rows, finds each as it goes.
 template <class Robot, class Scalar> struct TreeBlocks {
-  static constexpr int NV = Robot::NV, RB = kProductRows, NBLK = (NV + RB - 1) / RB;
+  static constexpr int NV = Robot::NV, RB = ProductBlock<Scalar>::rows, NBLK = (NV + RB - 1) / RB;
 #ifdef __CUDA_ARCH__
   TG_HD const int* columns(int b, int* buf, int& n) const {
     n = related_columns<Robot, Scalar>(RB * b, RB * b + RB < NV ? RB * b + RB : NV, buf);
@@ -160,7 +210,7 @@ template <class Robot, class Scalar> struct TreeBlocks {
 // (tb's) alone.
 template <class Robot, int COLS, int XS, int OS, bool ADD, bool TG = false, class Scalar>
 TG_HD void tree_products(const TreeBlocks<Robot, Scalar>& tb, int nt, const Scalar* const* g, const Scalar* w, const Scalar* const* X, Scalar* out) {
-  constexpr int NV = Robot::NV, RB = kProductRows, RR = NV % RB;
+  constexpr int NV = Robot::NV, RB = ProductBlock<Scalar>::rows, RR = NV % RB;
   int buf[NV], n;
   const Scalar* gr[4];
   for (int r0 = 0; r0 < NV - RR; r0 += RB) {

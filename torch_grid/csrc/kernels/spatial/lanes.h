@@ -71,8 +71,6 @@ template <class T, int W> struct Lanes {
   friend Mask operator>=(const Lanes& a, const Lanes& b) { return {a.x >= b.x}; }
 };
 
-template <class T> struct IsLanes : std::false_type {};
-template <class T, int W> struct IsLanes<Lanes<T, W>> : std::true_type {};
 template <class T, int W> struct BaseScalar<Lanes<T, W>> { using type = T; };
 
 // -- choices per lane ------------------------------------------------------------------------

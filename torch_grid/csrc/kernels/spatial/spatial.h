@@ -40,6 +40,11 @@ template <class Scalar> TG_HD Scalar select(bool c, const Scalar& a, const Scala
 TG_HD bool all(bool c) { return c; }
 TG_HD bool any(bool c) { return c; }
 
+// A scalar of W samples (lanes.h, CPU only), which some kernels lay out differently.
+template <class T, int W> struct Lanes;
+template <class T> struct IsLanes : std::false_type {};
+template <class T, int W> struct IsLanes<Lanes<T, W>> : std::true_type {};
+
 // The plain floating-point type under a scalar (forward_mode.h specialises it for dual numbers).
 template <class Scalar> struct BaseScalar { using type = Scalar; };
 
