@@ -48,17 +48,13 @@ template <class Robot, class Scalar> TG_HD void forward_dynamics_from_minv(const
   }
 }
 
-// d tau/dq, d tau/dqd in the convention C (qd, qdd in Pinocchio's); without Zero, the entries between
-// branches of the tree are left as they were (the reframe mixes a free joint's rows and columns, related to
-// every dof of its tree). The free joints' columns of M come from the derivatives' composite inertias. Its
-// workspace lives in this function's frame, which a GPU thread's stack holds only while it runs (not beside
-// the caller's minv).
+// d tau/dq, d tau/dqd in the convention C (qd, qdd in Pinocchio's) from W, set up at (q, qd, qdd, fext);
+// without Zero, the entries between branches of the tree are left as they were (the reframe mixes a free
+// joint's rows and columns, related to every dof of its tree). The free joints' columns of M come from the
+// derivatives' composite inertias.
 template <class Robot, class Scalar, int C, bool Zero = true>
-TG_HD void inverse_dynamics_derivatives(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* qdd, const Scalar* fext,
-                                        const Conv<Robot, Scalar, C>& cv, Scalar* dtau_dq, Scalar* dtau_dqd,
-                                        const InertialParameters<Robot, Scalar>& pi = {}) {
-  RneaDerivativesWork<Robot, Scalar> W;
-  rnea_derivatives_setup<Robot, Scalar>(K, qd, qdd, fext, W, pi);
+TG_HD void inverse_dynamics_derivatives_from(const RneaDerivativesWork<Robot, Scalar>& W, const Scalar* qd, const Scalar* qdd,
+                                             const Conv<Robot, Scalar, C>& cv, Scalar* dtau_dq, Scalar* dtau_dqd) {
   Scalar tau[Robot::NV];
   rnea_derivatives<Robot, Scalar, Zero>(W, tau, dtau_dq, dtau_dqd);
   if constexpr (Conv<Robot, Scalar, C>::active) {
@@ -68,20 +64,72 @@ TG_HD void inverse_dynamics_derivatives(const Placements<Robot, Scalar>& K, cons
   }
 }
 
+// The same at (q, qd, qdd, fext). Its workspace lives in this function's frame, which a GPU thread's stack
+// holds only while it runs (not beside the caller's minv).
+template <class Robot, class Scalar, int C, bool Zero = true>
+TG_HD void inverse_dynamics_derivatives(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* qdd, const Scalar* fext,
+                                        const Conv<Robot, Scalar, C>& cv, Scalar* dtau_dq, Scalar* dtau_dqd,
+                                        const InertialParameters<Robot, Scalar>& pi = {}) {
+  RneaDerivativesWork<Robot, Scalar> W;
+  rnea_derivatives_setup<Robot, Scalar>(K, qd, qdd, fext, W, pi);
+  inverse_dynamics_derivatives_from<Robot, Scalar, C, Zero>(W, qd, qdd, cv, dtau_dq, dtau_dqd);
+}
+
+// X <- -M^-1 X for each X zero between dofs on different branches (d tau/dq, d tau/dqd) and a symmetric
+// M^-1. On a branched tree on a CPU, as (X^T M^-1)^T: each block of X^T's rows runs over its related
+// columns alone (tree_products); on a chain, or a GPU thread (whose stack would hold the NV x NV
+// temporary), the dense product in blocks of columns.
+template <class Robot, class Scalar> TG_HD void negate_minv_products(const Scalar* Minv, Scalar* X0, Scalar* X1) {
+  constexpr int NV = Robot::NV;
+#ifndef __CUDA_ARCH__
+  const TreeBlocks<Robot, Scalar> tb;
+  int related = 0;
+  for (int b = 0; b < tb.NBLK; ++b) related += tb.count[b] * (b + 1 < tb.NBLK ? tb.RB : NV - tb.RB * b);
+  if (10 * related < 9 * NV * NV) {
+    Scalar T[NV * NV];
+    const Scalar* x[1] = {Minv};
+    const Scalar w[1] = {Scalar(-1)};
+    Scalar* const Xs[2] = {X0, X1};
+    for (Scalar* X : Xs) {
+      const Scalar* g[1] = {X};
+      tree_products<Robot, NV, NV, NV, false, true>(tb, 1, g, w, x, T);
+      for (int r = 0; r < NV; ++r)
+        for (int c = 0; c < NV; ++c) X[NV * r + c] = T[NV * c + r];
+    }
+    return;
+  }
+#endif
+  negate_left_multiply<Robot, Scalar, NV>(Minv, X0);
+  negate_left_multiply<Robot, Scalar, NV>(Minv, X1);
+}
+
 // Since ID(q, qd, FD(q, qd, tau)) = tau, dqdd/dx = -M^-1 dtau/dx at qdd = FD(q, qd, tau), and
-// dqdd/dtau = M^-1, in either convention. Minv, RNEA (for qdd) and the RNEA derivatives share the
-// Placements pass.
+// dqdd/dtau = M^-1, in either convention. The RNEA derivatives' forward pass, run at qdd = 0, gives the
+// bias b = S^T F, so qdd = M^-1 (tau - b); the pass then moves to qdd (rnea_derivatives_accelerate).
 // dqdd/dq, dqdd/dqd, dqdd/dtau (NV x NV each, in the convention) and qdd (in Pinocchio's).
 template <class Robot, class Scalar, int C>
 TG_HD void forward_dynamics_derivatives(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* tau, const Scalar* fext,
                                      const Conv<Robot, Scalar, C>& cv, Scalar* dq, Scalar* dqd, Scalar* dtau, Scalar* qdd,
                                      const InertialParameters<Robot, Scalar>& pi = {}) {
-  minv<Robot, Scalar>(K, dtau, pi);  // needed anyway, so qdd comes from it rather than from ABA
-  forward_dynamics_from_minv<Robot, Scalar>(K, qd, tau, fext, dtau, qdd, pi);
-  inverse_dynamics_derivatives<Robot, Scalar>(K, qd, qdd, fext, cv, dq, dqd, pi);
+  constexpr int NV = Robot::NV;
+  const auto& d = data<Robot, Scalar>();
+  minv<Robot, Scalar>(K, dtau, pi);
+  RneaDerivativesWork<Robot, Scalar> W;
+  Scalar r[NV];
+  for (int k = 0; k < NV; ++k) r[k] = Scalar(0);
+  rnea_derivatives_setup<Robot, Scalar>(K, qd, r, fext, W, pi);
+  // r = tau - b, qdd = M^-1 r
+  for (int i = 0; i < Robot::NB; ++i)
+    for (int l = 0; l < d.nvj[i]; ++l) r[d.vi[i] + l] = tau[d.vi[i] + l] - dot(W.s[d.vi[i] + l], W.F[i]);
+  for (int row = 0; row < NV; ++row) {
+    Scalar acc = 0;
+    for (int k = 0; k < NV; ++k) acc += dtau[NV * row + k] * r[k];
+    qdd[row] = acc;
+  }
+  rnea_derivatives_accelerate<Robot, Scalar>(qdd, W);
+  inverse_dynamics_derivatives_from<Robot, Scalar, C>(W, qd, qdd, cv, dq, dqd);
   cv.congruence_out(dtau);
-  negate_left_multiply<Robot, Scalar, Robot::NV>(dtau, dq);
-  negate_left_multiply<Robot, Scalar, Robot::NV>(dtau, dqd);
+  negate_minv_products<Robot, Scalar>(dtau, dq, dqd);
 }
 
 // (M + dt D) qdd = tau + p - b(q, qd): the acceleration of MuJoCo's Euler step, the joint damping D taken
