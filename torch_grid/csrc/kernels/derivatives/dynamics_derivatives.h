@@ -103,17 +103,17 @@ template <class Robot, class Scalar> TG_HD void negate_minv_products(const Scala
   negate_left_multiply<Robot, Scalar, NV>(Minv, X1);
 }
 
-// Since ID(q, qd, FD(q, qd, tau)) = tau, dqdd/dx = -M^-1 dtau/dx at qdd = FD(q, qd, tau), and
-// dqdd/dtau = M^-1, in either convention. The RNEA derivatives' forward pass, run at qdd = 0, gives the
-// bias b = S^T F, so qdd = M^-1 (tau - b); the pass then moves to qdd (rnea_derivatives_accelerate).
-// dqdd/dq, dqdd/dqd, dqdd/dtau (NV x NV each, in the convention) and qdd (in Pinocchio's).
+// qdd = FD(q, qd, tau) (Pinocchio's convention) from M^-1, and d tau/dq, d tau/dqd at it (in the convention
+// C). The RNEA derivatives' forward pass, run at qdd = 0, gives the bias b = S^T F, so qdd = M^-1 (tau - b);
+// the pass then moves to qdd (rnea_derivatives_accelerate). Its workspace lives in this function's frame,
+// which a GPU thread's stack holds only while it runs (not beside minv's).
 template <class Robot, class Scalar, int C>
-TG_HD void forward_dynamics_derivatives(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* tau, const Scalar* fext,
-                                     const Conv<Robot, Scalar, C>& cv, Scalar* dq, Scalar* dqd, Scalar* dtau, Scalar* qdd,
-                                     const InertialParameters<Robot, Scalar>& pi = {}) {
+TG_HD void inverse_dynamics_derivatives_at_forward_dynamics(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* tau,
+                                                          const Scalar* fext, const Conv<Robot, Scalar, C>& cv, const Scalar* Minv,
+                                                          Scalar* dq, Scalar* dqd, Scalar* qdd,
+                                                          const InertialParameters<Robot, Scalar>& pi) {
   constexpr int NV = Robot::NV;
   const auto& d = data<Robot, Scalar>();
-  minv<Robot, Scalar>(K, dtau, pi);
   RneaDerivativesWork<Robot, Scalar> W;
   Scalar r[NV];
   for (int k = 0; k < NV; ++k) r[k] = Scalar(0);
@@ -123,11 +123,22 @@ TG_HD void forward_dynamics_derivatives(const Placements<Robot, Scalar>& K, cons
     for (int l = 0; l < d.nvj[i]; ++l) r[d.vi[i] + l] = tau[d.vi[i] + l] - dot(W.s[d.vi[i] + l], W.F[i]);
   for (int row = 0; row < NV; ++row) {
     Scalar acc = 0;
-    for (int k = 0; k < NV; ++k) acc += dtau[NV * row + k] * r[k];
+    for (int k = 0; k < NV; ++k) acc += Minv[NV * row + k] * r[k];
     qdd[row] = acc;
   }
   rnea_derivatives_accelerate<Robot, Scalar>(qdd, W);
   inverse_dynamics_derivatives_from<Robot, Scalar, C>(W, qd, qdd, cv, dq, dqd);
+}
+
+// Since ID(q, qd, FD(q, qd, tau)) = tau, dqdd/dx = -M^-1 dtau/dx at qdd = FD(q, qd, tau), and
+// dqdd/dtau = M^-1, in either convention.
+// dqdd/dq, dqdd/dqd, dqdd/dtau (NV x NV each, in the convention) and qdd (in Pinocchio's).
+template <class Robot, class Scalar, int C>
+TG_HD void forward_dynamics_derivatives(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* tau, const Scalar* fext,
+                                     const Conv<Robot, Scalar, C>& cv, Scalar* dq, Scalar* dqd, Scalar* dtau, Scalar* qdd,
+                                     const InertialParameters<Robot, Scalar>& pi = {}) {
+  minv<Robot, Scalar>(K, dtau, pi);
+  inverse_dynamics_derivatives_at_forward_dynamics<Robot, Scalar>(K, qd, tau, fext, cv, dtau, dq, dqd, qdd, pi);
   cv.congruence_out(dtau);
   negate_minv_products<Robot, Scalar>(dtau, dq, dqd);
 }

@@ -154,29 +154,26 @@ TG_HD void ancestor_pairs(const Work& W, const Sv<Scalar>* X, const Sv<Scalar>* 
   }
 }
 
-// W set up at qdd = 0 moved to qdd: the world accelerations change by da_i = da_p + ds_i with
-// ds_i = S_i qdd_i, u by da_p x s, and the subtree force by sum_{j in subtree(i)} I_j da_j
-// = Yc_i da_i + sum_{m strictly below i} Yc_m ds_m (Yc being the subtree inertias).
+// W set up at qdd = 0 moved to qdd, in one forward pass: the world accelerations change by
+// da_i = da_p + ds_i with ds_i = S_i qdd_i, u by da_p x s, and the subtree force F_i by
+// sum_{j in subtree(i)} I_j da_j = Yc_i da_i + sum_{m strictly below i} Yc_m ds_m (Yc being the subtree
+// inertias): body m adds Yc_m ds_m to each strict ancestor's.
 template <class Robot, class Scalar> TG_HD void rnea_derivatives_accelerate(const Scalar* qdd, RneaDerivativesWork<Robot, Scalar>& W) {
   const auto& d = data<Robot, Scalar>();
-  Sv<Scalar> da[Robot::NB], g[Robot::NB];  // g_i: sum of Yc_m ds_m strictly below i
+  using L = Levels<Robot>;
+  Sv<Scalar> da[L::N];  // only for the children
   for (int i = 0; i < Robot::NB; ++i) {
     const int p = d.parent[i], vi = d.vi[i];
-    const Sv<Scalar> dap = p < 0 ? sv_zero<Scalar>() : da[p];
-    da[i] = dap;
+    const Sv<Scalar> dap = p < 0 ? sv_zero<Scalar>() : da[L::parent(d, i)];
+    Sv<Scalar> ds = sv_zero<Scalar>();
     for (int k = 0; k < d.nvj[i]; ++k) {
       W.u[vi + k] = W.u[vi + k] + cross_motion(dap, W.s[vi + k]);
-      da[i] = da[i] + qdd[vi + k] * W.s[vi + k];
+      ds = ds + qdd[vi + k] * W.s[vi + k];
     }
-    g[i] = sv_zero<Scalar>();
-  }
-  for (int i = Robot::NB - 1; i >= 0; --i) {
-    W.F[i] = W.F[i] + mul(W.Yc[i], da[i]) + g[i];
-    const int p = d.parent[i], vi = d.vi[i];
-    if (p < 0) continue;
-    Sv<Scalar> ds = sv_zero<Scalar>();
-    for (int k = 0; k < d.nvj[i]; ++k) ds = ds + qdd[vi + k] * W.s[vi + k];
-    g[p] = g[p] + mul(W.Yc[i], ds) + g[i];
+    da[L::of(d, i)] = dap + ds;
+    W.F[i] = W.F[i] + mul(W.Yc[i], da[L::of(d, i)]);
+    const Sv<Scalar> f = mul(W.Yc[i], ds);
+    for (int a = p; a >= 0; a = d.parent[a]) W.F[a] = W.F[a] + f;
   }
 }
 
