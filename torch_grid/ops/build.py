@@ -217,7 +217,7 @@ def _compile_robot(root: Path, model: RobotModel, mujoco: bool, cuda: bool, name
         if prebuilt:
             print(f"torch_grid: {prebuilt} CUDA units of {model.name!r} prebuilt (TORCH_GRID_PREBUILT)", file=sys.stderr,
                   flush=True)
-        jobs.sort(key=lambda job: _UNIT_ORDER.get(Path(job[0]).stem.rsplit("_", 1)[0], len(_UNIT_ORDER)))
+        jobs.sort(key=lambda job: _UNIT_ORDER.get(Path(job[0]).stem.rsplit("_", 1)[0].removesuffix("_lanes"), len(_UNIT_ORDER)))
         _run_parallel(model.name, jobs, start)
         if cuda:
             link = [find_nvcc(), "-shared", *objects, "-o", str(tmp / library)]
@@ -291,7 +291,7 @@ def _cxx_flags(unit: str = "") -> list[str]:
     native = ["-march=native"] if platform.machine() in ("x86_64", "AMD64") and not os.environ.get("TORCH_GRID_PORTABLE") else []
     # -O3 makes the kernels 1.4-2x faster than -O2 (bodies unrolled over the robot's constant tree);
     # the forward-mode backward units gain only 1-25% from it for twice the compile time.
-    level = "-O2" if unit.endswith(("backward_f32", "backward_f64", "backward_lanes")) else "-O3"
+    level = "-O2" if unit.endswith(("backward_f32", "backward_f64", "backward_lanes_f32", "backward_lanes_f64")) else "-O3"
     # No vectorized epilogues: GCC 12 -O3 ended a 512-bit loop (36 doubles of a stack array) with an
     # aligned 256-bit access at a 16-byte-aligned address, a segmentation fault (coriolis_matrix of a
     # 5-joint arm on an AVX-512 CPU). Such epilogues are a few elements; the main loops keep their width.

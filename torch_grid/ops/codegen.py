@@ -35,7 +35,8 @@ def write_robot_sources(model: RobotModel, mujoco: bool, cuda: bool, namespace: 
             if cuda:
                 files[f"{family}_{suffix}.cu"] = kernel_unit(model, mujoco, namespace, family, scalar, cuda=True)
         if cpu_lanes() != 1 and any(op.family == family and op.lanes for op in OPS.values()):
-            files[f"{family}_lanes.cpp"] = lanes_unit(model, mujoco, namespace, family)
+            for scalar, suffix in _SCALARS:
+                files[f"{family}_lanes_{suffix}.cpp"] = lanes_unit(model, mujoco, namespace, family, scalar)
     for name, text in files.items():
         (directory / name).write_text(text)
     return [directory / name for name in files if not name.endswith(".h")]
@@ -220,12 +221,13 @@ def cpu_lanes() -> int:
     return int(value)
 
 
-def lanes_unit(model: RobotModel, mujoco: bool, namespace: str, family: str) -> str:
-    """One family's ops on vector lanes of double (csrc/batch/cpu_lanes.h): a CPU batch loop per op and
-    convention that takes groups of samples at a time, and the scalar kernel for the rest."""
+def lanes_unit(model: RobotModel, mujoco: bool, namespace: str, family: str, scalar: str) -> str:
+    """One family's ops on vector lanes of `scalar` (csrc/batch/cpu_lanes.h): a CPU batch loop per op and
+    convention that takes groups of samples at a time; in double the scalar kernel takes the rest."""
     ops = [op for op in OPS.values() if op.family == family and op.lanes]
-    lines = [f"void {_entry('lanes', op, 'f64', cname)}(const tg::Batch& b, int64_t begin, int64_t end) {{\n"
-             f"  tg::cpu_range_lanes<tg::bind::{op.kernel}, Robot, {conv}>(b, begin, end);\n}}"
+    suffix = dict(_SCALARS)[scalar]
+    lines = [f"void {_entry('lanes', op, suffix, cname)}(const tg::Batch& b, int64_t begin, int64_t end) {{\n"
+             f"  tg::cpu_range_lanes<tg::bind::{op.kernel}, Robot, {conv}, {scalar}>(b, begin, end);\n}}"
              for op in ops for conv, cname in conventions(model, mujoco and op.mujoco_twin)]
     includes = ["bindings.h", "batch/cpu_lanes.h"]
     structs = []
@@ -251,16 +253,16 @@ def table_unit(model: RobotModel, mujoco: bool, cuda: bool, namespace: str) -> s
                                  f"int {name}(const tg::Batch&, void*, int, tg::CudaAttributes*);")
 
         if cpu_lanes() != 1 and op.lanes:
-            for _, cname in convs:
-                slots["lanes", cname] = name = _entry("lanes", op, "f64", cname)
-                decls.append(f"void {name}(const tg::Batch&, int64_t, int64_t);")
+            for _, suffix in _SCALARS:
+                for _, cname in convs:
+                    slots["lanes", suffix, cname] = name = _entry("lanes", op, suffix, cname)
+                    decls.append(f"void {name}(const tg::Batch&, int64_t, int64_t);")
 
         def grid(device: str) -> str:
             return "{" + ", ".join("{" + ", ".join(slots.get((device, suffix, cname), "nullptr") for _, cname in _CONVENTIONS)
                                    + "}" for _, suffix in _SCALARS) + "}"
 
-        lanes = "{" + ", ".join(slots.get(("lanes", cname), "nullptr") for _, cname in _CONVENTIONS) + "}"
-        entries.append(f"    {{{grid('cpu')}, {lanes}, {grid('cuda')}, {cpu_grain(op, model)}}},  // {op.name}")
+        entries.append(f"    {{{grid('cpu')}, {grid('lanes')}, {grid('cuda')}, {cpu_grain(op, model)}}},  // {op.name}")
     flags = f"{int(model.conventions_differ)}, {int(mujoco)}, {int(cuda)}, {'tg::kLanes' if cpu_lanes() != 1 else 1}"
     return _unit(["batch/batch.h", "kernels/spatial/lanes.h"], [
         f"namespace {namespace} {{", *decls,

@@ -70,24 +70,25 @@ struct CudaAttributes {
 using CudaFn = int (*)(const Batch& b, void* stream, int sms, CudaAttributes* attributes);
 
 // Every kernel of one op in one robot library: [scalar: 0 float, 1 double][convention: 0 pin, 1 mujoco].
-// The CPU has double kernels only (cpu[0] is null): the glue runs float32 batches through them. lanes[c]
-// runs the same kernel on RobotTable::lanes samples at a time (cpu_lanes.h; null where the op has none).
+// The CPU's scalar kernels are double only (cpu[0] is null): the glue runs small float32 batches through
+// them. lanes[s][c] runs the same kernel on groups of samples, RobotTable::lanes at a time in double and
+// twice that in float (cpu_lanes.h; null where the op has none).
 struct OpKernels {
   CpuFn cpu[2][2];
-  CpuFn lanes[2];
+  CpuFn lanes[2][2];
   CudaFn cuda[2][2];
   int64_t grain;  // the fewest samples worth a CPU thread (ops/table.py: cpu_grain)
 };
 
 // What a robot library exports (one C symbol, named after its op namespace): its sizes and one
 // OpKernels per op, in the order of the op table whose signature it carries.
-constexpr int kTableAbi = 4;
+constexpr int kTableAbi = 5;
 struct RobotTable {
   int abi;
   const char* op_signature;  // hash of the op table the library was generated from
   int nq, nv, nb, nf;
   int converts, mujoco, cuda;  // flags: a quaternion joint (the conventions differ); MuJoCo-convention kernels built; CUDA kernels built
-  int lanes;                   // samples per vector of the CPU lane kernels (1: none)
+  int lanes;                   // doubles per vector of the CPU lane kernels (1: none)
   int nops;
   const OpKernels* ops;
 };

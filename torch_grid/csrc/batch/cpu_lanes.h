@@ -1,9 +1,12 @@
-// CPU side of the batch layer on vector lanes: kLanes samples at a time run one kernel whose scalar is
-// Lanes<double, kLanes> (lanes.h). Each group's inputs are gathered structure-of-arrays (lane l holds
-// sample s0 + l), the kernel runs once, its outputs are scattered back; the samples left over (fewer
-// than a group) take the scalar kernel, so a batch of one costs what it did.
+// CPU side of the batch layer on vector lanes: a group of samples runs one kernel whose scalar is
+// Lanes<double, kLanes>, or Lanes<float, 2 kLanes> for float32 (lanes.h). Each group's inputs are gathered
+// structure-of-arrays (lane l holds sample s0 + l), the kernel runs once, its outputs are scattered back.
+// In double, the samples left over (fewer than a group) take the scalar kernel, so a batch of one costs
+// what it did; in float, which has no scalar CPU kernel, they run as a group whose spare lanes repeat the
+// last sample.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <vector>
@@ -30,8 +33,8 @@ template <class L> LaneBuffer<L>& lane_buffer() {
 
 // y[l * size + j] = x[j][l]: the group's output back to sample-major, W x W blocks transposed in
 // registers (a lane's entries leave as one contiguous vector store each).
-template <int W> inline void scatter(const Lanes<double, W>* x, int64_t size, double* y) {
-  using V = typename Lanes<double, W>::V;
+template <class T, int W> inline void scatter(const Lanes<T, W>* x, int64_t size, T* y) {
+  using V = typename Lanes<T, W>::V;
   int64_t j0 = 0;
   for (; j0 + W <= size; j0 += W) {
     V block[W];
@@ -46,11 +49,18 @@ template <int W> inline void scatter(const Lanes<double, W>* x, int64_t size, do
     for (int64_t j = j0; j < size; ++j) y[l * size + j] = x[j].x[l];
 }
 
-template <template <class, class, int> class Op, class Robot, int C>
+// The first n lanes of a group alone (a float batch's last, partial group).
+template <class T, int W> inline void scatter_lanes(const Lanes<T, W>* x, int64_t size, int n, T* y) {
+  for (int l = 0; l < n; ++l)
+    for (int64_t j = 0; j < size; ++j) y[l * size + j] = x[j].x[l];
+}
+
+template <template <class, class, int> class Op, class Robot, int C, class T = double>
 void cpu_range_lanes(const Batch& b, int64_t begin, int64_t end) {
-  constexpr int W = kLanes;
-  using L = Lanes<double, W>;
-  const int64_t groups_end = begin + (end - begin) / W * W;
+  constexpr int W = kLanes * int(sizeof(double) / sizeof(T));
+  constexpr bool padded = !std::is_same_v<T, double>;  // no scalar kernel for the rest
+  using L = Lanes<T, W>;
+  const int64_t groups_end = padded ? end : begin + (end - begin) / W * W;
   if (groups_end > begin) {
     // one buffer of lanes for every input and output of a sample
     int64_t offset[kMaxIn + kMaxOut] = {}, total = 0;
@@ -59,7 +69,7 @@ void cpu_range_lanes(const Batch& b, int64_t begin, int64_t end) {
     // The thread's buffer: the glue's buffered paths call again for each chunk of a batch, and find it
     // as the last call left it.
     LaneBuffer<L>& buffer = lane_buffer<L>();
-    const void* key = reinterpret_cast<const void*>(&cpu_range_lanes<Op, Robot, C>);
+    const void* key = reinterpret_cast<const void*>(&cpu_range_lanes<Op, Robot, C, T>);
     int present = 0;  // which inputs and outputs the layout has
     for (int k = 0; k < kMaxIn; ++k) present |= (b.in[k] != nullptr) << k;
     for (int k = 0; k < kMaxOut; ++k) present |= (b.out[k] != nullptr) << (kMaxIn + k);
@@ -74,25 +84,33 @@ void cpu_range_lanes(const Batch& b, int64_t begin, int64_t end) {
       // Zeros in its scratch, and where the kernel writes nothing if the outputs hold zeros there
       // (Batch::zeroed: it writes the same entries for every group); otherwise NaN, so that an entry it
       // leaves unwritten shows (refilled at every call when the outputs are poisoned).
-      const double fill = b.zeroed || (b.workspace >> k & 1) ? 0.0 : std::numeric_limits<double>::quiet_NaN();
+      const T fill = b.zeroed || (b.workspace >> k & 1) ? T(0) : std::numeric_limits<T>::quiet_NaN();
       if (out[k] && fresh) std::fill(out[k], out[k] + b.out_stride[k], L(fill));
     }
     buffer.key = key, buffer.total = total, buffer.present = present, buffer.zeroed = b.zeroed, buffer.workspace = b.workspace;
     for (int64_t s0 = begin; s0 < groups_end; s0 += W) {
-      // gather: a shared input (stride 0) fills every lane alike
+      const int n = static_cast<int>(std::min<int64_t>(W, groups_end - s0));
+      // gather: a shared input (stride 0) fills every lane alike; spare lanes repeat the last sample
       for (int k = 0; k < kMaxIn; ++k) {
         if (!b.in[k]) continue;
-        const double* x = static_cast<const double*>(b.in[k]) + s0 * b.in_stride[k];
+        const T* x[W];
+        for (int l = 0; l < W; ++l) x[l] = static_cast<const T*>(b.in[k]) + (s0 + std::min(l, n - 1)) * b.in_stride[k];
         L* y = buffer.data.data() + offset[k];
         for (int64_t j = 0; j < b.in_size[k]; ++j)
-          for (int l = 0; l < W; ++l) y[j].x[l] = x[l * b.in_stride[k] + j];
+          for (int l = 0; l < W; ++l) y[j].x[l] = x[l][j];
       }
       Op<Robot, L, C>::run(in, out, b.iargs, b.n_iargs, b.zeroed);
-      for (int k = 0; k < kMaxOut; ++k)
-        if (b.out[k] && !(b.workspace >> k & 1)) scatter(out[k], b.out_stride[k], static_cast<double*>(b.out[k]) + s0 * b.out_stride[k]);
+      for (int k = 0; k < kMaxOut; ++k) {
+        if (!b.out[k] || (b.workspace >> k & 1)) continue;
+        T* y = static_cast<T*>(b.out[k]) + s0 * b.out_stride[k];
+        if (n == W)
+          scatter(out[k], b.out_stride[k], y);
+        else
+          scatter_lanes(out[k], b.out_stride[k], n, y);
+      }
     }
   }
-  cpu_range<Op, Robot, double, C>(b, groups_end, end);
+  if constexpr (!padded) cpu_range<Op, Robot, double, C>(b, groups_end, end);
 }
 
 }  // namespace tg

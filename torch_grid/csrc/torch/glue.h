@@ -235,12 +235,16 @@ class Call {
 #endif
       return;
     }
-    // The CPU kernels are double (a robot library holds no others): float32 goes through as_double;
-    // float64 outputs too large for the cache are streamed. Lane kernels take groups of lanes_ samples.
-    const bool lanes = kernels.lanes[c] && robot_.lanes > 1 && cpu_lanes_enabled().load(std::memory_order_relaxed);
-    const CpuFn fn = lanes ? kernels.lanes[c] : kernels.cpu[1][c];
-    lanes_ = lanes ? robot_.lanes : 1;
-    const auto range = s == 0 ? &Call::as_double
+    // The scalar CPU kernels are double: a float32 batch of at least one group of float lanes runs on
+    // them, straight from its tensors; a smaller one goes through the double kernels (as_double). Float64
+    // outputs too large for the cache are streamed. Lane kernels take groups of lanes_ samples.
+    const bool on = robot_.lanes > 1 && cpu_lanes_enabled().load(std::memory_order_relaxed);
+    const bool float_lanes = s == 0 && on && kernels.lanes[0][c] && n_ >= 2 * robot_.lanes;
+    const bool lanes = float_lanes || (on && kernels.lanes[1][c]);
+    const CpuFn fn = float_lanes ? kernels.lanes[0][c] : lanes ? kernels.lanes[1][c] : kernels.cpu[1][c];
+    lanes_ = float_lanes ? 2 * robot_.lanes : lanes ? robot_.lanes : 1;
+    const auto range = float_lanes ? &Call::direct
+                       : s == 0    ? &Call::as_double
                        : workspace_ || n_ * out_per_sample() * int64_t(sizeof(double)) > kStreamBytes ? &Call::streamed
                                                                                                       : &Call::direct;
     // As many threads as get kernels.grain samples each, the least work worth waking one for (ops/table.py: cpu_grain).

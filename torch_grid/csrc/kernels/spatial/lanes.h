@@ -1,6 +1,7 @@
 // A scalar that holds W samples at once, one per vector lane (GCC's vector extension: AVX2 or AVX-512
 // instructions under -march=native). The kernels are templates over their scalar type, so the same
-// source runs on Lanes<double, W> for W samples laid out structure-of-arrays (batch/cpu_lanes.h).
+// source runs on Lanes<double, W>, or Lanes<float, 2 W> for float32, for W samples laid out
+// structure-of-arrays (batch/cpu_lanes.h).
 //
 // Arithmetic acts lane by lane. A comparison gives a LaneMask, not a bool: a kernel cannot branch on
 // it, and the few data-dependent choices (a zero quaternion, a small rotation angle, a hemisphere)
@@ -102,6 +103,7 @@ template <class T, int W> inline Lanes<T, W> atan2(const Lanes<T, W>& y, const L
 
 // sin and cos of n angles, each a vector of lanes (trig.h's sincos_n for Lanes): lane l follows sincos_n_double on lane l's n angles
 // (the polynomial unless one of them is large or not finite, then the C library for all of that lane's).
+// Float lanes take the same steps in float.
 template <class T, int W> inline void sincos_n(int n, const Lanes<T, W>* x, Lanes<T, W>* s, Lanes<T, W>* c) {
   if constexpr (std::is_same_v<T, double>) {
     using V = typename Lanes<T, W>::V;
@@ -162,6 +164,52 @@ template <class T, int W> inline void sincos_n(int n, const Lanes<T, W>* x, Lane
         for (int i = 0; i < n; ++i) {
           s[i].x[l] = std::sin(x[i].x[l]);
           c[i].x[l] = std::cos(x[i].x[l]);
+        }
+  } else if constexpr (std::is_same_v<T, float>) {
+    // The double steps in float: pi/2 in three float parts, Taylor polynomials to r^9 and r^10
+    // (truncation under half a float ulp on |r| <= pi/4). A lane with an angle of 2^13 or more (or not
+    // finite) takes the C library's double sine and cosine, rounded, for all of its angles.
+    using V = typename Lanes<T, W>::V;
+    using I = typename LaneMask<T, W>::I;
+    constexpr float kTwoOverPi = 0.6366197466850281f;
+    constexpr float kPio2a = 1.5707963705062866f, kPio2b = -4.371138828673793e-08f, kPio2c = -1.7151245100058819e-15f;
+    constexpr float kRound = 12582912.0f;  // 1.5 * 2^23
+    I narrow = V{} == V{};
+    for (int i = 0; i < n; ++i) {
+      const V a = x[i].x < 0 ? -x[i].x : x[i].x;
+      narrow &= a < 8192.0f;
+    }
+    for (int i = 0; i < n; ++i) {
+      const V xi = x[i].x;
+      const V kr = xi * kTwoOverPi + kRound;
+      const V k = kr - kRound;
+      I quadrant;
+      std::memcpy(&quadrant, &kr, sizeof quadrant);
+      V r = xi - k * kPio2a;
+      r = r - k * kPio2b;
+      r = r - k * kPio2c;
+      const V r2 = r * r;
+      V ps = V{} + 1.0f / 362880.0f;
+      ps = ps * r2 - 1.0f / 5040.0f;
+      ps = ps * r2 + 1.0f / 120.0f;
+      ps = ps * r2 - 1.0f / 6.0f;
+      const V sr = ps * r2 * r + r;
+      V pc = V{} - 1.0f / 3628800.0f;
+      pc = pc * r2 + 1.0f / 40320.0f;
+      pc = pc * r2 - 1.0f / 720.0f;
+      pc = pc * r2 + 1.0f / 24.0f;
+      pc = pc * r2 - 0.5f;
+      const V cr = pc * r2 + 1.0f;
+      const I odd = (quadrant & 1) != 0;
+      const V sv = odd ? cr : sr, cv = odd ? sr : cr;
+      s[i].x = (quadrant & 2) != 0 ? -sv : sv;
+      c[i].x = ((quadrant + 1) & 2) != 0 ? -cv : cv;
+    }
+    for (int l = 0; l < W; ++l)
+      if (!narrow[l])
+        for (int i = 0; i < n; ++i) {
+          s[i].x[l] = static_cast<float>(std::sin(static_cast<double>(x[i].x[l])));
+          c[i].x[l] = static_cast<float>(std::cos(static_cast<double>(x[i].x[l])));
         }
   } else {
     for (int i = 0; i < n; ++i)
