@@ -22,8 +22,8 @@ from torch_grid import INTEGRATORS, log_barrier, quadratic_barrier  # noqa: E402
 
 F64_TOL = 1e-12
 GRAD_TOL = 1e-10
-# float32 on CUDA (float arithmetic) against the float64 CPU build on the same float32 inputs. The CPU
-# build's float32 is float64 rounded, so this is float32's own error.
+# float32 on CUDA (float arithmetic) against the float64 CPU build on the same float32 inputs, so the
+# error measured is float32 arithmetic's own.
 # Their error is relative to each output's largest entry, so it grows with how far the entries spread:
 # derivatives (through M^-1 and differences of large terms) more than values, second derivatives most.
 F32_TOL = 1e-5
