@@ -100,7 +100,16 @@ def run_stage(stage: str, robot: str | None, cpu: bool, threads: int) -> int:
             gpu_figures.timings(robots, device, [], [1, 16], meta, dtypes=(torch.float64,))
         else:
             gpu_figures.call_overhead(robots["iiwa14"], device, meta)
-            gpu_figures.timings(robots, device, [1, 16, 256, 1024, 4096, 65536], [1, 16, 256, 1024, 4096, 65536], meta)
+            gpu_figures.timings(robots, device, [1, 16, 256, 1024, 4096, 65536], [1, 16, 256, 4096], meta)
+    elif stage == "probe":
+        import gpu_probe
+
+        if robot == "runtime":
+            loaded = _robot("iiwa14")  # the glue mapped before it is looked for
+            gpu_probe.runtime()
+            gpu_probe.glue_error(loaded)
+        else:
+            gpu_probe.step_derivatives(robot, _robot(robot), device, os.environ.get("TORCH_GRID_POISON_OUTPUTS") == "1")
     elif stage == "sanitized_calls":
         gpu_device.small_calls(_robot(robot), device)
         checks.run("calls under compute-sanitizer", lambda: None)
@@ -240,10 +249,14 @@ def main(argv: list[str] | None = None) -> int:
     # 2. correctness, several processes at once
     jobs = [(f"{kind} {r}", ["--stage", kind, "--robot", r, *threads], 240, blocking) for kind in PER_ROBOT for r in robots]
     jobs += [("device", ["--stage", "device", *threads], 240, blocking)]
+    # diagnostics of the failures earlier runs showed (gpu_probe.py)
+    jobs += [(f"probe {r}", ["--stage", "probe", "--robot", r, *threads], 60, {}) for r in ("go2", "g1") if r in robots]
+    jobs += [("probe go2 poisoned", ["--stage", "probe", "--robot", "go2", *threads], 60, blocking)] if "go2" in robots else []
+    jobs += [("probe runtime", ["--stage", "probe", "--robot", "runtime", *threads], 60, {})]
     if "g1" in robots:
         jobs += [(kind, ["--stage", kind, *threads], 120, {}) for kind in ("refusal", "reservation")]
     parallel([j for j in jobs if j[0].split()[0] not in args.skip])
-    for label, args_, extra_env in crashed[:2]:
+    for label, args_, extra_env in crashed[:2] if "cuda-gdb" not in args.skip else []:
         text, _ = _spawn(args_ + common, {**env, **(extra_env or {})}, min(90, max(deadline - time.monotonic(), 1)), log,
                          f"{label} under cuda-gdb", ["cuda-gdb", "-q", "-batch", "-ex", "run", "-ex", "bt", "--args"])
         print(text[-3000:], flush=True)

@@ -90,7 +90,7 @@ def timings(robots: dict, device: torch.device, sizes: list[int], cpu_sizes: lis
                                   "outputs", flush=True)
                             continue
                         x = [t[:n].to(device if where == "device" else "cpu") for t in base]
-                        best, median = (_cuda_seconds if where == "device" else _cpu_seconds)(lambda: call(view, *x))
+                        best, median = (_cuda_seconds if where == "device" else _cpu_seconds)(lambda x=x: call(view, *x))
                         record = {"device": meta["device"] if where == "device" else cpu_label, "robot": name, "op": op,
                                   "dtype": str(dtype).replace("torch.", ""), "batch": n,
                                   "us_per_sample": best * 1e6 / n, "us_per_call_median": median * 1e6,

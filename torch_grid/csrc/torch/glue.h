@@ -268,6 +268,8 @@ class Call {
     const c10::cuda::CUDAGuard guard(device_);
     const cudaStream_t stream = c10::cuda::getCurrentCUDAStream().stream();
     const bool first = !launched(fn, device_.index());
+    const Device d = device(device_.index());
+    int64_t reserve = 0;  // bytes of local memory the driver reserves at this launch (first launch only)
     if (first) {
       cudaStreamCaptureStatus capture = cudaStreamCaptureStatusNone;
       const cudaError_t err = cudaStreamIsCapturing(stream, &capture);
@@ -275,23 +277,32 @@ class Call {
       TORCH_CHECK(capture == cudaStreamCaptureStatusNone, op_, ": the first launch of this kernel on ", device_,
                   " cannot be captured in a CUDA graph (it grows the device's local memory): call the op once, "
                   "outside the capture, before capturing it");
-      const Device d = device(device_.index());
       const CudaAttributes a = attributes(fn);
       constexpr int64_t kPerThreadLimit = int64_t(512) << 10;  // the hardware's local memory per thread
       const int64_t resident = int64_t(d.threads_per_sm) * d.sms;
       const int64_t budget = local_budget(d);
-      TORCH_CHECK(a.local_bytes <= kPerThreadLimit, op_, ": this robot's kernel needs ", a.local_bytes,
-                  " bytes of local memory per CUDA thread, above the device's limit of ", kPerThreadLimit);
-      TORCH_CHECK(a.local_bytes * resident <= budget, op_, ": this robot's kernel needs ", a.local_bytes,
-                  " bytes of local memory per CUDA thread; for ", resident, " resident threads the device would reserve ",
-                  (a.local_bytes * resident) >> 20, " MiB, above the budget of ", budget >> 20,
-                  " MiB (TORCH_GRID_CUDA_LOCAL_MEMORY_MB; default a quarter of the device memory)");
+      reserve = a.local_bytes * resident;
+      // numbers as text: the message is built from strings alone
+      TORCH_CHECK(a.local_bytes <= kPerThreadLimit, op_, ": this robot's kernel needs ", std::to_string(a.local_bytes),
+                  " bytes of local memory per CUDA thread, above the device's limit of ", std::to_string(kPerThreadLimit));
+      TORCH_CHECK(reserve <= budget, op_, ": this robot's kernel needs ", std::to_string(a.local_bytes),
+                  " bytes of local memory per CUDA thread; for ", std::to_string(resident),
+                  " resident threads the device would reserve ", std::to_string(reserve >> 20), " MiB, above the budget of ",
+                  std::to_string(budget >> 20), " MiB (TORCH_GRID_CUDA_LOCAL_MEMORY_MB; default a quarter of the device memory)");
+      // torch's cache emptied first where it holds what the device lacks for the reservation
+      size_t free = 0, total = 0;
+      if (cudaMemGetInfo(&free, &total) == cudaSuccess && static_cast<int64_t>(free) < reserve)
+        c10::cuda::CUDACachingAllocator::emptyCache();
     }
-    const int sms = device(device_.index()).sms;
-    int err = fn(batch_, stream, sms, nullptr);
+    int err = fn(batch_, stream, d.sms, nullptr);
     if (first && err == cudaErrorMemoryAllocation) {
       c10::cuda::CUDACachingAllocator::emptyCache();
-      err = fn(batch_, stream, sms, nullptr);
+      err = fn(batch_, stream, d.sms, nullptr);
+      size_t free = 0, total = 0;
+      if (err == cudaErrorMemoryAllocation && cudaMemGetInfo(&free, &total) == cudaSuccess)
+        TORCH_CHECK(false, op_, ": CUDA kernel launch failed: out of memory at its first launch, which reserves ",
+                    std::to_string(reserve >> 20), " MiB of local memory; ", std::to_string(free >> 20),
+                    " MiB are free after emptying torch's cache");
     }
     TORCH_CHECK(err == 0, op_, ": CUDA kernel launch failed: ", cudaGetErrorString(static_cast<cudaError_t>(err)));
     if (first) mark_launched(fn, device_.index());
