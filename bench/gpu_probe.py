@@ -5,13 +5,16 @@ leaves the others'; the item that may crash the process (an error message format
 - step_derivatives in the MuJoCo convention (non-finite A and B on CUDA, right on the CPU): per robot and
   scheme, the non-finite entries and the largest difference from the CPU build, at dt = 0.01 and 0, with
   the rows and columns the non-finite entries fall in; the stage runs with and without poisoned outputs.
-- the C++ runtime: the host compiler, and which libstdc++ the process has mapped.
+- the C++ runtime: the host compiler, which libstdc++ the process has mapped, whether the glue defines
+  iostream symbols of its own (a static copy), its link flags and the libstdc++ files in their folders.
 - an argument error raised by the glue (a wrong shape, whose message holds integers) on the CPU.
 """
 from __future__ import annotations
 
+import os
 import subprocess
 import traceback
+from pathlib import Path
 
 import torch
 
@@ -72,6 +75,11 @@ def runtime() -> None:
                 nm = subprocess.run(["nm", "-DC", "--defined-only", lib], capture_output=True, text=True, timeout=60).stdout
                 own = [s for s in nm.splitlines() if "std::" in s and ("ostream" in s or "locale" in s or "codecvt" in s)]
                 print(f"INFO probe glue defines {len(own)} iostream/locale symbols: {own[:6]}", flush=True)
+                ninja = Path(lib).parent / "build.ninja"
+                flags = [line for line in ninja.read_text().splitlines() if line.startswith("ldflags")] if ninja.exists() else []
+                print(f"INFO probe glue {flags}; LDFLAGS={os.environ.get('LDFLAGS')!r} CXX={os.environ.get('CXX')!r}", flush=True)
+                for folder in [f[2:] for f in " ".join(flags).split() if f.startswith("-L")]:
+                    print(f"INFO probe {folder}: {sorted(p.name for p in Path(folder).glob('libstdc++*'))}", flush=True)
                 ldd = subprocess.run(["ldd", lib], capture_output=True, text=True, timeout=60).stdout
                 print("INFO probe glue links: " + " | ".join(s.strip() for s in ldd.splitlines() if "stdc++" in s or "gcc_s" in s),
                       flush=True)

@@ -241,3 +241,17 @@ def test_kernels_bind_arguments_by_name(tmp_path, rename):
         assert result.returncode != 0 and "CrbaArgs" in result.stderr and "no member named" in result.stderr, result.stderr[-2000:]
     else:
         assert result.returncode == 0, result.stderr[-2000:]
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux") or shutil.which("ldd") is None, reason="ldd reads ELF libraries")
+def test_glue_must_share_the_shared_cxx_runtime(tmp_path):
+    # the glue itself links libstdc++.so (a private static copy crashed formatting numbers in errors)
+    build._load_glue(build._cache_root(None), build._cuda_available())
+    build._check_shared_cxx_runtime(build._GLUE[0])
+    # a C++ library linked with the static runtime is refused by name
+    source = tmp_path / "lib.cpp"
+    source.write_text('#include <sstream>\n#include <string>\nstd::string f(long x) { std::ostringstream s; s << x; return s.str(); }\n')
+    library = tmp_path / "libstatic.so"
+    subprocess.run(["c++", "-shared", "-fPIC", "-static-libstdc++", str(source), "-o", str(library)], check=True)
+    with pytest.raises(RuntimeError, match="libstatic.so was linked with a static C\\+\\+ runtime"):
+        build._check_shared_cxx_runtime(library)

@@ -160,10 +160,30 @@ def _compile_glue(root: Path, cuda: bool, key: str, entry: Path) -> None:
         # Loads the library too; renamed into the cache it keeps its inode, so a later load of the
         # cached path in this process is the same library.
         cpp_extension.load(name=name, sources=[str(source)], extra_cflags=["-O2"] + openmp + defines,
-                           extra_ldflags=openmp, extra_include_paths=[str(CSRC)], build_directory=str(tmp),
-                           with_cuda=cuda, is_python_module=False, verbose=os.environ.get("TORCH_GRID_VERBOSE") == "1")
+                           extra_ldflags=openmp + _SHARED_CXX_RUNTIME, extra_include_paths=[str(CSRC)],
+                           build_directory=str(tmp), with_cuda=cuda, is_python_module=False,
+                           verbose=os.environ.get("TORCH_GRID_VERBOSE") == "1")
+        _check_shared_cxx_runtime(tmp / f"{name}.so")
         (tmp / "complete").write_text(_digest(tmp / f"{name}.so"))
     print(f"torch_grid: built the torch glue in {time.monotonic() - start:.0f} s", file=sys.stderr, flush=True)
+
+
+# The glue shares torch's C++ runtime, named by file so that a folder on the link's search path that
+# holds only the static libstdc++.a cannot be linked instead: a glue with a private copy of it crashed
+# formatting a number into an error message, its iostreams mixed with those of torch's runtime.
+_SHARED_CXX_RUNTIME = ["-l:libstdc++.so.6"] if sys.platform.startswith("linux") else []
+
+
+def _check_shared_cxx_runtime(library: Path) -> None:
+    """Refuse a glue linked without the shared C++ runtime (where ldd can tell)."""
+    ldd = shutil.which("ldd")
+    if not _SHARED_CXX_RUNTIME or ldd is None:
+        return
+    needed = subprocess.run([ldd, str(library)], capture_output=True, text=True, timeout=60).stdout
+    if needed and "libstdc++" not in needed:
+        raise RuntimeError(f"torch_grid: the torch glue {library.name} was linked with a static C++ runtime (ldd lists "
+                           "no libstdc++), which breaks its error messages inside torch's process; check LDFLAGS "
+                           "and the compiler's link flags for -static-libstdc++")
 
 
 def _glue_key(cuda: bool) -> str:
@@ -171,7 +191,7 @@ def _glue_key(cuda: bool) -> str:
     h.update(codegen.glue_unit().encode())
     for name in ("torch/glue.h", "torch/register.h", "batch/batch.h", "kernels/spatial/spatial.h"):
         h.update((CSRC / name).read_bytes())
-    h.update(f"cuda={cuda} openmp={torch.backends.openmp.is_available()}".encode())
+    h.update(f"cuda={cuda} openmp={torch.backends.openmp.is_available()} {_SHARED_CXX_RUNTIME}".encode())
     h.update(_compiler_version(os.environ.get("CXX", "c++")).encode())
     if cuda:
         h.update(_compiler_version(find_nvcc()).encode())
