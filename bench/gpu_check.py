@@ -109,7 +109,9 @@ def run_stage(stage: str, robot: str | None, cpu: bool, threads: int) -> int:
             gpu_probe.runtime()
             gpu_probe.glue_error(loaded)
         else:
-            gpu_probe.step_derivatives(robot, _robot(robot), device, os.environ.get("TORCH_GRID_POISON_OUTPUTS") == "1")
+            loaded = _robot(robot)
+            gpu_probe.rk_workspace(robot, loaded, device)
+            gpu_probe.step_derivatives(robot, loaded, device, os.environ.get("TORCH_GRID_POISON_OUTPUTS") == "1")
     elif stage == "sanitized_calls":
         gpu_device.small_calls(_robot(robot), device)
         checks.run("calls under compute-sanitizer", lambda: None)
@@ -250,7 +252,7 @@ def main(argv: list[str] | None = None) -> int:
     jobs = [(f"{kind} {r}", ["--stage", kind, "--robot", r, *threads], 240, blocking) for kind in PER_ROBOT for r in robots]
     jobs += [("device", ["--stage", "device", *threads], 240, blocking)]
     # diagnostics of the failures earlier runs showed (gpu_probe.py)
-    jobs += [(f"probe {r}", ["--stage", "probe", "--robot", r, *threads], 60, {}) for r in ("go2", "g1") if r in robots]
+    jobs += [(f"probe {r}", ["--stage", "probe", "--robot", r, *threads], 60, {}) for r in ("go2", "humanoid") if r in robots]
     jobs += [("probe go2 poisoned", ["--stage", "probe", "--robot", "go2", *threads], 60, blocking)] if "go2" in robots else []
     jobs += [("probe runtime", ["--stage", "probe", "--robot", "runtime", *threads], 60, {})]
     if "g1" in robots:

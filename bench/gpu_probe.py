@@ -5,6 +5,7 @@ leaves the others'; the item that may crash the process (an error message format
 - step_derivatives in the MuJoCo convention (non-finite A and B on CUDA, right on the CPU): per robot and
   scheme, the non-finite entries and the largest difference from the CPU build, at dt = 0.01 and 0, with
   the rows and columns the non-finite entries fall in; the stage runs with and without poisoned outputs.
+- the fused Runge-Kutta kernel's workspace on the device, region by region (rk_workspace).
 - the C++ runtime: the host compiler, which libstdc++ the process has mapped, whether the glue defines
   iostream symbols of its own (a static copy), its link flags and the libstdc++ files in their folders.
 - an argument error raised by the glue (a wrong shape, whose message holds integers) on the CPU.
@@ -38,26 +39,77 @@ def _pattern(bad: torch.Tensor) -> str:
     return f"rows {rows[:12]}{'...' if len(rows) > 12 else ''} cols {cols[:12]}{'...' if len(cols) > 12 else ''}"
 
 
+def fused(view, scheme: str, q, qd, x, dt):
+    """(A, B) of the fused step-derivative kernel itself, past the public function's routing (which keeps
+    them off CUDA in MuJoCo's convention: integrators._fused_kept_off)."""
+    from torch_grid.space.lie import dt_column
+    from torch_grid.step.integrators import FUSED, RK_FUSED, _passive_code
+
+    h, passive = dt_column(dt, qd), _passive_code(view._robot, scheme)
+    if scheme in FUSED:
+        return view._kernel_call("step_derivatives", q, qd, x, None, h, None, FUSED[scheme], passive)[2:4]
+    return view._kernel_call("rk_step_derivatives", q, qd, x, None, h, None, RK_FUSED[scheme], passive)[2:4]
+
+
 def step_derivatives(name: str, robot, device: torch.device, poisoned: bool) -> None:
     for conv, view in (("mujoco", robot.mujoco), ("pin", robot.pin)):
         q, qd, x, _ = states(view, 3, seed=21)
         for scheme in SCHEMES:
             for dt in (0.01, 0.0):
                 def one():
-                    got = [t.cpu() for t in view.step_derivatives(*on((q, qd, x), device), dt, scheme)]
-                    ref = view.step_derivatives(q, qd, x, dt, scheme)
+                    got = [t.cpu() for t in fused(view, scheme, *on((q, qd, x), device), dt)]
+                    ref = fused(view, scheme, q, qd, x, dt)
                     parts = []
                     for label, g, r in zip(("A", "B"), got, ref):
                         bad = ~torch.isfinite(g)
                         ok = ~bad & torch.isfinite(r)
                         diff = (g[ok] - r[ok]).abs().max().item() if ok.any() else 0.0
                         text = f"{label} {int(bad.sum())}/{g.numel()} non-finite, max diff {diff:.1e}"
-                        if bad.any() and g.dim() == 3:
-                            text += f" ({_pattern(bad[0])})"
+                        if bad.any():
+                            text += f" ({_pattern(bad[0].flatten(0, 1).flatten(1))})"
                         parts.append(text)
                     print(f"INFO probe {name} {conv} {scheme} dt={dt} {'poisoned' if poisoned else 'plain'}: "
                           + "; ".join(parts), flush=True)
                 _guarded(f"{name} {conv} {scheme} dt={dt}", one)
+
+
+def rk_workspace(name: str, robot, device: torch.device) -> None:
+    """The fused Runge-Kutta kernel's workspace on the device (each stage's D_q, D_v and M's factor, the
+    adjoint slots, U and the step's Jv blocks), one sample in MuJoCo's convention: the regions that hold
+    non-finite entries name the part of runge_kutta.h at fault; and the composed derivatives (torch ops,
+    taken when an input requires grad) on the device against the fused ones on the CPU."""
+    from torch_grid.space.lie import dt_column
+    from torch_grid.step.integrators import RK_FUSED, _passive_code
+
+    view, nv = robot.mujoco, robot.nv
+    nn = nv * nv
+    q, qd, x, _ = states(view, 1, seed=22)
+    for scheme in ("midpoint", "rk4"):
+        s = 4 if scheme == "rk4" else 2
+        regions = [(f"stage {i} {part}", 3 * nn * i + k * nn, nn) for i in range(s) for k, part in enumerate(("Dq", "Dv", "H"))]
+        slots = 3 * nn * s
+        regions += [(f"slot {j} {part}", slots + 4 * nn * j + 2 * nn * k, 2 * nn) for j in range(2) for k, part in enumerate(("abar", "cbar"))]
+        regions += [("U", slots + 8 * nn, 2 * nn), ("Jv blocks", slots + 10 * nn, 6 * nv)]
+        for dt in (0.0, 0.01):
+            def one():
+                def call(dev):
+                    args = on((q, qd, x), dev)
+                    return view._kernel_call("rk_step_derivatives", *args, None, dt_column(dt, args[1]), None, RK_FUSED[scheme],
+                                             _passive_code(robot, scheme))
+                work = call(device)[4].reshape(-1).cpu()  # (the CPU's workspace is a thread's, never returned)
+                parts = [f"{label}: {int((~torch.isfinite(work[start:start + size])).sum())}/{size} non-finite"
+                         for label, start, size in regions]
+                print(f"INFO probe {name} work mujoco {scheme} dt={dt}: " + "; ".join(parts), flush=True)
+            _guarded(f"{name} work {scheme} dt={dt}", one)
+
+    for scheme in ("semi_implicit_euler", "midpoint", "rk4"):
+        def composed(scheme=scheme):
+            leaves = [t.clone().requires_grad_(True) for t in on((q, qd, x), device)]
+            got = [t.detach().cpu() for t in view.step_derivatives(*leaves, 0.01, scheme)]
+            ref = view.step_derivatives(q, qd, x, 0.01, scheme)
+            errs = [f"{int((~torch.isfinite(g)).sum())} non-finite, diff {(g - r).abs().max().item():.1e}" for g, r in zip(got, ref)]
+            print(f"INFO probe {name} composed mujoco {scheme} on the device: A {errs[0]}; B {errs[1]}", flush=True)
+        _guarded(f"{name} composed {scheme}", composed)
 
 
 def runtime() -> None:

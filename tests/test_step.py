@@ -501,13 +501,34 @@ def test_float32_runge_kutta_jacobians_of_every_sample(robots, convention):
                 assert err.max() <= 1e-6, (integrator, n, err.argmax().item(), err.max().item())
 
 
-@pytest.mark.parametrize("name", ["iiwa14", "go2"])
-def test_composed_step_derivatives_of_every_scheme_equal_the_kernel(robots, name):
+@pytest.mark.parametrize("name,convention", [("iiwa14", "pin"), ("go2", "pin"), ("go2", "mujoco")])
+def test_composed_step_derivatives_of_every_scheme_equal_the_kernel(robots, name, convention):
     """Under autograd step_derivatives is composed in torch: every scheme's equals the kernel's (explicit
-    Euler's raised: its q' rows, the same for every sample, were left unbatched)."""
+    Euler's raised: its q' rows, the same for every sample, were left unbatched). On CUDA in MuJoCo's
+    convention the composition is what every call takes (integrators._fused_kept_off)."""
     robot = robots[name]
-    q, qd, tau = _state(robot.pin, robot, 4, 12)
+    view = getattr(robot, convention)
+    q, qd, tau = _state(view, robot, 4, 12)
     for integrator in INTEGRATORS:
-        ref = robot.pin.step_derivatives(q, qd, tau, 0.01, integrator)
-        ours = robot.pin.step_derivatives(q.clone().requires_grad_(True), qd, tau, 0.01, integrator)
+        ref = view.step_derivatives(q, qd, tau, 0.01, integrator)
+        ours = view.step_derivatives(q.clone().requires_grad_(True), qd, tau, 0.01, integrator)
         assert all(rel_err(a.detach(), b) <= 1e-12 for a, b in zip(ours, ref)), integrator
+
+
+class _OnCuda(torch.Tensor):
+    """A CPU tensor that reads as a CUDA one, for the routing decision alone."""
+
+    @property
+    def is_cuda(self):
+        return True
+
+
+def test_fused_step_kernels_are_kept_off_cuda_where_a_gpu_showed_them_wrong(robots):
+    from torch_grid.step.integrators import _fused_kept_off
+
+    q = torch.zeros(2, robots["go2"].nq, dtype=torch.float64)
+    cuda = torch.Tensor._make_subclass(_OnCuda, q)
+    assert _fused_kept_off(robots["go2"].mujoco, cuda)
+    assert not _fused_kept_off(robots["go2"].pin, cuda)
+    assert not _fused_kept_off(robots["go2"].mujoco, q)
+    assert not _fused_kept_off(robots["iiwa14"].mujoco, torch.Tensor._make_subclass(_OnCuda, torch.zeros(2, 7)))
