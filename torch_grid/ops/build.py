@@ -317,7 +317,10 @@ def _cxx_flags(unit: str = "") -> list[str]:
     # 5-joint arm on an AVX-512 CPU). Such epilogues are a few elements; the main loops keep their width.
     lanes = [f"-DTG_LANES={codegen.cpu_lanes()}"] if codegen.cpu_lanes() > 1 else []
     common = ["-std=c++17", level, "-fno-fast-math", "-fPIC", "-fvisibility=hidden", "--param=vect-epilogues-nomask=0"]
-    return common + native + lanes
+    # TORCH_GRID_DEVICE_PATHS=1: the CPU kernels take a GPU thread's code paths (kernels/spatial/spatial.h:
+    # TG_DEVICE_PATH), so that the CPU's tests check them (tests/test_device_paths.py).
+    device = ["-DTG_DEVICE_PATHS"] if os.environ.get("TORCH_GRID_DEVICE_PATHS") == "1" else []
+    return common + native + lanes + device
 
 
 def nvcc_flags() -> list[str]:

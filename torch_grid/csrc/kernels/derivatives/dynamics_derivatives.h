@@ -81,7 +81,7 @@ TG_HD void inverse_dynamics_derivatives(const Placements<Robot, Scalar>& K, cons
 // temporary), the dense product in blocks of columns.
 template <class Robot, class Scalar> TG_HD void negate_minv_products(const Scalar* Minv, Scalar* X0, Scalar* X1) {
   constexpr int NV = Robot::NV;
-#ifndef __CUDA_ARCH__
+#if !TG_DEVICE_PATH
   const TreeBlocks<Robot, Scalar> tb;
   int related = 0;
   for (int b = 0; b < tb.NBLK; ++b) related += tb.count[b] * (b + 1 < tb.NBLK ? tb.RB : NV - tb.RB * b);

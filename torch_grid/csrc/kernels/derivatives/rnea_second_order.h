@@ -130,7 +130,7 @@ template <class Robot, class Scalar, class Put> TG_HD void rnea_second_order_vis
     return octet(W.s[c].v[r], W.w[c].v[r], W.w[c].v[r], W.w[c].v[r], W.u[c].v[r], W.u[c].v[r], W.alpha[c].v[r],
                  W.alpha[c].v[r]);
   };
-#ifdef __CUDA_ARCH__
+#if TG_DEVICE_PATH
   const auto mixed = column_octet;
 #else
   Octet<Scalar> table[Robot::NV][6];

@@ -23,7 +23,7 @@ namespace tg {
 // (larger blocks spilled more in forward_dynamics_external_force_derivatives on G1); 4 x 4 on CPU lanes
 // (3 x 4 for AVX2's 16 registers), each entry of which is a vector register already.
 template <class Scalar> struct ProductBlock {
-#ifdef __CUDA_ARCH__
+#if TG_DEVICE_PATH
   static constexpr int rows = 1, cols = 16;
 #else
   static constexpr bool lanes = IsLanes<Scalar>::value;
@@ -83,7 +83,7 @@ inline void lane_block_products(int nt, int K, const Scalar* const* g, int gs, c
 template <int XS, int OS, int RB, int CB, bool ADD, bool TG = false, class Scalar, class Ks = AllColumns>
 TG_HD_NOINLINE void block_products(int nt, int K, const Scalar* const* g, int gs, const Scalar* w, const Scalar* const* X, Scalar* out,
                                    Ks ks = {}) {
-#ifndef __CUDA_ARCH__
+#if !TG_DEVICE_PATH
   if constexpr (IsLanes<Scalar>::value) {
     lane_block_products<XS, OS, RB, CB, ADD, TG>(nt, K, g, gs, w, X, out, ks);
     return;
@@ -188,7 +188,7 @@ template <class Robot, class Scalar> TG_HD int related_columns(int r0, int r1, i
 // tree products on a CPU; a GPU thread, whose blocks are single rows, finds each as it goes.
 template <class Robot, class Scalar> struct TreeBlocks {
   static constexpr int NV = Robot::NV, RB = ProductBlock<Scalar>::rows, NBLK = (NV + RB - 1) / RB;
-#ifdef __CUDA_ARCH__
+#if TG_DEVICE_PATH
   TG_HD const int* columns(int b, int* buf, int& n) const {
     n = related_columns<Robot, Scalar>(RB * b, RB * b + RB < NV ? RB * b + RB : NV, buf);
     return buf;

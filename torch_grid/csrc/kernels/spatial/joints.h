@@ -165,7 +165,7 @@ template <class Robot, class Scalar> TG_HD Sv<Scalar> base_acceleration() {
 // Forward kinematics: local placements liMi and world placements oMi of every body.
 template <class Robot, class Scalar> TG_HD void forward_kinematics(const Scalar* q, SE3<Scalar>* liMi, SE3<Scalar>* oMi) {
   const auto& d = data<Robot, Scalar>();
-#if defined(__CUDACC__)
+#if defined(__CUDACC__) || TG_DEVICE_PATH
   for (int i = 0; i < Robot::NB; ++i) {
     liMi[i] = joint_placement<Robot, Scalar>(i, q);
     oMi[i] = d.parent[i] < 0 ? liMi[i] : oMi[d.parent[i]] * liMi[i];
@@ -187,7 +187,7 @@ template <class Robot, class Scalar> TG_HD void forward_kinematics(const Scalar*
 // a root; the other entries of oMi are left alone.
 template <class Robot, class Scalar> TG_HD void chain_placements(const Scalar* q, const int* chain, int n, SE3<Scalar>* oMi) {
   const auto& d = data<Robot, Scalar>();
-#if defined(__CUDACC__)
+#if defined(__CUDACC__) || TG_DEVICE_PATH
   for (int k = n - 1; k >= 0; --k) {
     const SE3<Scalar> liMi = joint_placement<Robot, Scalar>(chain[k], q);
     oMi[chain[k]] = k == n - 1 ? liMi : oMi[chain[k + 1]] * liMi;
@@ -233,7 +233,7 @@ template <class Robot, class Scalar> TG_HD void body_velocities(const Scalar* q,
 // one slot per tree level, since in depth-first order a body's ancestors hold the levels above its
 // own (a small stack); on the host one per body, which the compiler keeps faster.
 template <class Robot> struct Levels {
-#if defined(__CUDA_ARCH__)
+#if TG_DEVICE_PATH
   static constexpr int N = Robot::ND;
   template <class Scalar> TG_HD static int of(const Scalar& d, int i) { return d.depth[i]; }
   template <class Scalar> TG_HD static int parent(const Scalar& d, int i) { return d.depth[i] - 1; }
@@ -248,7 +248,7 @@ template <class Robot> struct Levels {
 // pass; kept on the host, rebuilt from q on a GPU thread, where the stack they would take costs
 // more than recomputing them.
 template <class Robot, class Scalar> struct JointPlacements {
-#if defined(__CUDA_ARCH__)
+#if TG_DEVICE_PATH
   const Scalar* q;
   TG_HD explicit JointPlacements(const Scalar* q_) : q(q_) {}
   TG_HD SE3<Scalar> place(int i) { return joint_placement<Robot, Scalar>(i, q); }
@@ -268,7 +268,7 @@ template <class Robot, class Scalar> struct JointPlacements {
 // trigonometry.
 template <class Robot, class Scalar> struct Placements {
   SE3<Scalar> oMi[Robot::NB];
-#if defined(__CUDA_ARCH__)
+#if TG_DEVICE_PATH
   TG_HD explicit Placements(const Scalar* q) {
     const auto& d = data<Robot, Scalar>();
     for (int i = 0; i < Robot::NB; ++i) {

@@ -8,6 +8,15 @@
 #include <cmath>
 #include <type_traits>
 
+// TG_DEVICE_PATH: 1 where the kernels take a GPU thread's code paths (fewer stack arrays, blocks of
+// one row, per-depth slots): on the GPU, and on the CPU in a build with TG_DEVICE_PATHS defined, so
+// that the CPU's tests run the paths a GPU thread runs (TORCH_GRID_DEVICE_PATHS=1, ops/build.py).
+#if defined(__CUDA_ARCH__) || defined(TG_DEVICE_PATHS)
+#define TG_DEVICE_PATH 1
+#else
+#define TG_DEVICE_PATH 0
+#endif
+
 #if defined(__CUDACC__)
 #define TG_HD __host__ __device__ __forceinline__
 #define TG_HD_INLINE TG_HD

@@ -69,7 +69,7 @@ inline void sincos_n_double(int n, const double* x, double* s, double* c) {
 // sin and cos of n values of any scalar: double on the host as above, the rest (float, dual numbers,
 // GPU code, where sincos is an intrinsic) one call per element.
 template <class Scalar> TG_HD void sincos_n(int n, const Scalar* x, Scalar* s, Scalar* c) {
-#if !defined(__CUDA_ARCH__)
+#if !TG_DEVICE_PATH
   if constexpr (std::is_same_v<Scalar, double>) {
     sincos_n_double(n, x, s, c);
     return;

@@ -1,0 +1,52 @@
+"""The code paths a GPU thread takes (kernels/spatial/spatial.h: TG_DEVICE_PATH; per-depth slots for the
+forward passes, joint placements rebuilt rather than stored, one-row product blocks, related columns found
+as they go, one sine and cosine at a time) compiled for the CPU with TORCH_GRID_DEVICE_PATHS=1, and held
+equal to the CPU's own paths on every public function, both conventions. The outputs and the stack start
+as NaN (TORCH_GRID_POISON_OUTPUTS), as a GPU thread may find its local memory, so that an entry written
+nowhere or a local read before it is set shows."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+import torch_grid
+
+ROOT = Path(__file__).resolve().parents[1]
+BENCH = ROOT / "bench"
+sys.path.insert(0, str(BENCH))
+
+import gpu_correctness as calls  # noqa: E402  (every public function's call, as the GPU check makes it)
+
+SCRIPT = """
+import sys, torch, torch_grid
+sys.path.insert(0, {bench!r})
+import gpu_correctness as calls
+robot, out = torch_grid.load({model!r}), {{}}
+for conv, view in calls.views(robot):
+    inputs = calls.states(view, 5, seed=3)
+    for name, call in calls.value_calls(robot).items():
+        out[conv + " " + name] = calls.tensors(call(view, *inputs))
+torch.save(out, {path!r})
+"""
+
+
+@pytest.mark.parametrize("name", ["go2", "humanoid"])
+def test_the_gpu_code_paths_compute_what_the_cpu_paths_compute(name, tmp_path):
+    model = str(BENCH / "gpu" / "models" / f"{name}.json")
+    path = tmp_path / "device_paths.pt"
+    # no lane kernels: a GPU thread runs the scalar kernels
+    env = dict(os.environ, TORCH_GRID_DEVICE_PATHS="1", TORCH_GRID_LANES="1", TORCH_GRID_POISON_OUTPUTS="1")
+    subprocess.run([sys.executable, "-c", SCRIPT.format(bench=str(BENCH), model=model, path=str(path))], env=env,
+                   cwd=ROOT, check=True, timeout=1200)
+    device_paths = torch.load(path)
+    robot = torch_grid.load(model)
+    for conv, view in calls.views(robot):
+        inputs = calls.states(view, 5, seed=3)
+        for op, call in calls.value_calls(robot).items():
+            why = calls.compare(device_paths[f"{conv} {op}"], calls.tensors(call(view, *inputs)), 1e-12)
+            assert why is None, (conv, op, why)
