@@ -179,7 +179,17 @@ def reservation(checks: Checks, robot, device: torch.device) -> None:
         hoard = torch.empty(free - (1 << 30), dtype=torch.uint8, device=device)  # all but 1 GiB
         del hoard  # cached by torch's allocator, invisible to the driver
         cached = torch.cuda.memory_reserved()
-        out = view.step_derivatives(q, qd, x, 0.01, "rk4")  # the largest kernel's first launch (about 11 GB)
+        try:
+            out = view.step_derivatives(q, qd, x, 0.01, "rk4")  # the largest kernel's first launch (about 11 GB)
+        except RuntimeError:
+            # what torch holds then, and whether emptying its cache from Python frees it (the glue's did not)
+            held, (free_now, _) = torch.cuda.memory_reserved(), torch.cuda.mem_get_info()
+            torch.cuda.empty_cache()
+            print(f"INFO reservation failed: torch held {held / 2**30:.1f} GiB, {free_now / 2**30:.1f} GiB free; after "
+                  f"torch.cuda.empty_cache() torch holds {torch.cuda.memory_reserved() / 2**30:.1f} GiB, "
+                  f"{torch.cuda.mem_get_info()[0] / 2**30:.1f} GiB free; PYTORCH_CUDA_ALLOC_CONF="
+                  f"{os.environ.get('PYTORCH_CUDA_ALLOC_CONF')!r}", flush=True)
+            raise
         torch.cuda.synchronize()
         after, _ = torch.cuda.mem_get_info()
         held = torch.cuda.memory_reserved()
