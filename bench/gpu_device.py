@@ -201,18 +201,32 @@ def reservation(checks: Checks, robot, device: torch.device) -> None:
     checks.run("first launch of the largest kernel after torch cached the free memory", reserve)
 
 
+# One call of each kernel family (dynamics, derivatives, kinematics, second order, regressors, and a
+# backward through autograd), for compute-sanitizer to watch within its stage's time.
+SANITIZED = ("inverse_dynamics", "forward_dynamics", "minv", "frame_jacobian", "forward_dynamics_derivatives",
+             "inverse_dynamics_second_derivatives", "inverse_dynamics_regressor", "coriolis_matrix")
+
+
 def small_calls(robot, device: torch.device) -> None:
-    """One small call of every function (every kernel family, both conventions, float64 and float32),
-    for compute-sanitizer to watch."""
-    for view in (robot.pin, robot.mujoco):
+    """The fused step-derivative kernels first (each scheme, both conventions, float64 and float32; the
+    MuJoCo convention's gave NaN on a GPU), then one small call of each kernel family and two backward
+    passes, for compute-sanitizer to watch."""
+    from gpu_probe import fused
+
+    calls = value_calls(robot)
+    for view in (robot.mujoco, robot.pin):
         for dtype in (torch.float64, torch.float32):
-            inputs = on(states(view, 3, seed=9), device, dtype)
-            for call in value_calls(robot).values():
-                tensors(call(view, *inputs))
-            leaves = [t.clone().requires_grad_(True) for t in inputs]
-            for name in ("inverse_dynamics", "forward_dynamics", "crba", "frame_jacobian", "coriolis_matrix"):
-                out = tensors(value_calls(robot, second_order=False)[name](view, *leaves))
-                torch.autograd.grad(out, leaves, [torch.ones_like(o) for o in out], allow_unused=True)
+            q, qd, x, _ = on(states(view, 2, seed=9), device, dtype)
+            for scheme in ("semi_implicit_euler", "midpoint", "rk4"):
+                tensors(fused(view, scheme, q, qd, x, 0.01))
+        inputs = on(states(view, 2, seed=9), device)
+        for name in SANITIZED:
+            if name in calls:
+                tensors(calls[name](view, *inputs))
+        leaves = [t.clone().requires_grad_(True) for t in inputs]
+        for name in ("crba", "frame_jacobian"):
+            out = tensors(value_calls(robot, second_order=False)[name](view, *leaves))
+            torch.autograd.grad(out, leaves, [torch.ones_like(o) for o in out], allow_unused=True)
     if device.type == "cuda":
         torch.cuda.synchronize()
 
