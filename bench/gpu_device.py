@@ -225,7 +225,7 @@ def small_calls(robot, device: torch.device) -> None:
                 tensors(calls[name](view, *inputs))
         leaves = [t.clone().requires_grad_(True) for t in inputs]
         for name in ("crba", "frame_jacobian"):
-            out = tensors(value_calls(robot, second_order=False)[name](view, *leaves))
+            out = tensors(calls[name](view, *leaves))
             torch.autograd.grad(out, leaves, [torch.ones_like(o) for o in out], allow_unused=True)
     if device.type == "cuda":
         torch.cuda.synchronize()

@@ -39,16 +39,22 @@ def _pattern(bad: torch.Tensor) -> str:
     return f"rows {rows[:12]}{'...' if len(rows) > 12 else ''} cols {cols[:12]}{'...' if len(cols) > 12 else ''}"
 
 
-def fused(view, scheme: str, q, qd, x, dt):
-    """(A, B) of the fused step-derivative kernel itself, past the public function's routing (which keeps
-    them off CUDA in MuJoCo's convention: integrators._fused_kept_off)."""
+def _kernel_outputs(view, scheme: str, q, qd, x, dt):
+    """Every output of the fused step-derivative kernel itself (q', qd', A, B, and a Runge-Kutta scheme's
+    workspace), past the public function's routing, which keeps them off CUDA in MuJoCo's convention
+    (integrators._fused_kept_off)."""
     from torch_grid.space.lie import dt_column
     from torch_grid.step.integrators import FUSED, RK_FUSED, _passive_code
 
     h, passive = dt_column(dt, qd), _passive_code(view._robot, scheme)
     if scheme in FUSED:
-        return view._kernel_call("step_derivatives", q, qd, x, None, h, None, FUSED[scheme], passive)[2:4]
-    return view._kernel_call("rk_step_derivatives", q, qd, x, None, h, None, RK_FUSED[scheme], passive)[2:4]
+        return view._kernel_call("step_derivatives", q, qd, x, None, h, None, FUSED[scheme], passive)
+    return view._kernel_call("rk_step_derivatives", q, qd, x, None, h, None, RK_FUSED[scheme], passive)
+
+
+def fused(view, scheme: str, q, qd, x, dt):
+    """(A, B) of the fused step-derivative kernel itself (_kernel_outputs)."""
+    return _kernel_outputs(view, scheme, q, qd, x, dt)[2:4]
 
 
 def step_derivatives(name: str, robot, device: torch.device, poisoned: bool) -> None:
@@ -78,9 +84,6 @@ def rk_workspace(name: str, robot, device: torch.device) -> None:
     adjoint slots, U and the step's Jv blocks), one sample in MuJoCo's convention: the regions that hold
     non-finite entries name the part of runge_kutta.h at fault; and the composed derivatives (torch ops,
     taken when an input requires grad) on the device against the fused ones on the CPU."""
-    from torch_grid.space.lie import dt_column
-    from torch_grid.step.integrators import RK_FUSED, _passive_code
-
     view, nv = robot.mujoco, robot.nv
     nn = nv * nv
     q, qd, x, _ = states(view, 1, seed=22)
@@ -92,11 +95,8 @@ def rk_workspace(name: str, robot, device: torch.device) -> None:
         regions += [("U", slots + 8 * nn, 2 * nn), ("Jv blocks", slots + 10 * nn, 6 * nv)]
         for dt in (0.0, 0.01):
             def one():
-                def call(dev):
-                    args = on((q, qd, x), dev)
-                    return view._kernel_call("rk_step_derivatives", *args, None, dt_column(dt, args[1]), None, RK_FUSED[scheme],
-                                             _passive_code(robot, scheme))
-                work = call(device)[4].reshape(-1).cpu()  # (the CPU's workspace is a thread's, never returned)
+                # (the CPU's workspace is a thread's, never returned: the device's alone is read)
+                work = _kernel_outputs(view, scheme, *on((q, qd, x), device), dt)[4].reshape(-1).cpu()
                 parts = [f"{label}: {int((~torch.isfinite(work[start:start + size])).sum())}/{size} non-finite"
                          for label, start, size in regions]
                 print(f"INFO probe {name} work mujoco {scheme} dt={dt}: " + "; ".join(parts), flush=True)

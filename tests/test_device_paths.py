@@ -22,16 +22,17 @@ sys.path.insert(0, str(BENCH))
 
 import gpu_correctness as calls  # noqa: E402  (every public function's call, as the GPU check makes it)
 
+def outputs(robot) -> dict:
+    """Every public function's outputs, both conventions, on fixed inputs."""
+    return {f"{conv} {op}": calls.tensors(call(view, *calls.states(view, 5, seed=3)))
+            for conv, view in calls.views(robot) for op, call in calls.value_calls(robot).items()}
+
+
 SCRIPT = """
 import sys, torch, torch_grid
-sys.path.insert(0, {bench!r})
-import gpu_correctness as calls
-robot, out = torch_grid.load({model!r}), {{}}
-for conv, view in calls.views(robot):
-    inputs = calls.states(view, 5, seed=3)
-    for name, call in calls.value_calls(robot).items():
-        out[conv + " " + name] = calls.tensors(call(view, *inputs))
-torch.save(out, {path!r})
+sys.path.insert(0, {tests!r})
+from test_device_paths import outputs
+torch.save(outputs(torch_grid.load({model!r})), {path!r})
 """
 
 
@@ -41,12 +42,9 @@ def test_the_gpu_code_paths_compute_what_the_cpu_paths_compute(name, tmp_path):
     path = tmp_path / "device_paths.pt"
     # no lane kernels: a GPU thread runs the scalar kernels
     env = dict(os.environ, TORCH_GRID_DEVICE_PATHS="1", TORCH_GRID_LANES="1", TORCH_GRID_POISON_OUTPUTS="1")
-    subprocess.run([sys.executable, "-c", SCRIPT.format(bench=str(BENCH), model=model, path=str(path))], env=env,
-                   cwd=ROOT, check=True, timeout=1200)
+    script = SCRIPT.format(tests=str(Path(__file__).resolve().parent), model=model, path=str(path))
+    subprocess.run([sys.executable, "-c", script], env=env, cwd=ROOT, check=True, timeout=1200)
     device_paths = torch.load(path)
-    robot = torch_grid.load(model)
-    for conv, view in calls.views(robot):
-        inputs = calls.states(view, 5, seed=3)
-        for op, call in calls.value_calls(robot).items():
-            why = calls.compare(device_paths[f"{conv} {op}"], calls.tensors(call(view, *inputs)), 1e-12)
-            assert why is None, (conv, op, why)
+    for key, ref in outputs(torch_grid.load(model)).items():
+        why = calls.compare(device_paths[key], ref, 1e-12)
+        assert why is None, (key, why)
