@@ -82,10 +82,8 @@ TG_HD void inverse_dynamics_derivatives(const Placements<Robot, Scalar>& K, cons
 template <class Robot, class Scalar> TG_HD void negate_minv_products(const Scalar* Minv, Scalar* X0, Scalar* X1) {
   constexpr int NV = Robot::NV;
 #if !TG_DEVICE_PATH
-  const TreeBlocks<Robot, Scalar> tb;
-  int related = 0;
-  for (int b = 0; b < tb.NBLK; ++b) related += tb.count[b] * (b + 1 < tb.NBLK ? tb.RB : NV - tb.RB * b);
-  if (10 * related < 9 * NV * NV) {
+  const TreeBlocks<Robot, Scalar>& tb = tree_blocks<Robot, Scalar>();
+  if (tb.sparse) {
     Scalar T[NV * NV];
     const Scalar* x[1] = {Minv};
     const Scalar w[1] = {Scalar(-1)};

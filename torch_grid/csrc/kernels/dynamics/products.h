@@ -36,73 +36,33 @@ struct AllColumns {
   TG_HD int operator[](int k) const { return k; }
 };
 
+// f(c) for the CB columns of a block: a kept loop for a plain number, which GCC vectorizes; unrolled on
+// CPU lanes, whose every entry is a vector register already (the accumulators stay registers).
+template <class Scalar, int CB, class F> TG_HD_INLINE void for_columns(F&& f) {
+  if constexpr (IsLanes<Scalar>::value && !TG_DEVICE_PATH) {
+    TG_UNROLL
+    for (int c = 0; c < CB; ++c) f(c);
+  } else {
+    TG_KEEP_LOOP
+    for (int c = 0; c < CB; ++c) f(c);
+  }
+}
+
 // out (RB x CB, row stride OS) (+)= sum_t w_t g_t X_t: g_t RB x K (row stride gs; with TG, g_t^T for g_t
 // K x RB), X_t K x CB (row stride XS), the inner index k = ks[0..K); ADD adds to out, otherwise overwrites
 // it. The weights scale the block between terms, w_0 S_0 + w_1 S_1 = w_1 (S_1 + (w_0 / w_1) S_0), not each
 // product (nonzero w).
-// On CPU lanes both loops unroll (the accumulators are registers), and X's row is loaded once per k.
-template <int XS, int OS, int RB, int CB, bool ADD, bool TG, class Scalar, class Ks>
-inline void lane_block_products(int nt, int K, const Scalar* const* g, int gs, const Scalar* w, const Scalar* const* X, Scalar* out,
-                                Ks ks) {
-  Scalar acc[RB][CB];
-  TG_UNROLL
-  for (int r = 0; r < RB; ++r) {
-    TG_UNROLL
-    for (int c = 0; c < CB; ++c) acc[r][c] = Scalar(0);
-  }
-  for (int t = 0; t < nt; ++t) {
-    if (t > 0) {
-      const Scalar ratio = w[t - 1] / w[t];
-      TG_UNROLL
-      for (int r = 0; r < RB; ++r) {
-        TG_UNROLL
-        for (int c = 0; c < CB; ++c) acc[r][c] *= ratio;
-      }
-    }
-    for (int n = 0; n < K; ++n) {
-      const int k = ks[n];
-      Scalar x[CB];
-      TG_UNROLL
-      for (int c = 0; c < CB; ++c) x[c] = X[t][XS * k + c];
-      TG_UNROLL
-      for (int r = 0; r < RB; ++r) {
-        const Scalar gr = TG ? g[t][gs * k + r] : g[t][gs * r + k];
-        TG_UNROLL
-        for (int c = 0; c < CB; ++c) acc[r][c] += gr * x[c];
-      }
-    }
-  }
-  const Scalar last = nt > 0 ? w[nt - 1] : Scalar(0);
-  TG_UNROLL
-  for (int r = 0; r < RB; ++r) {
-    TG_UNROLL
-    for (int c = 0; c < CB; ++c) out[OS * r + c] = ADD ? out[OS * r + c] + last * acc[r][c] : last * acc[r][c];
-  }
-}
-
 template <int XS, int OS, int RB, int CB, bool ADD, bool TG = false, class Scalar, class Ks = AllColumns>
 TG_HD_NOINLINE void block_products(int nt, int K, const Scalar* const* g, int gs, const Scalar* w, const Scalar* const* X, Scalar* out,
                                    Ks ks = {}) {
-#if !TG_DEVICE_PATH
-  if constexpr (IsLanes<Scalar>::value) {
-    lane_block_products<XS, OS, RB, CB, ADD, TG>(nt, K, g, gs, w, X, out, ks);
-    return;
-  }
-#endif
   Scalar acc[RB][CB];
   TG_UNROLL
-  for (int r = 0; r < RB; ++r) {
-    TG_KEEP_LOOP
-    for (int c = 0; c < CB; ++c) acc[r][c] = Scalar(0);
-  }
+  for (int r = 0; r < RB; ++r) for_columns<Scalar, CB>([&](int c) __attribute__((always_inline)) { acc[r][c] = Scalar(0); });
   for (int t = 0; t < nt; ++t) {
     if (t > 0) {
       const Scalar ratio = w[t - 1] / w[t];
       TG_UNROLL
-      for (int r = 0; r < RB; ++r) {
-        TG_KEEP_LOOP
-        for (int c = 0; c < CB; ++c) acc[r][c] *= ratio;
-      }
+      for (int r = 0; r < RB; ++r) for_columns<Scalar, CB>([&](int c) __attribute__((always_inline)) { acc[r][c] *= ratio; });
     }
     for (int n = 0; n < K; ++n) {
       const int k = ks[n];
@@ -110,17 +70,14 @@ TG_HD_NOINLINE void block_products(int nt, int K, const Scalar* const* g, int gs
       TG_UNROLL
       for (int r = 0; r < RB; ++r) {
         const Scalar gr = TG ? g[t][gs * k + r] : g[t][gs * r + k];
-        TG_KEEP_LOOP
-        for (int c = 0; c < CB; ++c) acc[r][c] += gr * x[c];
+        for_columns<Scalar, CB>([&](int c) __attribute__((always_inline)) { acc[r][c] += gr * x[c]; });
       }
     }
   }
   const Scalar last = nt > 0 ? w[nt - 1] : Scalar(0);
   TG_UNROLL
-  for (int r = 0; r < RB; ++r) {
-    TG_KEEP_LOOP
-    for (int c = 0; c < CB; ++c) out[OS * r + c] = ADD ? out[OS * r + c] + last * acc[r][c] : last * acc[r][c];
-  }
+  for (int r = 0; r < RB; ++r)
+    for_columns<Scalar, CB>([&](int c) __attribute__((always_inline)) { out[OS * r + c] = ADD ? out[OS * r + c] + last * acc[r][c] : last * acc[r][c]; });
 }
 
 // An RB-row block over COLS columns: blocks of ProductBlock's columns, then the rest in vector-sized pieces (8, 4,
@@ -184,8 +141,9 @@ template <class Robot, class Scalar> TG_HD int related_columns(int r0, int r1, i
   return n;
 }
 
-// The related columns of every block of ProductBlock's rows (related_columns), found once for a kernel's many
-// tree products on a CPU; a GPU thread, whose blocks are single rows, finds each as it goes.
+// The related columns of every block of ProductBlock's rows (related_columns), found once per robot on a
+// CPU (tree_blocks()); a GPU thread, whose blocks are single rows, finds each as it goes. `sparse`: the
+// blocks' related entries are under 90% of NV x NV, so that products over them alone pay.
 template <class Robot, class Scalar> struct TreeBlocks {
   static constexpr int NV = Robot::NV, RB = ProductBlock<Scalar>::rows, NBLK = (NV + RB - 1) / RB;
 #if TG_DEVICE_PATH
@@ -195,8 +153,15 @@ template <class Robot, class Scalar> struct TreeBlocks {
   }
 #else
   int count[NBLK], ks[NBLK][NV];
+  bool sparse;
   TreeBlocks() {
-    for (int b = 0; b < NBLK; ++b) count[b] = related_columns<Robot, Scalar>(RB * b, RB * b + RB < NV ? RB * b + RB : NV, ks[b]);
+    int related = 0;
+    for (int b = 0; b < NBLK; ++b) {
+      const int r1 = RB * b + RB < NV ? RB * b + RB : NV;
+      count[b] = related_columns<Robot, Scalar>(RB * b, r1, ks[b]);
+      related += count[b] * (r1 - RB * b);
+    }
+    sparse = 10 * related < 9 * NV * NV;
   }
   const int* columns(int b, int*, int& n) const {
     n = count[b];
@@ -204,6 +169,16 @@ template <class Robot, class Scalar> struct TreeBlocks {
   }
 #endif
 };
+
+// The robot's TreeBlocks: built at the first call on a CPU; on a GPU thread an empty struct.
+#if TG_DEVICE_PATH
+template <class Robot, class Scalar> TG_HD TreeBlocks<Robot, Scalar> tree_blocks() { return {}; }
+#else
+template <class Robot, class Scalar> inline const TreeBlocks<Robot, Scalar>& tree_blocks() {
+  static const TreeBlocks<Robot, Scalar> tb;
+  return tb;
+}
+#endif
 
 // out (NV x COLS, row stride OS) (+)= sum_t w_t g_t X_t for up to 4 terms, each g_t NV x NV (row stride NV;
 // with TG, g_t^T) zero between dofs on different branches: each block of rows runs over its related columns

@@ -298,7 +298,7 @@ TG_HD void rk_step(const Conv<Robot, Scalar, C>& cv, const Scalar* qd, const Sca
       for (int b = 0; b < (n ? n : d.nvj[jn]); ++b) qbar[K2 * (vi + a) + vi + b] = n ? Jq[n * b + a] : Scalar(a == b);
     o += n * n;
   }
-  const TreeBlocks<Robot, Scalar> tb;
+  const auto& tb = tree_blocks<Robot, Scalar>();
   bool fed[4] = {false, false, false, false};
   for (int i = s - 1; i >= 0; --i) {
     Scalar* const abar = slot(i);
