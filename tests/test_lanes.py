@@ -151,6 +151,22 @@ def test_zero_quaternion_is_the_identity_in_every_lane(lane_robots) -> None:
     torch.testing.assert_close(lanes[1], _call(robot, OPS["forward_kinematics"], [identity], 0, lanes=True)[1], rtol=0, atol=0)
 
 
+def test_a_frame_after_another_keeps_only_its_own_columns(lane_robots) -> None:
+    """A lane kernel writing only some entries (frame_jacobian: the columns of the frame's chain) leaves
+    zeros elsewhere in its buffer, kept between calls: a call for another frame must not find the
+    previous frame's columns there."""
+    robot = lane_robots["go2"]
+    q = robot.random_configuration(BATCH, generator=torch.Generator().manual_seed(4))
+    names = robot.frame_names
+    feet = [names.index(n) for n in ("FL_foot", "RR_foot")]
+    for frame in (feet[0], feet[1], feet[0], 0):
+        for reference in (0, 1, 2):
+            lanes = _call(robot, OPS["frame_jacobian"], [q, frame, reference], 0, lanes=True)[0]
+            scalar = _call(robot, OPS["frame_jacobian"], [q, frame, reference], 0, lanes=False)[0]
+            assert torch.equal(lanes == 0, scalar == 0), f"frame {names[frame]}, reference {reference}"
+            torch.testing.assert_close(lanes, scalar, rtol=0, atol=1e-14 * scalar.abs().amax().item())
+
+
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32], ids=["float64", "float32"])
 def test_broadcast_inputs_and_batch_shapes_take_the_lanes(lane_robots, dtype: torch.dtype) -> None:
     robot = lane_robots["go2"]

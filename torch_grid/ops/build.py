@@ -309,6 +309,7 @@ _UNIT_ORDER = {"dynamics": 0, "derivatives": 1, "derivatives_backward": 2, "kine
 def _cxx_flags(unit: str = "") -> list[str]:
     # Tuned for this CPU (AVX2/FMA where present, ~1.4x faster); the CPU is part of the cache key.
     native = ["-march=native"] if platform.machine() in ("x86_64", "AMD64") and not os.environ.get("TORCH_GRID_PORTABLE") else []
+    native += _whole_vector_moves() if native else []
     # -O3 makes the kernels 1.4-2x faster than -O2 (bodies unrolled over the robot's constant tree);
     # the forward-mode backward units gain only 1-25% from it for twice the compile time.
     level = "-O2" if unit.endswith(("backward_f32", "backward_f64", "backward_lanes_f32", "backward_lanes_f64")) else "-O3"
@@ -321,6 +322,25 @@ def _cxx_flags(unit: str = "") -> list[str]:
     # TG_DEVICE_PATH), so that the CPU's tests check them (tests/test_device_paths.py).
     device = ["-DTG_DEVICE_PATHS"] if os.environ.get("TORCH_GRID_DEVICE_PATHS") == "1" else []
     return common + native + lanes + device
+
+
+@lru_cache(maxsize=None)
+def _whole_vector_moves() -> list[str]:
+    """Copies of structs of CPU lanes in whole vectors. GCC tuned for some CPUs (AMD Zen) copies an
+    aggregate in 16-byte pieces, or calls memcpy, and the kernels then load each piece back as one
+    wider vector: a failed store-to-load forwarding each time. -mmove-max/-mstore-max (GCC 12) set the
+    piece to the lanes' width; a compiler without them keeps its own."""
+    cpu_flags = set(_cpu_identity().split("flags=", 1)[-1].split("|", 1)[0].split())
+    bits = 512 if "avx512f" in cpu_flags else 256 if "avx" in cpu_flags else 0
+    if not bits:
+        return []
+    flags = [f"-mmove-max={bits}", f"-mstore-max={bits}"]
+    try:
+        probe = subprocess.run([os.environ.get("CXX", "c++"), "-march=native", *flags, "-x", "c++", "-fsyntax-only", os.devnull],
+                               capture_output=True, timeout=60)
+    except (OSError, subprocess.TimeoutExpired):
+        return []
+    return flags if probe.returncode == 0 else []
 
 
 def nvcc_flags() -> list[str]:

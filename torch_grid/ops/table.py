@@ -167,7 +167,7 @@ _VALUE_OPS = (
         OpSpec("end_effector_pose", "EndEffectorPose", (Q, Arg("frames", "frames")), (Out("pose", "plain", ("nsel", 6)),),
                "kinematics", backward="formula", jvp="backward"),
         OpSpec("frame_jacobian", "FrameJacobian", (Q, FRAME, REFERENCE), (Out("J", "columns", (6, "nv")),), "kinematics",
-               backward="formula", dual_backward=True, jvp="rule", lanes=False),
+               backward="formula", dual_backward=True, jvp="rule"),
         OpSpec("frame_jacobian_vjp", "FrameJacobianVjp", (Q, Arg("weight", "plain", shape=(6, "nv")), FRAME, REFERENCE),
                (Out("grad_q", "plain", NV),), "kinematics", mujoco_twin=False),
         OpSpec("frame_kinematic_hessian", "FrameKinematicHessian", (Q, FRAME, REFERENCE), (Out("H", "plain", (6, "nv", "nv")),),

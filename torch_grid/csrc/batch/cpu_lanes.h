@@ -17,7 +17,7 @@
 namespace tg {
 
 // A thread's lanes of one op's inputs and outputs, kept between calls; key names the op whose layout
-// (and zeros) it holds.
+// (and zeros) it holds, iargs the integer arguments (a frame) that chose the entries its kernel wrote.
 template <class L> struct LaneBuffer {
   std::vector<L> data;
   const void* key = nullptr;
@@ -25,6 +25,7 @@ template <class L> struct LaneBuffer {
   int present = 0;
   bool zeroed = false;
   int workspace = 0;
+  std::vector<int> iargs;
 };
 template <class L> LaneBuffer<L>& lane_buffer() {
   thread_local LaneBuffer<L> buffer;
@@ -73,21 +74,26 @@ void cpu_range_lanes(const Batch& b, int64_t begin, int64_t end) {
     int present = 0;  // which inputs and outputs the layout has
     for (int k = 0; k < kMaxIn; ++k) present |= (b.in[k] != nullptr) << k;
     for (int k = 0; k < kMaxOut; ++k) present |= (b.out[k] != nullptr) << (kMaxIn + k);
-    const bool fresh = buffer.key != key || buffer.total != total || buffer.present != present || buffer.zeroed != b.zeroed ||
-                       buffer.workspace != b.workspace || (b.poisoned && !b.zeroed);
+    const bool same_iargs = buffer.iargs.size() == static_cast<size_t>(b.n_iargs) &&
+                            std::equal(b.iargs, b.iargs + b.n_iargs, buffer.iargs.begin());
+    // The group's outputs are the buffer's, which keeps zeros wherever the kernel writes nothing (the same
+    // entries for every group of a call with these integer arguments): the kernel may skip filling them
+    // (Batch::zeroed). Under poisoned outputs they start as NaN at every call instead, so that an entry
+    // the kernel leaves unwritten shows.
+    const bool zeroed = !b.poisoned;
+    const bool fresh = buffer.key != key || buffer.total != total || buffer.present != present || buffer.zeroed != zeroed ||
+                       buffer.workspace != b.workspace || !same_iargs || !zeroed;
     if (fresh) buffer.data.resize(static_cast<size_t>(total));
     const L* in[kMaxIn];
     L* out[kMaxOut];
     for (int k = 0; k < kMaxIn; ++k) in[k] = b.in[k] ? buffer.data.data() + offset[k] : nullptr;
     for (int k = 0; k < kMaxOut; ++k) {
       out[k] = b.out[k] ? buffer.data.data() + offset[kMaxIn + k] : nullptr;
-      // Zeros in its scratch, and where the kernel writes nothing if the outputs hold zeros there
-      // (Batch::zeroed: it writes the same entries for every group); otherwise NaN, so that an entry it
-      // leaves unwritten shows (refilled at every call when the outputs are poisoned).
-      const T fill = b.zeroed || (b.workspace >> k & 1) ? T(0) : std::numeric_limits<T>::quiet_NaN();
+      const T fill = zeroed || (b.workspace >> k & 1) ? T(0) : std::numeric_limits<T>::quiet_NaN();  // scratch: zeros
       if (out[k] && fresh) std::fill(out[k], out[k] + b.out_stride[k], L(fill));
     }
-    buffer.key = key, buffer.total = total, buffer.present = present, buffer.zeroed = b.zeroed, buffer.workspace = b.workspace;
+    buffer.key = key, buffer.total = total, buffer.present = present, buffer.zeroed = zeroed, buffer.workspace = b.workspace;
+    if (!same_iargs) buffer.iargs.assign(b.iargs, b.iargs + b.n_iargs);
     for (int64_t s0 = begin; s0 < groups_end; s0 += W) {
       const int n = static_cast<int>(std::min<int64_t>(W, groups_end - s0));
       // gather: a shared input (stride 0) fills every lane alike; spare lanes repeat the last sample
@@ -99,7 +105,7 @@ void cpu_range_lanes(const Batch& b, int64_t begin, int64_t end) {
         for (int64_t j = 0; j < b.in_size[k]; ++j)
           for (int l = 0; l < W; ++l) y[j].x[l] = x[l][j];
       }
-      Op<Robot, L, C>::run(in, out, b.iargs, b.n_iargs, b.zeroed);
+      Op<Robot, L, C>::run(in, out, b.iargs, b.n_iargs, zeroed);
       for (int k = 0; k < kMaxOut; ++k) {
         if (!b.out[k] || (b.workspace >> k & 1)) continue;
         T* y = static_cast<T*>(b.out[k]) + s0 * b.out_stride[k];

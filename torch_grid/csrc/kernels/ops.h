@@ -96,7 +96,7 @@ template <class Robot, class Scalar> struct EndEffectorPose {
 };
 
 template <class Robot, class Scalar> struct FrameJacobian {
-  TG_HD static void run(const FrameJacobianArgs<Scalar>& a) { frame_jacobian<Robot, Scalar>(a.q, a.frame, a.reference, a.J); }
+  TG_HD static void run(const FrameJacobianArgs<Scalar>& a) { frame_jacobian<Robot, Scalar>(a.q, a.frame, a.reference, a.J, a.outputs_zeroed); }
 };
 
 template <class Robot, class Scalar> struct FrameJacobianVjp {

@@ -38,11 +38,14 @@ template <class Robot, class Scalar> TG_HD void end_effector_pose(const Scalar* 
 }
 
 // Jacobian (6 x NV, rows [linear; angular]) of frame f in the given reference, from the world
-// placements oMi of (at least) the bodies supporting the frame.
-template <class Robot, class Scalar> TG_HD void frame_jacobian(const SE3<Scalar>* oMi, int f, int reference, Scalar* J) {
+// placements oMi of (at least) the bodies supporting the frame. `zeroed`: J holds zeros outside the
+// columns of the frame's chain already.
+template <class Robot, class Scalar>
+TG_HD void frame_jacobian(const SE3<Scalar>* oMi, int f, int reference, Scalar* J, bool zeroed = false) {
   const auto& d = data<Robot, Scalar>();
   const SE3<Scalar> oMf = frame_placement<Robot, Scalar>(f, oMi);
-  for (int k = 0; k < 6 * Robot::NV; ++k) J[k] = Scalar(0);
+  if (!zeroed)
+    for (int k = 0; k < 6 * Robot::NV; ++k) J[k] = Scalar(0);
   // Each joint on the chain contributes its world axis, expressed as asked.
   for (int j = d.fparent[f]; j >= 0; j = d.parent[j]) {
     for (int k = 0; k < d.nvj[j]; ++k) {
@@ -62,13 +65,13 @@ template <class Robot, class Scalar> TG_HD void frame_jacobian(const SE3<Scalar>
 }
 
 // The same from q: only the bodies supporting the frame are placed.
-template <class Robot, class Scalar> TG_HD void frame_jacobian(const Scalar* q, int f, int reference, Scalar* J) {
+template <class Robot, class Scalar> TG_HD void frame_jacobian(const Scalar* q, int f, int reference, Scalar* J, bool zeroed = false) {
   const auto& d = data<Robot, Scalar>();
   int chain[Robot::NB], n = 0;  // support chain, frame's body first
   for (int j = d.fparent[f]; j >= 0; j = d.parent[j]) chain[n++] = j;
   SE3<Scalar> oMi[Robot::NB];
   chain_placements<Robot, Scalar>(q, chain, n, oMi);
-  frame_jacobian<Robot, Scalar>(oMi, f, reference, J);
+  frame_jacobian<Robot, Scalar>(oMi, f, reference, J, zeroed);
 }
 
 // The gradient along the tangent of <G, J(q)> for frame f's Jacobian J in the given reference and a

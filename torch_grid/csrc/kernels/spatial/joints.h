@@ -109,7 +109,7 @@ template <class Robot, class Scalar> TG_HD Sv<Scalar> joint_motion(int i, const 
 
 // X S_ik: joint i's k-th axis moved by a placement X (world placements, mostly). A free or ball
 // joint's axes and a cardinal revolute or prismatic axis are a column of X.R, without a product by S.
-template <class Robot, class Scalar> TG_HD Sv<Scalar> placed_axis(const SE3<Scalar>& X, int i, int k) {
+template <class Robot, class Scalar> TG_HD_INLINE Sv<Scalar> placed_axis(const SE3<Scalar>& X, int i, int k) {
   const auto& d = data<Robot, Scalar>();
   const int t = d.jtype[i], c = t == FREE ? k % 3 : t == BALL ? k : d.axis_index[i];
   if (c < 0) return act_motion(X, joint_axis<Robot, Scalar>(i, k));
