@@ -330,7 +330,7 @@ def _whole_vector_moves() -> list[str]:
     aggregate in 16-byte pieces, or calls memcpy, and the kernels then load each piece back as one
     wider vector: a failed store-to-load forwarding each time. -mmove-max/-mstore-max (GCC 12) set the
     piece to the lanes' width; a compiler without them keeps its own."""
-    cpu_flags = set(_cpu_identity().split("flags=", 1)[-1].split("|", 1)[0].split())
+    cpu_flags = _cpu_features()
     bits = 512 if "avx512f" in cpu_flags else 256 if "avx" in cpu_flags else 0
     if not bits:
         return []
@@ -477,18 +477,33 @@ def _cache_key(model: RobotModel, mujoco: bool, cuda: bool) -> str:
 
 
 @lru_cache(maxsize=None)
-def _cpu_identity() -> str:
-    """Model name and feature flags of this CPU: a -march=native binary runs only where they match."""
+def _cpuinfo() -> dict[str, str]:
+    """The first processor's model name and feature flags from /proc/cpuinfo (empty where it is absent)."""
     try:
         lines = Path("/proc/cpuinfo").read_text().splitlines()
     except OSError:
-        return platform.processor() or platform.machine()
+        return {}
     keep = {}
     for line in lines:
         key, _, value = line.partition(":")
         key = key.strip()
         if key in ("model name", "flags", "Features", "CPU part") and key not in keep:
             keep[key] = value.strip()
+    return keep
+
+
+def _cpu_features() -> set[str]:
+    """This CPU's instruction-set features (x86 `flags`, Arm `Features`)."""
+    info = _cpuinfo()
+    return set(info.get("flags", info.get("Features", "")).split())
+
+
+@lru_cache(maxsize=None)
+def _cpu_identity() -> str:
+    """Model name and feature flags of this CPU: a -march=native binary runs only where they match."""
+    keep = _cpuinfo()
+    if not keep:
+        return platform.processor() or platform.machine()
     return platform.machine() + "|" + "|".join(f"{k}={v}" for k, v in sorted(keep.items()))
 
 

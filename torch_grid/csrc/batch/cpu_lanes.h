@@ -23,7 +23,6 @@ template <class L> struct LaneBuffer {
   const void* key = nullptr;
   int64_t total = 0;
   int present = 0;
-  bool zeroed = false;
   int workspace = 0;
   std::vector<int> iargs;
 };
@@ -78,10 +77,10 @@ void cpu_range_lanes(const Batch& b, int64_t begin, int64_t end) {
                             std::equal(b.iargs, b.iargs + b.n_iargs, buffer.iargs.begin());
     // The group's outputs are the buffer's, which keeps zeros wherever the kernel writes nothing (the same
     // entries for every group of a call with these integer arguments): the kernel may skip filling them
-    // (Batch::zeroed). Under poisoned outputs they start as NaN at every call instead, so that an entry
-    // the kernel leaves unwritten shows.
+    // (Batch::zeroed). Under poisoned outputs (fixed for the process) they start as NaN at every call
+    // instead, so that an entry the kernel leaves unwritten shows.
     const bool zeroed = !b.poisoned;
-    const bool fresh = buffer.key != key || buffer.total != total || buffer.present != present || buffer.zeroed != zeroed ||
+    const bool fresh = buffer.key != key || buffer.total != total || buffer.present != present ||
                        buffer.workspace != b.workspace || !same_iargs || !zeroed;
     if (fresh) buffer.data.resize(static_cast<size_t>(total));
     const L* in[kMaxIn];
@@ -92,7 +91,7 @@ void cpu_range_lanes(const Batch& b, int64_t begin, int64_t end) {
       const T fill = zeroed || (b.workspace >> k & 1) ? T(0) : std::numeric_limits<T>::quiet_NaN();  // scratch: zeros
       if (out[k] && fresh) std::fill(out[k], out[k] + b.out_stride[k], L(fill));
     }
-    buffer.key = key, buffer.total = total, buffer.present = present, buffer.zeroed = zeroed, buffer.workspace = b.workspace;
+    buffer.key = key, buffer.total = total, buffer.present = present, buffer.workspace = b.workspace;
     if (!same_iargs) buffer.iargs.assign(b.iargs, b.iargs + b.n_iargs);
     for (int64_t s0 = begin; s0 < groups_end; s0 += W) {
       const int n = static_cast<int>(std::min<int64_t>(W, groups_end - s0));
