@@ -11,7 +11,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # make `import oracles` work from any rootdir
 
 import oracles  # noqa: E402
-from mjcf_models import DAMPED_FLOATING, DAMPED_PLANAR, TREES  # noqa: E402
+from mjcf_models import DAMPED_FLOATING, DAMPED_PLANAR, TREES, ZOO  # noqa: E402
 
 _ERD = oracles.erd_dir()
 
@@ -29,7 +29,7 @@ ROBOT_SPECS = {
 }
 FLOATING = {name: oracles.BUNDLED_FLOATING.get(src, False) if fb is None else fb for name, (src, fb) in ROBOT_SPECS.items()}
 # name -> MJCF text: robots whose MuJoCo oracle is the MJCF itself (no Pinocchio model)
-MJCF_SPECS = {"trees": TREES, "damped_planar": DAMPED_PLANAR, "damped_floating": DAMPED_FLOATING}
+MJCF_SPECS = {"trees": TREES, "damped_planar": DAMPED_PLANAR, "damped_floating": DAMPED_FLOATING, "zoo": ZOO}
 
 
 class LazyCache:
@@ -99,6 +99,16 @@ def step_roots(robots):
     """A robot of each kind of root for the step tests: a fixed arm, a planar and a free root (damped and
     sprung MJCF models)."""
     return {"fixed": robots["iiwa14"], "planar": robots["damped_planar"], "free": robots["damped_floating"]}
+
+
+@pytest.fixture(scope="session")
+def pinocchio_balls():
+    """(robot, pinocchio.Model) of tests/pin_models.py's ball-jointed model, loaded from the Model object."""
+    import torch_grid
+    from pin_models import pin_ball_model
+
+    model = pin_ball_model()
+    return torch_grid.load(model), model
 
 
 @pytest.fixture(scope="session")

@@ -95,3 +95,41 @@ DAMPED_FLOATING = """
   </actuator>
 </mujoco>
 """
+
+# The MJCF zoo (tests/test_mjcf.py): a planar root of slide, slide, hinge; a body with two hinges about
+# different anchors; bodies welded to their parent (inertia from geoms, a site on one); angles in degrees
+# and euler orientations; several trees, one on a free joint; the model's own gravity.
+ZOO = """
+<mujoco model="zoo">
+  <option gravity="0.5 -1 -7"/>
+  <worldbody>
+    <body name="flyer" pos="0.3 0.2 1" euler="10 20 30">
+      <freejoint name="root"/>
+      <geom type="box" size="0.2 0.1 0.05" density="800"/>
+      <body name="arm" pos="0.2 0 0" euler="0 0 45">
+        <joint name="yaw" type="hinge" axis="0 0 1" pos="0.05 0 0"/>
+        <joint name="pitch" type="hinge" axis="0 1 1" pos="0.1 0.02 0" range="-60 60"/>
+        <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.03"/>
+        <body name="hand" pos="0.3 0 0" quat="0.9 0.1 0.3 0.2">
+          <geom type="sphere" size="0.04" pos="0.02 0 0"/>
+          <site name="tip" pos="0.05 0.01 0" euler="0 90 0"/>
+        </body>
+      </body>
+    </body>
+    <body name="hopper" pos="-1 0 0.5">
+      <joint name="slide_x" type="slide" axis="1 0 0"/>
+      <joint name="slide_z" type="slide" axis="0 0 1"/>
+      <joint name="tilt" type="hinge" axis="0 1 0" pos="0 0 0.1"/>
+      <geom type="capsule" fromto="0 0 0 0 0 0.4" size="0.05"/>
+      <body name="leg" pos="0 0 -0.05">
+        <joint name="knee" type="hinge" axis="0 -1 0" pos="0 0 0.02"/>
+        <inertial pos="0 0.01 -0.2" mass="0.8" diaginertia="0.01 0.012 0.004" quat="0.8 0.6 0 0"/>
+      </body>
+    </body>
+    <body name="pendulum" pos="1 1 1">
+      <joint name="swing" type="hinge" axis="1 0 0"/>
+      <geom type="cylinder" fromto="0 0 0 0 0 -0.5" size="0.02"/>
+    </body>
+  </worldbody>
+</mujoco>
+"""

@@ -43,8 +43,10 @@ def test_every_float32_kernel_compiles_with_nvcc(go2_sources):
                 assert f"tg::cuda_launch<tg::bind::{op.kernel}, Robot, {scalar}, {conv}>" in text
 
     def compile_unit(unit):
-        return subprocess.run([NVCC, "-std=c++17", "-O1", "-arch=sm_90", "-c", str(unit), "-o", str(unit.with_suffix(".o")),
-                               f"-I{CSRC}", f"-I{go2_sources}"], capture_output=True, text=True)
+        # Device code unoptimised: what this test checks is that every template instantiates and compiles;
+        # the optimised device code is the stack-budget test's.
+        return subprocess.run([NVCC, "-std=c++17", "-O1", "-Xcicc", "-O0", "-Xptxas", "-O0", "-arch=sm_90", "-c", str(unit),
+                               "-o", str(unit.with_suffix(".o")), f"-I{CSRC}", f"-I{go2_sources}"], capture_output=True, text=True)
 
     with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
         results = list(pool.map(compile_unit, units))

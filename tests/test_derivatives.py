@@ -170,35 +170,23 @@ def test_mujoco_regressors(robots, mj_sims, name):
         assert abs(float(robot.mujoco.potential_energy_regressor(q[b]) @ pi) - potential) <= 1e-9 * max(1, abs(potential))
 
 
-def test_forward_dynamics_parameter_derivatives_vs_finite_differences(robots, tmp_path):
-    """Perturb one body's dynamic parameters in the model itself, rebuild, and difference qdd."""
-    import torch_grid
-    from torch_grid.model.description import Joint, RobotModel
-
+def test_forward_dynamics_parameter_derivatives_vs_finite_differences(robots):
+    """Central differences of qdd in every parameter of one body, the parameters passed as an input
+    (params=, itself held to rebuilt and Pinocchio-edited models in tests/test_parameters.py)."""
     robot = robots["go2"]
     body = robot.nbodies - 1
-    joint = robot.model.joints[body]
-
-    def robot_with_mass(delta):
-        # Adding mass at fixed first moment h and fixed I about the origin moves parameter 0 alone.
-        mass = joint.mass + delta
-        com = tuple(joint.mass * c / mass for c in joint.com)
-        c2, c2_new = sum(c * c for c in joint.com), sum(c * c for c in com)
-        inertia = tuple(x + (joint.mass * (c2 if r == k else 0) - joint.mass * joint.com[r] * joint.com[k])
-                        - (mass * (c2_new if r == k else 0) - mass * com[r] * com[k])
-                        for r in range(3) for k in range(3) for x in [joint.inertia[3 * r + k]])
-        joints = list(robot.model.joints)
-        joints[body] = Joint(**{**joint.__dict__, "mass": mass, "com": com, "inertia": inertia})
-        return torch_grid.load(RobotModel(robot.name + "_fd", tuple(joints), robot.model.frames), cache_dir=tmp_path)
-
-    eps = 1e-4
-    plus, minus = robot_with_mass(eps), robot_with_mass(-eps)
+    pi = robot.inertial_parameters().view(robot.nbodies, 10)
+    eps = 1e-5
     for convention in ("pin", "mujoco"):
+        view = getattr(robot, convention)
         q, qd, tau, _ = _states(robot, batch=1, seed=13, convention=convention)
-        ours = getattr(robot, convention).forward_dynamics_parameter_derivatives(q, qd, tau)[0]
-        fd = (getattr(plus, convention).forward_dynamics(q, qd, tau)[0]
-              - getattr(minus, convention).forward_dynamics(q, qd, tau)[0]) / (2 * eps)
-        assert rel_err(ours[:, 10 * body], fd) <= 1e-6, convention
+        ours = view.forward_dynamics_parameter_derivatives(q, qd, tau)[0]
+        for k in range(10):
+            step = torch.zeros_like(pi)
+            step[body, k] = eps
+            fd = (view.forward_dynamics(q, qd, tau, params=pi + step)[0]
+                  - view.forward_dynamics(q, qd, tau, params=pi - step)[0]) / (2 * eps)
+            assert rel_err(ours[:, 10 * body + k], fd) <= 1e-6, (convention, k)
 
 
 # --------------------------------------------------------------------------------------------

@@ -8,9 +8,7 @@ import pytest
 import torch
 from torch.autograd import gradgradcheck
 
-import torch_grid
 from oracles import rel_err
-from test_quaternion_joints import pin_ball_model
 
 FUNCTIONS = {
     "inverse_dynamics": lambda v, q, qd, x, f: v.inverse_dynamics(q, qd, x, f),
@@ -29,8 +27,8 @@ ARITY = {"inverse_dynamics": 4, "forward_dynamics": 4, "nonlinear_effects": 2, "
 
 
 @pytest.fixture(scope="module")
-def balls(tmp_path_factory):
-    return torch_grid.load(pin_ball_model(), cache_dir=tmp_path_factory.mktemp("cache"))
+def balls(pinocchio_balls):
+    return pinocchio_balls[0]
 
 
 def _inputs(robot, convention, seed):

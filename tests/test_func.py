@@ -8,14 +8,12 @@ import pytest
 import torch
 from torch.autograd import forward_ad
 
-import torch_grid
 from oracles import rel_err
-from test_quaternion_joints import pin_ball_model
 
 
 @pytest.fixture(scope="module")
-def balls(tmp_path_factory):
-    return torch_grid.load(pin_ball_model(), cache_dir=tmp_path_factory.mktemp("cache"))
+def balls(pinocchio_balls):
+    return pinocchio_balls[0]
 
 
 def _robot(name, robots, balls):

@@ -15,49 +15,15 @@ import torch
 import torch_grid
 from torch_grid.model.parse import source_to_model
 
-MODEL = """
-<mujoco model="zoo">
-  <option gravity="0.5 -1 -7"/>
-  <worldbody>
-    <body name="flyer" pos="0.3 0.2 1" euler="10 20 30">
-      <freejoint name="root"/>
-      <geom type="box" size="0.2 0.1 0.05" density="800"/>
-      <body name="arm" pos="0.2 0 0" euler="0 0 45">
-        <joint name="yaw" type="hinge" axis="0 0 1" pos="0.05 0 0"/>
-        <joint name="pitch" type="hinge" axis="0 1 1" pos="0.1 0.02 0" range="-60 60"/>
-        <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.03"/>
-        <body name="hand" pos="0.3 0 0" quat="0.9 0.1 0.3 0.2">
-          <geom type="sphere" size="0.04" pos="0.02 0 0"/>
-          <site name="tip" pos="0.05 0.01 0" euler="0 90 0"/>
-        </body>
-      </body>
-    </body>
-    <body name="hopper" pos="-1 0 0.5">
-      <joint name="slide_x" type="slide" axis="1 0 0"/>
-      <joint name="slide_z" type="slide" axis="0 0 1"/>
-      <joint name="tilt" type="hinge" axis="0 1 0" pos="0 0 0.1"/>
-      <geom type="capsule" fromto="0 0 0 0 0 0.4" size="0.05"/>
-      <body name="leg" pos="0 0 -0.05">
-        <joint name="knee" type="hinge" axis="0 -1 0" pos="0 0 0.02"/>
-        <inertial pos="0 0.01 -0.2" mass="0.8" diaginertia="0.01 0.012 0.004" quat="0.8 0.6 0 0"/>
-      </body>
-    </body>
-    <body name="pendulum" pos="1 1 1">
-      <joint name="swing" type="hinge" axis="1 0 0"/>
-      <geom type="cylinder" fromto="0 0 0 0 0 -0.5" size="0.02"/>
-    </body>
-  </worldbody>
-</mujoco>
-"""
+from mjcf_models import ZOO as MODEL
+
 JOINTS = ["root", "yaw", "pitch", "slide_x", "slide_z", "tilt", "knee", "swing"]
 TOL = 1e-9
 
 
 @pytest.fixture(scope="module")
-def zoo(tmp_path_factory):
-    m = rigid_only(mujoco.MjModel.from_xml_string(MODEL))
-    robot = torch_grid.load(MODEL, cache_dir=tmp_path_factory.mktemp("cache"))
-    return robot, m
+def zoo(robots):
+    return robots["zoo"], rigid_only(mujoco.MjModel.from_xml_string(MODEL))
 
 
 def rigid_only(m):
@@ -313,10 +279,10 @@ def test_floating_base_must_agree():
         source_to_model(fixed, True)
 
 
-def test_bundled_humanoid_matches_mujoco(tmp_path):
+def test_bundled_humanoid_matches_mujoco():
     """The bundled MJCF robot (multi-hinge bodies, armature, damping, springs), loaded by name from its
     JSON, against MuJoCo compiling its XML."""
-    robot = torch_grid.load("humanoid", convention="mujoco", cache_dir=tmp_path)
+    robot = torch_grid.load("humanoid", convention="mujoco")
     m = rigid_only(mujoco.MjModel.from_xml_path(str(torch_grid.model.parse.ROBOTS_DIR / "humanoid.xml")))
     assert robot.joint_names == [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(m.njnt)]
     d = mujoco.MjData(m)

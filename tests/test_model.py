@@ -92,9 +92,9 @@ def test_save_and_load_without_pinocchio(robots, tmp_path):
     assert "urdf needs pinocchio: Pinocchio is needed" in lines[-1]
 
 
-def test_pinocchio_model_source(robots, tmp_path):
+def test_pinocchio_model_source(robots):
     model = pin.buildModelFromUrdf(str(ROBOTS_DIR / "go2.urdf"), pin.JointModelFreeFlyer())
-    robot = torch_grid.load(model, cache_dir=tmp_path)
+    robot = torch_grid.load(model)
     assert robot.model.joints == robots["go2"].model.joints
     assert robot.frame_names == [f.name for f in model.frames]
     with pytest.raises(ValueError, match="floating_base=False"):
@@ -102,7 +102,7 @@ def test_pinocchio_model_source(robots, tmp_path):
 
 
 def _mjcf_case(tmp_path, floating: bool):
-    path = tmp_path / f"arm_{floating}.xml"
+    path = tmp_path / "arm.xml"  # named as the model in the text (the name is part of the cache key)
     path.write_text(ARM_MJCF.format(free='<freejoint name="root"/>' if floating else ""))
     return path
 
@@ -112,7 +112,7 @@ def test_mjcf_source_matches_pinocchio_and_mujoco(tmp_path, floating):
     import mujoco
 
     path = _mjcf_case(tmp_path, floating)
-    robot = torch_grid.load(str(path), cache_dir=tmp_path / "cache")
+    robot = torch_grid.load(str(path))
     assert robot.floating_base == floating
     assert [j.type for j in robot.model.joints] == (["free"] if floating else []) + ["revolute", "prismatic", "revolute"]
     pm = pin.buildModelFromMJCF(str(path))
@@ -136,9 +136,9 @@ def test_mjcf_source_matches_pinocchio_and_mujoco(tmp_path, floating):
         assert np.abs(ours - M).max() <= 1e-9 * np.abs(M).max()
 
 
-def test_mjcf_string_source(tmp_path):
+def test_mjcf_string_source():
     text = ARM_MJCF.format(free="")
-    robot = torch_grid.load(text, cache_dir=tmp_path)
+    robot = torch_grid.load(text)
     assert robot.nv == 3 and not robot.floating_base
 
 

@@ -12,19 +12,9 @@ import pinocchio as pin
 import pytest
 import torch
 
-import torch_grid
 from oracles import rel_err, to_pin_q
 from pinocchio_cpp_oracle import rnea_second_order
-from mjcf_models import TREES
-from test_mjcf import MODEL as ZOO
-from test_quaternion_joints import pin_ball_model
 from torch_grid.space.tangent import tangent_to_ambient
-
-
-@pytest.fixture(scope="module")
-def pinocchio_balls(tmp_path_factory):
-    model = pin_ball_model()
-    return torch_grid.load(model, cache_dir=tmp_path_factory.mktemp("cache")), model
 
 
 def _robot_and_model(name, robots, pin_models, pinocchio_balls):
@@ -73,12 +63,8 @@ def _tangent_steps(robot, q, h):
 
 
 @pytest.fixture(scope="module")
-def mjcf_robots(tmp_path_factory):
-    import warnings
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", "the MJCF model has contacts")
-        return {name: torch_grid.load(text, cache_dir=tmp_path_factory.mktemp(name)) for name, text in
-                (("zoo", ZOO), ("trees", TREES))}
+def mjcf_robots(robots):
+    return {name: robots[name] for name in ("zoo", "trees")}
 
 
 def _any_robot(name, robots, pin_models, pinocchio_balls, mjcf_robots):
