@@ -161,9 +161,9 @@ def test_gradgradcheck(mj_model, convention, scale):
                                (lambda q, v: d_integrate(space, q, v, 0.7, convention), (q, v), True),
                                (lambda a, b: difference(space, a, b, convention), (q, q1), False),
                                (lambda a, b: d_difference(space, a, b, convention), (q, q1), True)):
-        # second derivatives by random projections (fast mode): in full, one backward per input and output
-        # entry (nv^2 x nv^2 columns for the Jacobians)
-        assert torch.autograd.gradcheck(fn, args)
+        # by random projections (fast mode) where the outputs are the Jacobians: in full, one backward per
+        # output entry (2 nv^2), and nv^2 x nv^2 columns at second order
+        assert torch.autograd.gradcheck(fn, args, fast_mode=matrices)
         assert torch.autograd.gradgradcheck(fn, args, fast_mode=True)
     same = q.detach().clone().requires_grad_(True)
     assert torch.autograd.gradgradcheck(lambda a, b: difference(space, a, b, convention), (q, same), fast_mode=True)  # zero angle
