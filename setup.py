@@ -28,8 +28,9 @@ setup(
     extras_require={
         "pin": ["pin>=3.4"],
         "mujoco": ["mujoco>=3.2"],
-        # cmeel-eigen: tests/pinocchio_cpp_oracle.py compiles Pinocchio's C++ second-order derivatives
-        "test": ["pytest>=8", "pin==4.1.0", "mujoco==4.0.0", "example-robot-data==6.0.0", "cmeel-eigen==3.4.1"],
+        # cmeel-eigen: tests/pinocchio_cpp_oracle.py compiles Pinocchio's C++ second-order derivatives;
+        # pytest-xdist: the suite runs one test file per core (-n auto --dist loadfile)
+        "test": ["pytest>=8", "pytest-xdist>=3.5", "pin==4.1.0", "mujoco==4.0.0", "example-robot-data==6.0.0", "cmeel-eigen==3.4.1"],
         # bench/pinocchio_cpp.py compiles against Pinocchio's headers, which need these two too
         "bench": ["pin==4.1.0", "example-robot-data==6.0.0", "cmeel-eigen==3.4.1", "cmeel-urdfdom-headers==3.0.0"],
         # the Sphinx build of docs/ (sphinx-build -W): Markdown pages, the API reference, the gallery, whose
