@@ -33,7 +33,10 @@ def _binary() -> Path:
     flags = ["-std=c++17", "-O2", "-DNDEBUG", *library_definitions(prefix), f"-I{include}", f"-I{include / 'eigen3'}"]
     flags = [f for f in flags if f != "-DPINOCCHIO_WITH_URDFDOM"]
     compiler = os.environ.get("CXX", "c++")
-    key = hashlib.sha256("\0".join([SOURCE.read_text(), compiler, *flags, pin.__version__]).encode()).hexdigest()
+    # Keyed by what decides the binary, not by where the headers are: each fresh environment of the same
+    # pin wheel (a CI's virtual environment) reuses it.
+    portable = [f.replace(str(prefix), "<cmeel>") for f in flags]
+    key = hashlib.sha256("\0".join([SOURCE.read_text(), compiler, *portable, pin.__version__]).encode()).hexdigest()
     target = CACHE / key[:16] / SOURCE.stem
     if not target.exists():
         target.parent.mkdir(parents=True, exist_ok=True)
