@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from torch_grid.ops import codegen
+from torch_grid.ops import codegen, cuda_report
 from torch_grid.ops.build import CSRC
 from torch_grid.ops.table import OPS
 
@@ -57,7 +57,7 @@ def test_every_float32_kernel_compiles_with_nvcc(go2_sources):
         assert "warning" not in result.stderr.lower(), result.stderr[-4000:]
     mangled = [line.split()[2].split("(")[0] for u in units for line in u.with_suffix(".ptx").read_text().splitlines()
                if line.startswith(".visible .entry ")]
-    entries = set(subprocess.run(["c++filt"], input="\n".join(mangled), capture_output=True, text=True).stdout.split("\n"))
+    entries = set(cuda_report._demangle(mangled))
     for op in OPS.values():
         for conv in (0, 1) if op.mujoco_twin else (0,):
             name = f"void tg::batch_kernel<tg::bind::{op.kernel}, torch_grid_nvcc_check::Robot, float, {conv}>(tg::Batch)"
@@ -69,7 +69,6 @@ def test_cuda_stack_budget_on_a_humanoid(erd_robots_dir):
     """Per-thread local memory of every float64 CUDA kernel of the G1 humanoid (floating, both
     conventions), compiled for sm_90 as a build compiles it: at most 64 KiB, and the core kernels at
     most half of what they took before their workspaces were cut."""
-    from torch_grid.ops import cuda_report
     from torch_grid.model.parse import source_to_model
 
     model = source_to_model(str(erd_robots_dir / "g1_description" / "urdf" / "g1_29dof_rev_1_0.urdf"), True)
