@@ -20,6 +20,9 @@ from functions import FUNCTIONS
 NVCC = shutil.which("nvcc") or (os.environ.get("CUDA_HOME") and str(Path(os.environ["CUDA_HOME"]) / "bin" / "nvcc"))
 needs_nvcc = pytest.mark.skipif(not NVCC or not Path(NVCC).exists(), reason="nvcc is not installed")
 needs_gpu = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+# Compiler reports of unchanged units are reused across runs (cuda_report.compile_unit: keyed by the
+# compiler, the flags and the text of every source a unit can include).
+NVCC_CACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "torch_grid_tests" / "nvcc"
 
 
 @pytest.fixture(scope="module")
@@ -43,18 +46,13 @@ def test_every_float32_kernel_compiles_with_nvcc(go2_sources):
             for conv in ("tg::PIN", "tg::MUJOCO") if op.mujoco_twin else ("tg::PIN",):
                 assert f"tg::cuda_launch<tg::bind::{op.kernel}, Robot, {scalar}, {conv}>" in text
 
-    def compile_unit(unit):
-        # Device code only and unoptimised: what this test checks is that every template instantiates
-        # in float and compiles (the host pass and ptxas add three quarters of the time and nothing
-        # float-specific).
-        return subprocess.run([NVCC, "-std=c++17", "-Xcicc", "-O0", "-arch=sm_90", "-ptx", str(unit),
-                               "-o", str(unit.with_suffix(".ptx")), f"-I{CSRC}", f"-I{go2_sources}"], capture_output=True, text=True)
-
+    # Device code only and unoptimised: what this test checks is that every template instantiates in
+    # float and compiles (the host pass and ptxas add three quarters of the time and nothing float-specific).
+    flags = ["-std=c++17", "-Xcicc", "-O0", "-arch=sm_90", "-ptx"]
     with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-        results = list(pool.map(compile_unit, units))
-    for result in results:
-        assert result.returncode == 0, result.stderr[-4000:]
-        assert "warning" not in result.stderr.lower(), result.stderr[-4000:]
+        messages = list(pool.map(lambda u: cuda_report.compile_unit(NVCC, flags, u, ".ptx", NVCC_CACHE, keep_output=True), units))
+    for text in messages:
+        assert "warning" not in text.lower(), text[-4000:]
     mangled = [line.split()[2].split("(")[0] for u in units for line in u.with_suffix(".ptx").read_text().splitlines()
                if line.startswith(".visible .entry ")]
     entries = set(cuda_report._demangle(mangled))
@@ -72,7 +70,7 @@ def test_cuda_stack_budget_on_a_humanoid(erd_robots_dir):
     from torch_grid.model.parse import source_to_model
 
     model = source_to_model(str(erd_robots_dir / "g1_description" / "urdf" / "g1_29dof_rev_1_0.urdf"), True)
-    usages = cuda_report.report(model, ("float64",), "sm_90", NVCC)
+    usages = cuda_report.report(model, ("float64",), "sm_90", NVCC, cache=NVCC_CACHE)
     assert {(u.op, u.convention) for u in usages} == {(name, c) for name, op in OPS.items()
                                                       for c in (("pin", "mujoco") if op.mujoco_twin else ("pin",))}
     halved = {"inverse_dynamics": 8272, "crba": 18032, "forward_dynamics": 28768, "minv": 92896,
@@ -83,6 +81,43 @@ def test_cuda_stack_budget_on_a_humanoid(erd_robots_dir):
     for u in usages:
         if u.op in halved:
             assert u.stack <= halved[u.op] // 2, f"{u.op} ({u.convention}): {u.stack} bytes, more than half of {halved[u.op]}"
+
+
+def test_compile_cache_reuses_only_unchanged_inputs(tmp_path):
+    """cuda_report.compile_unit's cache: a second call with the same inputs does not run the compiler and
+    gives its messages and output back; a changed header beside the unit, changed flags or a failure
+    are never served from it."""
+    calls = tmp_path / "calls"
+    nvcc = tmp_path / "nvcc"
+    nvcc.write_text("#!/bin/sh\n"
+                    "[ \"$1\" = --version ] && { echo 'fake nvcc 1.0'; exit 0; }\n"
+                    f"echo x >> {calls}\n"
+                    "for a; do case $a in -DFAIL) echo broken >&2; exit 1;; esac; done\n"
+                    "while [ \"$1\" != -o ]; do shift; done\n"
+                    f"cat {tmp_path}/src/robot.h > \"$2\"; echo 'ptxas info: 8 registers' >&2\n")
+    nvcc.chmod(0o755)
+    src = tmp_path / "src"
+    src.mkdir()
+    unit, header = src / "unit.cu", src / "robot.h"
+    unit.write_text('#include "robot.h"\n')
+    header.write_text("// one\n")
+    cache = tmp_path / "cache"
+
+    def compile_(flags=("-O3",)):
+        unit.with_suffix(".ptx").unlink(missing_ok=True)
+        messages = cuda_report.compile_unit(str(nvcc), list(flags), unit, ".ptx", cache, keep_output=True)
+        return messages, unit.with_suffix(".ptx").read_text(), len(calls.read_text().split())
+
+    assert compile_() == ("ptxas info: 8 registers\n", "// one\n", 1)
+    assert compile_() == ("ptxas info: 8 registers\n", "// one\n", 1)  # served from the cache
+    header.write_text("// two\n")
+    assert compile_() == ("ptxas info: 8 registers\n", "// two\n", 2)
+    assert compile_(("-O0",))[2] == 3
+    with pytest.raises(RuntimeError, match="nvcc failed on unit.cu:\nbroken"):
+        compile_(("-DFAIL",))
+    with pytest.raises(RuntimeError, match="broken"):
+        compile_(("-DFAIL",))
+    assert len(calls.read_text().split()) == 5
 
 
 @needs_nvcc
