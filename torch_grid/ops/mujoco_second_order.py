@@ -204,7 +204,8 @@ def second_order_from_ops(ops, model, q, qd, qdd, f_ext, params=None):
     converted state. Passive joint forces (hinge and slide) do not reach them: they are linear, and
     no term here reads their rows."""
     # one batch shape for the state: the reframes below combine q's and the velocities' per sample
-    batch = torch.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1], () if f_ext is None else f_ext.shape[:-2])
+    batch = torch.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1], () if f_ext is None else f_ext.shape[:-2],
+                                   () if params is None else params.shape[:-2])
     q, qd, qdd = (x.expand(*batch, x.shape[-1]) for x in (q, qd, qdd))
     free = free_joints(model)
     q_pin = q_mujoco_to_pin(q, balls=ball_joints(model), free=free)

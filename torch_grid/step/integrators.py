@@ -107,9 +107,11 @@ class StepFunctions:
                 q_next, qd_next, A, B, _ = self._kernel_call("rk_step_derivatives", q, qd, tau, f_ext, h, params,
                                                              RK_FUSED[integrator], passive)
             return q_next, qd_next, A.flatten(-4, -3).flatten(-2), B.flatten(-3, -2)
-        return _in_chunks(lambda *args: self._step_derivatives(*args, integrator), q, qd, tau, dt, f_ext)
+        return _in_chunks(lambda *args: self._step_derivatives(*args, integrator), q, qd, tau, dt, f_ext, params)
 
-    def _step_derivatives(self, q, qd, tau, dt, f_ext, integrator):
+    def _step_derivatives(self, q, qd, tau, dt, f_ext, params, integrator):
+        if params is not self._params:  # a piece of the view's parameters (_in_chunks)
+            return self.with_parameters(params)._step_derivatives(q, qd, tau, dt, f_ext, params, integrator)
         h = dt_column(dt, qd)
         hh, nv = h.unsqueeze(-1), qd.shape[-1]
         space, convention = self._robot._space, self._convention
@@ -184,8 +186,9 @@ class StepFunctions:
         if integrator in FUSED:
             return euler_step_hessian(self, q, qd, tau, dt, f_ext, semi=bool(FUSED[integrator]))
         nv = qd.shape[-1]
-        batch, (q, qd, tau, h, f_ext) = _flattened(q, qd, tau, dt, f_ext)
-        return rk_step_hessian(self, TABLEAUS[integrator], q, qd, tau, h, f_ext).reshape(*batch, 2 * nv, 3 * nv, 3 * nv)
+        batch, (q, qd, tau, h, f_ext, params) = _flattened(q, qd, tau, dt, f_ext, self._params)
+        view = self if params is None else self.with_parameters(params)
+        return rk_step_hessian(view, TABLEAUS[integrator], q, qd, tau, h, f_ext).reshape(*batch, 2 * nv, 3 * nv, 3 * nv)
 
 
 # Samples per piece of a large batch: the chain rule's (nv, nv) temporaries of a piece stay in cache
@@ -193,23 +196,29 @@ class StepFunctions:
 CHUNK = 256
 
 
-def _flattened(q, qd, tau, dt, f_ext) -> tuple[torch.Size, list]:
-    """(the broadcast batch shape, [q, qd, tau, dt, f_ext] with that batch flattened to one dimension);
-    dt becomes a (n,) tensor, an absent f_ext stays None."""
+def _flattened(q, qd, tau, dt, f_ext, params=None) -> tuple[torch.Size, list]:
+    """(the broadcast batch shape, [q, qd, tau, dt, f_ext, params] with that batch flattened to one
+    dimension); dt becomes a (n,) tensor, an absent f_ext or params stays None. The inertial parameters'
+    batch is part of the samples' (one set per sample, or shared)."""
     dt = scalar_or_tensor(dt, qd.dtype, qd.device)
-    batch = torch.broadcast_shapes(q.shape[:-1], qd.shape[:-1], tau.shape[:-1], dt.shape,
-                                   () if f_ext is None else f_ext.shape[:-2])
+    shapes = [q.shape[:-1], qd.shape[:-1], tau.shape[:-1], dt.shape] + [x.shape[:-2] for x in (f_ext, params) if x is not None]
+    try:
+        batch = torch.broadcast_shapes(*shapes)
+    except RuntimeError:
+        names = ["q", "qd", "tau", "dt"] + [n for n, x in (("f_ext", f_ext), ("params", params)) if x is not None]
+        raise ValueError("the batch shapes do not broadcast: " + ", ".join(f"{n} {tuple(b)}" for n, b in zip(names, shapes))) from None
     n = batch.numel()
     return batch, [None if x is None else x.expand(batch + x.shape[x.dim() - k:]).reshape(n, *x.shape[x.dim() - k:])
-                   for x, k in ((q, 1), (qd, 1), (tau, 1), (dt, 0), (f_ext, 2))]
+                   for x, k in ((q, 1), (qd, 1), (tau, 1), (dt, 0), (f_ext, 2), (params, 2))]
 
 
-def _in_chunks(fn, q, qd, tau, dt, f_ext):
-    """fn(q, qd, tau, dt, f_ext) -> a tuple of tensors, over a flattened batch in pieces of CHUNK samples."""
-    batch, flat = _flattened(q, qd, tau, dt, f_ext)
+def _in_chunks(fn, q, qd, tau, dt, f_ext, params):
+    """fn(q, qd, tau, dt, f_ext, params) -> a tuple of tensors, over a flattened batch in pieces of CHUNK
+    samples (params None, or the inertial parameters of each piece's samples)."""
+    batch, flat = _flattened(q, qd, tau, dt, f_ext, params)
     n = batch.numel()
     if n <= CHUNK:
-        return fn(q, qd, tau, dt, f_ext)
+        return fn(q, qd, tau, dt, f_ext, params)
     pieces = [fn(*(None if x is None else x[s:s + CHUNK] for x in flat)) for s in range(0, n, CHUNK)]
     return tuple(torch.cat(parts).reshape(*batch, *parts[0].shape[1:]) for parts in zip(*pieces))
 
