@@ -90,7 +90,7 @@ def test_a_view_has_the_robots_sizes(robots, convention):
     robot = robots["go2"]
     view = getattr(robot, convention)
     assert view.robot is robot and view.convention == convention
-    for name in ("nq", "nv", "nbodies", "nframes", "joint_names", "frame_names", "floating_base", "name"):
+    for name in ("nq", "nv", "nbodies", "nframes", "joint_names", "body_names", "frame_names", "floating_base", "name"):
         assert getattr(view, name) == getattr(robot, name), name
     assert (view.nq, view.nv, view.nbodies) == (19, 18, 13)
     with pytest.raises(AttributeError):

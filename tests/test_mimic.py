@@ -94,6 +94,9 @@ def test_layout(gripper):
     robot, full, pm = gripper
     assert (robot.nq, robot.nv) == (pm.nq, pm.nv) == (full.nq - 2, full.nv - 2)
     assert "finger_right" not in robot.joint_names and "thumb" not in robot.joint_names
+    # every body keeps its row of f_ext and params, the coupled ones included, in the uncoupled order
+    assert robot.body_names == full.body_names == full.joint_names
+    assert len(robot.body_names) == robot.nbodies and {"finger_right", "thumb"} <= set(robot.body_names)
     q = robot.random_configuration(4, generator=torch.Generator().manual_seed(1))
     assert q.shape == (4, robot.nq)
     assert robot.neutral_configuration().shape == (robot.nq,)

@@ -86,7 +86,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
                   doc="Configuration size (a continuous joint has one angle; mimic joints coupled by load(..., "
                       "mimic=True) have none).")
     nv = property(lambda self: (self._robot._coupling or self._robot.model).nv, doc="Velocity size.")
-    nbodies = property(lambda self: self._robot.model.nbodies, doc="Moving bodies (one per joint).")
+    nbodies = property(lambda self: self._robot.model.nbodies, doc="Moving bodies (one per joint): len(body_names).")
     nframes = property(lambda self: len(self._robot.model.frames), doc="Number of frames: len(frame_names).")
     floating_base = property(lambda self: self._robot.model.floating_base,
                              doc="Whether the first joint is a free joint (q starts with a position and a quaternion, "
@@ -94,6 +94,9 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
     joint_names = property(lambda self: (self._robot._coupling.joint_names if self._robot._coupling else
                                          [j.name for j in self._robot.model.joints]),
                            doc="The joints whose coordinates make up q and qd, in order.")
+    body_names = property(lambda self: [j.name for j in self._robot.model.joints],
+                          doc="The moving bodies, each named by the joint that moves it, mimic joints included: the rows "
+                              "of f_ext, params and inertial_parameters(), in order (nbodies of them).")
     frame_names = property(lambda self: [f.name for f in self._robot.model.frames],
                            doc="The frames, in the order of forward_kinematics' outputs; a function's `frame` "
                                "argument is one of these names or its index.")
@@ -436,7 +439,9 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
                 broadcast against the states' (one set per sample for domain randomisation). Gradients
                 flow back to it.
             check: raise ValueError, naming the body, where the parameters are not physically consistent
-                (a negative mass, or a pseudo-inertia that is not positive semidefinite).
+                (not finite, a negative mass, a massless body with a first moment or an inertia, or a
+                pseudo-inertia that is not positive semidefinite) or make the joint-space inertia matrix
+                singular (a joint whose bodies, its own and those below it, are all massless).
 
         Returns:
             A RobotView in this one's convention.
@@ -446,7 +451,8 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
             shape = tuple(params.shape) if isinstance(params, torch.Tensor) else type(params).__name__
             raise ValueError(f"with_parameters: params must be a tensor of shape (..., {nbodies}, 10), got {shape}")
         if check:
-            check_physical(params, [j.name for j in self._robot.model.joints])
+            joints = self._robot.model.joints
+            check_physical(params, [j.name for j in joints], parents=[j.parent for j in joints])
         return RobotView(self._robot, self._convention, params)
 
     def _parameters(self, params: torch.Tensor | None) -> torch.Tensor | None:
@@ -462,7 +468,7 @@ class RobotView(_Functions):
     """A robot's functions in one fixed convention: `robot.pin` (Pinocchio's) or `robot.mujoco` (MuJoCo's).
 
     It has every function of its Robot and the robot's sizes and names (nq, nv, nbodies, nframes,
-    joint_names, frame_names, floating_base, name), `convention` and `robot`, the Robot itself. A view
+    joint_names, body_names, frame_names, floating_base, name), `convention` and `robot`, the Robot itself. A view
     holds no state of its own: it is cheap to make and safe to share between threads.
     """
 

@@ -1,0 +1,126 @@
+"""Inertial parameters with a batch of their own, through the paths that flatten or split the samples'
+batch: the composed step derivatives (in pieces of CHUNK samples), horizon, the Runge-Kutta step
+Hessian and MuJoCo's second-order inverse dynamics. Each sample computes with its own parameters (a
+loop over samples is the oracle), and shapes that do not broadcast are refused on every path; and
+what check=True refuses."""
+from __future__ import annotations
+
+import pytest
+import torch
+
+from test_parameters import other_parameters, own_parameters
+from torch_grid import conventions as C
+from torch_grid.step.integrators import CHUNK
+
+TOL = dict(rtol=1e-12, atol=1e-12)
+
+
+def _states(robot, batch, seed):
+    g = torch.Generator().manual_seed(seed)
+    q = robot.random_configuration(*batch, generator=g)
+    qd, tau = (torch.randn(*batch, robot.nv, generator=g, dtype=torch.float64) for _ in range(2))
+    return q, qd, tau
+
+
+def _parameter_sets(robot, n):
+    """n physically consistent parameter sets, each a different scaling of the robot's own bodies."""
+    scale = 1 + 0.5 * torch.rand(n, robot.nbodies, 1, generator=torch.Generator().manual_seed(n), dtype=torch.float64)
+    return own_parameters(robot) * scale
+
+
+@pytest.mark.parametrize("integrator", ["semi_implicit_euler", "rk4"])
+def test_composed_step_derivatives_give_each_piece_its_parameters(robots, integrator):
+    """Parameters that require grad take the composed path, which splits a batch above CHUNK samples into
+    pieces: each sample's derivatives are the fused kernel's with its own parameters, and the gradient
+    reaches every set."""
+    robot = robots["iiwa14"]
+    n = CHUNK + 44
+    q, qd, tau = _states(robot, (n,), 1)
+    pis = _parameter_sets(robot, n)
+    fused = robot.step_derivatives(q, qd, tau, 0.01, integrator, params=pis)
+    leaf = pis.clone().requires_grad_(True)
+    composed = robot.step_derivatives(q, qd, tau, 0.01, integrator, params=leaf)
+    for f, c in zip(fused, composed):
+        assert torch.allclose(f, c.detach(), **TOL)
+    sum(c.sum() for c in composed).backward()
+    assert leaf.grad.shape == pis.shape and bool((leaf.grad.abs().sum((-2, -1)) > 0).all())
+    # a parameter batch that does not broadcast against the states' is refused on both paths
+    for params in (pis[:CHUNK], leaf[:CHUNK]):
+        with pytest.raises(ValueError, match="broadcast"):
+            robot.step_derivatives(q, qd, tau, 0.01, integrator, params=params)
+
+
+def test_horizon_with_per_sample_parameters_that_require_grad(robots):
+    """horizon's documented per-sample layout, params (S, 1, nbodies, 10) against states (S, T, ·), over
+    more knots than one piece: the same as without grad, where the fused kernels run."""
+    robot = robots["iiwa14"]
+    samples, knots = 100, 3
+    q, qd, tau = _states(robot, (samples, knots), 2)
+    pis = _parameter_sets(robot, samples).unsqueeze(1)
+    plain = robot.horizon(q, qd, tau, 0.01, params=pis)
+    traced = robot.horizon(q, qd, tau, 0.01, params=pis.clone().requires_grad_(True))
+    for key in ("q_next", "qd_next", "A", "B"):
+        assert torch.allclose(plain[key], traced[key].detach(), **TOL), key
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+def test_runge_kutta_step_hessian_with_batched_parameters(robots, convention):
+    robot = robots["go2"]
+    view = getattr(robot, convention)
+    q, qd, tau = _states(robot, (2, 3), 3)
+    if convention == "mujoco":
+        q = C.q_pin_to_mujoco(q)
+    pis = torch.stack([other_parameters(robot, seed=s) for s in range(3)])
+    # states (2, 3) against parameters (3, ...): one set per column
+    H = view.step_second_derivatives(q, qd, tau, 0.01, "rk4", params=pis)
+    assert H.shape == (2, 3, 2 * robot.nv, 3 * robot.nv, 3 * robot.nv)
+    for i in range(2):
+        for k in range(3):
+            single = view.step_second_derivatives(q[i, k], qd[i, k], tau[i, k], 0.01, "rk4", params=pis[k])
+            assert torch.allclose(H[i, k], single, **TOL), (i, k)
+    # one state against a batch of parameters
+    H = view.step_second_derivatives(q[0, 0], qd[0, 0], tau[0, 0], 0.01, "rk4", params=pis)
+    assert H.shape[0] == 3
+    assert torch.allclose(H[2], view.step_second_derivatives(q[0, 0], qd[0, 0], tau[0, 0], 0.01, "rk4", params=pis[2]),
+                          **TOL)
+    with pytest.raises(ValueError, match="broadcast"):
+        view.step_second_derivatives(q, qd, tau, 0.01, "rk4", params=torch.cat([pis, pis]))
+
+
+def test_mujoco_inverse_dynamics_second_derivatives_with_batched_parameters(robots):
+    """MuJoCo's second-order inverse dynamics of a robot with a free joint (reframed from Pinocchio's):
+    the parameters' batch is part of the result's."""
+    robot = robots["go2"]
+    q, qd, qdd = _states(robot, (3,), 4)
+    q = C.q_pin_to_mujoco(q)
+    pis = torch.stack([other_parameters(robot, seed=s) for s in range(2)]).unsqueeze(1)  # (2, 1, nbodies, 10)
+    out = robot.mujoco.inverse_dynamics_second_derivatives(q, qd, qdd, params=pis)
+    for j in range(2):
+        for k in range(3):
+            single = robot.mujoco.inverse_dynamics_second_derivatives(q[k], qd[k], qdd[k], params=pis[j, 0])
+            for b, s in zip(out, single):
+                assert b.shape[:2] == (2, 3)
+                assert torch.allclose(b[j, k], s, **TOL), (j, k)
+
+
+def test_check_refuses_what_no_body_can_be(robots):
+    robot = robots["iiwa14"]
+    pi = own_parameters(robot).clone()
+    names = robot.body_names
+    bad = pi.clone()
+    bad[4, 6] = float("nan")
+    with pytest.raises(ValueError, match=f"body 4 \\({names[4]!r}\\) has a parameter that is not finite"):
+        robot.with_parameters(bad, check=True)
+    bad = pi.clone()
+    bad[2, :4] = 0.0  # no mass, no first moment, but a rotational inertia
+    with pytest.raises(ValueError, match=f"body 2 \\({names[2]!r}\\) has no mass but a first moment or a rotational inertia"):
+        robot.with_parameters(bad, check=True)
+    # the last body massless: its joint moves nothing, M has a zero column
+    bad = pi.clone()
+    bad[-1] = 0.0
+    with pytest.raises(ValueError, match=f"joint {names[-1]!r} \\(body {robot.nbodies - 1}\\) moves no mass"):
+        robot.with_parameters(bad, check=True)
+    # a massless body with a heavy child is fine: the joint moves the child
+    ok = pi.clone()
+    ok[-2] = 0.0
+    robot.with_parameters(torch.stack([pi, ok]), check=True)
