@@ -92,7 +92,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
                              doc="Whether the first joint is a free joint (q starts with a position and a quaternion, "
                                  "qd with a 6-d velocity).")
     joint_names = property(lambda self: (self._robot._coupling.joint_names if self._robot._coupling else
-                                         [j.name for j in self._robot.model.joints]),
+                                         self.body_names),
                            doc="The joints whose coordinates make up q and qd, in order.")
     body_names = property(lambda self: [j.name for j in self._robot.model.joints],
                           doc="The moving bodies, each named by the joint that moves it, mimic joints included: the rows "
@@ -451,8 +451,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
             shape = tuple(params.shape) if isinstance(params, torch.Tensor) else type(params).__name__
             raise ValueError(f"with_parameters: params must be a tensor of shape (..., {nbodies}, 10), got {shape}")
         if check:
-            joints = self._robot.model.joints
-            check_physical(params, [j.name for j in joints], parents=[j.parent for j in joints])
+            check_physical(params, self.body_names, parents=[j.parent for j in self._robot.model.joints])
         return RobotView(self._robot, self._convention, params)
 
     def _parameters(self, params: torch.Tensor | None) -> torch.Tensor | None:

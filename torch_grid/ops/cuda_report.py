@@ -13,6 +13,7 @@ include, the flags and the compiler's version) reuses the report of its last com
 from __future__ import annotations
 
 import argparse
+import functools
 import hashlib
 import os
 import re
@@ -88,8 +89,7 @@ def compile_unit(nvcc: str, flags: list[str], unit: Path, suffix: str, cache: Pa
     entry = None
     if cache is not None:
         digest = hashlib.sha256()
-        version = subprocess.run([nvcc, "--version"], capture_output=True, text=True, check=True).stdout
-        for part in (version, *flags, unit.name, suffix, str(keep_output)):
+        for part in (_version(nvcc), *flags, unit.name, suffix, str(keep_output)):
             digest.update(part.encode() + b"\0")
         for root in (CSRC, unit.parent):
             for path in sorted(p for p in root.rglob("*") if p.is_file() and p.suffix not in (".o", ".ptx")):
@@ -115,6 +115,12 @@ def compile_unit(nvcc: str, flags: list[str], unit: Path, suffix: str, cache: Pa
         except OSError:  # another process stored the same entry first
             shutil.rmtree(partial)
     return result.stderr
+
+
+@functools.cache
+def _version(nvcc: str) -> str:
+    """`nvcc --version`, asked once per process rather than once per unit."""
+    return subprocess.run([nvcc, "--version"], capture_output=True, text=True, check=True).stdout
 
 
 def out_of_line_functions(log: str) -> list[str]:
