@@ -11,6 +11,9 @@ group does not depend on the other samples there (bitwise), whatever they hold.
 """
 from __future__ import annotations
 
+import subprocess
+from pathlib import Path
+
 import pytest
 import torch
 
@@ -18,6 +21,7 @@ import torch_grid
 from lane_inputs import op_arguments
 from torch_grid.ops.table import OPS
 
+HERE = Path(__file__).resolve().parent
 ROBOTS = ["iiwa14", "go2", "trees", "damped_floating"]
 LANES = 8  # the widest groups (AVX-512); narrower CPUs have more groups in the same batch
 BATCH = 2 * LANES + 3  # whole groups and a scalar tail
@@ -42,20 +46,20 @@ def _one_ulp(args, generator: torch.Generator, ulp: float = 2.0 ** -52) -> list:
             if isinstance(a, torch.Tensor) else a for a in args]
 
 
-def _cases(robots):
-    for name in ROBOTS:
-        robot = robots[name]
-        for spec in OPS.values():
-            for convention in (0, 1):
-                if convention and robot.model.conventions_differ and not spec.mujoco_twin:
-                    continue  # refused: no MuJoCo-convention kernel
-                yield name, robot, spec, convention
+def _cases(robots, name: str):
+    """(robot, op, convention) for every op of the table on robot `name`, built only when asked for."""
+    robot = robots[name]
+    for spec in OPS.values():
+        for convention in (0, 1):
+            if convention and robot.model.conventions_differ and not spec.mujoco_twin:
+                continue  # refused: no MuJoCo-convention kernel
+            yield robot, spec, convention
 
 
 @pytest.mark.parametrize("name", ROBOTS)
 def test_lanes_compute_what_the_scalar_kernels_compute(lane_robots, name: str) -> None:
     failures = []
-    for _, robot, spec, convention in (c for c in _cases(lane_robots) if c[0] == name):
+    for robot, spec, convention in _cases(lane_robots, name):
         g = torch.Generator().manual_seed(7)
         args = op_arguments(robot, spec, BATCH, g, convention)
         scalar = _call(robot, spec, args, convention, lanes=False)
@@ -82,7 +86,7 @@ def test_float32_lanes_compute_what_the_double_kernels_compute(lane_robots, name
     op's sensitivity), plus 64 float32 ulps times the condition number of M (the largest in the batch)
     of its largest entry, for the float rounding of the robot's constants and of the solves with M."""
     failures = []
-    for _, robot, spec, convention in (c for c in _cases(lane_robots) if c[0] == name):
+    for robot, spec, convention in _cases(lane_robots, name):
         g = torch.Generator().manual_seed(13)
         args = [a.float() if isinstance(a, torch.Tensor) else a for a in op_arguments(robot, spec, FLOAT_BATCH, g, convention)]
         wide = [a.double() if isinstance(a, torch.Tensor) else a for a in args]
@@ -120,7 +124,7 @@ def test_a_spoiled_sample_leaves_the_other_samples_exact(lane_robots, name: str,
     """Neither a lane group (nor a float group's spare lanes) nor a thread's scratch carries a NaN or an
     infinity to another sample."""
     failures = []
-    for _, robot, spec, convention in (c for c in _cases(lane_robots) if c[0] == name):
+    for robot, spec, convention in _cases(lane_robots, name):
         g = torch.Generator().manual_seed(11)
         args = [a.to(dtype) if isinstance(a, torch.Tensor) else a for a in op_arguments(robot, spec, BATCH, g, convention)]
         clean = _call(robot, spec, args, convention, lanes=lanes)
@@ -214,3 +218,16 @@ def test_large_outputs_and_threads_keep_each_sample_in_its_group(lane_robots) ->
 def test_set_cpu_lanes_returns_the_previous_setting() -> None:
     assert torch_grid.set_cpu_lanes(False) is True
     assert torch_grid.set_cpu_lanes(True) is False
+
+
+@pytest.mark.parametrize("shuffle", ["builtin", "gcc"], ids=["shufflevector", "gcc_shuffle"])
+def test_group_transposes_move_every_entry_bit_for_bit(tmp_path, shuffle: str) -> None:
+    """The in-register transposes that lay a group's inputs out in lanes and its outputs back, for every
+    lane width (SSE to AVX-512, double and float), with both compilers' shuffles."""
+    from torch_grid.ops import build
+
+    defines = ["-DTG_GCC_SHUFFLE"] if shuffle == "gcc" else []
+    binary = tmp_path / "transpose"
+    subprocess.run(["c++", "-std=c++17", "-O2", *defines, f"-I{build.CSRC}", str(HERE / "lanes_transpose.cpp"),
+                    "-o", str(binary)], check=True)
+    assert subprocess.run([str(binary)], check=True, capture_output=True, text=True).stdout.strip() == "0"

@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <utility>
 #include <vector>
 
 #include "batch/cpu_range.h"
@@ -31,22 +32,64 @@ template <class L> LaneBuffer<L>& lane_buffer() {
   return buffer;
 }
 
+// In-register transpose of W vectors of W entries (W a power of two): stage h exchanges bit h of the row
+// index with bit h of the column index, a pair of rows (i, i + h with bit h of i clear) at a time. All
+// indices are constants, so the rows stay in registers: lo/hi of a pair are one or two shuffles each.
+// GCC before 12 has only __builtin_shuffle (TG_GCC_SHUFFLE picks it on any GCC, for the tests).
+#if defined(__has_builtin) && !defined(TG_GCC_SHUFFLE)
+#if __has_builtin(__builtin_shufflevector)
+#define TG_SHUFFLE(a, b, I, ...) __builtin_shufflevector(a, b, __VA_ARGS__)
+#endif
+#endif
+#ifndef TG_SHUFFLE
+#define TG_SHUFFLE(a, b, I, ...) __builtin_shuffle(a, b, I{__VA_ARGS__})
+#endif
+template <class V, class I, int W, int h, std::size_t... C> inline void exchange(V& a, V& b, std::index_sequence<C...>) {
+  // row i takes its columns with bit h clear from itself, the others from row i + h (shifted down by h)
+  const V lo = TG_SHUFFLE(a, b, I, ((C & h) ? W + (C & ~h) : C)...);
+  const V hi = TG_SHUFFLE(a, b, I, ((C & h) ? W + C : (C | h))...);
+  a = lo, b = hi;
+}
+template <class V, class I, int W, int h, std::size_t... P> inline void exchange_pairs(V* r, std::index_sequence<P...>) {
+  (exchange<V, I, W, h>(r[P / h * 2 * h + P % h], r[P / h * 2 * h + P % h + h], std::make_index_sequence<W>()), ...);
+}
+template <class T, int W, int h = 1> inline void transpose(typename Lanes<T, W>::V* r) {
+  if constexpr (h < W) {
+    using I = typename LaneMask<T, W>::I;
+    exchange_pairs<typename Lanes<T, W>::V, I, W, h>(r, std::make_index_sequence<W / 2>());
+    transpose<T, W, 2 * h>(r);
+  }
+}
+#undef TG_SHUFFLE
+
+// One W x W block: entries [0, W) of lanes x[0, W) to rows y + l * size, sample l's W contiguous entries.
+template <class T, int W, std::size_t... L> inline void scatter_block(const Lanes<T, W>* x, int64_t size, T* y, std::index_sequence<L...>) {
+  typename Lanes<T, W>::V r[W] = {x[L].x...};
+  transpose<T, W>(r);
+  (__builtin_memcpy(y + L * size, &r[L], sizeof r[L]), ...);
+}
+
 // y[l * size + j] = x[j][l]: the group's output back to sample-major, W x W blocks transposed in
 // registers (a lane's entries leave as one contiguous vector store each).
 template <class T, int W> inline void scatter(const Lanes<T, W>* x, int64_t size, T* y) {
-  using V = typename Lanes<T, W>::V;
   int64_t j0 = 0;
-  for (; j0 + W <= size; j0 += W) {
-    V block[W];
-    for (int jj = 0; jj < W; ++jj) block[jj] = x[j0 + jj].x;
-    for (int l = 0; l < W; ++l) {
-      V row;
-      for (int jj = 0; jj < W; ++jj) row[jj] = block[jj][l];
-      __builtin_memcpy(y + l * size + j0, &row, sizeof row);
-    }
-  }
+  for (; j0 + W <= size; j0 += W) scatter_block<T, W>(x + j0, size, y + j0, std::make_index_sequence<W>());
   for (int l = 0; l < W; ++l)
     for (int64_t j = j0; j < size; ++j) y[l * size + j] = x[j].x[l];
+}
+
+// y[j][l] = x[l][j], j in [0, size): W samples' inputs (each contiguous) to lanes, by the same blocks.
+template <class T, int W, std::size_t... L> inline void gather_block(const T* const* x, int64_t j0, Lanes<T, W>* y, std::index_sequence<L...>) {
+  typename Lanes<T, W>::V r[W];
+  (__builtin_memcpy(&r[L], x[L] + j0, sizeof r[L]), ...);
+  transpose<T, W>(r);
+  ((y[L].x = r[L]), ...);
+}
+template <class T, int W> inline void gather(const T* const* x, int64_t size, Lanes<T, W>* y) {
+  int64_t j0 = 0;
+  for (; j0 + W <= size; j0 += W) gather_block<T, W>(x, j0, y + j0, std::make_index_sequence<W>());
+  for (int64_t j = j0; j < size; ++j)
+    for (int l = 0; l < W; ++l) y[j].x[l] = x[l][j];
 }
 
 // The first n lanes of a group alone (a float batch's last, partial group).
@@ -100,9 +143,7 @@ void cpu_range_lanes(const Batch& b, int64_t begin, int64_t end) {
         if (!b.in[k]) continue;
         const T* x[W];
         for (int l = 0; l < W; ++l) x[l] = static_cast<const T*>(b.in[k]) + (s0 + std::min(l, n - 1)) * b.in_stride[k];
-        L* y = buffer.data.data() + offset[k];
-        for (int64_t j = 0; j < b.in_size[k]; ++j)
-          for (int l = 0; l < W; ++l) y[j].x[l] = x[l][j];
+        gather(x, b.in_size[k], buffer.data.data() + offset[k]);
       }
       Op<Robot, L, C>::run(in, out, b.iargs, b.n_iargs, zeroed);
       for (int k = 0; k < kMaxOut; ++k) {

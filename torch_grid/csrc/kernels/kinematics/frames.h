@@ -46,19 +46,32 @@ TG_HD void frame_jacobian(const SE3<Scalar>* oMi, int f, int reference, Scalar* 
   const SE3<Scalar> oMf = frame_placement<Robot, Scalar>(f, oMi);
   if (!zeroed)
     for (int k = 0; k < 6 * Robot::NV; ++k) J[k] = Scalar(0);
-  // Each joint on the chain contributes its world axis, expressed as asked.
+  // Each joint on the chain contributes its world axis, expressed as asked. An axis e about which joint
+  // j turns moves the point o the linear rows are taken at (the world origin, or the frame's origin) by
+  // e x (o - p_j); one it slides along moves every point by e.
+  const Scalar zero(0);
+  const Vec3<Scalar> o = reference == WORLD ? v3(zero, zero, zero) : oMf.p;
   for (int j = d.fparent[f]; j >= 0; j = d.parent[j]) {
+    const SE3<Scalar>& X = oMi[j];
+    const Vec3<Scalar> r = o - X.p;
+    const int t = d.jtype[j];
     for (int k = 0; k < d.nvj[j]; ++k) {
-      const Sv<Scalar> s = placed_axis<Robot, Scalar>(oMi[j], j, k);
-      Vec3<Scalar> l = lin(s), w = ang(s);
-      if (reference != WORLD) l = l + cross(w, oMf.p);
-      if (reference == LOCAL) {
-        l = mulT(oMf.R, l);
-        w = mulT(oMf.R, w);
+      Vec3<Scalar> l, w;
+      const int c = t == FREE ? k % 3 : t == BALL ? k : d.axis_index[j];  // the axis as a column of X.R
+      if (c < 0) {
+        const Sv<Scalar> s = placed_axis<Robot, Scalar>(X, j, k);
+        w = ang(s), l = lin(s) + cross(w, o);
+      } else {
+        const Vec3<Scalar> e = v3(X.R.m[c], X.R.m[3 + c], X.R.m[6 + c]);
+        if (t == REVOLUTE || t == BALL || (t == FREE && k >= 3))
+          w = e, l = cross(e, r);
+        else
+          l = e, w = v3(zero, zero, zero);
       }
-      for (int r = 0; r < 3; ++r) {
-        J[Robot::NV * r + d.vi[j] + k] = l.x[r];
-        J[Robot::NV * (3 + r) + d.vi[j] + k] = w.x[r];
+      if (reference == LOCAL) l = mulT(oMf.R, l), w = mulT(oMf.R, w);
+      for (int row = 0; row < 3; ++row) {
+        J[Robot::NV * row + d.vi[j] + k] = l.x[row];
+        J[Robot::NV * (3 + row) + d.vi[j] + k] = w.x[row];
       }
     }
   }

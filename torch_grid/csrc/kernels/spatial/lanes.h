@@ -14,6 +14,7 @@
 #include <cstdint>
 #include <cstring>
 #include <type_traits>
+#include <utility>
 
 #include "kernels/spatial/trig.h"
 
@@ -47,9 +48,11 @@ template <class T, int W> struct Lanes {
   V x;
 
   Lanes() = default;
-  // A plain number (a literal or a robot constant) in every lane.
+  // A plain number (a literal or a robot constant) in every lane, exactly: one broadcast, where 0 + a
+  // would cost an add and turn -0 into +0.
   template <class A, class = std::enable_if_t<std::is_arithmetic_v<A>>>
-  inline Lanes(A a) : x(V{} + static_cast<T>(a)) {}
+  inline Lanes(A a) : x(splat(static_cast<T>(a), std::make_index_sequence<W>())) {}
+  template <std::size_t... L> static V splat(T t, std::index_sequence<L...>) { return V{((void)L, t)...}; }
   static Lanes of(V v) {
     Lanes r;
     r.x = v;
@@ -108,8 +111,12 @@ template <class T, int W> inline void sincos_n(int n, const Lanes<T, W>* x, Lane
   using V = typename Lanes<T, W>::V;
   using I = typename LaneMask<T, W>::I;
   // a b + c rounded once in every lane, as std::fma on one number (one vector instruction with FMA)
-  const auto fma = [](const V& a, const auto& b, const auto& c) {
-    const V bv = V{} + b, cv = V{} + c;
+  const auto vector = [](const auto& b) -> V {
+    if constexpr (std::is_same_v<std::decay_t<decltype(b)>, V>) return b;
+    else return Lanes<T, W>(b).x;
+  };
+  const auto fma = [vector](const V& a, const auto& b, const auto& c) {
+    const V bv = vector(b), cv = vector(c);
     V r;
     for (int l = 0; l < W; ++l) r[l] = std::fma(a[l], bv[l], cv[l]);
     return r;
