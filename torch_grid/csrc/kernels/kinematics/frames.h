@@ -54,16 +54,15 @@ TG_HD void frame_jacobian(const SE3<Scalar>* oMi, int f, int reference, Scalar* 
   for (int j = d.fparent[f]; j >= 0; j = d.parent[j]) {
     const SE3<Scalar>& X = oMi[j];
     const Vec3<Scalar> r = o - X.p;
-    const int t = d.jtype[j];
     for (int k = 0; k < d.nvj[j]; ++k) {
       Vec3<Scalar> l, w;
-      const int c = t == FREE ? k % 3 : t == BALL ? k : d.axis_index[j];  // the axis as a column of X.R
-      if (c < 0) {
+      const AxisColumn a = axis_column<Robot, Scalar>(j, k);
+      if (a.c < 0) {
         const Sv<Scalar> s = placed_axis<Robot, Scalar>(X, j, k);
         w = ang(s), l = lin(s) + cross(w, o);
       } else {
-        const Vec3<Scalar> e = v3(X.R.m[c], X.R.m[3 + c], X.R.m[6 + c]);
-        if (t == REVOLUTE || t == BALL || (t == FREE && k >= 3))
+        const Vec3<Scalar> e = v3(X.R.m[a.c], X.R.m[3 + a.c], X.R.m[6 + a.c]);
+        if (a.rotation)
           w = e, l = cross(e, r);
         else
           l = e, w = v3(zero, zero, zero);

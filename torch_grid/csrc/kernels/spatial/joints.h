@@ -107,15 +107,26 @@ template <class Robot, class Scalar> TG_HD Sv<Scalar> joint_motion(int i, const 
   return x[0] * joint_axis<Robot, Scalar>(i, 0);
 }
 
-// X S_ik: joint i's k-th axis moved by a placement X (world placements, mostly). A free or ball
-// joint's axes and a cardinal revolute or prismatic axis are a column of X.R, without a product by S.
-template <class Robot, class Scalar> TG_HD_INLINE Sv<Scalar> placed_axis(const SE3<Scalar>& X, int i, int k) {
+// Joint i's k-th axis as a column of its frame's rotation: a free or ball joint's axes and a cardinal
+// revolute or prismatic axis are one (column c, turning or sliding along it); c < 0 for any other axis.
+struct AxisColumn {
+  int c;
+  bool rotation;
+};
+template <class Robot, class Scalar> TG_HD_INLINE AxisColumn axis_column(int i, int k) {
   const auto& d = data<Robot, Scalar>();
-  const int t = d.jtype[i], c = t == FREE ? k % 3 : t == BALL ? k : d.axis_index[i];
-  if (c < 0) return act_motion(X, joint_axis<Robot, Scalar>(i, k));
+  const int t = d.jtype[i];
+  return {t == FREE ? k % 3 : t == BALL ? k : d.axis_index[i], t == REVOLUTE || t == BALL || (t == FREE && k >= 3)};
+}
+
+// X S_ik: joint i's k-th axis moved by a placement X (world placements, mostly); a column of X.R where
+// axis_column finds one, without a product by S.
+template <class Robot, class Scalar> TG_HD_INLINE Sv<Scalar> placed_axis(const SE3<Scalar>& X, int i, int k) {
+  const AxisColumn a = axis_column<Robot, Scalar>(i, k);
+  if (a.c < 0) return act_motion(X, joint_axis<Robot, Scalar>(i, k));
+  const int c = a.c;
   const Vec3<Scalar> e = v3(X.R.m[c], X.R.m[3 + c], X.R.m[6 + c]), zero = v3(Scalar(0), Scalar(0), Scalar(0));
-  const bool rotation = t == REVOLUTE || t == BALL || (t == FREE && k >= 3);
-  return rotation ? sv(cross(X.p, e), e) : sv(e, zero);
+  return a.rotation ? sv(cross(X.p, e), e) : sv(e, zero);
 }
 
 // S_i^T f: the generalized force of joint i from a spatial force f in its frame.
