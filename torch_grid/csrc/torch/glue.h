@@ -249,11 +249,9 @@ class Call {
                                                                                                       : &Call::direct;
     // As many threads as get kernels.grain samples each, the least work worth waking one for (ops/table.py: cpu_grain).
     const int64_t threads = std::max<int64_t>(1, std::min<int64_t>(at::get_num_threads(), n_ / kernels.grain));
-    // each thread's share a whole number of lane groups, the last one's the rest
-    const auto bound = [this, threads](int64_t t) { return t == threads ? n_ : n_ * t / threads / lanes_ * lanes_; };
-    at::parallel_for(0, threads, 1, [this, fn, range, bound](int64_t first, int64_t last) {
-      for (int64_t t = first; t < last; ++t) (this->*range)(fn, bound(t), bound(t + 1));
-    });
+    // Several pieces a thread, none under an eighth of the grain, each a whole number of lane groups.
+    Pieces pieces(n_, threads == 1 ? n_ : whole_groups(std::max((n_ + 8 * threads - 1) / (8 * threads), kernels.grain / 8)));
+    at::parallel_for(0, threads, 1, [this, fn, range, &pieces](int64_t, int64_t) { (this->*range)(fn, pieces); });
   }
 
  private:
@@ -408,33 +406,57 @@ class Call {
   // a group and a scalar rest.
   int64_t whole_groups(int64_t n) const { return (n + lanes_ - 1) / lanes_ * lanes_; }
 
-  // Samples [begin, end) straight into the outputs.
-  void direct(CpuFn fn, int64_t begin, int64_t end) const { fn(batch_, begin, end); }
+  // The batch [0, n) handed out in pieces to whichever thread asks next, rather than in equal shares: a
+  // thread on a slower core (a hyperthread whose sibling is busy, an efficiency core, a virtual CPU
+  // its host is sharing) takes fewer pieces, so a call lasts the work's time over the threads' summed
+  // speed, not the slowest thread's share. A thread the runtime does not start (parallel_for nested in
+  // a parallel region runs serially) leaves its pieces to the others.
+  class Pieces {
+   public:
+    Pieces(int64_t n, int64_t piece) : n_(n), piece_(piece) {}
+    // The next piece [begin, end); false once the batch is handed out.
+    bool claim(int64_t& begin, int64_t& end) {
+      begin = next_.fetch_add(piece_, std::memory_order_relaxed);
+      end = std::min(n_, begin + piece_);
+      return begin < n_;
+    }
 
-  // Samples [begin, end) of a batch whose outputs exceed what a core keeps in cache (go2's M at
-  // B = 4096: 10.6 MB): a few samples at a time into a buffer that stays in L1, then copied to the
-  // outputs with non-temporal stores, which skip reading in the lines about to be overwritten
-  // (G1 crba 3.6 -> 2.9 µs per sample at B = 4096). The buffer starts zeroed and keeps its layout, so
-  // a kernel that writes a fixed pattern leaves zeros elsewhere (G1's second-order tensors: 1.4 MB a
-  // sample, a quarter of it written, 13 µs to zero).
-  void streamed(CpuFn fn, int64_t begin, int64_t end) const {
+   private:
+    std::atomic<int64_t> next_{0};
+    const int64_t n_, piece_;
+  };
+
+  // The pieces a thread claims, straight into the outputs.
+  void direct(CpuFn fn, Pieces& pieces) const {
+    for (int64_t begin, end; pieces.claim(begin, end);) fn(batch_, begin, end);
+  }
+
+  // The pieces of a batch whose outputs exceed what a core keeps in cache (go2's M at B = 4096:
+  // 10.6 MB): a few samples at a time into a buffer that stays in L1, then copied to the outputs with
+  // non-temporal stores, which skip reading in the lines about to be overwritten (G1 crba 3.6 -> 2.9 µs
+  // per sample at B = 4096). The buffer starts zeroed and keeps its layout, so a kernel that writes a
+  // fixed pattern leaves zeros elsewhere (G1's second-order tensors: 1.4 MB a sample, a quarter of it
+  // written, 13 µs to zero).
+  void streamed(CpuFn fn, Pieces& pieces) const {
     const int64_t per_sample = out_per_sample();
     const int64_t chunk = whole_groups(std::max<int64_t>(1, std::min<int64_t>(16, (int64_t(4) << 10) / per_sample)));
     std::vector<double> buffer(static_cast<size_t>(per_sample * chunk));
     Batch d = batch_;
     d.zeroed = !poisoned();
     output_slots(d, buffer.data(), chunk);
-    for (int64_t s0 = begin; s0 < end; s0 += chunk) {
-      const int64_t n = std::min(chunk, end - s0);
-      d.n = n;
-      poison_slots(d, n);
-      for (int k = 0; k < n_in_; ++k)
-        if (batch_.in[k]) d.in[k] = static_cast<const double*>(batch_.in[k]) + s0 * batch_.in_stride[k];
-      fn(d, 0, n);
-      for (int k = 0; k < n_out_; ++k)
-        if (batch_.out[k] && !(workspace_ >> k & 1))
-          stream_copy(static_cast<double*>(batch_.out[k]) + batch_.out_stride[k] * s0, static_cast<const double*>(d.out[k]),
-                      batch_.out_stride[k] * n);
+    for (int64_t begin, end; pieces.claim(begin, end);) {
+      for (int64_t s0 = begin; s0 < end; s0 += chunk) {
+        const int64_t n = std::min(chunk, end - s0);
+        d.n = n;
+        poison_slots(d, n);
+        for (int k = 0; k < n_in_; ++k)
+          if (batch_.in[k]) d.in[k] = static_cast<const double*>(batch_.in[k]) + s0 * batch_.in_stride[k];
+        fn(d, 0, n);
+        for (int k = 0; k < n_out_; ++k)
+          if (batch_.out[k] && !(workspace_ >> k & 1))
+            stream_copy(static_cast<double*>(batch_.out[k]) + batch_.out_stride[k] * s0,
+                        static_cast<const double*>(d.out[k]), batch_.out_stride[k] * n);
+      }
     }
 #if defined(__x86_64__)
     _mm_sfence();  // streamed stores are weakly ordered: complete them before the batch returns
@@ -460,40 +482,44 @@ class Call {
 #endif
   }
 
-  // Samples [begin, end) of a float32 batch through a float64 kernel, a chunk at a time: the chunk's
-  // inputs widened into a buffer that stays in cache, its outputs rounded back into place. On the
-  // CPU, double arithmetic costs about what float does, so this adds only the conversions.
-  void as_double(CpuFn fn, int64_t begin, int64_t end) const {
+  // The pieces of a float32 batch through a float64 kernel, a chunk at a time: the chunk's inputs
+  // widened into a buffer that stays in cache, its outputs rounded back into place. On the CPU, double
+  // arithmetic costs about what float does, so this adds only the conversions.
+  void as_double(CpuFn fn, Pieces& pieces) const {
     int64_t per_sample = out_per_sample();
     for (int k = 0; k < n_in_; ++k) per_sample += batch_.in[k] ? in_size_[k] : 0;
     const int64_t chunk =
         whole_groups(std::max<int64_t>(1, std::min<int64_t>(64, (int64_t(32) << 10) / std::max<int64_t>(per_sample, 1))));
     std::vector<double> buffer(static_cast<size_t>(per_sample * chunk));
     Batch d = batch_;
-    for (int64_t s0 = begin; s0 < end; s0 += chunk) {
-      const int64_t n = std::min(chunk, end - s0);
-      double* next = buffer.data();
-      if (workspace_ && s0 != begin) std::fill(buffer.begin(), buffer.end(), 0.0);  // see workspace()
-      d.n = n;
-      for (int k = 0; k < n_in_; ++k) {
-        if (!batch_.in[k]) continue;
-        const float* x = static_cast<const float*>(batch_.in[k]);
-        const int64_t size = in_size_[k], stride = batch_.in_stride[k], samples = stride ? n : 1;
-        for (int64_t j = 0; j < samples; ++j)
-          for (int64_t m = 0; m < size; ++m) next[size * j + m] = x[stride * (s0 + j) + m];
-        d.in[k] = next;
-        d.in_stride[k] = stride ? size : 0;
-        next += size * samples;
-      }
-      output_slots(d, next, n);
-      poison_slots(d, n);
-      fn(d, 0, n);
-      for (int k = 0; k < n_out_; ++k) {
-        if (!batch_.out[k] || workspace_ >> k & 1) continue;
-        const int64_t size = batch_.out_stride[k];
-        const double* y = static_cast<const double*>(d.out[k]);
-        float* x = static_cast<float*>(batch_.out[k]) + size * s0;
-        for (int64_t m = 0; m < size * n; ++m) x[m] = static_cast<float>(y[m]);
+    bool fresh = true;  // the buffer as allocated: zeroed
+    for (int64_t begin, end; pieces.claim(begin, end);) {
+      for (int64_t s0 = begin; s0 < end; s0 += chunk) {
+        const int64_t n = std::min(chunk, end - s0);
+        double* next = buffer.data();
+        if (workspace_ && !fresh) std::fill(buffer.begin(), buffer.end(), 0.0);  // see workspace()
+        fresh = false;
+        d.n = n;
+        for (int k = 0; k < n_in_; ++k) {
+          if (!batch_.in[k]) continue;
+          const float* x = static_cast<const float*>(batch_.in[k]);
+          const int64_t size = in_size_[k], stride = batch_.in_stride[k], samples = stride ? n : 1;
+          for (int64_t j = 0; j < samples; ++j)
+            for (int64_t m = 0; m < size; ++m) next[size * j + m] = x[stride * (s0 + j) + m];
+          d.in[k] = next;
+          d.in_stride[k] = stride ? size : 0;
+          next += size * samples;
+        }
+        output_slots(d, next, n);
+        poison_slots(d, n);
+        fn(d, 0, n);
+        for (int k = 0; k < n_out_; ++k) {
+          if (!batch_.out[k] || workspace_ >> k & 1) continue;
+          const int64_t size = batch_.out_stride[k];
+          const double* y = static_cast<const double*>(d.out[k]);
+          float* x = static_cast<float*>(batch_.out[k]) + size * s0;
+          for (int64_t m = 0; m < size * n; ++m) x[m] = static_cast<float>(y[m]);
+        }
       }
     }
   }
