@@ -1,7 +1,8 @@
 """CPU vector lanes: per-sample time of batched ops (B = 4096, float64, one thread) with the lane
 kernels (several samples per instruction, the default) and with the scalar kernels
 (torch_grid.set_cpu_lanes(False)), against Pinocchio's C++ per-call time (pinocchio_cpp.py), in one
-run; float32 against float64, two threads against one, and a batch of one. Writes a markdown section
+run; float32 against float64, two threads against one (beside what two threads gain on a pure
+arithmetic loop at that moment: machine_cores.py), and a batch of one. Writes a markdown section
 to bench/RESULTS.md with --write.
 
     python bench/bench_lanes.py [--write] [--robots iiwa14 ur5 panda go2 g1]
@@ -21,6 +22,7 @@ import torch
 
 import torch_grid
 from bench_cpu import ERD, ROBOTS, cases, per_call_us, per_sample_us
+from machine_cores import two_thread_ceiling
 from pinocchio_codegen import pinocchio_codegen_times
 from pinocchio_cpp import pinocchio_cpp_times
 
@@ -98,6 +100,7 @@ def robot_rows(name: str) -> tuple[list[list], dict]:
         two = per_sample_us(fn, B)
         torch.set_num_threads(threads)
         summary[f"2 threads speed-up, {label}"] = per_sample_us(fn, B) / two
+        summary[f"2 threads speed-up of an arithmetic loop, just after {label}"] = two_thread_ceiling()
     one = [x[:1] for x in (q, qd, tau)]
     call = lambda: robot.inverse_dynamics(*one)  # noqa: E731
     summary["batch of one, inverse_dynamics µs (lanes on / off)"] = tuple(timed(call, on, per_call_us) for on in (True, False))
