@@ -10,8 +10,10 @@ the others). Stages run as separate processes, each with its own time limit, so 
 leaves the others' results: the builds; per robot, every function's values (float64 and float32, both
 conventions), batch sizes and memory layouts, gradients, double backward, forward mode and vmap, and
 the functions given inertial parameters; the device stages (streams, CUDA graphs, torch.compile, the
-examples, the local-memory reservation and the budget refusal); the figures; compute-sanitizer's
-memcheck and initcheck; the kernels' resources (cuobjdump) and one kernel's achieved occupancy (ncu). Into --out (default $OUT, else bench/gpu):
+examples, the local-memory reservation and the budget refusal); compute-sanitizer's memcheck and
+initcheck; the kernels' resources (cuobjdump) and one kernel's achieved occupancy (ncu); the MPC path
+(gpu_mpc.py: examples/ilqr.py's go2 task, 256 samples by 50 knots, and its parts, eager and from CUDA
+graphs, against the CPU build); the figures. Into --out (default $OUT, else bench/gpu):
 check.log, results.json (one record per figure), resources.txt, sanitizer.log and ncu.txt.
 
 --cpu runs the same checks with the CPU standing in for the GPU (small batches; the CUDA-only checks
@@ -88,6 +90,10 @@ def run_stage(stage: str, robot: str | None, cpu: bool, threads: int) -> int:
         gpu_device.graphs(checks, _robot("go2"), device)
         gpu_device.compiled(checks, _robot("iiwa14"), device)
         gpu_device.examples(checks, device)
+    elif stage == "mpc":
+        import gpu_mpc
+
+        gpu_mpc.mpc(checks, device, _meta(cpu), *((8, 10) if cpu else (256, 50)))
     elif stage == "refusal":
         gpu_device.refusal(checks, _robot("g1"), device)
     elif stage == "reservation":
@@ -265,6 +271,8 @@ def main(argv: list[str] | None = None) -> int:
     # 3. tools, then 4. the figures, alone on the machine
     if not args.cpu:
         _tools(stage, log, out, args.skip)
+    if "mpc" not in args.skip:
+        stage("mpc", ["--stage", "mpc"], 120)
     if "figures" not in args.skip:
         stage("figures", ["--stage", "figures", "--robot", robots[0]], 300 if not args.cpu else 120)
     return _summary(log, out, outputs, failures, args.cpu)

@@ -19,14 +19,16 @@ GRID = {("iiwa14", "inverse_dynamics"): (0.045, 256), ("iiwa14", "forward_dynami
 
 
 def tables(records: list[dict]) -> str:
+    mpc = [r for r in records if r["op"].startswith("mpc[")]
+    records = [r for r in records if not r["op"].startswith("mpc[")]
     sizes = sorted({r["batch"] for r in records if not r["op"].startswith("call_overhead")})
     by = defaultdict(dict)
-    gpu = next((r["device"] for r in records if not r["device"].startswith("CPU")), "GPU")
+    gpu = next((r["device"] for r in records + mpc if not r["device"].startswith("CPU")), "GPU")
     for r in records:
         where = "cpu" if r["device"].startswith("CPU") else "gpu"
         by[(r["robot"], r["op"], r["dtype"])][(where, r["batch"])] = r["us_per_sample"]
     out = []
-    for dtype in ("float64", "float32"):
+    for dtype in sorted({r["dtype"] for r in records}, reverse=True):  # float64 first
         out.append(f"\n{dtype}, µs per sample, {gpu} (CUDA events) / the CPU build on the machine's 16 threads; "
                    "GRiD: its published RTX 5090 float32 figure at the N given\n")
         out.append("| robot | op | " + " | ".join(f"N = {n}" for n in sizes) + " | GRiD |")
@@ -41,7 +43,30 @@ def tables(records: list[dict]) -> str:
     if calls:
         out.append("\nA batch-of-one call through Robot on CUDA (iiwa14 inverse_dynamics, host wall time): "
                    + "; ".join(f"{r['op']}: {r['us_per_sample']:.1f} µs" for r in calls))
+    if mpc:
+        out.append(_mpc_table(mpc, gpu))
     return "\n".join(out) + "\n"
+
+
+def _mpc_table(records: list[dict], gpu: str) -> str:
+    """The MPC path (gpu_mpc.py): each part's ms a call on the GPU and on the CPU build, and its share of
+    an iteration's time there."""
+    by = defaultdict(dict)
+    for r in records:
+        by[r["op"][4:-1]]["cpu" if r["device"].startswith("CPU") else "gpu"] = r["ms_per_call"]
+    first = records[0]
+    iteration = by.get("ilqr iteration", {})
+    lines = [f"\nThe MPC path: examples/ilqr.py's go2 task, {first['batch']} samples, {first['horizon']} knots, "
+             f"float64; ms a call on {gpu} / on the CPU build (its share of an iteration's time)\n",
+             "| part | GPU | CPU |", "|---|---|---|"]
+    for part, cells in by.items():
+        row = []
+        for where in ("gpu", "cpu"):
+            ms, whole = cells.get(where), iteration.get(where)
+            share = f" ({ms / whole:.0%})" if ms is not None and whole and part != "ilqr iteration" else ""
+            row.append(f"{_f(ms)}{share}")
+        lines.append(f"| {part} | " + " | ".join(row) + " |")
+    return "\n".join(lines)
 
 
 def _f(x) -> str:

@@ -38,6 +38,33 @@ def total_cost(view, Q, V, U, running, terminal):
     return knots.sum(-1) + sum(getattr(view, name)(Q[:, -1], V[:, -1], **kw)[0] for name, kw in terminal)
 
 
+def backward_pass(h, Vx, Vxx, reg):
+    """The Riccati recursion from the terminal value function's gradient Vx (B, 2 nv) and Hessian Vxx
+    (B, 2 nv, 2 nv) back over the knots of h (a horizon call's output): the feedback gains K[t]
+    (B, nv, 2 nv), the feedforward steps k[t] (B, nv), with reg * I added to each Quu, and (B,) where a
+    Quu was not positive definite. Nothing here waits for the device (cholesky_ex, not cholesky, which
+    checks each factor on the host), so the pass can be captured in a CUDA graph."""
+    T, nv = h["B"].shape[1], h["B"].shape[-1]
+    K, k = [None] * T, [None] * T
+    eye = reg * torch.eye(nv, dtype=Vx.dtype, device=Vx.device)
+    failed = torch.zeros(Vx.shape[:-1], dtype=torch.bool, device=Vx.device)
+    for t in reversed(range(T)):
+        A, B = h["A"][:, t], h["B"][:, t]
+        Qx = h["lx"][:, t] + (A.mT @ Vx.unsqueeze(-1)).squeeze(-1)
+        Qu = h["lu"][:, t] + (B.mT @ Vx.unsqueeze(-1)).squeeze(-1)
+        Qxx = h["lxx"][:, t] + A.mT @ Vxx @ A
+        Quu = h["luu"][:, t] + B.mT @ Vxx @ B + eye
+        Qux = h["lxu"][:, t].mT + B.mT @ Vxx @ A
+        L, info = torch.linalg.cholesky_ex(Quu)
+        failed |= info != 0
+        K[t] = -torch.cholesky_solve(Qux, L)
+        k[t] = -torch.cholesky_solve(Qu.unsqueeze(-1), L).squeeze(-1)
+        Vx = Qx + (K[t].mT @ Qu.unsqueeze(-1)).squeeze(-1)
+        Vxx = Qxx + K[t].mT @ Qux
+        Vxx = 0.5 * (Vxx + Vxx.mT)
+    return K, k, failed
+
+
 def ilqr(view, q0, qd0, U, dt, running, terminal, iterations, integrator="semi_implicit_euler", rtol=1e-6, gtol=1e-4,
          log=print):
     """Minimise each sample's cost over its controls U (B, T, nv), for at most `iterations` iterations.
@@ -56,7 +83,7 @@ def ilqr(view, q0, qd0, U, dt, running, terminal, iterations, integrator="semi_i
     Returns:
         the controls (B, T, nv) and the mean cost before the first iteration and after each (floats).
     """
-    nv, T = view.nv, U.shape[1]
+    T = U.shape[1]
     Q, V = rollout(view, q0, qd0, U, dt, integrator)
     costs = [total_cost(view, Q, V, U, running, terminal)]
     log(f"iteration  0   mean cost {costs[0].mean():.6g}")
@@ -69,21 +96,10 @@ def ilqr(view, q0, qd0, U, dt, running, terminal, iterations, integrator="semi_i
         # terminal value function
         Vx = sum(getattr(view, n)(Q[:, -1], V[:, -1], **kw)[1] for n, kw in terminal)
         Vxx = sum(getattr(view, n)(Q[:, -1], V[:, -1], **kw)[2] for n, kw in terminal)
-        K, k = [None] * T, [None] * T
-        eye = reg * torch.eye(nv, dtype=U.dtype, device=U.device)
-        for t in reversed(range(T)):
-            A, B = h["A"][:, t], h["B"][:, t]
-            Qx = h["lx"][:, t] + (A.mT @ Vx.unsqueeze(-1)).squeeze(-1)
-            Qu = h["lu"][:, t] + (B.mT @ Vx.unsqueeze(-1)).squeeze(-1)
-            Qxx = h["lxx"][:, t] + A.mT @ Vxx @ A
-            Quu = h["luu"][:, t] + B.mT @ Vxx @ B + eye
-            Qux = h["lxu"][:, t].mT + B.mT @ Vxx @ A
-            L = torch.linalg.cholesky(Quu)
-            K[t] = -torch.cholesky_solve(Qux, L)
-            k[t] = -torch.cholesky_solve(Qu.unsqueeze(-1), L).squeeze(-1)
-            Vx = Qx + (K[t].mT @ Qu.unsqueeze(-1)).squeeze(-1)
-            Vxx = Qxx + K[t].mT @ Qux
-            Vxx = 0.5 * (Vxx + Vxx.mT)
+        K, k, failed = backward_pass(h, Vx, Vxx, reg)
+        if failed.any():
+            raise torch.linalg.LinAlgError(f"iteration {it}: Quu is not positive definite for {int(failed.sum())} of "
+                                           f"{failed.numel()} samples")
         # the gradient scaled by Quu^-1, relative to the controls (Tassa's iLQG measure): ~0 at a minimum
         newton = (torch.stack(k, dim=1).abs() / (U.abs() + 1)).amax(dim=(1, 2))
         # forward pass under the feedback policy, backtracking per sample until every one improves;
@@ -168,7 +184,8 @@ def reach(device="cpu", batch=16, T=50, iterations=10, log=print):
     return ilqr(view, q0, qd0, U, dt, running, terminal, iterations, log=log)[1]
 
 
-def balance(device="cpu", batch=16, T=50, iterations=10, log=print):
+def balance_problem(device="cpu", batch=16, T=50):
+    """go2's task: (view, q0, qd0, U, dt, running, terminal), the arguments of ilqr."""
     robot = torch_grid.load("go2")
     view, nv, dt = robot.pin, robot.nv, 0.02
     stand = view.neutral_configuration(device=device)
@@ -188,8 +205,13 @@ def balance(device="cpu", batch=16, T=50, iterations=10, log=print):
 
     terminal = [("state_cost", {"q_ref": stand, "qd_ref": qd0[0], "weights": 10 * x_weights})]
     U = hold.expand(batch, T, nv).contiguous()
-    log(f"go2: return {batch} floating bases and legs to a standing pose, T = {T}, dt = {dt}")
-    return ilqr(view, q0, qd0, U, dt, running, terminal, iterations, log=log)[1]
+    return view, q0, qd0, U, dt, running, terminal
+
+
+def balance(device="cpu", batch=16, T=50, iterations=10, log=print):
+    problem = balance_problem(device, batch, T)
+    log(f"go2: return {batch} floating bases and legs to a standing pose, T = {T}, dt = {problem[4]}")
+    return ilqr(*problem, iterations, log=log)[1]
 
 
 if __name__ == "__main__":

@@ -78,6 +78,26 @@ def test_ilqr_example_reports_a_stalled_line_search(monkeypatch):
                          "(step sizes 1, 0.5, 0.25, 0.1); 0 converged")
 
 
+def test_ilqr_riccati_pass_flags_a_quu_that_is_not_positive_definite(monkeypatch):
+    """The pass marks the samples whose Quu has no Cholesky factor (without waiting on the device), and iLQR
+    stops there with an error that says how many."""
+    B, T, nv = 3, 4, 2
+    luu = torch.eye(nv, dtype=torch.float64).repeat(B, T, 1, 1)
+    luu[1, 2] = -luu[1, 2]  # sample 1, knot 2: negative definite
+    zeros = lambda *shape: torch.zeros(B, T, *shape, dtype=torch.float64)  # noqa: E731
+    h = {"A": zeros(2 * nv, 2 * nv), "B": zeros(2 * nv, nv), "lx": zeros(2 * nv) + 1, "lu": zeros(nv) + 1,
+         "lxx": zeros(2 * nv, 2 * nv), "luu": luu, "lxu": zeros(2 * nv, nv)}
+    K, k, failed = ilqr.backward_pass(h, torch.zeros(B, 2 * nv, dtype=torch.float64),
+                                      torch.zeros(B, 2 * nv, 2 * nv, dtype=torch.float64), 1e-6)
+    assert failed.tolist() == [False, True, False]
+    torch.testing.assert_close(k[0][0], -torch.ones(nv, dtype=torch.float64) / (1 + 1e-6))  # Quu = (1 + reg) I
+
+    backward_pass = ilqr.backward_pass
+    monkeypatch.setattr(ilqr, "backward_pass", lambda *args: (*backward_pass(*args)[:2], torch.tensor([False, True])))
+    with pytest.raises(torch.linalg.LinAlgError, match="iteration 1: Quu is not positive definite for 1 of 2 samples"):
+        ilqr.reach(batch=2, T=5, iterations=2, log=lambda *_: None)
+
+
 def test_policy_example_learns_and_compiles():
     values = policy_rollout.main(batch=16, updates=6, log=lambda *_: None)
     losses, (eager, compiled) = values[:-2], values[-2:]
