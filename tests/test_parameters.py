@@ -334,8 +334,9 @@ def test_with_parameters_view(robots):
     assert torch.equal(view.com(qm), robot.mujoco.com(qm, params=pi))
     assert torch.equal(view.inertial_parameters(), pi.flatten(-2))
     # composed functions compute with the view's parameters too
-    q_next, qd_next = view.step(qm, qd, x, 0.01)
-    assert torch.equal(qd_next, qd + 0.01 * view.forward_dynamics(qm, qd, x))
+    q_next, qd_next = view.step(qm, qd, x, 0.01)  # the step kernel, with the parameters
+    assert rel_err(qd_next, qd + 0.01 * view.forward_dynamics(qm, qd, x)) <= 1e-15
+    assert not torch.allclose(qd_next, robot.mujoco.step(qm, qd, x, 0.01)[1], rtol=1e-6, atol=1e-6)
     assert not torch.allclose(view.step(qm, qd, x, 0.01, integrator="rk4")[1],
                               robot.mujoco.step(qm, qd, x, 0.01, integrator="rk4")[1], rtol=1e-6, atol=1e-6)
     compiled = torch.compile(lambda q, qd, tau: view.step(q, qd, tau, 0.01, integrator="rk4"), fullgraph=False)
@@ -343,8 +344,9 @@ def test_with_parameters_view(robots):
     # a kernel without parameters refuses rather than compute with the robot's own
     # the fused step kernels with the parameters equal the torch composition (taken when differentiated)
     for integrator in ("semi_implicit_euler", "rk4"):
-        fused = view.step_derivatives(qm, qd, x, 0.01, integrator)
-        composed = view.step_derivatives(qm.clone().requires_grad_(True), qd, x, 0.01, integrator)
+        fused = view.step(qm, qd, x, 0.01, integrator) + view.step_derivatives(qm, qd, x, 0.01, integrator)
+        q_grad = qm.clone().requires_grad_(True)
+        composed = view.step(q_grad, qd, x, 0.01, integrator) + view.step_derivatives(q_grad, qd, x, 0.01, integrator)
         for a, b in zip(fused, composed):
             assert rel_err(a, b.detach()) <= 1e-11, integrator
     # kinematics do not depend on the parameters

@@ -77,12 +77,13 @@ def _save_inputs(ctx, inputs, output) -> None:
 def _no_backward(name: str) -> Callable:
     # Every op without a backward computes derivatives (a backward's kernels, the second-order tensors):
     # differentiating it is a third derivative, or the second of an op whose outputs are derivatives.
-    # The Euler step kernel is the fast path of step_derivatives, which composes the step in torch
+    # The step kernels are the fast paths of step and step_derivatives, which compose the step in torch
     # whenever autograd is to see it.
     message = (f"torch_grid: {name} has no derivative: the op whose derivative it computes cannot be differentiated "
                "once more (a third derivative, or the second derivative of an op whose outputs are derivatives)")
     if OPS[name].backward == "step":
-        message = (f"torch_grid: the {name} kernel has no derivative; differentiate Robot.step_derivatives, which then "
+        method = "step" if name == "step" else "step_derivatives"
+        message = (f"torch_grid: the {name} kernel has no derivative; differentiate Robot.{method}, which then "
                    "composes the step in torch")
 
     def backward(ctx, *grads):

@@ -119,8 +119,8 @@ def model_sizes(model: RobotModel) -> dict[str, int]:
 #   "formula"   a formula of its own over kernels, mostly the O(n) vector-Jacobian product of inverse dynamics;
 #   "composed"  a formula over other ops' outputs and backwards (the op's outputs are products of theirs);
 #   "dual"      its own kernel on dual numbers (<op>_backward): outputs that are already derivatives;
-#   "step"      none: the fused step kernel, which Robot.step_derivatives replaces by the torch composition
-#               whenever anything differentiates it;
+#   "step"      none: the fused step kernels, which Robot.step and step_derivatives replace by the torch
+#               composition whenever anything differentiates them;
 #   "none"      none: a derivative computed inside another op's backward, or a second-order tensor.
 # Its forward mode (torch.func.jvp, jacfwd, forward_ad; func.py):
 #   "backward"  the derivative of its backward with respect to the cotangents (the backward is linear in them);
@@ -203,6 +203,9 @@ _VALUE_OPS = (
         OpSpec("forward_dynamics_derivatives", "ForwardDynamicsDerivatives", (Q, QD, TAU, FEXT, PARAMS),
                (Out("dqdd_dq", "twin", NVxNV), Out("dqdd_dqd", "twin", NVxNV), Out("dqdd_dtau", "twin", NVxNV)),
                "derivatives", backward="composed", jvp="rule"),
+        OpSpec("step", "Step",
+               (Q, QD, TAU, FEXT, Arg("dt", "plain", shape=(1,)), PARAMS, Arg("scheme", "scheme"), PASSIVE),
+               (Out("q_next", "twin", ("nq",)), Out("qd_next", "twin", NV)), "derivatives", backward="step"),
         OpSpec("step_derivatives", "StepDerivatives",
                (Q, QD, TAU, FEXT, Arg("dt", "plain", shape=(1,)), PARAMS, Arg("scheme", "scheme"), PASSIVE),
                (Out("q_next", "twin", ("nq",)), Out("qd_next", "twin", NV), Out("A", "twin", (2, "nv", 2, "nv")),
@@ -354,7 +357,7 @@ CPU_SAMPLE_US = {
     "inverse_dynamics_vjp": 1.7, "inverse_dynamics_vjp_full": 1.8, "inertia_solve": 1.1, "body_velocities": 0.34,
     "frames_vjp": 0.59, "inverse_dynamics_derivatives": 3.6, "inverse_dynamics_second_derivatives": 34,
     "inverse_dynamics_derivatives_vjp": 25, "inverse_dynamics_derivatives_tangent": 40, "forward_dynamics_derivatives": 6.8,
-    "step_derivatives": 7.7, "rk_step_derivatives": 50, "inverse_dynamics_external_force_derivatives": 0.83,
+    "step": 3.0, "step_derivatives": 7.7, "rk_step_derivatives": 50, "inverse_dynamics_external_force_derivatives": 0.83,
     "forward_dynamics_external_force_derivatives": 3.8, "osc_inertia": 2.5, "cmm_time_variation": 2.1, "dccrba": 2.1,
     "coriolis_matrix": 2.2, "inverse_dynamics_regressor": 3.1, "kinetic_energy_regressor": 0.40,
     "potential_energy_regressor": 0.20, "forward_dynamics_parameter_derivatives": 7.4,

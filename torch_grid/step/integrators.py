@@ -67,6 +67,11 @@ class StepFunctions:
         if torch.compiler.is_compiling() and forward_ad._current_level >= 0:
             return _step_eagerly(self, q, qd, tau, dt, integrator, f_ext)
         h = dt_column(dt, qd)
+        if integrator in FUSED and self._fused(q, qd, tau, dt, f_ext):
+            # one kernel call: forward dynamics and the update of q and qd (a few hundred small torch ops at a
+            # floating base, whose dispatch outweighs a small batch's dynamics)
+            return self._kernel_call("step", q, qd, tau, f_ext, h, self._params, FUSED[integrator],
+                                     _passive_code(self._robot, integrator))
         if integrator == "semi_implicit_euler":
             damped = self._robot._implicit_damping
             qd_next = qd + h * (damped_acceleration(self, q, qd, tau, h, f_ext) if damped
@@ -97,7 +102,7 @@ class StepFunctions:
         when nothing asks for their derivatives (the kernels have no backward)."""
         _check(op, integrator, q, qd, tau, dt)
         params = self._params  # a view's of with_parameters
-        if self._robot._coupling is None and not _differentiated(q, qd, tau, dt, f_ext, params) and not _fused_kept_off(self, q):
+        if self._fused(q, qd, tau, dt, f_ext):
             h = dt_column(dt, qd)
             passive = _passive_code(self._robot, integrator)
             if integrator in FUSED:
@@ -108,6 +113,12 @@ class StepFunctions:
                                                              RK_FUSED[integrator], passive)
             return q_next, qd_next, A.flatten(-4, -3).flatten(-2), B.flatten(-3, -2)
         return _in_chunks(lambda *args: self._step_derivatives(*args, integrator), q, qd, tau, dt, f_ext, params)
+
+    def _fused(self, q, qd, tau, dt, f_ext) -> bool:
+        """Whether a step kernel computes this call: nothing differentiates it, no joint mimics another, and
+        the kernels are not kept off its device (_fused_kept_off)."""
+        return (self._robot._coupling is None and not _differentiated(q, qd, tau, dt, f_ext, self._params)
+                and not _fused_kept_off(self, q))
 
     def _step_derivatives(self, q, qd, tau, dt, f_ext, params, integrator):
         if params is not self._params:  # a piece of the view's parameters (_in_chunks)

@@ -239,6 +239,38 @@ template <class Robot, class Scalar> struct StepDerivatives {
   }
 };
 
+// One Euler step's values alone (scheme 0: euler, 1: semi-implicit): step_derivatives' q' and qd' without
+// the Jacobians, the acceleration by ABA at tau (+ p with passive 1), or of (M + dt D) qdd = tau + p - b
+// with passive 2 (damped_acceleration).
+template <class Robot, class Scalar> struct Step {
+  template <int C> TG_HD static void run(const StepArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
+    constexpr int NV = Robot::NV;
+    const Scalar h = a.dt[0];
+    Scalar qdd[NV], v[NV], u[NV];
+    if constexpr (Robot::PASSIVE) {
+      if (a.passive == 2) {
+        Scalar H[NV * NV];
+        damped_acceleration<Robot, Scalar, C>(Placements<Robot, Scalar>(a.q), cv, a.q, a.qd, a.tau, a.f_ext, h, H, qdd, {a.params});
+      } else {
+        for (int k = 0; k < NV; ++k) v[k] = a.tau[k];  // tau + p
+        if (a.passive) add_passive<Robot, Scalar>(a.q, a.qd, v);
+        aba<Robot, Scalar>(a.q, a.qd, v, a.f_ext, qdd, {a.params});
+      }
+    } else {
+      aba<Robot, Scalar>(a.q, a.qd, a.tau, a.f_ext, qdd, {a.params});
+    }
+    for (int k = 0; k < NV; ++k) v[k] = a.qd[k];
+    cv.velocity_out(v);
+    cv.acceleration_out(a.qd, qdd);
+    // qd' = qd + dt a;  q' = q (+) dt w, w = qd' (semi-implicit) or qd
+    for (int k = 0; k < NV; ++k) {
+      a.qd_next[k] = v[k] + h * qdd[k];
+      u[k] = h * (a.scheme ? a.qd_next[k] : v[k]);
+    }
+    for (int i = 0; i < Robot::NB; ++i) integrate_joint<Robot, Scalar, C>(i, a.q, u, a.q_next, nullptr, nullptr);
+  }
+};
+
 // One Runge-Kutta step (scheme 2: midpoint, 3: rk3, 4: rk4) and its Jacobians (runge_kutta.h), the
 // stages' derivatives in the workspace.
 template <class Robot, class Scalar> struct RkStepDerivatives {

@@ -145,14 +145,14 @@ TG_HD void forward_dynamics_derivatives(const Placements<Robot, Scalar>& K, cons
 // implicitly (mj_Euler), p the passive forces (passive.h). Differentiating ID(q, qd, qdd) + dt D qdd - p = tau
 // at that qdd, with H = M + dt D: dqdd/dx = -H^-1 (dID/dx - dp/dx), dqdd/dtau = H^-1. H is factored in the
 // convention (H_c = G H G^T, D being zero on free joints), as a Runge-Kutta stage's M (rk_stage).
-// dqdd/dq, dqdd/dqd, dqdd/dtau (NV x NV each, in the convention) and qdd (in Pinocchio's).
+// damped_acceleration: H, factored (ltdl_factor), and qdd in Pinocchio's convention.
 template <class Robot, class Scalar, int C>
-TG_HD void damped_dynamics_derivatives(const Placements<Robot, Scalar>& K, const Conv<Robot, Scalar, C>& cv, const Scalar* q, const Scalar* qd,
-                                    const Scalar* tau, const Scalar* fext, Scalar h, Scalar* dq, Scalar* dqd, Scalar* dtau, Scalar* qdd,
-                                    const InertialParameters<Robot, Scalar>& pi = {}) {
+TG_HD void damped_acceleration(const Placements<Robot, Scalar>& K, const Conv<Robot, Scalar, C>& cv, const Scalar* q, const Scalar* qd,
+                               const Scalar* tau, const Scalar* fext, Scalar h, Scalar* H, Scalar* qdd,
+                               const InertialParameters<Robot, Scalar>& pi = {}) {
   constexpr int NV = Robot::NV;
   const auto& d = data<Robot, Scalar>();
-  Scalar H[NV * NV], f[NV], zero[NV], buf[Conv<Robot, Scalar, C>::active ? NV : 1];
+  Scalar f[NV], zero[NV], buf[Conv<Robot, Scalar, C>::active ? NV : 1];
   crba<Robot, Scalar>(K, H, pi);
   cv.congruence_out(H);
   for (int k = 0; k < NV; ++k) H[(NV + 1) * k] += h * Scalar(d.damping[k]);
@@ -166,6 +166,17 @@ TG_HD void damped_dynamics_derivatives(const Placements<Robot, Scalar>& K, const
   ltdl_solve<Robot, Scalar>(H, f);
   const Scalar* a = cv.velocity(f, buf);  // G^T
   for (int k = 0; k < NV; ++k) qdd[k] = a[k];
+}
+
+// damped_dynamics_derivatives: dqdd/dq, dqdd/dqd, dqdd/dtau (NV x NV each, in the convention) and qdd (in
+// Pinocchio's).
+template <class Robot, class Scalar, int C>
+TG_HD void damped_dynamics_derivatives(const Placements<Robot, Scalar>& K, const Conv<Robot, Scalar, C>& cv, const Scalar* q, const Scalar* qd,
+                                    const Scalar* tau, const Scalar* fext, Scalar h, Scalar* dq, Scalar* dqd, Scalar* dtau, Scalar* qdd,
+                                    const InertialParameters<Robot, Scalar>& pi = {}) {
+  constexpr int NV = Robot::NV;
+  Scalar H[NV * NV];
+  damped_acceleration<Robot, Scalar, C>(K, cv, q, qd, tau, fext, h, H, qdd, pi);
   // the derivatives: -H^-1 (dID/dx + [K D]), and H^-1 from the identity's columns
   inverse_dynamics_derivatives<Robot, Scalar>(K, qd, qdd, fext, cv, dq, dqd, pi);
   add_passive_diagonals<Robot, Scalar>(dq, dqd);
