@@ -66,18 +66,24 @@ def mpc(checks: Checks, device: torch.device, meta: dict, batch: int = 256, T: i
 def _parts(checks: Checks, where: torch.device, batch: int, T: int, iterations: int) -> dict[str, float]:
     """Seconds a call of an iteration and of each part on one device."""
     view, q0, qd0, U, dt, running, terminal = ilqr.balance_problem(str(where), batch, T)
-    Q, V = ilqr.rollout(view, q0, qd0, U, dt, INTEGRATOR)
-    h = view.horizon(Q[:, :-1], V[:, :-1], U, dt, INTEGRATOR, costs=running(T))
+
+    def rollout():
+        return ilqr.rollout(view, q0, qd0, U, dt, INTEGRATOR)
+
+    def horizon():
+        return view.horizon(Q[:, :-1], V[:, :-1], U, dt, INTEGRATOR, costs=running(T))
+
+    Q, V = rollout()
+    h = horizon()
     Vx, Vxx = (sum(getattr(view, n)(Q[:, -1], V[:, -1], **kw)[i] for n, kw in terminal) for i in (1, 2))
     parts = {
         # a solve's time over its iterations (its first rollout and cost, about a line search step, included);
         # rtol = gtol = 0: every sample runs every iteration (none converges), as a controller's would
         "ilqr iteration": _seconds(lambda: ilqr.ilqr(view, q0, qd0, U, dt, running, terminal, iterations, INTEGRATOR,
                                                      rtol=0, gtol=0, log=lambda *_: None), where, 2) / iterations,
-        "horizon call": _seconds(lambda: view.horizon(Q[:, :-1], V[:, :-1], U, dt, INTEGRATOR, costs=running(T)),
-                                 where),
+        "horizon call": _seconds(horizon, where),
         "riccati pass": _seconds(lambda: ilqr.backward_pass(h, Vx, Vxx, 1e-6), where),
-        "rollout": _seconds(lambda: ilqr.rollout(view, q0, qd0, U, dt, INTEGRATOR), where),
+        "rollout": _seconds(rollout, where),
     }
     if where.type == "cuda":
         parts.update(_graph_parts(checks, view, q0, qd0, U, dt, h, Vx, Vxx, where))
