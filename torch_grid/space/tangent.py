@@ -41,6 +41,18 @@ class Layout:
     scalar_q: tuple[int, ...]  # q coordinate of each one-dof joint
     scalar_v: tuple[int, ...]  # its velocity coordinate
 
+    @property
+    def scalar_runs(self) -> tuple[tuple[int, int, int], ...]:
+        """The one-dof joints as runs (first q coordinate, first velocity coordinate, length) that are
+        contiguous in both, so that a run moves between q and the tangent space as one slice."""
+        runs: list[list[int]] = []
+        for qi, vi in zip(self.scalar_q, self.scalar_v):
+            if runs and runs[-1][0] + runs[-1][2] == qi and runs[-1][1] + runs[-1][2] == vi:
+                runs[-1][2] += 1
+            else:
+                runs.append([qi, vi, 1])
+        return tuple(map(tuple, runs))
+
 
 _LAYOUTS: dict[str, Layout] = {}
 
@@ -101,6 +113,19 @@ def broadcast_batch(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, tor
     return a.expand(*batch, a.shape[-1]), b.expand(*batch, b.shape[-1])
 
 
+def _in_q_order(pieces: list[tuple[int, torch.Tensor]]) -> torch.Tensor:
+    """(first coordinate of q, its values (..., n)) for every coordinate of q once, joined in q's order: out of
+    place and by slices, so that torch.func.vmap batches it and no gather runs."""
+    return torch.cat([part for _, part in sorted(pieces, key=lambda piece: piece[0])], dim=-1)
+
+
+def _rotate(unit: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """R v for the rotation of the unit (..., 4) xyzw quaternion: v + 2 w (u x v) + 2 u x (u x v)."""
+    u, w = unit[..., :3], unit[..., 3:]
+    uv = torch.cross(u, v, dim=-1)
+    return v + 2 * (w * uv + torch.cross(u, uv, dim=-1))
+
+
 def ambient_direction(model: RobotModel, q: torch.Tensor, u: torch.Tensor, convention: int) -> torch.Tensor:
     """(..., nq): the change of q along the tangent vector u (..., nv), u^T tangent_directions(q)
     without the nv x nq matrix."""
@@ -108,23 +133,16 @@ def ambient_direction(model: RobotModel, q: torch.Tensor, u: torch.Tensor, conve
     if not lay.quaternions:
         return u
     q, u = broadcast_batch(q, u)
-    indices, parts = [], []
-    if lay.scalar_q:
-        indices += list(lay.scalar_q)
-        parts.append(u[..., list(lay.scalar_v)])
+    pieces = [(qi, u[..., vi:vi + n]) for qi, vi, n in lay.scalar_runs]
     for j in lay.quaternions:
         xyz, w, iw, ixyz = _xyzw(q, j, convention)
         w_ang = u[..., j.angular:j.angular + 3]
         if j.free:
             u_lin = u[..., j.vi:j.vi + 3]
-            indices += list(range(j.qi, j.qi + 3))
-            parts.append(u_lin if convention else
-                         (quaternion_rotation(torch.cat([xyz, w], dim=-1)) @ u_lin.unsqueeze(-1)).squeeze(-1))
-        indices += list(range(ixyz.start, ixyz.stop)) + [iw]
-        parts.append(0.5 * (w * w_ang + torch.cross(xyz, w_ang, dim=-1)))
-        parts.append(-0.5 * (xyz * w_ang).sum(-1, keepdim=True))
-    order = sorted(range(len(indices)), key=indices.__getitem__)
-    return torch.cat(parts, dim=-1)[..., order]
+            pieces.append((j.qi, u_lin if convention else _rotate(unit_quaternion(torch.cat([xyz, w], dim=-1))[0], u_lin)))
+        pieces.append((ixyz.start, 0.5 * (w * w_ang + torch.cross(xyz, w_ang, dim=-1))))
+        pieces.append((iw, -0.5 * (xyz * w_ang).sum(-1, keepdim=True)))
+    return _in_q_order(pieces)
 
 
 def tangent_to_ambient(model: RobotModel, q: torch.Tensor, g: torch.Tensor, convention: int) -> torch.Tensor:
@@ -140,12 +158,7 @@ def tangent_to_ambient(model: RobotModel, q: torch.Tensor, g: torch.Tensor, conv
         return g
     # q's batch may differ from g's (a cotangent carries a batch of its own under torch.func transforms)
     q, g = broadcast_batch(q, g)
-    # Each coordinate of q once, as (its indices, its gradient), put in q's order at the end: out of
-    # place, so that torch.func.vmap batches it.
-    indices, parts = [], []
-    if lay.scalar_q:
-        indices += list(lay.scalar_q)
-        parts.append(g[..., list(lay.scalar_v)])
+    pieces = [(qi, g[..., vi:vi + n]) for qi, vi, n in lay.scalar_runs]
     for j in lay.quaternions:
         xyz, w, iw, ixyz = _xyzw(q, j, convention)
         unit, norm = unit_quaternion(torch.cat([xyz, w], dim=-1))
@@ -153,13 +166,10 @@ def tangent_to_ambient(model: RobotModel, q: torch.Tensor, g: torch.Tensor, conv
         g_ang = g[..., j.angular:j.angular + 3]
         if j.free:
             g_lin = g[..., j.vi:j.vi + 3]
-            indices += list(range(j.qi, j.qi + 3))
-            parts.append(g_lin if convention else (quaternion_rotation(unit) @ g_lin.unsqueeze(-1)).squeeze(-1))
-        indices += list(range(ixyz.start, ixyz.stop)) + [iw]
-        parts.append(2 / norm * (w_n * g_ang + torch.cross(xyz_n, g_ang, dim=-1)))
-        parts.append(-2 / norm * (xyz_n * g_ang).sum(-1, keepdim=True))
-    order = sorted(range(len(indices)), key=indices.__getitem__)
-    return torch.cat(parts, dim=-1)[..., order]
+            pieces.append((j.qi, g_lin if convention else _rotate(unit, g_lin)))
+        pieces.append((ixyz.start, 2 / norm * (w_n * g_ang + torch.cross(xyz_n, g_ang, dim=-1))))
+        pieces.append((iw, -2 / norm * (xyz_n * g_ang).sum(-1, keepdim=True)))
+    return _in_q_order(pieces)
 
 
 def _cross(a: list[float], b: list[float]) -> list[float]:
