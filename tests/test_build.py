@@ -205,11 +205,38 @@ def test_op_table_limits_are_checked_when_it_is_built():
         "last integer": dataclasses.replace(crba, name="frames", args=(Q, ops.Arg("frames", "frames"), ops.Arg("f", "frame"))),
         "one output": dataclasses.replace(ops.OPS["inverse_dynamics_regressor"],
                                           outputs=(ops.Out("Y", "force_rows", ("nv", "nparams")), ops.Out("Z", "plain", (1,)))),
+        "on lanes": dataclasses.replace(crba, name="nolanes", lanes=0),
+        "compile-time sizes": dataclasses.replace(ops.OPS["end_effector_pose"], lanes=100),
     }
     for words, op in bad.items():
         with pytest.raises(ValueError, match=re.escape(op.name)) as info:
             ops.check_table({op.name: op})
         assert words.split()[-1] in str(info.value)
+
+
+def test_an_op_bounded_on_lanes_takes_them_for_small_robots_only(monkeypatch):
+    """A number as an op's lanes bounds a sample's outputs: the second-order tensors (4 nv^3 numbers) go on lanes
+    up to nv = 23, and the robot's library then has their lane kernels, or none."""
+    from types import SimpleNamespace
+
+    import pinocchio as pin
+
+    from torch_grid.model import parse
+    from torch_grid.ops import codegen
+    from torch_grid.ops import table as ops
+
+    second = ops.OPS["inverse_dynamics_second_derivatives"]
+    sizes = {nv: SimpleNamespace(nv=nv, nq=nv, nbodies=nv, frames=[]) for nv in (7, 23, 24, 35)}
+    assert [ops.on_lanes(second, sizes[nv]) for nv in (7, 23, 24, 35)] == [True, True, False, False]
+    assert ops.on_lanes(ops.OPS["crba"], sizes[35])
+    monkeypatch.setenv("TORCH_GRID_LANES", "0")  # the suite's own robots are built without lane kernels
+    model = parse.from_pinocchio(pin.buildSampleModelManipulator())  # nv = 6
+    entry = codegen._entry("lanes", second, "f64", "pin")
+    assert entry in codegen.lanes_unit(model, False, "tg_small", "second_order", "double")
+    assert entry in codegen.table_unit(model, False, False, "tg_small")
+    large = parse.from_pinocchio(pin.buildSampleModelHumanoid())  # nv = 34
+    assert entry not in codegen.lanes_unit(large, False, "tg_large", "second_order", "double")
+    assert entry not in codegen.table_unit(large, False, False, "tg_large")
 
 
 @pytest.mark.parametrize("rename", [False, True])

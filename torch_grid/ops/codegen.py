@@ -8,7 +8,7 @@ import os
 from pathlib import Path
 
 from ..model.description import RobotModel, inertia_about_origin
-from .table import CONTRACTED, OPS, OpSpec, cpu_grain, op_signature
+from .table import CONTRACTED, OPS, OpSpec, cpu_grain, on_lanes, op_signature
 
 _JTYPE = {"free": 0, "revolute": 1, "continuous": 1, "prismatic": 2, "ball": 3}
 _KERNEL_SIZE = {"nv": "Robot::NV", "nq": "Robot::NQ", "nframes": "Robot::NF", "nbodies": "Robot::NB",
@@ -34,7 +34,7 @@ def write_robot_sources(model: RobotModel, mujoco: bool, cuda: bool, namespace: 
                 files[f"{family}_{suffix}.cpp"] = kernel_unit(model, mujoco, namespace, family, scalar, cuda=False)
             if cuda:
                 files[f"{family}_{suffix}.cu"] = kernel_unit(model, mujoco, namespace, family, scalar, cuda=True)
-        if cpu_lanes() != 1 and any(op.family == family and op.lanes for op in OPS.values()):
+        if cpu_lanes() != 1 and any(op.family == family and on_lanes(op, model) for op in OPS.values()):
             for scalar, suffix in _SCALARS:
                 files[f"{family}_lanes_{suffix}.cpp"] = lanes_unit(model, mujoco, namespace, family, scalar)
     for name, text in files.items():
@@ -224,7 +224,7 @@ def cpu_lanes() -> int:
 def lanes_unit(model: RobotModel, mujoco: bool, namespace: str, family: str, scalar: str) -> str:
     """One family's ops on vector lanes of `scalar` (csrc/batch/cpu_lanes.h): a CPU batch loop per op and
     convention that takes groups of samples at a time; in double the scalar kernel takes the rest."""
-    ops = [op for op in OPS.values() if op.family == family and op.lanes]
+    ops = [op for op in OPS.values() if op.family == family and on_lanes(op, model)]
     suffix = dict(_SCALARS)[scalar]
     lines = [f"void {_entry('lanes', op, suffix, cname)}(const tg::Batch& b, int64_t begin, int64_t end) {{\n"
              f"  tg::cpu_range_lanes<tg::bind::{op.kernel}, Robot, {conv}, {scalar}>(b, begin, end);\n}}"
@@ -252,7 +252,7 @@ def table_unit(model: RobotModel, mujoco: bool, cuda: bool, namespace: str) -> s
                     decls.append(f"void {name}(const tg::Batch&, int64_t, int64_t);" if device == "cpu" else
                                  f"int {name}(const tg::Batch&, void*, int, tg::CudaAttributes*);")
 
-        if cpu_lanes() != 1 and op.lanes:
+        if cpu_lanes() != 1 and on_lanes(op, model):
             for _, suffix in _SCALARS:
                 for _, cname in convs:
                     slots["lanes", suffix, cname] = name = _entry("lanes", op, suffix, cname)

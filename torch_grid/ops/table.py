@@ -76,8 +76,9 @@ class OpSpec:
     dual_jvp: tuple[str, ...] = ()  # <op>_jvp: the kernel on dual numbers along the tangents of these inputs
     contracted: bool = False  # <op>_backward contracts the output with its cotangent inside the kernel
     # CPU kernels on vector lanes, several samples per instruction (csrc/batch/cpu_lanes.h); False where
-    # gathering and scattering the samples costs more than the lanes save (bench/bench_lanes.py)
-    lanes: bool = True
+    # gathering and scattering the samples costs more than the lanes save (bench/bench_lanes.py); a number:
+    # lanes for a robot whose outputs are at most that many numbers a sample (on_lanes)
+    lanes: bool | int = True
 
     @property
     def has_dual_backward(self) -> bool:
@@ -129,6 +130,11 @@ def model_sizes(model: RobotModel) -> dict[str, int]:
 #   "none"      refused by name.
 BACKWARD_KINDS = ("formula", "composed", "dual", "step", "none")
 JVP_KINDS = ("backward", "rule", "dual", "none")
+
+# inverse_dynamics_second_derivatives writes 4 nv^3 numbers a sample, a quarter of them nonzero: on lanes a group
+# holds them for every lane before they are scattered, which pays up to about nv = 23 and costs more above
+# (bench/RESULTS.md, "Second order on lanes")
+SECOND_ORDER_LANES = 50_000
 
 Q, QD, QDD, TAU = Arg("q", "configuration"), Arg("qd", "velocity"), Arg("qdd", "acceleration"), Arg("tau", "force")
 FEXT = Arg("f_ext", "body_forces", True)
@@ -190,7 +196,7 @@ _VALUE_OPS = (
                backward="composed", jvp="rule"),
         OpSpec("inverse_dynamics_second_derivatives", "InverseDynamicsSecondDerivatives", (Q, QD, QDD, FEXT, PARAMS),
                (Out("d2tau_dq2", "plain", NV3), Out("d2tau_dqd2", "plain", NV3), Out("d2tau_dqdqd", "plain", NV3),
-                Out("dM_dq", "plain", NV3)), "second_order", mujoco_twin=False, lanes=False),
+                Out("dM_dq", "plain", NV3)), "second_order", mujoco_twin=False, lanes=SECOND_ORDER_LANES),
         OpSpec("inverse_dynamics_derivatives_vjp", "InverseDynamicsDerivativesVjp",
                (Q, QD, QDD, FEXT, Arg("grad_dtau_dq", "plain", shape=NVxNV), Arg("grad_dtau_dqd", "plain", shape=NVxNV), PARAMS),
                (Out("grad_q", "plain", NV), Out("grad_qd", "plain", NV), Out("grad_qdd", "plain", NV),
@@ -338,6 +344,9 @@ def check_table(table: dict[str, OpSpec]) -> None:
                              "exactly when its value depends on them, and is otherwise listed in INERTIA_FREE")
         if op.derived and any(d == "nsel" for a in op.tensor_args for d in a.trailing):
             raise ValueError(f"op {op.name}: a forward-mode kernel needs compile-time sizes, not 'nsel'")
+        if not isinstance(op.lanes, bool) and (op.lanes < 1 or any(d == "nsel" for o in op.outputs for d in o.shape)):
+            raise ValueError(f"op {op.name}: lanes is True, False or the most output numbers a sample on lanes (at least "
+                             f"1, outputs of compile-time sizes), got {op.lanes!r}")
 
 
 check_table(OPS)
@@ -379,6 +388,15 @@ def cpu_sample_ns(op: OpSpec, model: RobotModel) -> float:
 def cpu_grain(op: OpSpec, model: RobotModel) -> int:
     """The fewest samples of `op` a CPU thread is given: CPU_THREAD_NS of estimated work."""
     return max(1, math.ceil(CPU_THREAD_NS / cpu_sample_ns(op, model)))
+
+
+def on_lanes(op: OpSpec, model: RobotModel) -> bool:
+    """Whether `model`'s library runs `op` on CPU vector lanes (OpSpec.lanes): a number bounds the outputs of
+    a sample, since a group holds theirs for every lane at once."""
+    if isinstance(op.lanes, bool):
+        return op.lanes
+    sizes = model_sizes(model)
+    return sum(math.prod(sizes.get(d, d) for d in o.shape) for o in op.outputs) <= op.lanes
 
 
 def register_fakes(namespace: str, model: RobotModel) -> None:
