@@ -41,8 +41,8 @@ def op_arguments(robot, spec: OpSpec, batch: int, generator: torch.Generator, co
             args.append((1 << differentiated_inputs(spec)) - 1)
         elif a.kind == "scheme":
             args.append(1)
-        elif a.kind == "tableau":
-            args.append(4)
+        elif a.kind in ("tableau", "integrator"):
+            args.append(4)  # rk4
         elif a.kind == "passive":
             args.append(1)
         else:

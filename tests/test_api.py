@@ -249,7 +249,7 @@ def test_fake_shapes_broadcast_as_the_kernels(robots):
 
     robot = robots["go2"]
     ops, sizes = robot._ops, model_sizes(robot._func._model)
-    integers = {"frame": 1, "frames": [1, 2], "reference": 0, "scheme": 1, "tableau": 4, "passive": 0}
+    integers = {"frame": 1, "frames": [1, 2], "reference": 0, "scheme": 1, "tableau": 4, "integrator": 4, "passive": 0}
     g = torch.Generator().manual_seed(0)
     q0 = robot.random_configuration(generator=g)
     mask = lambda spec: (1 << sum(b.is_tensor for b in OPS[spec.forward_mode_of].args)) - 1  # noqa: E731 every gradient

@@ -11,7 +11,7 @@ import torch
 from torch.autograd import forward_ad
 
 from oracles import rel_err
-from torch_grid.step.integrators import FUSED, INTEGRATORS, RK_FUSED, TABLEAUS
+from torch_grid.step.integrators import INTEGRATORS, RK_FUSED, TABLEAUS
 
 MJ_INTEGRATORS = {"semi_implicit_euler": mujoco.mjtIntegrator.mjINT_EULER, "rk4": mujoco.mjtIntegrator.mjINT_RK4}
 
@@ -232,8 +232,8 @@ def test_step_derivatives_match_central_differences(robots, name, convention):
 @pytest.mark.parametrize("name", ["go2", "trees"])
 def test_step_kernels_are_the_torch_composition(robots, name, convention):
     """The kernels of every scheme (what step, step_derivatives, horizon and MPCDynamics run when nothing
-    differentiates them: step and step_derivatives for the Euler schemes, rk_step_derivatives for
-    Runge-Kutta) against the same schemes composed in torch (what runs under autograd), on every joint type: turns of
+    differentiates them: step for the values of every scheme, step_derivatives for the Euler schemes'
+    derivatives, rk_step_derivatives for Runge-Kutta's) against the same schemes composed in torch (what runs under autograd), on every joint type: turns of
     zero, 1e-6 rad, about one and beyond 2 pi in one step, a (2, 3) batch with a per-sample dt and
     external forces. The Runge-Kutta schemes are compared where a step turns by less than half a radian
     per rad/s of speed: beyond it their stages diverge (|A| reaches 1e40 at 400 rad/s) and two exact
@@ -252,8 +252,7 @@ def test_step_kernels_are_the_torch_composition(robots, name, convention):
     stable = speed * dt <= 0.5
     for integrator in INTEGRATORS:
         fused = view._step_and_derivatives(q, qd, tau, dt, integrator, f_ext)
-        if integrator in FUSED:  # the values alone, from the step kernel
-            fused += view.step(q, qd, tau, dt, integrator, f_ext)
+        fused += view.step(q, qd, tau, dt, integrator, f_ext)  # the values alone, from the step kernel
         composed = view.step(q, qd, tau.clone().requires_grad_(), dt, integrator, f_ext) + view.step_derivatives(
             q, qd, tau.clone().requires_grad_(), dt, integrator, f_ext)
         composed += composed[:2]
@@ -268,8 +267,9 @@ def test_step_kernels_are_the_torch_composition(robots, name, convention):
         robot._ops.rk_step_derivatives(q, qd, tau, None, h, None, 1, 0, conv)
     with pytest.raises(RuntimeError, match=r"passive must be 0 \(none\), 1 \(explicit\) or 2 .*got 3"):
         robot._ops.step_derivatives(q, qd, tau, None, h, None, 1, 3, conv)
-    with pytest.raises(RuntimeError, match="scheme must be 0 .euler. or 1 .semi-implicit euler., got 4"):
-        robot._ops.step(q, qd, tau, None, h, None, 4, 0, conv)
+    with pytest.raises(RuntimeError, match=r"scheme must be 0 \(euler\), 1 \(semi-implicit euler\), 2 \(midpoint\), 3 "
+                                           r"\(rk3\) or 4 \(rk4\), got 5"):
+        robot._ops.step(q, qd, tau, None, h, None, 5, 0, conv)
     with pytest.raises(RuntimeError, match=r"passive must be 0 \(none\), 1 \(explicit\) or 2 .*got -1"):
         robot._ops.step(q, qd, tau, None, h, None, 1, -1, conv)
     for op, scheme, out, method in ((robot._ops.step_derivatives, 1, 2, "step_derivatives"),

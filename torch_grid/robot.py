@@ -27,7 +27,7 @@ from .optim.inertial import check_physical
 from .space import lie
 from .space.lie import Space
 from .step.compiled import step_op
-from .step.integrators import StepFunctions
+from .step.integrators import StepFunctions, fused_kernel_runs
 from .step.passive import PassiveForces
 
 
@@ -38,7 +38,10 @@ class ConfigurationFunctions:
     def integrate(self, q: torch.Tensor, v: torch.Tensor, dt=1.0) -> torch.Tensor:
         """(..., nq): q (+) v dt, Pinocchio's integrate or MuJoCo's mj_integratePos; q (..., nq), v (..., nv),
         dt a number or a (...,) tensor."""
-        return lie.integrate(self._robot._space, *self._configuration_checked("integrate", q, v, dt), dt, self._convention)
+        q, v = self._configuration_checked("integrate", q, v, dt)
+        if fused_kernel_runs(self, q, v, dt):  # one kernel call, not the composition's small torch ops
+            return self._kernel_call("integrate", q, v, lie.dt_column(dt, v))
+        return lie.integrate(self._robot._space, q, v, dt, self._convention)
 
     def difference(self, q0: torch.Tensor, q1: torch.Tensor) -> torch.Tensor:
         """(..., nv): v with q0 (+) v = q1, Pinocchio's difference or MuJoCo's mj_differentiatePos (dt = 1)."""

@@ -77,14 +77,15 @@ def _save_inputs(ctx, inputs, output) -> None:
 def _no_backward(name: str) -> Callable:
     # Every op without a backward computes derivatives (a backward's kernels, the second-order tensors):
     # differentiating it is a third derivative, or the second of an op whose outputs are derivatives.
-    # The step kernels are the fast paths of step and step_derivatives, which compose the step in torch
-    # whenever autograd is to see it.
+    # The fused kernels are the fast paths of step, step_derivatives and integrate, which compose their value in
+    # torch whenever autograd is to see it.
     message = (f"torch_grid: {name} has no derivative: the op whose derivative it computes cannot be differentiated "
                "once more (a third derivative, or the second derivative of an op whose outputs are derivatives)")
     if OPS[name].backward == "step":
-        method = "step" if name == "step" else "step_derivatives"
+        method = name if name in ("step", "integrate") else "step_derivatives"
+        what = "q (+) v dt" if name == "integrate" else "the step"
         message = (f"torch_grid: the {name} kernel has no derivative; differentiate Robot.{method}, which then "
-                   "composes the step in torch")
+                   f"composes {what} in torch")
 
     def backward(ctx, *grads):
         raise NotImplementedError(message)

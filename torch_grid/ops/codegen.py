@@ -328,6 +328,8 @@ def op_args_header(table: dict[str, OpSpec] = OPS) -> str:
                 fields.append(f"  int {a.name};  // integrator: 0 euler, 1 semi-implicit euler")
             elif a.kind == "tableau":
                 fields.append(f"  int {a.name};  // Runge-Kutta scheme: 2 midpoint, 3 rk3, 4 rk4")
+            elif a.kind == "integrator":
+                fields.append(f"  int {a.name};  // integrator: 0 euler, 1 semi-implicit euler, 2 midpoint, 3 rk3, 4 rk4")
             elif a.kind == "passive":
                 fields.append(f"  int {a.name};  // joint damping and springs: 0 none, 1 explicit, 2 damping implicit (Euler)")
             elif a.kind == "frames":
@@ -417,7 +419,7 @@ def glue_unit() -> str:
 
 def _params(op: OpSpec) -> str:
     ctype = {"frame": "int64_t", "frames": "at::IntArrayRef", "reference": "int64_t", "mask": "int64_t",
-             "scheme": "int64_t", "tableau": "int64_t", "passive": "int64_t"}
+             "scheme": "int64_t", "tableau": "int64_t", "integrator": "int64_t", "passive": "int64_t"}
     params = [(f"const {'std::optional<at::Tensor>' if a.optional else 'at::Tensor'}& {a.name}" if a.is_tensor
                else f"{ctype[a.kind]} {a.name}") for a in op.args]
     return ", ".join(params + ["int64_t convention"])

@@ -43,9 +43,10 @@ TABLEAUS = {
 }
 INTEGRATORS = ("euler", "semi_implicit_euler", "midpoint", "rk3", "rk4")
 # The schemes the kernels fuse with the forward-dynamics derivatives: step_derivatives (csrc/kernels/step/step.h)
-# and rk_step_derivatives (csrc/kernels/step/runge_kutta.h)
+# and rk_step_derivatives (csrc/kernels/step/runge_kutta.h); the step op takes every scheme's code
 FUSED = {"euler": 0, "semi_implicit_euler": 1}
 RK_FUSED = {"midpoint": 2, "rk3": 3, "rk4": 4}
+SCHEMES = {**FUSED, **RK_FUSED}
 
 
 class StepFunctions:
@@ -67,10 +68,10 @@ class StepFunctions:
         if torch.compiler.is_compiling() and forward_ad._current_level >= 0:
             return _step_eagerly(self, q, qd, tau, dt, integrator, f_ext)
         h = dt_column(dt, qd)
-        if integrator in FUSED and self._fused(q, qd, tau, dt, f_ext):
-            # one kernel call: forward dynamics and the update of q and qd (a few hundred small torch ops at a
-            # floating base, whose dispatch outweighs a small batch's dynamics)
-            return self._kernel_call("step", q, qd, tau, f_ext, h, self._params, FUSED[integrator],
+        if self._fused(q, qd, tau, dt, f_ext):
+            # one kernel call: each stage's forward dynamics and the updates of q and qd (a few hundred small torch
+            # ops a stage at a floating base, whose dispatch outweighs a small batch's dynamics)
+            return self._kernel_call("step", q, qd, tau, f_ext, h, self._params, SCHEMES[integrator],
                                      _passive_code(self._robot, integrator))
         if integrator == "semi_implicit_euler":
             damped = self._robot._implicit_damping
@@ -115,10 +116,7 @@ class StepFunctions:
         return _in_chunks(lambda *args: self._step_derivatives(*args, integrator), q, qd, tau, dt, f_ext, params)
 
     def _fused(self, q, qd, tau, dt, f_ext) -> bool:
-        """Whether a step kernel computes this call: nothing differentiates it, no joint mimics another, and
-        the kernels are not kept off its device (_fused_kept_off)."""
-        return (self._robot._coupling is None and not _differentiated(q, qd, tau, dt, f_ext, self._params)
-                and not _fused_kept_off(self, q))
+        return fused_kernel_runs(self, q, qd, tau, dt, f_ext)
 
     def _step_derivatives(self, q, qd, tau, dt, f_ext, params, integrator):
         if params is not self._params:  # a piece of the view's parameters (_in_chunks)
@@ -242,9 +240,17 @@ def _passive_code(robot, integrator: str) -> int:
     return 2 if integrator == "semi_implicit_euler" and robot._implicit_damping else 1
 
 
+def fused_kernel_runs(view, q, *args) -> bool:
+    """Whether a kernel that fuses a composition (the step, its derivatives, integrate) computes this call:
+    nothing differentiates it, no joint mimics another, and the kernels are not kept off its device
+    (_fused_kept_off)."""
+    return (view._robot._coupling is None and not _differentiated(q, *args, view._params)
+            and not _fused_kept_off(view, q))
+
+
 def _fused_kept_off(view, q) -> bool:
-    """Whether the fused step-derivative kernels are kept off this call: on CUDA in MuJoCo's convention of
-    a robot with quaternion joints. There an H100 gave them NaN (the Runge-Kutta schemes on a floating base,
+    """Whether the step kernels (values and derivatives) are kept off this call: on CUDA in MuJoCo's
+    convention of a robot with quaternion joints. There an H100 gave them NaN (the Runge-Kutta schemes on a floating base,
     every scheme but Euler with ball joints: bench/RESULTS.md), where the CPU build and the composition of
     the other ops were right; the composition runs instead until a GPU run shows the kernels right."""
     return isinstance(q, torch.Tensor) and q.is_cuda and view._differs()

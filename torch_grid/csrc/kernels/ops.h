@@ -239,6 +239,15 @@ template <class Robot, class Scalar> struct StepDerivatives {
   }
 };
 
+// q' = q (+) dt v (Pinocchio's integrate, MuJoCo's mj_integratePos), v in the call's convention.
+template <class Robot, class Scalar> struct Integrate {
+  template <int C> TG_HD static void run(const IntegrateArgs<Scalar>& a, const Conv<Robot, Scalar, C>&) {
+    Scalar u[Robot::NV];
+    for (int k = 0; k < Robot::NV; ++k) u[k] = a.dt[0] * a.v[k];
+    for (int i = 0; i < Robot::NB; ++i) integrate_joint<Robot, Scalar, C>(i, a.q, u, a.q_next, nullptr, nullptr);
+  }
+};
+
 // One Euler step's values alone (scheme 0: euler, 1: semi-implicit): step_derivatives' q' and qd' without
 // the Jacobians, the acceleration by ABA at tau (+ p with passive 1), or of (M + dt D) qdd = tau + p - b
 // with passive 2 (damped_acceleration).
@@ -246,6 +255,11 @@ template <class Robot, class Scalar> struct Step {
   template <int C> TG_HD static void run(const StepArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
     constexpr int NV = Robot::NV;
     const Scalar h = a.dt[0];
+    if (a.scheme >= 2) {  // Runge-Kutta
+      rk_step_values<Robot, Scalar, C>(cv, a.qd, a.tau, a.f_ext, h, a.scheme, Robot::PASSIVE && a.passive, a.q_next, a.qd_next,
+                                       {a.params});
+      return;
+    }
     Scalar qdd[NV], v[NV], u[NV];
     if constexpr (Robot::PASSIVE) {
       if (a.passive == 2) {

@@ -147,6 +147,11 @@ class Call {
     TORCH_CHECK(s == 0 || s == 1, op_, ": ", name, " must be 0 (euler) or 1 (semi-implicit euler), got ", s);
     push_int(s);
   }
+  void integrator(int64_t s, const char* name) {
+    TORCH_CHECK(s >= 0 && s <= 4, op_, ": ", name, " must be 0 (euler), 1 (semi-implicit euler), 2 (midpoint), 3 (rk3) or "
+                "4 (rk4), got ", s);
+    push_int(s);
+  }
   void tableau(int64_t s, const char* name) {
     TORCH_CHECK(s >= 2 && s <= 4, op_, ": ", name, " must be 2 (midpoint), 3 (rk3) or 4 (rk4), got ", s);
     push_int(s);

@@ -17,6 +17,7 @@
 
 #include "kernels/derivatives/dynamics_derivatives.h"
 #include "kernels/derivatives/forward_mode.h"
+#include "kernels/dynamics/aba.h"
 #include "kernels/dynamics/crba.h"
 #include "kernels/dynamics/ltdl.h"
 #include "kernels/dynamics/passive.h"
@@ -153,6 +154,76 @@ TG_HD void rk_stage(const Conv<Robot, Scalar, C>& cs, const Scalar* v, const Sca
   cs.acceleration_out(v, acc);
 }
 
+// A stage's acceleration alone, FD(q_i, v, tau) by ABA: v and tau in Pinocchio's convention, acc in the call's;
+// tau + p where passive.
+template <class Robot, class Scalar, int C>
+TG_HD void rk_stage_acceleration(const Conv<Robot, Scalar, C>& cs, const Scalar* v, const Scalar* tau, const Scalar* fext, bool passive,
+                                 Scalar* acc, const InertialParameters<Robot, Scalar>& pi) {
+  constexpr int NV = Robot::NV;
+  Scalar t[NV];
+  for (int k = 0; k < NV; ++k) t[k] = tau[k];
+  if (passive) add_passive<Robot, Scalar>(cs.q, v, t);
+  aba<Robot, Scalar>(cs.q, v, t, fext, acc, pi);
+  cs.acceleration_out(v, acc);
+}
+
+// Stage i's state from the stages before it: u_i = dt sum_j a_ij c_j, v_i = qd + dt sum_j a_ij acc_j, q_i = q (+) u_i
+// (into qs) and c_i = dexp(u_i)^-1 v_i (v_i at a vector-space joint).
+template <class Robot, class Scalar, int C>
+TG_HD void rk_stage_state(const Scalar* q, const RkTableau& T, int i, Scalar h, const Scalar* v0, const Scalar (*acc)[Robot::NV],
+                          Scalar (*car)[Robot::NV], Scalar* u, Scalar* v, Scalar* qs) {
+  const auto& d = data<Robot, Scalar>();
+  for (int k = 0; k < Robot::NV; ++k) {
+    Scalar th = Scalar(0), ac = Scalar(0);
+    for (int j = 0; j < i; ++j) th += Scalar(T.a[i][j]) * car[j][k], ac += Scalar(T.a[i][j]) * acc[j][k];
+    u[k] = h * th;
+    v[k] = v0[k] + h * ac;
+  }
+  for (int jn = 0; jn < Robot::NB; ++jn) {
+    const int n = integrate_joint<Robot, Scalar, C>(jn, q, u, qs, nullptr, nullptr), vi = d.vi[jn];
+    if (n)
+      dexp_inverse_joint<Scalar, C>(n, u + vi, v + vi, car[i] + vi);
+    else
+      for (int a = 0; a < d.nvj[jn]; ++a) car[i][vi + a] = v[vi + a];
+  }
+}
+
+// The step's tangent increment u' = dt sum_j b_j c_j and qd' = qd + dt sum_j b_j acc_j.
+template <int NV, class Scalar>
+TG_HD void rk_combine(const RkTableau& T, Scalar h, const Scalar* v0, const Scalar (*acc)[NV], const Scalar (*car)[NV], Scalar* un, Scalar* qd_next) {
+  for (int k = 0; k < NV; ++k) {
+    Scalar th = Scalar(0), ac = Scalar(0);
+    for (int j = 0; j < T.stages; ++j) th += Scalar(T.b[j]) * car[j][k], ac += Scalar(T.b[j]) * acc[j][k];
+    un[k] = h * th;
+    qd_next[k] = v0[k] + h * ac;
+  }
+}
+
+// The step alone, without its Jacobians (rk_step below): the same stages, each acceleration by ABA. cv at q, qd and
+// tau in Pinocchio's convention; q_next (NQ) and qd_next (NV) in the call's.
+template <class Robot, class Scalar, int C>
+TG_HD void rk_step_values(const Conv<Robot, Scalar, C>& cv, const Scalar* qd, const Scalar* tau, const Scalar* fext, Scalar h, int scheme,
+                          bool passive, Scalar* q_next, Scalar* qd_next, const InertialParameters<Robot, Scalar>& pi = {}) {
+  constexpr int NV = Robot::NV;
+  const RkTableau T = rk_tableau(scheme);
+  Scalar v0[NV], tau_c[NV], acc[4][NV], car[4][NV], u[NV], v[NV], qs[Robot::NQ], un[NV];
+  for (int k = 0; k < NV; ++k) v0[k] = qd[k], tau_c[k] = tau[k];
+  cv.velocity_out(v0);
+  cv.force_out(tau_c);
+  for (int i = 0; i < T.stages; ++i) {
+    rk_stage_state<Robot, Scalar, C>(cv.q, T, i, h, v0, acc, car, u, v, qs);
+    if (i == 0) {
+      rk_stage_acceleration<Robot, Scalar, C>(cv, qd, tau, fext, passive, acc[0], pi);
+    } else {
+      const Conv<Robot, Scalar, C> cs(qs);
+      Scalar vb[Conv<Robot, Scalar, C>::active ? NV : 1], tb[Conv<Robot, Scalar, C>::active ? NV : 1];
+      rk_stage_acceleration<Robot, Scalar, C>(cs, cs.velocity(v, vb), cs.force(tau_c, tb), fext, passive, acc[i], pi);
+    }
+  }
+  rk_combine<NV>(T, h, v0, acc, car, un, qd_next);
+  for (int jn = 0; jn < Robot::NB; ++jn) integrate_joint<Robot, Scalar, C>(jn, cv.q, un, q_next, nullptr, nullptr);
+}
+
 // y += x and, for k < nf, to[k] += w[k] x (written, not added, where fresh), in one pass over N entries.
 template <int N, class Scalar>
 TG_HD void spread(const Scalar* x, Scalar* y, int nf, Scalar* const* to, const Scalar* w, const bool* fresh) {
@@ -252,19 +323,7 @@ TG_HD void rk_step(const Conv<Robot, Scalar, C>& cv, const Scalar* qd, const Sca
   cv.force_out(tau_c);
   // the stages' values and dynamics
   for (int i = 0; i < s; ++i) {
-    for (int k = 0; k < NV; ++k) {
-      Scalar th = Scalar(0), ac = Scalar(0);
-      for (int j = 0; j < i; ++j) th += Scalar(T.a[i][j]) * car[j][k], ac += Scalar(T.a[i][j]) * acc[j][k];
-      u[i][k] = h * th;
-      v[i][k] = v0[k] + h * ac;
-    }
-    for (int jn = 0; jn < Robot::NB; ++jn) {
-      const int n = integrate_joint<Robot, Scalar, C>(jn, cv.q, u[i], qs, nullptr, nullptr), vi = d.vi[jn];
-      if (n)
-        dexp_inverse_joint<Scalar, C>(n, u[i] + vi, v[i] + vi, car[i] + vi);
-      else
-        for (int a = 0; a < d.nvj[jn]; ++a) car[i][vi + a] = v[i][vi + a];
-    }
+    rk_stage_state<Robot, Scalar, C>(cv.q, T, i, h, v0, acc, car, u[i], v[i], qs);
     Scalar* const Dq = work + 3 * NN * i;
     if (i == 0) {
       rk_stage<Robot, Scalar, C>(cv, qd, tau, fext, passive, Dq, Dq + NN, Dq + 2 * NN, acc[0], pi);
@@ -276,12 +335,7 @@ TG_HD void rk_step(const Conv<Robot, Scalar, C>& cv, const Scalar* qd, const Sca
     }
   }
   // the step: q' = q (+) u', qd' = qd + dt sum_j b_j acc_j
-  for (int k = 0; k < NV; ++k) {
-    Scalar th = Scalar(0), ac = Scalar(0);
-    for (int j = 0; j < s; ++j) th += Scalar(T.b[j]) * car[j][k], ac += Scalar(T.b[j]) * acc[j][k];
-    un[k] = h * th;
-    qd_next[k] = v0[k] + h * ac;
-  }
+  rk_combine<NV>(T, h, v0, acc, car, un, qd_next);
   // adjoints: qbar = Jq'^T on the q' columns, qdbar = I on the qd' ones (A's storage, as A^T), taubar (B's,
   // as B^T)
   Scalar* const qbar = A;

@@ -1,0 +1,55 @@
+"""Per-call time of Robot.step (float64, Pinocchio's convention, one thread, nothing differentiated) for
+each scheme and batch size, beside forward_dynamics' and integrate's on the same inputs: what a rollout of
+small batches pays a step. Run it against two checkouts in turn for an A/B (PYTHONPATH=<checkout>).
+
+    python bench/bench_step_calls.py [--robots iiwa14 go2] [--integrators semi_implicit_euler rk4]
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import torch
+
+import torch_grid
+from bench_cpu import ROBOTS
+
+BATCHES = (1, 8, 256, 4096)
+
+
+def per_call_us(fn, batch: int, repeats: int = 5) -> float:
+    """Best over `repeats` groups of calls (about 2000 samples a group) of the mean call, in µs."""
+    fn()
+    n = max(1, 2000 // batch)
+    best = float("inf")
+    for _ in range(repeats):
+        t = time.perf_counter()
+        for _ in range(n):
+            fn()
+        best = min(best, (time.perf_counter() - t) / n)
+    return best * 1e6
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--robots", nargs="+", default=["iiwa14", "go2"])
+    parser.add_argument("--integrators", nargs="+", default=["semi_implicit_euler", "rk4"])
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    print("| robot | B | " + " | ".join(args.integrators) + " | forward_dynamics | integrate |")
+    print("|---|---:|" + "---:|" * (len(args.integrators) + 2))
+    for name in args.robots:
+        src, floating, bundled = ROBOTS[name]
+        robot = torch_grid.load(bundled or src, floating_base=floating)
+        g = torch.Generator().manual_seed(0)
+        for batch in BATCHES:
+            q = robot.random_configuration(batch, generator=g)
+            qd, tau = (torch.randn(batch, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
+            times = [per_call_us(lambda i=i: robot.step(q, qd, tau, 1e-3, i), batch) for i in args.integrators]
+            times.append(per_call_us(lambda: robot.forward_dynamics(q, qd, tau), batch))
+            times.append(per_call_us(lambda: robot.integrate(q, qd, 1e-3), batch))
+            print(f"| {name} | {batch} | " + " | ".join(f"{t:.1f}" for t in times) + " |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
