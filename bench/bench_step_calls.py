@@ -1,6 +1,6 @@
 """Per-call time of Robot.step (float64, Pinocchio's convention, one thread, nothing differentiated) for
-each scheme and batch size, beside forward_dynamics' and integrate's on the same inputs: what a rollout of
-small batches pays a step. Run it against two checkouts in turn for an A/B (PYTHONPATH=<checkout>).
+each scheme and batch size, beside forward_dynamics', integrate's and difference's on the same inputs: what
+a rollout of small batches pays a step. Run it against two checkouts in turn for an A/B (PYTHONPATH=<checkout>).
 
     python bench/bench_step_calls.py [--robots iiwa14 go2] [--integrators semi_implicit_euler rk4]
 """
@@ -36,8 +36,8 @@ def main() -> None:
     parser.add_argument("--integrators", nargs="+", default=["semi_implicit_euler", "rk4"])
     args = parser.parse_args()
     torch.set_num_threads(1)
-    print("| robot | B | " + " | ".join(args.integrators) + " | forward_dynamics | integrate |")
-    print("|---|---:|" + "---:|" * (len(args.integrators) + 2))
+    print("| robot | B | " + " | ".join(args.integrators) + " | forward_dynamics | integrate | difference |")
+    print("|---|---:|" + "---:|" * (len(args.integrators) + 3))
     for name in args.robots:
         src, floating, bundled = ROBOTS[name]
         robot = torch_grid.load(bundled or src, floating_base=floating)
@@ -48,6 +48,8 @@ def main() -> None:
             times = [per_call_us(lambda i=i: robot.step(q, qd, tau, 1e-3, i), batch) for i in args.integrators]
             times.append(per_call_us(lambda: robot.forward_dynamics(q, qd, tau), batch))
             times.append(per_call_us(lambda: robot.integrate(q, qd, 1e-3), batch))
+            q1 = robot.integrate(q, qd, 0.1)
+            times.append(per_call_us(lambda: robot.difference(q, q1), batch))
             print(f"| {name} | {batch} | " + " | ".join(f"{t:.1f}" for t in times) + " |", flush=True)
 
 

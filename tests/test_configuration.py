@@ -199,19 +199,21 @@ def test_robot_methods(robots):
 
 
 @pytest.mark.parametrize("name", ["go2", "trees"])
-def test_integrate_kernel_is_the_composition(robots, pin_models, mj_sims, name):
-    """integrate is one kernel call when nothing differentiates it, and the torch composition otherwise: the
-    two agree on every joint type (turns of zero, 1e-9, about one and beyond 2 pi), a (2, 3) batch with a
-    dt per sample, a zero quaternion (the identity) and a NaN one (NaN in that sample alone), float32 too;
-    the kernel against Pinocchio's integrate (go2) and MuJoCo's mj_integratePos (trees) directly."""
+def test_integrate_and_difference_kernels_are_the_composition(robots, pin_models, mj_sims, name):
+    """integrate and difference are one kernel call each when nothing differentiates them, and the torch
+    composition otherwise: the two agree on every joint type (turns of zero, 1e-9, about one and beyond 2 pi;
+    a difference across the quaternions' hemispheres, of nearly equal and of random configurations), a
+    (2, 3) batch with a dt per sample, a zero quaternion (the identity) and a NaN one (NaN in that sample
+    alone), float32 too; the kernels against Pinocchio's integrate and difference (go2) and MuJoCo's
+    mj_integratePos and mj_differentiatePos (trees) directly."""
     robot = robots[name]
     g = torch.Generator().manual_seed(9)
+    quat = 3  # the free root's quaternion: q[3:7] in both layouts (xyzw, wxyz)
     for view in (robot.pin, robot.mujoco):
         q = view.random_configuration(2, 3, generator=g)
         scale = torch.tensor([[0.0, 1e-9, 1.0], [3.0, 10.0, 1.0]], dtype=torch.float64).unsqueeze(-1)
         v = torch.randn(2, 3, robot.nv, dtype=torch.float64, generator=g) * scale
         dt = torch.rand(3, dtype=torch.float64, generator=g) + 0.5
-        quat = 3  # the free root's quaternion: q[3:7] in both layouts (xyzw, wxyz)
         q[0, 1, quat:quat + 4] = 0
         q[1, 2, quat] = float("nan")
         kernel = view.integrate(q, v, dt)
@@ -219,22 +221,49 @@ def test_integrate_kernel_is_the_composition(robots, pin_models, mj_sims, name):
         assert composed.requires_grad and not kernel.requires_grad
         assert torch.isnan(kernel[1, 2, quat:quat + 4]).any() and torch.isfinite(kernel[1, 2, quat + 4:]).all()
         assert torch.isfinite(kernel.flatten(0, 1)[:5]).all()  # the other samples
-        assert torch.equal(torch.isnan(kernel), torch.isnan(composed))
-        finite = torch.isfinite(composed)
-        torch.testing.assert_close(kernel[finite], composed.detach()[finite], rtol=0, atol=1e-14)
-        torch.testing.assert_close(view.integrate(q.float(), v.float(), dt.float())[finite].double(), kernel[finite],
-                                   rtol=0, atol=1e-5)
+        _assert_same(kernel, composed)
+        torch.testing.assert_close(view.integrate(q.float(), v.float(), dt.float())[torch.isfinite(kernel)].double(),
+                                   kernel[torch.isfinite(kernel)], rtol=0, atol=1e-5)
         one, grad = view.integrate(q[0, 2], v[0, 2], 0.25), view.integrate(q[0, 2], v[0, 2].clone().requires_grad_(), 0.25)
-        torch.testing.assert_close(one, grad.detach(), rtol=0, atol=1e-14)  # a batch of one, a number as dt
+        _assert_same(one, grad)  # a batch of one, a number as dt
+        flipped = kernel.clone()
+        flipped[0, :, quat:quat + 4] *= -1  # the same rotations, the other hemisphere
+        others = view.random_configuration(2, 3, generator=g)
+        for q1 in (kernel, flipped, others, q):
+            fused = view.difference(q, q1)
+            _assert_same(fused, view.difference(q, q1.clone().requires_grad_()))
+            assert torch.isfinite(fused.flatten(0, 1)[:5]).all()
+        steps = view.difference(q, kernel)[0, 2]
+        torch.testing.assert_close(steps, v[0, 2] * dt[2], rtol=0, atol=1e-12)
+        torch.testing.assert_close(view.difference(q.float(), others.float()).double(), view.difference(q, others),
+                                   rtol=0, atol=1e-4, equal_nan=True)
     q, v = robot.pin.random_configuration(generator=g), torch.randn(robot.nv, dtype=torch.float64, generator=g)
+    q1 = robot.pin.random_configuration(generator=g)
     if name == "go2":
-        reference = pin.integrate(pin_models[name], q.numpy(), 0.3 * v.numpy())
+        model = pin_models[name]
+        reference = pin.integrate(model, q.numpy(), 0.3 * v.numpy())
         assert np.abs(robot.pin.integrate(q, v, 0.3).numpy() - reference).max() <= 1e-12
+        assert np.abs(robot.pin.difference(q, q1).numpy() - pin.difference(model, q.numpy(), q1.numpy())).max() <= 1e-12
     else:
-        qm = robot.mujoco.random_configuration(generator=g)
+        m = mj_sims[name].m
+        qm, qm1 = robot.mujoco.random_configuration(generator=g), robot.mujoco.random_configuration(generator=g)
         reference = qm.numpy().copy()
-        mujoco.mj_integratePos(mj_sims[name].m, reference, v.numpy(), 0.3)
+        mujoco.mj_integratePos(m, reference, v.numpy(), 0.3)
         assert np.abs(robot.mujoco.integrate(qm, v, 0.3).numpy() - reference).max() <= 1e-12
+        reference = np.zeros(m.nv)
+        mujoco.mj_differentiatePos(m, reference, 1.0, qm.numpy(), qm1.numpy())
+        assert np.abs(robot.mujoco.difference(qm, qm1).numpy() - reference).max() <= 1e-12
     raw = robot._ops.integrate(q, v.clone().requires_grad_(), torch.full((1,), 0.3, dtype=torch.float64), 0)
     with pytest.raises(NotImplementedError, match=r"integrate kernel has no derivative; differentiate Robot.integrate"):
         raw.sum().backward()
+    raw = robot._ops.difference(q, q1.clone().requires_grad_(), 0)
+    with pytest.raises(NotImplementedError, match=r"difference kernel has no derivative; differentiate Robot.difference"):
+        raw.sum().backward()
+
+
+def _assert_same(kernel: torch.Tensor, composed: torch.Tensor) -> None:
+    """The kernel's values are the composition's to rounding, NaN where it is NaN."""
+    composed = composed.detach()
+    assert torch.equal(torch.isnan(kernel), torch.isnan(composed))
+    finite = torch.isfinite(composed)
+    torch.testing.assert_close(kernel[finite], composed[finite], rtol=0, atol=1e-13)

@@ -45,7 +45,9 @@ class ConfigurationFunctions:
 
     def difference(self, q0: torch.Tensor, q1: torch.Tensor) -> torch.Tensor:
         """(..., nv): v with q0 (+) v = q1, Pinocchio's difference or MuJoCo's mj_differentiatePos (dt = 1)."""
-        return lie.difference(self._robot._space, *self._configuration_checked("difference", q0, q1), self._convention)
+        q0, q1 = self._configuration_checked("difference", q0, q1)
+        fused = fused_kernel_runs(self, q0, q1)  # one kernel call, or the composition autograd sees
+        return self._kernel_call("difference", q0, q1) if fused else lie.difference(self._robot._space, q0, q1, self._convention)
 
     def d_integrate(self, q: torch.Tensor, v: torch.Tensor, dt=1.0) -> tuple[torch.Tensor, torch.Tensor]:
         """(d/dq, d/dv) of integrate along the tangent spaces, each (..., nv, nv) (Pinocchio's dIntegrate)."""
@@ -94,8 +96,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
     floating_base = property(lambda self: self._robot.model.floating_base,
                              doc="Whether the first joint is a free joint (q starts with a position and a quaternion, "
                                  "qd with a 6-d velocity).")
-    joint_names = property(lambda self: (self._robot._coupling.joint_names if self._robot._coupling else
-                                         self.body_names),
+    joint_names = property(lambda self: self._robot._coupling.joint_names if self._robot._coupling else self.body_names,
                            doc="The joints whose coordinates make up q and qd, in order.")
     body_names = property(lambda self: [j.name for j in self._robot.model.joints],
                           doc="The moving bodies, each named by the joint that moves it, mimic joints included: the rows "
@@ -121,8 +122,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
     def forward_dynamics(self, q, qd, tau, f_ext=None, params=None) -> torch.Tensor:
         """Joint accelerations qdd (..., nv) by the articulated-body algorithm, under tau (+ passive_forces,
         when included); f_ext and params as in inverse_dynamics."""
-        if self._robot._with_passive:
-            tau = tau + self._robot._passive(q, qd)
+        tau = tau + self._robot._passive(q, qd) if self._robot._with_passive else tau
         return dispatch(self, "forward_dynamics", q, qd, tau, f_ext, self._parameters(params))
 
     aba = forward_dynamics

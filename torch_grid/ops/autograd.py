@@ -77,13 +77,13 @@ def _save_inputs(ctx, inputs, output) -> None:
 def _no_backward(name: str) -> Callable:
     # Every op without a backward computes derivatives (a backward's kernels, the second-order tensors):
     # differentiating it is a third derivative, or the second of an op whose outputs are derivatives.
-    # The fused kernels are the fast paths of step, step_derivatives and integrate, which compose their value in
-    # torch whenever autograd is to see it.
+    # The fused kernels are the fast paths of step, step_derivatives, integrate and difference, which compose their
+    # value in torch whenever autograd is to see it.
     message = (f"torch_grid: {name} has no derivative: the op whose derivative it computes cannot be differentiated "
                "once more (a third derivative, or the second derivative of an op whose outputs are derivatives)")
     if OPS[name].backward == "step":
-        method = name if name in ("step", "integrate") else "step_derivatives"
-        what = "q (+) v dt" if name == "integrate" else "the step"
+        method = name if name in ("step", "integrate", "difference") else "step_derivatives"
+        what = {"integrate": "q (+) v dt", "difference": "the difference"}.get(name, "the step")
         message = (f"torch_grid: the {name} kernel has no derivative; differentiate Robot.{method}, which then "
                    f"composes {what} in torch")
 

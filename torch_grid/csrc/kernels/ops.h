@@ -248,6 +248,14 @@ template <class Robot, class Scalar> struct Integrate {
   }
 };
 
+// v with q0 (+) v = q1, the shortest rotation (Pinocchio's difference, MuJoCo's mj_differentiatePos); q1 and v in the
+// call's convention.
+template <class Robot, class Scalar> struct Difference {
+  template <int C> TG_HD static void run(const DifferenceArgs<Scalar>& a, const Conv<Robot, Scalar, C>&) {
+    for (int i = 0; i < Robot::NB; ++i) difference_joint<Robot, Scalar, C>(i, a.q, a.q1, a.v);
+  }
+};
+
 // One Euler step's values alone (scheme 0: euler, 1: semi-implicit): step_derivatives' q' and qd' without
 // the Jacobians, the acceleration by ABA at tau (+ p with passive 1), or of (M + dt D) qdd = tau + p - b
 // with passive 2 (damped_acceleration).

@@ -110,6 +110,16 @@ template <class Scalar> TG_HD void put3(Scalar* X, int n, int r, int c, const Ma
     for (int j = 0; j < 3; ++j) X[n * (r + i) + c + j] = B.m[3 * i + j];
 }
 
+// A quaternion read normalised, xyzw: a norm below QUAT_MIN_NORM is the identity, a NaN or infinite one NaN in
+// every component (q / inf would leave finite zeros beside an infinite entry's NaN).
+template <class Scalar> TG_HD void unit_quat(Scalar x, Scalar y, Scalar z, Scalar w, Scalar* out) {
+  const Scalar in[4] = {x, y, z, w};
+  const Scalar norm = sqrt(x * x + y * y + z * z + w * w);
+  const auto zero = norm < Scalar(QUAT_MIN_NORM);
+  const Scalar scale = select(norm < Scalar(INFINITY), norm, norm * Scalar(NAN));
+  for (int c = 0; c < 4; ++c) out[c] = select(zero, Scalar(c == 3), in[c] / scale);
+}
+
 // Joint i's part of q' = q (+) u (q in Pinocchio's layout, q' in the convention's) and, at a
 // quaternion joint, its n x n blocks Jq, Jv unless Jq is null (n = 3 or 6; returns n, 0 at the other joints).
 template <class Robot, class Scalar, int C> TG_HD int integrate_joint(int i, const Scalar* q, const Scalar* u, Scalar* q_next, Scalar* Jq, Scalar* Jv) {
@@ -123,12 +133,7 @@ template <class Robot, class Scalar, int C> TG_HD int integrate_joint(int i, con
   const Vec3<Scalar> w = load3(u + vi + n - 3);
   const So3Coefficients<Scalar> k = so3_coefficients(w);
   Scalar quat[4], e[4], turned[4];
-  // read normalised as quat_rotation reads it: a norm below QUAT_MIN_NORM is the identity, a NaN or
-  // infinite one NaN in every component (q / inf would leave finite zeros beside an infinite entry's NaN)
-  const Scalar norm = sqrt(q[qa] * q[qa] + q[qa + 1] * q[qa + 1] + q[qa + 2] * q[qa + 2] + q[qa + 3] * q[qa + 3]);
-  const auto zero = norm < Scalar(QUAT_MIN_NORM);
-  const Scalar scale = select(norm < Scalar(INFINITY), norm, norm * Scalar(NAN));
-  for (int c = 0; c < 4; ++c) quat[c] = select(zero, Scalar(c == 3), q[qa + c] / scale);
+  unit_quat(q[qa], q[qa + 1], q[qa + 2], q[qa + 3], quat);
   store3(k.sin_half * w, e);
   e[3] = k.cos_half;
   quat_mul(quat, e, turned);
@@ -164,6 +169,52 @@ template <class Robot, class Scalar, int C> TG_HD int integrate_joint(int i, con
     for (int c = 0; c < 4; ++c) out[c] = turned[c];
   }
   return n;
+}
+
+// The rotation vector of the shortest rotation of a unit quaternion r (xyzw): 2 atan2(s, w) / s times its vector part,
+// s = |xyz|, w >= 0; below s^2 = 1e-4 the factor's series in s / w.
+template <class Scalar> TG_HD Vec3<Scalar> log3(const Scalar* r) {
+  const auto flip = r[3] < Scalar(0);
+  const Scalar m(-1);
+  const Scalar x = select(flip, m * r[0], r[0]), y = select(flip, m * r[1], r[1]), z = select(flip, m * r[2], r[2]),
+               w = select(flip, m * r[3], r[3]);
+  const Scalar s2 = x * x + y * y + z * z;
+  const auto small = s2 < Scalar(1e-4);
+  const Scalar s = sqrt(select(small, Scalar(1), s2)), r2 = s2 / (w * w);
+  const Scalar factor = select(small, Scalar(2) / w * (Scalar(1) - r2 / Scalar(3) + r2 * r2 / Scalar(5)), Scalar(2) * atan2(s, w) / s);
+  return v3(factor * x, factor * y, factor * z);
+}
+
+// Joint i's part of v = difference(q0, q1), q0 (+) v = q1 with the shortest rotation (q0 in Pinocchio's layout, q1
+// and v in the convention's): w = log3(conj(Q0) Q1); a free joint's position (q1 - q0), rotated into q0's frame
+// and by Jl(w)^-1 in Pinocchio's convention (log6(M0^-1 M1)).
+template <class Robot, class Scalar, int C> TG_HD void difference_joint(int i, const Scalar* q0, const Scalar* q1, Scalar* v) {
+  const auto& d = data<Robot, Scalar>();
+  const int qi = d.qi[i], vi = d.vi[i], t = d.jtype[i];
+  if (t != FREE && t != BALL) {
+    v[vi] = q1[qi] - q0[qi];
+    return;
+  }
+  const int n = t == FREE ? 6 : 3, qa = t == FREE ? qi + 3 : qi;
+  Scalar a[4], b[4], r[4];
+  unit_quat(q0[qa], q0[qa + 1], q0[qa + 2], q0[qa + 3], a);
+  if constexpr (C == MUJOCO)  // wxyz
+    unit_quat(q1[qa + 1], q1[qa + 2], q1[qa + 3], q1[qa], b);
+  else
+    unit_quat(q1[qa], q1[qa + 1], q1[qa + 2], q1[qa + 3], b);
+  const Scalar conj[4] = {Scalar(-1) * a[0], Scalar(-1) * a[1], Scalar(-1) * a[2], a[3]};
+  quat_mul(conj, b, r);
+  const Vec3<Scalar> w = log3(r);
+  store3(w, v + vi + n - 3);
+  if (t == FREE) {
+    const Vec3<Scalar> dp = load3(q1 + qi) - load3(q0 + qi);
+    if constexpr (C == MUJOCO) {
+      store3(dp, v + vi);
+    } else {
+      const Mat3<Scalar> Rt = transpose3(quat_rotation(a[0], a[1], a[2], a[3]));
+      store3(mul(so3_terms(w, Scalar(-0.5), so3_coefficients(w).beta), mul(Rt, dp)), v + vi);
+    }
+  }
 }
 
 // The step and its Jacobians. On entry the rows of q' hold G (A's first NV rows: da/dq then da/dqd,
