@@ -68,7 +68,7 @@ class StepFunctions:
         if torch.compiler.is_compiling() and forward_ad._current_level >= 0:
             return _step_eagerly(self, q, qd, tau, dt, integrator, f_ext)
         h = dt_column(dt, qd)
-        if self._fused(q, qd, tau, dt, f_ext):
+        if fused_kernel_runs(self, q, qd, tau, dt, f_ext):
             # one kernel call: each stage's forward dynamics and the updates of q and qd (a few hundred small torch
             # ops a stage at a floating base, whose dispatch outweighs a small batch's dynamics)
             return self._kernel_call("step", q, qd, tau, f_ext, h, self._params, SCHEMES[integrator],
@@ -103,7 +103,7 @@ class StepFunctions:
         when nothing asks for their derivatives (the kernels have no backward)."""
         _check(op, integrator, q, qd, tau, dt)
         params = self._params  # a view's of with_parameters
-        if self._fused(q, qd, tau, dt, f_ext):
+        if fused_kernel_runs(self, q, qd, tau, dt, f_ext):
             h = dt_column(dt, qd)
             passive = _passive_code(self._robot, integrator)
             if integrator in FUSED:
@@ -114,9 +114,6 @@ class StepFunctions:
                                                              RK_FUSED[integrator], passive)
             return q_next, qd_next, A.flatten(-4, -3).flatten(-2), B.flatten(-3, -2)
         return _in_chunks(lambda *args: self._step_derivatives(*args, integrator), q, qd, tau, dt, f_ext, params)
-
-    def _fused(self, q, qd, tau, dt, f_ext) -> bool:
-        return fused_kernel_runs(self, q, qd, tau, dt, f_ext)
 
     def _step_derivatives(self, q, qd, tau, dt, f_ext, params, integrator):
         if params is not self._params:  # a piece of the view's parameters (_in_chunks)
@@ -241,9 +238,9 @@ def _passive_code(robot, integrator: str) -> int:
 
 
 def fused_kernel_runs(view, q, *args) -> bool:
-    """Whether a kernel that fuses a composition (the step, its derivatives, integrate) computes this call:
-    nothing differentiates it, no joint mimics another, and the kernels are not kept off its device
-    (_fused_kept_off)."""
+    """Whether a kernel that fuses a composition (the step, its derivatives, integrate, difference) computes
+    this call: nothing differentiates it, no joint mimics another, and the kernels are not kept off its
+    device (_fused_kept_off)."""
     return (view._robot._coupling is None and not _differentiated(q, *args, view._params)
             and not _fused_kept_off(view, q))
 
