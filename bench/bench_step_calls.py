@@ -1,6 +1,8 @@
 """Per-call time of Robot.step (float64, Pinocchio's convention, one thread, nothing differentiated) for
-each scheme and batch size, beside forward_dynamics', integrate's and difference's on the same inputs: what
-a rollout of small batches pays a step. Run it against two checkouts in turn for an A/B (PYTHONPATH=<checkout>).
+each scheme and batch size, beside forward_dynamics', integrate's, difference's, their Jacobians' (d_integrate,
+d_difference) and state_cost's on the same inputs, and integrate's and difference's forward and backward (the
+gradients of q and v, of q0 and q1): what a rollout of small batches pays a step, and an MPC iteration a state
+cost. Run it against two checkouts in turn for an A/B (PYTHONPATH=<checkout>).
 
     python bench/bench_step_calls.py [--robots iiwa14 go2] [--integrators semi_implicit_euler rk4]
 """
@@ -36,8 +38,10 @@ def main() -> None:
     parser.add_argument("--integrators", nargs="+", default=["semi_implicit_euler", "rk4"])
     args = parser.parse_args()
     torch.set_num_threads(1)
-    print("| robot | B | " + " | ".join(args.integrators) + " | forward_dynamics | integrate | difference |")
-    print("|---|---:|" + "---:|" * (len(args.integrators) + 3))
+    others = ("forward_dynamics", "integrate", "difference", "d_integrate", "d_difference", "state_cost",
+              "integrate + backward", "difference + backward")
+    print("| robot | B | " + " | ".join(args.integrators + list(others)) + " |")
+    print("|---|---:|" + "---:|" * (len(args.integrators) + len(others)))
     for name in args.robots:
         src, floating, bundled = ROBOTS[name]
         robot = torch_grid.load(bundled or src, floating_base=floating)
@@ -50,6 +54,13 @@ def main() -> None:
             times.append(per_call_us(lambda: robot.integrate(q, qd, 1e-3), batch))
             q1 = robot.integrate(q, qd, 0.1)
             times.append(per_call_us(lambda: robot.difference(q, q1), batch))
+            times.append(per_call_us(lambda: robot.d_integrate(q, qd, 1e-3), batch))
+            times.append(per_call_us(lambda: robot.d_difference(q, q1), batch))
+            w = torch.ones(2 * robot.nv, dtype=torch.float64)
+            times.append(per_call_us(lambda: robot.state_cost(q1, qd, q, tau, w), batch))
+            qg, vg, q1g = (x.clone().requires_grad_() for x in (q, qd, q1))
+            times.append(per_call_us(lambda: torch.autograd.grad(robot.integrate(qg, vg, 1e-3).sum(), (qg, vg)), batch))
+            times.append(per_call_us(lambda: torch.autograd.grad(robot.difference(qg, q1g).sum(), (qg, q1g)), batch))
             print(f"| {name} | {batch} | " + " | ".join(f"{t:.1f}" for t in times) + " |", flush=True)
 
 

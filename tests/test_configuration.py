@@ -186,7 +186,8 @@ def test_robot_methods(robots):
         assert torch.allclose(view.d_difference(q, q1)[1][1], single, rtol=1e-14, atol=1e-14)
         assert torch.allclose(view.integrate(q.float(), v.float(), 0.1).double(), view.integrate(q, v, 0.1), atol=1e-5)
         w = v[0].expand(4, -1)
-        assert torch.equal(torch.func.vmap(view.d_integrate)(q, w)[1], view.d_integrate(q, w)[1])
+        # vmap sees the composition, a plain call runs the kernel
+        torch.testing.assert_close(torch.func.vmap(view.d_integrate)(q, w)[1], view.d_integrate(q, w)[1], rtol=0, atol=1e-13)
         torch._dynamo.reset()
         compiled = torch.compile(view.d_difference, fullgraph=True, backend="aot_eager")
         assert torch.allclose(compiled(q, q1)[0], view.d_difference(q, q1)[0], rtol=1e-14, atol=1e-14)
@@ -200,12 +201,13 @@ def test_robot_methods(robots):
 
 @pytest.mark.parametrize("name", ["go2", "trees"])
 def test_integrate_and_difference_kernels_are_the_composition(robots, pin_models, mj_sims, name):
-    """integrate and difference are one kernel call each when nothing differentiates them, and the torch
-    composition otherwise: the two agree on every joint type (turns of zero, 1e-9, about one and beyond 2 pi;
-    a difference across the quaternions' hemispheres, of nearly equal and of random configurations), a
-    (2, 3) batch with a dt per sample, a zero quaternion (the identity) and a NaN one (NaN in that sample
-    alone), float32 too; the kernels against Pinocchio's integrate and difference (go2) and MuJoCo's
-    mj_integratePos and mj_differentiatePos (trees) directly."""
+    """integrate, difference and their Jacobians d_integrate and d_difference are one kernel call each (the
+    Jacobians' when nothing differentiates them), and the torch composition otherwise: the two agree on every
+    joint type (turns of zero, 1e-9, about one and beyond 2 pi; a difference across the quaternions'
+    hemispheres, of nearly equal and of random configurations), a (2, 3) batch with a dt per sample, a zero
+    quaternion (the identity) and a NaN one (NaN in that sample alone), float32 too; the kernels against
+    Pinocchio's integrate, difference, dIntegrate and dDifference (go2) and MuJoCo's mj_integratePos and
+    mj_differentiatePos (trees) directly."""
     robot = robots[name]
     g = torch.Generator().manual_seed(9)
     quat = 3  # the free root's quaternion: q[3:7] in both layouts (xyzw, wxyz)
@@ -217,26 +219,36 @@ def test_integrate_and_difference_kernels_are_the_composition(robots, pin_models
         q[0, 1, quat:quat + 4] = 0
         q[1, 2, quat] = float("nan")
         kernel = view.integrate(q, v, dt)
-        composed = view.integrate(q, v.clone().requires_grad_(), dt)
-        assert composed.requires_grad and not kernel.requires_grad
+        composed = integrate(robot._space, q, v, dt, view._convention)
         assert torch.isnan(kernel[1, 2, quat:quat + 4]).any() and torch.isfinite(kernel[1, 2, quat + 4:]).all()
         assert torch.isfinite(kernel.flatten(0, 1)[:5]).all()  # the other samples
         _assert_same(kernel, composed)
         torch.testing.assert_close(view.integrate(q.float(), v.float(), dt.float())[torch.isfinite(kernel)].double(),
                                    kernel[torch.isfinite(kernel)], rtol=0, atol=1e-5)
-        one, grad = view.integrate(q[0, 2], v[0, 2], 0.25), view.integrate(q[0, 2], v[0, 2].clone().requires_grad_(), 0.25)
-        _assert_same(one, grad)  # a batch of one, a number as dt
+        one = view.integrate(q[0, 2], v[0, 2], 0.25)
+        _assert_same(one, integrate(robot._space, q[0, 2], v[0, 2], 0.25, view._convention))  # a batch of one, a number as dt
+        for fused, composed in zip(view.d_integrate(q, v, dt), view.d_integrate(q, v.clone().requires_grad_(), dt)):
+            _assert_same(fused, composed)
+        for fused, composed in zip(view.d_integrate(q[0, 2], v[0, 2], 0.25), view.d_integrate(q[0, 2], v[0, 2], torch.tensor(
+                0.25, dtype=torch.float64, requires_grad=True))):
+            _assert_same(fused, composed)
         flipped = kernel.clone()
         flipped[0, :, quat:quat + 4] *= -1  # the same rotations, the other hemisphere
         others = view.random_configuration(2, 3, generator=g)
         for q1 in (kernel, flipped, others, q):
             fused = view.difference(q, q1)
-            _assert_same(fused, view.difference(q, q1.clone().requires_grad_()))
+            _assert_same(fused, difference(robot._space, q, q1, view._convention))
             assert torch.isfinite(fused.flatten(0, 1)[:5]).all()
+            for jacobian, composed in zip(view.d_difference(q, q1), view.d_difference(q.clone().requires_grad_(), q1)):
+                _assert_same_jacobian(jacobian, composed)
+                assert torch.isfinite(jacobian.flatten(0, 1)[:5]).all()
         steps = view.difference(q, kernel)[0, 2]
         torch.testing.assert_close(steps, v[0, 2] * dt[2], rtol=0, atol=1e-12)
         torch.testing.assert_close(view.difference(q.float(), others.float()).double(), view.difference(q, others),
                                    rtol=0, atol=1e-4, equal_nan=True)
+        for single, double in zip(view.d_difference(q.float(), others.float()) + view.d_integrate(q.float(), v.float(), dt.float()),
+                                  view.d_difference(q, others) + view.d_integrate(q, v, dt)):
+            torch.testing.assert_close(single.double(), double, rtol=0, atol=1e-4, equal_nan=True)
     q, v = robot.pin.random_configuration(generator=g), torch.randn(robot.nv, dtype=torch.float64, generator=g)
     q1 = robot.pin.random_configuration(generator=g)
     if name == "go2":
@@ -244,6 +256,11 @@ def test_integrate_and_difference_kernels_are_the_composition(robots, pin_models
         reference = pin.integrate(model, q.numpy(), 0.3 * v.numpy())
         assert np.abs(robot.pin.integrate(q, v, 0.3).numpy() - reference).max() <= 1e-12
         assert np.abs(robot.pin.difference(q, q1).numpy() - pin.difference(model, q.numpy(), q1.numpy())).max() <= 1e-12
+        j_q, j_v = robot.pin.d_integrate(q, v, 0.3)
+        assert np.abs(j_q.numpy() - pin.dIntegrate(model, q.numpy(), 0.3 * v.numpy(), pin.ARG0)).max() <= 1e-12
+        assert np.abs(j_v.numpy() - 0.3 * pin.dIntegrate(model, q.numpy(), 0.3 * v.numpy(), pin.ARG1)).max() <= 1e-12
+        for j, arg in zip(robot.pin.d_difference(q, q1), (pin.ARG0, pin.ARG1)):
+            assert np.abs(j.numpy() - pin.dDifference(model, q.numpy(), q1.numpy(), arg)).max() <= 1e-12
     else:
         m = mj_sims[name].m
         qm, qm1 = robot.mujoco.random_configuration(generator=g), robot.mujoco.random_configuration(generator=g)
@@ -253,12 +270,95 @@ def test_integrate_and_difference_kernels_are_the_composition(robots, pin_models
         reference = np.zeros(m.nv)
         mujoco.mj_differentiatePos(m, reference, 1.0, qm.numpy(), qm1.numpy())
         assert np.abs(robot.mujoco.difference(qm, qm1).numpy() - reference).max() <= 1e-12
-    raw = robot._ops.integrate(q, v.clone().requires_grad_(), torch.full((1,), 0.3, dtype=torch.float64), 0)
-    with pytest.raises(NotImplementedError, match=r"integrate kernel has no derivative; differentiate Robot.integrate"):
+        j_q, j_u, j_0, j_1 = _mujoco_tangent_jacobians(m, qm.numpy(), 0.3 * v.numpy(), qm1.numpy())
+        for fused, reference in zip(robot.mujoco.d_integrate(qm, v, 0.3) + robot.mujoco.d_difference(qm, qm1),
+                                    (j_q, 0.3 * j_u, j_0, j_1)):
+            assert np.abs(fused.numpy() - reference).max() <= 1e-8
+    raw = robot._ops.d_integrate(q, v.clone().requires_grad_(), torch.full((1,), 0.3, dtype=torch.float64), 0)[1]
+    with pytest.raises(NotImplementedError, match=r"d_integrate kernel has no derivative; differentiate Robot.d_integrate"):
         raw.sum().backward()
-    raw = robot._ops.difference(q, q1.clone().requires_grad_(), 0)
-    with pytest.raises(NotImplementedError, match=r"difference kernel has no derivative; differentiate Robot.difference"):
+    raw = robot._ops.d_difference(q, q1.clone().requires_grad_(), 0)[0]
+    with pytest.raises(NotImplementedError, match=r"d_difference kernel has no derivative; differentiate Robot.d_difference"):
         raw.sum().backward()
+
+
+@pytest.mark.parametrize("name", ["go2", "trees"])
+def test_integrate_and_difference_gradients_through_the_kernels(robots, name):
+    """Under autograd's reverse mode integrate and difference still run their kernels, their backwards the
+    tangent Jacobians' kernels (ops/lie_backward.py): the gradients of q, v and dt (integrate) and of q0 and q1
+    (difference) equal the composition's on every joint type, with a (2, 3) batch broadcast against a (3,) one,
+    quaternions of norm 1.7, and a zero one, whose gradient is the identity's (as every op's: tangent_to_ambient)
+    where the composition's is not; a NaN quaternion makes its own sample's gradients NaN alone; gradcheck, and
+    gradgradcheck (the second backward through the composition's Jacobians)."""
+    robot = robots[name]
+    g = torch.Generator().manual_seed(11)
+    quat = 3  # the free root's quaternion: q[3:7] in both layouts
+    for view in (robot.pin, robot.mujoco):
+        q, q1 = view.random_configuration(2, 3, generator=g), view.random_configuration(2, 3, generator=g)
+        q[..., quat:quat + 4] *= 1.7
+        identity = q.clone()
+        q[0, 1, quat:quat + 4] = 0
+        identity[0, 1, quat:quat + 4] = torch.tensor([1.0, 0, 0, 0] if view.convention == "mujoco" else [0, 0, 0, 1.0])
+        v = torch.randn(3, robot.nv, dtype=torch.float64, generator=g)
+        dt = torch.rand(2, 3, dtype=torch.float64, generator=g) + 0.5
+        calls = ((view.integrate, lambda q, v, dt: integrate(robot._space, q, v, dt, view._convention), (q, v, dt)),
+                 (view.difference, lambda a, b: difference(robot._space, a, b, view._convention), (q, q1)))
+        for method, composition, args in calls:
+            kernel_in = [x.clone().requires_grad_() for x in args]
+            composed_in = [identity.clone().requires_grad_()] + [x.clone().requires_grad_() for x in args[1:]]
+            out = method(*kernel_in)
+            assert type(out.grad_fn).__name__ != "CatBackward0"  # the kernel's backward, not the composition's
+            weight = torch.randn(out.shape, dtype=torch.float64, generator=g)
+            grads = torch.autograd.grad((out * weight).sum(), kernel_in)
+            for a, b in zip(grads, torch.autograd.grad((composition(*composed_in) * weight).sum(), composed_in)):
+                torch.testing.assert_close(a, b, rtol=0, atol=1e-12)
+            small = [x[:1, :1] if x.dim() > 2 or x is dt else x[:1] for x in args]
+            small = [x.detach().clone().requires_grad_() for x in small]
+            assert torch.autograd.gradcheck(method, small)
+            assert torch.autograd.gradgradcheck(method, small, fast_mode=True)
+        nan = q.clone()
+        nan[1, 2, quat] = float("nan")
+        for method, args in ((view.integrate, (nan, v.expand(2, 3, -1), dt)), (view.difference, (nan, q1))):
+            inputs = [x.clone().requires_grad_() for x in args]
+            grads = torch.autograd.grad(method(*inputs).sum(), inputs)
+            for grad in grads:
+                assert torch.isnan(grad[1, 2]).any() and torch.isfinite(grad.flatten(0, 1)[:5]).all()
+
+
+def _mujoco_tangent_jacobians(m, q: np.ndarray, u: np.ndarray, q1: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The tangent Jacobians of mj_integratePos(q, u) along q and u, and of mj_differentiatePos(q, q1) along q
+    and q1, by central differences of MuJoCo's own functions (a step of 1e-6 along each tangent direction)."""
+    def step(x, e):
+        out = x.copy()
+        mujoco.mj_integratePos(m, out, e, 1.0)
+        return out
+
+    def diff(a, b):
+        out = np.zeros(m.nv)
+        mujoco.mj_differentiatePos(m, out, 1.0, a, b)
+        return out
+
+    eps, end = 1e-6, step(q, u)
+    jacobians = [np.zeros((m.nv, m.nv)) for _ in range(4)]
+    for k in range(m.nv):
+        for sign in (1.0, -1.0):
+            e = np.zeros(m.nv)
+            e[k] = sign * eps
+            moved = (diff(end, step(step(q, e), u)), diff(end, step(q, u + e)), diff(step(q, e), q1), diff(q, step(q1, e)))
+            for jacobian, x in zip(jacobians, moved):
+                jacobian[:, k] += sign * x / (2 * eps)
+    return tuple(jacobians)
+
+
+def _assert_same_jacobian(kernel: torch.Tensor, composed: torch.Tensor) -> None:
+    """A Jacobian's kernel values are the composition's to rounding. Of a NaN quaternion the kernel's NaN stays in
+    that joint's block, where the composition's products spread it over the block's whole rows: each NaN of the
+    kernel is one of the composition's, and each sample with a NaN in one has a NaN in the other."""
+    composed = composed.detach()
+    assert (torch.isnan(composed) | ~torch.isnan(kernel)).all()
+    assert torch.equal(torch.isnan(kernel).flatten(-2).any(-1), torch.isnan(composed).flatten(-2).any(-1))
+    finite = torch.isfinite(composed)
+    torch.testing.assert_close(kernel[finite], composed[finite], rtol=0, atol=1e-13)
 
 
 def _assert_same(kernel: torch.Tensor, composed: torch.Tensor) -> None:

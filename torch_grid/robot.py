@@ -14,7 +14,7 @@ import torch
 from .former import CONVENTIONS, FORMER_NAMES, convention_name
 from .model.description import RobotModel, inertia_about_origin
 from .ops import mujoco_second_order
-from .ops.arguments import check_batch_shape, check_dt, check_tensor, forward_mode, reference_code
+from .ops.arguments import check_batch_shape, check_tensor, forward_mode, reference_code
 from .ops.dispatch import dispatch, kernel_call
 from .ops.fd_second_order import second_order
 from .ops.func import FuncOps
@@ -24,46 +24,11 @@ from .ops.table import OPS, model_sizes
 from .optim.costs import CostFunctions
 from .optim.horizon import HorizonFunctions
 from .optim.inertial import check_physical
-from .space import lie
 from .space.lie import Space
 from .step.compiled import step_op
-from .step.integrators import StepFunctions, fused_kernel_runs
+from .step.configuration import ConfigurationFunctions
+from .step.integrators import StepFunctions
 from .step.passive import PassiveForces
-
-
-class ConfigurationFunctions:
-    """The configuration-space functions of a robot's views (space/lie.py), their arguments checked (mixed
-    into _Functions, which provides `_robot` with its `_space`, and `_convention`)."""
-
-    def integrate(self, q: torch.Tensor, v: torch.Tensor, dt=1.0) -> torch.Tensor:
-        """(..., nq): q (+) v dt, Pinocchio's integrate or MuJoCo's mj_integratePos; q (..., nq), v (..., nv),
-        dt a number or a (...,) tensor."""
-        q, v = self._configuration_checked("integrate", q, v, dt)
-        if fused_kernel_runs(self, q, v, dt):  # one kernel call, not the composition's small torch ops
-            return self._kernel_call("integrate", q, v, lie.dt_column(dt, v))
-        return lie.integrate(self._robot._space, q, v, dt, self._convention)
-
-    def difference(self, q0: torch.Tensor, q1: torch.Tensor) -> torch.Tensor:
-        """(..., nv): v with q0 (+) v = q1, Pinocchio's difference or MuJoCo's mj_differentiatePos (dt = 1)."""
-        q0, q1 = self._configuration_checked("difference", q0, q1)
-        fused = fused_kernel_runs(self, q0, q1)  # one kernel call, or the composition autograd sees
-        return self._kernel_call("difference", q0, q1) if fused else lie.difference(self._robot._space, q0, q1, self._convention)
-
-    def d_integrate(self, q: torch.Tensor, v: torch.Tensor, dt=1.0) -> tuple[torch.Tensor, torch.Tensor]:
-        """(d/dq, d/dv) of integrate along the tangent spaces, each (..., nv, nv) (Pinocchio's dIntegrate)."""
-        return lie.d_integrate(self._robot._space, *self._configuration_checked("d_integrate", q, v, dt), dt, self._convention)
-
-    def d_difference(self, q0: torch.Tensor, q1: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(d/dq0, d/dq1) of difference along the tangent spaces, each (..., nv, nv) (Pinocchio's dDifference)."""
-        return lie.d_difference(self._robot._space, *self._configuration_checked("d_difference", q0, q1), self._convention)
-
-    def _configuration_checked(self, op: str, q: torch.Tensor, x: torch.Tensor, dt=1.0) -> tuple[torch.Tensor, torch.Tensor]:
-        space = self._robot._space
-        second = ("v", (space.nv,)) if op.endswith("integrate") else ("q1", (space.nq,))
-        check_tensor(op, "q0" if second[0] == "q1" else "q", q, (space.nq,), q)
-        check_tensor(op, second[0], x, second[1], q)
-        check_dt(op, dt, q, x)
-        return q, x
 
 
 class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFunctions, PoseDerivatives):

@@ -28,6 +28,7 @@ from ..space.tangent import (
     tangent_directions,
     tangent_to_ambient,
 )
+from .lie_backward import difference_backward, integrate_backward
 from .mujoco_second_order import crba_vjp as mujoco_crba_vjp
 from .parameters import (
     derivatives_parameter_vjp,
@@ -77,13 +78,13 @@ def _save_inputs(ctx, inputs, output) -> None:
 def _no_backward(name: str) -> Callable:
     # Every op without a backward computes derivatives (a backward's kernels, the second-order tensors):
     # differentiating it is a third derivative, or the second of an op whose outputs are derivatives.
-    # The fused kernels are the fast paths of step, step_derivatives, integrate and difference, which compose their
-    # value in torch whenever autograd is to see it.
+    # The fused kernels are the fast paths of step, step_derivatives, d_integrate and d_difference, which compose
+    # their value in torch whenever autograd is to see it.
     message = (f"torch_grid: {name} has no derivative: the op whose derivative it computes cannot be differentiated "
                "once more (a third derivative, or the second derivative of an op whose outputs are derivatives)")
     if OPS[name].backward == "step":
-        method = name if name in ("step", "integrate", "difference") else "step_derivatives"
-        what = {"integrate": "q (+) v dt", "difference": "the difference"}.get(name, "the step")
+        method = name if name in ("step", "d_integrate", "d_difference") else "step_derivatives"
+        what = "the Jacobians" if name.startswith("d_") else "the step"
         message = (f"torch_grid: the {name} kernel has no derivative; differentiate Robot.{method}, which then "
                    f"composes {what} in torch")
 
@@ -569,6 +570,8 @@ BACKWARDS = {
     "forward_dynamics_external_force_derivatives": _forward_dynamics_external_force_derivatives,
     "forward_dynamics_parameter_derivatives": _forward_dynamics_parameter_derivatives,
     "osc_inertia": _osc_inertia,
+    "integrate": integrate_backward,
+    "difference": difference_backward,
 }
 
 # Ops whose outputs are derivatives and whose backward is made of other ops (their backwards, or the

@@ -118,11 +118,12 @@ def model_sizes(model: RobotModel) -> dict[str, int]:
 
 
 # How an op is differentiated, declared in its entry. Its backward (reverse mode, autograd.py):
-#   "formula"   a formula of its own over kernels, mostly the O(n) vector-Jacobian product of inverse dynamics;
+#   "formula"   a formula of its own over kernels, mostly the O(n) vector-Jacobian product of inverse dynamics
+#               (integrate's and difference's: the tangent Jacobians of d_integrate and d_difference);
 #   "composed"  a formula over other ops' outputs and backwards (the op's outputs are products of theirs);
 #   "dual"      its own kernel on dual numbers (<op>_backward): outputs that are already derivatives;
-#   "step"      none: the kernels that fuse a composition (the step, its derivatives, integrate, difference), which the
-#               Robot methods of those names replace by the torch composition whenever anything differentiates them;
+#   "step"      none: the kernels that fuse a composition (the step, its derivatives, d_integrate, d_difference), which
+#               the Robot methods of those names replace by the torch composition whenever anything differentiates them;
 #   "none"      none: a derivative computed inside another op's backward, or a second-order tensor.
 # Its forward mode (torch.func.jvp, jacfwd, forward_ad; func.py):
 #   "backward"  the derivative of its backward with respect to the cotangents (the backward is linear in them);
@@ -211,9 +212,13 @@ _VALUE_OPS = (
                (Out("dqdd_dq", "twin", NVxNV), Out("dqdd_dqd", "twin", NVxNV), Out("dqdd_dtau", "twin", NVxNV)),
                "derivatives", backward="composed", jvp="rule"),
         OpSpec("integrate", "Integrate", (Q, Arg("v", "plain", shape=NV), Arg("dt", "plain", shape=(1,))),
-               (Out("q_next", "twin", ("nq",)),), "kinematics", backward="step"),
+               (Out("q_next", "twin", ("nq",)),), "kinematics", backward="formula"),
         OpSpec("difference", "Difference", (Q, Arg("q1", "plain", shape=("nq",))),
-               (Out("v", "twin", NV),), "kinematics", backward="step"),
+               (Out("v", "twin", NV),), "kinematics", backward="formula"),
+        OpSpec("d_integrate", "DIntegrate", (Q, Arg("v", "plain", shape=NV), Arg("dt", "plain", shape=(1,))),
+               (Out("J_q", "twin", NVxNV), Out("J_v", "twin", NVxNV)), "kinematics", backward="step"),
+        OpSpec("d_difference", "DDifference", (Q, Arg("q1", "plain", shape=("nq",))),
+               (Out("J_q0", "twin", NVxNV), Out("J_q1", "twin", NVxNV)), "kinematics", backward="step"),
         OpSpec("step", "Step",
                (Q, QD, TAU, FEXT, Arg("dt", "plain", shape=(1,)), PARAMS, Arg("scheme", "integrator"), PASSIVE),
                (Out("q_next", "twin", ("nq",)), Out("qd_next", "twin", NV)), "derivatives", backward="step"),
@@ -288,8 +293,8 @@ FORWARD_MODE_JVP = tuple((op.name, op.dual_jvp) for op in _VALUE_OPS if op.dual_
 
 # The ops whose values do not depend on the bodies' inertias (kinematics, the regressors): those without a
 # "parameters" argument (check_table), which a view of Robot.with_parameters runs as they are.
-INERTIA_FREE = ("integrate", "difference", "forward_kinematics", "end_effector_pose", "frame_jacobian", "frame_jacobian_vjp",
-                "frame_kinematic_hessian", "frame_jacobian_dot", "body_velocities", "frames_vjp",
+INERTIA_FREE = ("integrate", "difference", "d_integrate", "d_difference", "forward_kinematics", "end_effector_pose",
+                "frame_jacobian", "frame_jacobian_vjp", "frame_kinematic_hessian", "frame_jacobian_dot", "body_velocities", "frames_vjp",
                 "inverse_dynamics_external_force_derivatives", "inverse_dynamics_regressor", "kinetic_energy_regressor",
                 "potential_energy_regressor")
 
@@ -372,8 +377,9 @@ CPU_SAMPLE_US = {
     "inverse_dynamics_vjp": 1.7, "inverse_dynamics_vjp_full": 1.8, "inertia_solve": 1.1, "body_velocities": 0.34,
     "frames_vjp": 0.59, "inverse_dynamics_derivatives": 3.6, "inverse_dynamics_second_derivatives": 34,
     "inverse_dynamics_derivatives_vjp": 25, "inverse_dynamics_derivatives_tangent": 40, "forward_dynamics_derivatives": 6.8,
-    "integrate": 0.05, "difference": 0.1, "step": 3.0, "step_derivatives": 7.7, "rk_step_derivatives": 50,
-    "inverse_dynamics_external_force_derivatives": 0.83, "forward_dynamics_external_force_derivatives": 3.8, "osc_inertia": 2.5, "cmm_time_variation": 2.1, "dccrba": 2.1,
+    "integrate": 0.05, "difference": 0.1, "d_integrate": 0.3, "d_difference": 0.3, "step": 3.0, "step_derivatives": 7.7,
+    "rk_step_derivatives": 50, "inverse_dynamics_external_force_derivatives": 0.83,
+    "forward_dynamics_external_force_derivatives": 3.8, "osc_inertia": 2.5, "cmm_time_variation": 2.1, "dccrba": 2.1,
     "coriolis_matrix": 2.2, "inverse_dynamics_regressor": 3.1, "kinetic_energy_regressor": 0.40,
     "potential_energy_regressor": 0.20, "forward_dynamics_parameter_derivatives": 7.4,
 }

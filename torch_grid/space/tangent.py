@@ -145,6 +145,28 @@ def ambient_direction(model: RobotModel, q: torch.Tensor, u: torch.Tensor, conve
     return _in_q_order(pieces)
 
 
+def ambient_to_tangent(model: RobotModel, q: torch.Tensor, g: torch.Tensor, convention: int) -> torch.Tensor:
+    """(..., nv): a gradient g (..., nq) in the coordinates of q carried to q's tangent space, ambient_direction's
+    transpose: g . ambient_direction(q, u) = u . ambient_to_tangent(q, g) for every u."""
+    lay = layout(model)
+    if not lay.quaternions:
+        return g
+    q, g = broadcast_batch(q, g)
+    pieces = [(vi, g[..., qi:qi + n]) for qi, vi, n in lay.scalar_runs]
+    for j in lay.quaternions:
+        xyz, w, iw, ixyz = _xyzw(q, j, convention)
+        g_xyz, g_w = g[..., ixyz], g[..., iw:iw + 1]
+        if j.free:
+            g_lin = g[..., j.qi:j.qi + 3]
+            if not convention:  # R^T g: the rotation of the conjugate
+                unit = unit_quaternion(torch.cat([xyz, w], dim=-1))[0]
+                g_lin = _rotate(torch.cat([-unit[..., :3], unit[..., 3:]], dim=-1), g_lin)
+            pieces.append((j.vi, g_lin))
+        # dxyz = (w u + xyz x u) / 2, dw = -xyz . u / 2, transposed
+        pieces.append((j.angular, 0.5 * (w * g_xyz + torch.cross(g_xyz, xyz, dim=-1) - g_w * xyz)))
+    return _in_q_order(pieces)
+
+
 def tangent_to_ambient(model: RobotModel, q: torch.Tensor, g: torch.Tensor, convention: int) -> torch.Tensor:
     """Gradient along the tangent space (..., nv) -> gradient in the coordinates of q (..., nq).
 

@@ -245,6 +245,19 @@ def fused_kernel_runs(view, q, *args) -> bool:
             and not _fused_kept_off(view, q))
 
 
+def differentiable_kernel_runs(view, q, *args) -> bool:
+    """Whether the integrate or difference kernel computes this call, its backward a formula of the tangent
+    Jacobians (ops/lie_backward.py): as fused_kernel_runs, but also when autograd's reverse mode records the
+    call; not under the torch.func transforms or forward-mode AD, nor where torch.compile traces a gradient,
+    which all see the composition."""
+    if view._robot._coupling is not None or _fused_kept_off(view, q):
+        return False
+    tensors = [x for x in (q, *args) if isinstance(x, torch.Tensor)]
+    if torch.compiler.is_compiling():
+        return not (torch.is_grad_enabled() and any(x.requires_grad for x in tensors))
+    return not (transforming() or dual(tensors))
+
+
 def _fused_kept_off(view, q) -> bool:
     """Whether the step kernels (values and derivatives) are kept off this call: on CUDA in MuJoCo's
     convention of a robot with quaternion joints. There an H100 gave them NaN (the Runge-Kutta schemes on a floating base,

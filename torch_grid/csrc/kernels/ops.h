@@ -256,6 +256,64 @@ template <class Robot, class Scalar> struct Difference {
   }
 };
 
+// The tangent Jacobians of q (+) dt v, J_q and J_v (NV x NV each, the call's convention; Pinocchio's dIntegrate):
+// integrate_joint's blocks at a quaternion joint (J_v's times dt), 1 and dt on the other joints' diagonals.
+template <class Robot, class Scalar> struct DIntegrate {
+  template <int C> TG_HD static void run(const DIntegrateArgs<Scalar>& a, const Conv<Robot, Scalar, C>&) {
+    constexpr int NV = Robot::NV;
+    const auto& d = data<Robot, Scalar>();
+    const Scalar h = a.dt[0];
+    Scalar u[NV], qs[Robot::NQ];
+    for (int k = 0; k < NV; ++k) u[k] = h * a.v[k];
+    for (int e = 0; e < NV * NV; ++e) a.J_q[e] = a.J_v[e] = Scalar(0);
+    for (int i = 0; i < Robot::NB; ++i) {
+      Scalar Jq[36], Jv[36];
+      const int n = integrate_joint<Robot, Scalar, C>(i, a.q, u, qs, Jq, Jv), vi = d.vi[i];
+      if (!n) {
+        a.J_q[(NV + 1) * vi] = Scalar(1), a.J_v[(NV + 1) * vi] = h;
+        continue;
+      }
+      for (int r = 0; r < n; ++r)
+        for (int c = 0; c < n; ++c) a.J_q[NV * (vi + r) + vi + c] = Jq[n * r + c], a.J_v[NV * (vi + r) + vi + c] = h * Jv[n * r + c];
+    }
+  }
+};
+
+// The tangent Jacobians of difference(q0, q1), J_q0 and J_q1 (NV x NV each, the call's convention; Pinocchio's
+// dDifference): with d = difference(q0, q1), q1 = q0 (+) d, so at a quaternion joint J_q1 = Jv(d)^-1 = dexp(d)^-1 and
+// J_q0 = -Jv(d)^-1 Jq(d) (integrate_joint's blocks at d); -1 and 1 on the other joints' diagonals. A free joint's
+// 3 x 3 blocks that are zero (below the diagonal; and above it in MuJoCo's convention) stay exact zeros, whatever the
+// others hold (a NaN quaternion's NaN stays in the blocks it reaches).
+template <class Robot, class Scalar> struct DDifference {
+  template <int C> TG_HD static bool zero_block(int n, int r, int c) {
+    return n == 6 && ((r >= 3 && c < 3) || (C == MUJOCO && r < 3 && c >= 3));
+  }
+  template <int C> TG_HD static void run(const DDifferenceArgs<Scalar>& a, const Conv<Robot, Scalar, C>&) {
+    constexpr int NV = Robot::NV;
+    const auto& d = data<Robot, Scalar>();
+    Scalar v[NV], qs[Robot::NQ];
+    for (int e = 0; e < NV * NV; ++e) a.J_q0[e] = a.J_q1[e] = Scalar(0);
+    for (int i = 0; i < Robot::NB; ++i) {
+      Scalar Jq[36], Jv[36], Ji[36];
+      difference_joint<Robot, Scalar, C>(i, a.q, a.q1, v);
+      const int n = integrate_joint<Robot, Scalar, C>(i, a.q, v, qs, Jq, Jv), vi = d.vi[i];
+      if (!n) {
+        a.J_q0[(NV + 1) * vi] = Scalar(-1), a.J_q1[(NV + 1) * vi] = Scalar(1);
+        continue;
+      }
+      dexp_inverse_matrix<Scalar, C>(n, v + vi, Ji);
+      for (int r = 0; r < n; ++r)
+        for (int c = 0; c < n; ++c) {
+          Scalar s = Scalar(0);
+          for (int m = 0; m < n; ++m)
+            if (!zero_block<C>(n, r, m) && !zero_block<C>(n, m, c)) s += Ji[n * r + m] * Jq[n * m + c];
+          a.J_q0[NV * (vi + r) + vi + c] = zero_block<C>(n, r, c) ? Scalar(0) : Scalar(-1) * s;
+          a.J_q1[NV * (vi + r) + vi + c] = Ji[n * r + c];
+        }
+    }
+  }
+};
+
 // One Euler step's values alone (scheme 0: euler, 1: semi-implicit): step_derivatives' q' and qd' without
 // the Jacobians, the acceleration by ABA at tau (+ p with passive 1), or of (M + dt D) qdd = tau + p - b
 // with passive 2 (damped_acceleration).

@@ -68,13 +68,8 @@ template <class Scalar, int C> TG_HD void dexp_inverse_jacobians_lie(int n, cons
   const Vec3<Scalar> w = load3(theta + n - 3);
   const So3Coefficients<Scalar> k = so3_coefficients(w);
   const Mat3<Scalar> Ji = so3_terms(w, Scalar(0.5), k.beta);
-  for (int e = 0; e < n * n; ++e) Dx[e] = Scalar(0);
-  put3(Dx, n, n - 3, n - 3, Ji);
+  dexp_inverse_matrix<Scalar, C>(n, theta, Dx);
   if (n == 6) {
-    const Mat3<Scalar> JQJ = mul(Ji, mul(se3_coupling(load3(theta), w, k), Ji));
-    put3(Dx, 6, 0, 0, Ji);
-    for (int r = 0; r < 3; ++r)
-      for (int m = 0; m < 3; ++m) Dx[6 * r + 3 + m] = -JQJ.m[3 * r + m];
     const Mat3<Scalar> JL = mul(Ji, se3_coupling_along_rho(w, mul(Ji, load3(x + 3)), k));
     for (int r = 0; r < 3; ++r)
       for (int m = 0; m < 3; ++m) Dtheta[6 * r + m] = -JL.m[3 * r + m], Dtheta[6 * (r + 3) + m] = Scalar(0);

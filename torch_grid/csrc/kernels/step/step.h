@@ -110,6 +110,26 @@ template <class Scalar> TG_HD void put3(Scalar* X, int n, int r, int c, const Ma
     for (int j = 0; j < 3; ++j) X[n * (r + i) + c + j] = B.m[3 * i + j];
 }
 
+// dexp(theta)^-1 (n x n, row-major; n = 3 or 6), the inverse of integrate_joint's Jv at theta: Jr(w)^-1 = I + [w] / 2
+// + beta [w]^2 on a rotation w (MuJoCo's free joint: its position rows the identity); on Pinocchio's free joint SE(3)'s
+// [[Jr^-1, -Jr^-1 Q Jr^-1], [0, Jr^-1]].
+template <class Scalar, int C> TG_HD void dexp_inverse_matrix(int n, const Scalar* theta, Scalar* Dx) {
+  const Vec3<Scalar> w = load3(theta + n - 3);
+  const So3Coefficients<Scalar> k = so3_coefficients(w);
+  const Mat3<Scalar> Ji = so3_terms(w, Scalar(0.5), k.beta);
+  for (int e = 0; e < n * n; ++e) Dx[e] = Scalar(0);
+  put3(Dx, n, n - 3, n - 3, Ji);
+  if (n != 6) return;
+  if constexpr (C == MUJOCO) {
+    put3(Dx, 6, 0, 0, identity3<Scalar>());
+  } else {
+    const Mat3<Scalar> JQJ = mul(Ji, mul(se3_coupling(load3(theta), w, k), Ji));
+    put3(Dx, 6, 0, 0, Ji);
+    for (int r = 0; r < 3; ++r)
+      for (int m = 0; m < 3; ++m) Dx[6 * r + 3 + m] = Scalar(-1) * JQJ.m[3 * r + m];
+  }
+}
+
 // A quaternion read normalised, xyzw: a norm below QUAT_MIN_NORM is the identity, a NaN or infinite one NaN in
 // every component (q / inf would leave finite zeros beside an infinite entry's NaN).
 template <class Scalar> TG_HD void unit_quat(Scalar x, Scalar y, Scalar z, Scalar w, Scalar* out) {
