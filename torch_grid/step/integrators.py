@@ -247,15 +247,17 @@ def fused_kernel_runs(view, q, *args) -> bool:
 
 def differentiable_kernel_runs(view, q, *args) -> bool:
     """Whether the integrate or difference kernel computes this call, its backward a formula of the tangent
-    Jacobians (ops/lie_backward.py): as fused_kernel_runs, but also when autograd's reverse mode records the
-    call; not under the torch.func transforms or forward-mode AD, nor where torch.compile traces a gradient,
-    which all see the composition."""
+    Jacobians (ops/lie_backward.py): as fused_kernel_runs, and also when autograd's reverse mode records the
+    call of a robot with quaternion joints (without them the composition is a few elementwise ops, its
+    backward too); not under the torch.func transforms or forward-mode AD, nor where torch.compile traces a
+    gradient, which all see the composition."""
     if view._robot._coupling is not None or _fused_kept_off(view, q):
         return False
+    if not _differentiated(q, *args):
+        return True
     tensors = [x for x in (q, *args) if isinstance(x, torch.Tensor)]
-    if torch.compiler.is_compiling():
-        return not (torch.is_grad_enabled() and any(x.requires_grad for x in tensors))
-    return not (transforming() or dual(tensors))
+    return (view._robot._space.nq != view._robot._space.nv and not torch.compiler.is_compiling()
+            and not (transforming() or dual(tensors)))
 
 
 def _fused_kept_off(view, q) -> bool:
