@@ -6,7 +6,7 @@ import numbers
 
 import torch
 
-from .func import dual
+from .levels import dual
 from .table import OPS
 
 REFERENCES = {"world": 0, "local": 1, "local_world_aligned": 2}

@@ -11,7 +11,8 @@ from __future__ import annotations
 import torch
 
 from .arguments import checked, forward_mode
-from .func import FORWARD_MODE, FuncOps, traced_transform
+from .func import FORWARD_MODE, FuncOps
+from .levels import traced_transform
 from .table import INERTIA_FREE, OPS
 
 _CPU, _CUDA = torch._C.DispatchKeySet(torch._C.DispatchKey.CPU), torch._C.DispatchKeySet(torch._C.DispatchKey.CUDA)

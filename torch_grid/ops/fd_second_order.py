@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import torch
 
-from .func import transforming
+from .levels import transforming
 
 
 def second_order(second: tuple[torch.Tensor, ...], z_q: torch.Tensor, z_qd: torch.Tensor,

@@ -14,40 +14,15 @@ from __future__ import annotations
 from typing import Callable
 
 import torch
-from torch._C._functorch import TransformType
-from torch._functorch.pyfunctorch import coerce_cinterpreter
 from torch.autograd import forward_ad
 
 from ..model.description import RobotModel
 from ..space.tangent import tangent_to_ambient
 from .autograd import backward_formula, mass_product_jvp, repeat
+from .levels import dual, transforming
 from .mujoco_second_order import kinematic_hessian_from_ops, second_order_from_ops
 from .parameters import repeat_params
 from .table import KERNEL_JVP, OPS
-
-
-def transforming() -> bool:
-    """Whether a torch.func transform is active (then ops go through FuncOps)."""
-    return isinstance(torch._C._functorch.peek_interpreter_stack(), torch._C._functorch.CInterpreter)
-
-
-def traced_transform() -> bool:
-    """While torch.compile traces: whether the ops are to go through FuncOps, that is, a torch.func transform
-    other than vmap is innermost, or a forward-mode dual level is open (the compiler does not see a dual
-    argument's tangent, so the level, not the argument, decides)."""
-    return top_transform() not in (None, TransformType.Vmap) or forward_ad._current_level >= 0
-
-
-def top_transform() -> TransformType | None:
-    """The innermost active torch.func transform (Vmap, Grad, Jvp, ...), or None; in the functorch calls
-    that torch.compile traces (the interpreter stack itself it cannot)."""
-    return coerce_cinterpreter(torch._C._functorch.peek_interpreter_stack()).key() if transforming() else None
-
-
-def dual(args) -> bool:
-    """Whether an argument carries a torch.autograd.forward_ad tangent."""
-    return forward_ad._current_level >= 0 and any(
-        isinstance(x, torch.Tensor) and forward_ad.unpack_dual(x).tangent is not None for x in args)
 
 
 # Why an op inside a backward has no derivative of its own, in the words of the function the user called.

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import torch
 
-from ..ops.func import traced_transform
+from ..ops.levels import traced_transform
 
 NAMESPACE = "torch_grid_step"
 _ROBOTS: dict[str, object] = {}

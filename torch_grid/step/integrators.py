@@ -25,7 +25,7 @@ import torch
 from torch.autograd import forward_ad
 
 from ..ops.arguments import check_dt
-from ..ops.func import dual, transforming
+from ..ops.levels import dual, transforming
 from ..space.constants import scalar_or_tensor
 from ..space.lie import d_dexp_inverse_blocks, d_integrate_blocks, dexp_inverse, dt_column, tangent_map
 from .compiled import compiled_step, opaque
