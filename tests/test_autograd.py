@@ -242,7 +242,8 @@ def test_frame_jacobian_backward_kernel_matches_dual_numbers(robots, name, refer
 def test_ops_without_a_backward_compute_derivatives():
     """The refusal's wording assumes that every op without a backward outputs derivatives: the dual-number
     kernels, the backward kernels (inverse_dynamics_vjp_full: the gradients of lam . tau, and tau they
-    are taken at, for its jvp) and the second-order tensors. A new value op must get a backward (or this
+    are taken at, for its jvp; the tangent maps and integrate's and difference's products, which a backward runs only
+    when nothing differentiates it) and the second-order tensors. A new value op must get a backward (or this
     list, and that wording, must change); the Euler step kernel, which step_derivatives runs only when
     nothing differentiates it, has its own wording."""
     from torch_grid.ops.autograd import backward_formula
@@ -251,5 +252,6 @@ def test_ops_without_a_backward_compute_derivatives():
     missing = {n for n, s in OPS.items() if backward_formula(s) is None and not s.derived}
     assert missing - set(KERNEL_ONLY) == {"frame_jacobian_vjp", "inverse_dynamics_vjp_full", "frame_kinematic_hessian",
                                           "inverse_dynamics_second_derivatives", "inverse_dynamics_derivatives_vjp",
-                                          "inverse_dynamics_derivatives_tangent"}
+                                          "inverse_dynamics_derivatives_tangent", "tangent_to_ambient", "integrate_vjp",
+                                          "difference_vjp"}
     assert set(KERNEL_ONLY) == {"d_integrate", "d_difference", "step", "step_derivatives", "rk_step_derivatives"} <= missing

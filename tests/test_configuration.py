@@ -284,8 +284,8 @@ def test_integrate_and_difference_kernels_are_the_composition(robots, pin_models
 
 @pytest.mark.parametrize("name", ["go2", "trees"])
 def test_integrate_and_difference_gradients_through_the_kernels(robots, name):
-    """Under autograd's reverse mode integrate and difference still run their kernels, their backwards the
-    tangent Jacobians' kernels (ops/lie_backward.py): the gradients of q, v and dt (integrate) and of q0 and q1
+    """Under autograd's reverse mode integrate and difference still run their kernels, their backwards one kernel
+    each (integrate_vjp, difference_vjp: ops/lie_backward.py): the gradients of q, v and dt (integrate) and of q0 and q1
     (difference) equal the composition's on every joint type, with a (2, 3) batch broadcast against a (3,) one,
     quaternions of norm 1.7, and a zero one, whose gradient is the identity's (as every op's: tangent_to_ambient)
     where the composition's is not; a NaN quaternion makes its own sample's gradients NaN alone; gradcheck, and

@@ -26,9 +26,8 @@ from ..space.tangent import (
     bracket_term_outer,
     has_brackets,
     tangent_directions,
-    tangent_to_ambient,
 )
-from .lie_backward import difference_backward, integrate_backward
+from .lie_backward import difference_backward, integrate_backward, to_ambient
 from .mujoco_second_order import crba_vjp as mujoco_crba_vjp
 from .parameters import (
     derivatives_parameter_vjp,
@@ -131,7 +130,7 @@ def _inverse_dynamics(ops, model, needs, grads, output, q, qd, qdd, f_ext, param
     dq = dqd = dqdd = df = dparams = None
     if needs[0] or needs[1]:
         g_q, g_qd = ops.inverse_dynamics_vjp(q, qd, qdd, f_ext, grad, params, convention)
-        dq = tangent_to_ambient(model, q, g_q, convention) if needs[0] else None
+        dq = to_ambient(ops, model, q, g_q, convention) if needs[0] else None
         dqd = g_qd if needs[1] else None
     if needs[2]:
         dqdd = _vjp(ops.crba(q, params, convention), grad)
@@ -152,7 +151,7 @@ def _forward_dynamics(ops, model, needs, grads, output, q, qd, tau, f_ext, param
     dq = dqd = dparams = None
     if needs[0] or needs[1]:
         g_q, g_qd = ops.inverse_dynamics_vjp(q, qd, output, f_ext, lam, params, convention)
-        dq = tangent_to_ambient(model, q, -g_q, convention) if needs[0] else None
+        dq = to_ambient(ops, model, q, -g_q, convention) if needs[0] else None
         dqd = -g_qd if needs[1] else None
     df = ops.body_velocities(q, lam, convention) if needs[3] else None
     if needs[4]:
@@ -177,7 +176,7 @@ def _inverse_dynamics_vjp(ops, model, needs, grads, output, q, qd, qdd, f_ext, l
         if needs[0]:
             if has_brackets(model):
                 d_gq = d_gq + bracket_term_outer(model, u_q, output[0], convention)
-            dq = tangent_to_ambient(model, q, d_gq, convention)
+            dq = to_ambient(ops, model, q, d_gq, convention)
         dqd = d_gqd if needs[1] else None
         dqdd = d_mlam if needs[2] else None
         dlam = d_tau if needs[4] else None
@@ -195,7 +194,7 @@ def _frame_jacobian(ops, model, needs, grads, output, q, frame, reference, conve
     if convention and model.conventions_differ:
         return _forward_mode(OPS["frame_jacobian"])(ops, model, needs, grads, output, q, frame, reference, convention)
     g = ops.frame_jacobian_vjp(q, _unexpanded(grads[0], 2), frame, reference, convention)
-    return tangent_to_ambient(model, q, g, convention), None, None, None
+    return to_ambient(ops, model, q, g, convention), None, None, None
 
 
 def _inertia_solve(ops, model, needs, grads, output, q, x, params, convention):
@@ -204,7 +203,7 @@ def _inertia_solve(ops, model, needs, grads, output, q, x, params, convention):
     dq = dparams = None
     if needs[0]:
         dq = -_mass_product_vjp(ops, model, q, output.unsqueeze(-2), mu.unsqueeze(-2), params, convention)
-        dq = tangent_to_ambient(model, q, dq, convention)
+        dq = to_ambient(ops, model, q, dq, convention)
     if needs[2]:
         dparams = -mass_product_parameter_vjp(ops, model, q, output.unsqueeze(-2), mu.unsqueeze(-2), convention)
     return dq, mu if needs[1] else None, dparams, None
@@ -221,7 +220,7 @@ def _crba(ops, model, needs, grads, output, q, params, convention):
             dq = mujoco_crba_vjp(ops, model, q, grads[0], output, params)
         else:
             dq = ops.crba_vjp(q, _unexpanded(grads[0], 2), params, convention)
-        dq = tangent_to_ambient(model, q, dq, convention)
+        dq = to_ambient(ops, model, q, dq, convention)
     if needs[1]:
         dparams = inertia_parameter_vjp(ops, model, q, grads[0], convention)
     return dq, dparams, None
@@ -322,7 +321,7 @@ def _ccrba(ops, model, needs, grads, output, q, qd, params, convention):
         columns = ops.dccrba(repeat(q, nv, 1), unit, repeat_params(params), convention)  # [..., j] = d(A e_j)/dq
         g = torch.einsum("...rj,...jrk->...k", g_A, columns)
         g = g + (g_h.unsqueeze(-2) @ ops.dccrba(q, qd, params, convention)).squeeze(-2)
-        dq = tangent_to_ambient(model, q, g, convention)
+        dq = to_ambient(ops, model, q, g, convention)
     if needs[1]:
         dqd = (output[0].mT @ g_h.unsqueeze(-1)).squeeze(-1)
     if needs[2]:
@@ -336,7 +335,7 @@ def _generalized_gravity(ops, model, needs, grads, output, q, params, convention
     dq = dparams = None
     if needs[0]:
         g_q, _ = ops.inverse_dynamics_vjp(q, zero, zero, None, grads[0], params, convention)
-        dq = tangent_to_ambient(model, q, g_q, convention)
+        dq = to_ambient(ops, model, q, g_q, convention)
     if needs[1]:
         dparams = regressor_vjp(ops, q, zero, zero, grads[0], convention)
     return dq, dparams, None
@@ -347,7 +346,7 @@ def _nonlinear_effects(ops, model, needs, grads, output, q, qd, params, conventi
     dq = dqd = dparams = None
     if needs[0] or needs[1]:
         g_q, g_qd = ops.inverse_dynamics_vjp(q, qd, torch.zeros_like(qd), None, grads[0], params, convention)
-        dq, dqd = tangent_to_ambient(model, q, g_q, convention), g_qd
+        dq, dqd = to_ambient(ops, model, q, g_q, convention), g_qd
     if needs[2]:
         dparams = regressor_vjp(ops, q, qd, torch.zeros_like(qd), grads[0], convention)
     return dq, dqd, dparams, None
@@ -357,7 +356,7 @@ def _com(ops, model, needs, grads, output, q, params, convention):
     """d com / dq = J_com along the tangent; d/dpi: the kernel on dual numbers."""
     dq = dparams = None
     if needs[0]:
-        dq = tangent_to_ambient(model, q, _vjp(ops.jacobian_com(q, params, convention), grads[0]), convention)
+        dq = to_ambient(ops, model, q, _vjp(ops.jacobian_com(q, params, convention), grads[0]), convention)
     if needs[1]:
         dparams = _parameters_by_dual(OPS["com"], ops, model, grads, q, params, convention)
     return dq, dparams, None
@@ -380,7 +379,7 @@ def _energy(ops, model, needs, grads, output, q, qd, params, convention):
     if needs[0]:
         dke_dq = 0.5 * _mass_product_vjp(ops, model, q, qd.unsqueeze(-2), qd.unsqueeze(-2), params, convention)
         dpe_dq = ops.generalized_gravity(q, params, convention)
-        dq = tangent_to_ambient(model, q, g_kinetic * dke_dq + g_potential * dpe_dq, convention)
+        dq = to_ambient(ops, model, q, g_kinetic * dke_dq + g_potential * dpe_dq, convention)
     if needs[1]:
         dqd = g_kinetic * _vjp(ops.crba(q, params, convention), qd)
     if needs[2]:
@@ -399,7 +398,7 @@ def _forward_kinematics(ops, model, needs, grads, output, q, convention):
         A = rotations @ g_rot.transpose(-1, -2)
         w_rot = torch.stack([A[..., 1, 2] - A[..., 2, 1], A[..., 2, 0] - A[..., 0, 2], A[..., 0, 1] - A[..., 1, 0]], dim=-1)
     weights = torch.cat([zero if g_pos is None else g_pos, w_rot], dim=-1)
-    return tangent_to_ambient(model, q, ops.frames_vjp(q, weights, convention), convention), None
+    return to_ambient(ops, model, q, ops.frames_vjp(q, weights, convention), convention), None
 
 
 def _end_effector_pose(ops, model, needs, grads, output, q, frames, convention):
@@ -410,7 +409,7 @@ def _end_effector_pose(ops, model, needs, grads, output, q, frames, convention):
     index = constant(tuple(frames), torch.long, q.device)
     w_ang = rpy_rate_transpose_solve(output[..., 3:], grad[..., 3:])
     weights = weights.index_add(-2, index, torch.cat([grad[..., :3], w_ang], dim=-1))
-    return tangent_to_ambient(model, q, ops.frames_vjp(q, weights, convention), convention), None, None
+    return to_ambient(ops, model, q, ops.frames_vjp(q, weights, convention), convention), None, None
 
 
 def _forward_dynamics_derivatives(ops, model, needs, grads, output, q, qd, tau, f_ext, params, convention):
@@ -447,7 +446,7 @@ def _inverse_dynamics_derivatives(ops, model, needs, grads, output, q, qd, qdd, 
     zero = torch.zeros(*batch, nv, nv, dtype=q.dtype, device=q.device)
     g_q, g_qd = (zero if g is None else _unexpanded(g, 2) for g in grads)
     dq, dqd, dqdd, df = ops.inverse_dynamics_derivatives_vjp(q, qd, qdd, f_ext, g_q, g_qd, params, convention)
-    dq = tangent_to_ambient(model, q, dq, convention) if needs[0] else None
+    dq = to_ambient(ops, model, q, dq, convention) if needs[0] else None
     return dq, dqd if needs[1] else None, dqdd if needs[2] else None, df if needs[3] else None, dparams, None
 
 
@@ -477,7 +476,7 @@ def _inverse_dynamics_derivatives_jvps(ops, model, needs, grads, output, q, qd, 
                 g_tan, _ = ops.inverse_dynamics_vjp(Q[..., :nv, :], QD[..., :nv, :], QDD[..., :nv, :],
                                                     None if F is None else F[..., :nv, :, :], g_q.mT, P, convention)
                 tangent = tangent + bracket_term(model, g_tan, convention)
-            dq = tangent_to_ambient(model, q, tangent, convention)
+            dq = to_ambient(ops, model, q, tangent, convention)
         dqd = d_gqd.sum(-2) if needs[1] else None
         dqdd = d_mlam.sum(-2) if needs[2] else None  # M lam does not depend on qd: its last nv rows are 0
     if needs[3]:  # d/df_ext (lam . tau) = -J lam does not depend on qd

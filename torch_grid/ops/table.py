@@ -219,6 +219,13 @@ _VALUE_OPS = (
                (Out("J_q", "twin", NVxNV), Out("J_v", "twin", NVxNV)), "kinematics", backward="step"),
         OpSpec("d_difference", "DDifference", (Q, Arg("q1", "plain", shape=("nq",))),
                (Out("J_q0", "twin", NVxNV), Out("J_q1", "twin", NVxNV)), "kinematics", backward="step"),
+        OpSpec("tangent_to_ambient", "TangentToAmbient", (Q, Arg("g", "plain", shape=NV)),
+               (Out("grad_q", "twin", ("nq",)),), "kinematics"),
+        OpSpec("integrate_vjp", "IntegrateVjp",
+               (Q, Arg("v", "plain", shape=NV), Arg("dt", "plain", shape=(1,)), Arg("grad", "plain", shape=("nq",))),
+               (Out("grad_q", "twin", ("nq",)), Out("grad_v", "twin", NV), Out("grad_dt", "plain", (1,))), "kinematics"),
+        OpSpec("difference_vjp", "DifferenceVjp", (Q, Arg("q1", "plain", shape=("nq",)), Arg("grad", "plain", shape=NV)),
+               (Out("grad_q0", "twin", ("nq",)), Out("grad_q1", "twin", ("nq",))), "kinematics"),
         OpSpec("step", "Step",
                (Q, QD, TAU, FEXT, Arg("dt", "plain", shape=(1,)), PARAMS, Arg("scheme", "integrator"), PASSIVE),
                (Out("q_next", "twin", ("nq",)), Out("qd_next", "twin", NV)), "derivatives", backward="step"),
@@ -293,8 +300,9 @@ FORWARD_MODE_JVP = tuple((op.name, op.dual_jvp) for op in _VALUE_OPS if op.dual_
 
 # The ops whose values do not depend on the bodies' inertias (kinematics, the regressors): those without a
 # "parameters" argument (check_table), which a view of Robot.with_parameters runs as they are.
-INERTIA_FREE = ("integrate", "difference", "d_integrate", "d_difference", "forward_kinematics", "end_effector_pose",
-                "frame_jacobian", "frame_jacobian_vjp", "frame_kinematic_hessian", "frame_jacobian_dot", "body_velocities", "frames_vjp",
+INERTIA_FREE = ("integrate", "difference", "d_integrate", "d_difference", "tangent_to_ambient", "integrate_vjp",
+                "difference_vjp", "forward_kinematics", "end_effector_pose", "frame_jacobian", "frame_jacobian_vjp",
+                "frame_kinematic_hessian", "frame_jacobian_dot", "body_velocities", "frames_vjp",
                 "inverse_dynamics_external_force_derivatives", "inverse_dynamics_regressor", "kinetic_energy_regressor",
                 "potential_energy_regressor")
 
@@ -377,7 +385,8 @@ CPU_SAMPLE_US = {
     "inverse_dynamics_vjp": 1.7, "inverse_dynamics_vjp_full": 1.8, "inertia_solve": 1.1, "body_velocities": 0.34,
     "frames_vjp": 0.59, "inverse_dynamics_derivatives": 3.6, "inverse_dynamics_second_derivatives": 34,
     "inverse_dynamics_derivatives_vjp": 25, "inverse_dynamics_derivatives_tangent": 40, "forward_dynamics_derivatives": 6.8,
-    "integrate": 0.05, "difference": 0.1, "d_integrate": 0.3, "d_difference": 0.3, "step": 3.0, "step_derivatives": 7.7,
+    "integrate": 0.05, "difference": 0.1, "d_integrate": 0.3, "d_difference": 0.3, "tangent_to_ambient": 0.03,
+    "integrate_vjp": 0.3, "difference_vjp": 0.4, "step": 3.0, "step_derivatives": 7.7,
     "rk_step_derivatives": 50, "inverse_dynamics_external_force_derivatives": 0.83,
     "forward_dynamics_external_force_derivatives": 3.8, "osc_inertia": 2.5, "cmm_time_variation": 2.1, "dccrba": 2.1,
     "coriolis_matrix": 2.2, "inverse_dynamics_regressor": 3.1, "kinetic_energy_regressor": 0.40,

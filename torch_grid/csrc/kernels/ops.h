@@ -280,36 +280,83 @@ template <class Robot, class Scalar> struct DIntegrate {
 };
 
 // The tangent Jacobians of difference(q0, q1), J_q0 and J_q1 (NV x NV each, the call's convention; Pinocchio's
-// dDifference): with d = difference(q0, q1), q1 = q0 (+) d, so at a quaternion joint J_q1 = Jv(d)^-1 = dexp(d)^-1 and
-// J_q0 = -Jv(d)^-1 Jq(d) (integrate_joint's blocks at d); -1 and 1 on the other joints' diagonals. A free joint's
-// 3 x 3 blocks that are zero (below the diagonal; and above it in MuJoCo's convention) stay exact zeros, whatever the
-// others hold (a NaN quaternion's NaN stays in the blocks it reaches).
+// dDifference): difference_jacobians' blocks at a quaternion joint, -1 and 1 on the other joints' diagonals.
 template <class Robot, class Scalar> struct DDifference {
-  template <int C> TG_HD static bool zero_block(int n, int r, int c) {
-    return n == 6 && ((r >= 3 && c < 3) || (C == MUJOCO && r < 3 && c >= 3));
-  }
   template <int C> TG_HD static void run(const DDifferenceArgs<Scalar>& a, const Conv<Robot, Scalar, C>&) {
     constexpr int NV = Robot::NV;
     const auto& d = data<Robot, Scalar>();
-    Scalar v[NV], qs[Robot::NQ];
+    Scalar v[NV];
     for (int e = 0; e < NV * NV; ++e) a.J_q0[e] = a.J_q1[e] = Scalar(0);
     for (int i = 0; i < Robot::NB; ++i) {
-      Scalar Jq[36], Jv[36], Ji[36];
-      difference_joint<Robot, Scalar, C>(i, a.q, a.q1, v);
-      const int n = integrate_joint<Robot, Scalar, C>(i, a.q, v, qs, Jq, Jv), vi = d.vi[i];
+      Scalar J0[36], J1[36];
+      const int n = difference_jacobians<Robot, Scalar, C>(i, a.q, a.q1, v, J0, J1), vi = d.vi[i];
       if (!n) {
         a.J_q0[(NV + 1) * vi] = Scalar(-1), a.J_q1[(NV + 1) * vi] = Scalar(1);
         continue;
       }
-      dexp_inverse_matrix<Scalar, C>(n, v + vi, Ji);
       for (int r = 0; r < n; ++r)
-        for (int c = 0; c < n; ++c) {
-          Scalar s = Scalar(0);
-          for (int m = 0; m < n; ++m)
-            if (!zero_block<C>(n, r, m) && !zero_block<C>(n, m, c)) s += Ji[n * r + m] * Jq[n * m + c];
-          a.J_q0[NV * (vi + r) + vi + c] = zero_block<C>(n, r, c) ? Scalar(0) : Scalar(-1) * s;
-          a.J_q1[NV * (vi + r) + vi + c] = Ji[n * r + c];
-        }
+        for (int c = 0; c < n; ++c) a.J_q0[NV * (vi + r) + vi + c] = J0[n * r + c], a.J_q1[NV * (vi + r) + vi + c] = J1[n * r + c];
+    }
+  }
+};
+
+// A gradient along the tangent space carried to q's coordinates, T(q)^T g (step.h): every op's backward ends with it
+// at a robot with quaternion joints.
+template <class Robot, class Scalar> struct TangentToAmbient {
+  template <int C> TG_HD static void run(const TangentToAmbientArgs<Scalar>& a, const Conv<Robot, Scalar, C>&) {
+    for (int i = 0; i < Robot::NB; ++i) tangent_to_ambient_joint<Robot, Scalar, C, PIN>(i, a.q, a.g, a.grad_q);
+  }
+};
+
+// The gradients of q' = q (+) dt v for a cotangent of q' (its coordinates): with g = A(q')^T grad and J_q, J_u the
+// tangent Jacobians at u = dt v (integrate_joint's blocks),
+//   grad_q = T(q)^T J_q^T g,   grad_v = dt J_u^T g,   grad_dt = v . J_u^T g.
+template <class Robot, class Scalar> struct IntegrateVjp {
+  template <int C> TG_HD static void run(const IntegrateVjpArgs<Scalar>& a, const Conv<Robot, Scalar, C>&) {
+    constexpr int NV = Robot::NV;
+    const auto& d = data<Robot, Scalar>();
+    const Scalar h = a.dt[0];
+    Scalar u[NV], q_next[Robot::NQ], g[NV], g_q[NV], grad_dt = Scalar(0);
+    for (int k = 0; k < NV; ++k) u[k] = h * a.v[k];
+    for (int i = 0; i < Robot::NB; ++i) {
+      Scalar Jq[36], Ju[36];
+      const int n = integrate_joint<Robot, Scalar, C>(i, a.q, u, q_next, Jq, Ju), vi = d.vi[i];
+      ambient_to_tangent_joint<Robot, Scalar, C>(i, q_next, a.grad, g);
+      for (int c = 0; c < (n ? n : 1); ++c) {
+        Scalar gq = n ? Scalar(0) : g[vi], gu = gq;
+        for (int r = 0; r < n; ++r) gq += Jq[n * r + c] * g[vi + r], gu += Ju[n * r + c] * g[vi + r];
+        g_q[vi + c] = gq, a.grad_v[vi + c] = h * gu;
+        grad_dt += a.v[vi + c] * gu;
+      }
+    }
+    a.grad_dt[0] = grad_dt;
+    for (int i = 0; i < Robot::NB; ++i) tangent_to_ambient_joint<Robot, Scalar, C, PIN>(i, a.q, g_q, a.grad_q);
+  }
+};
+
+// The gradients of v = difference(q0, q1) for a cotangent of v: grad_q0 = T(q0)^T J_q0^T grad, grad_q1 = T(q1)^T J_q1^T
+// grad (difference_jacobians' blocks; q1 in the convention's layout).
+template <class Robot, class Scalar> struct DifferenceVjp {
+  template <int C> TG_HD static void run(const DifferenceVjpArgs<Scalar>& a, const Conv<Robot, Scalar, C>&) {
+    constexpr int NV = Robot::NV;
+    const auto& d = data<Robot, Scalar>();
+    Scalar v[NV], g0[NV], g1[NV];
+    for (int i = 0; i < Robot::NB; ++i) {
+      Scalar J0[36], J1[36];
+      const int n = difference_jacobians<Robot, Scalar, C>(i, a.q, a.q1, v, J0, J1), vi = d.vi[i];
+      if (!n) {
+        g0[vi] = Scalar(-1) * a.grad[vi], g1[vi] = a.grad[vi];
+        continue;
+      }
+      for (int c = 0; c < n; ++c) {
+        Scalar s0 = Scalar(0), s1 = Scalar(0);
+        for (int r = 0; r < n; ++r) s0 += J0[n * r + c] * a.grad[vi + r], s1 += J1[n * r + c] * a.grad[vi + r];
+        g0[vi + c] = s0, g1[vi + c] = s1;
+      }
+    }
+    for (int i = 0; i < Robot::NB; ++i) {
+      tangent_to_ambient_joint<Robot, Scalar, C, PIN>(i, a.q, g0, a.grad_q0);
+      tangent_to_ambient_joint<Robot, Scalar, C, C>(i, a.q1, g1, a.grad_q1);
     }
   }
 };

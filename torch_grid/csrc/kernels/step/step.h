@@ -131,14 +131,19 @@ template <class Scalar, int C> TG_HD void dexp_inverse_matrix(int n, const Scala
 }
 
 // A quaternion read normalised, xyzw: a norm below QUAT_MIN_NORM is the identity, a NaN or infinite one NaN in
-// every component (q / inf would leave finite zeros beside an infinite entry's NaN).
-template <class Scalar> TG_HD void unit_quat(Scalar x, Scalar y, Scalar z, Scalar w, Scalar* out) {
+// every component (q / inf would leave finite zeros beside an infinite entry's NaN). Returns the norm read: 1 for
+// the identity.
+template <class Scalar> TG_HD Scalar unit_quat(Scalar x, Scalar y, Scalar z, Scalar w, Scalar* out) {
   const Scalar in[4] = {x, y, z, w};
   const Scalar norm = sqrt(x * x + y * y + z * z + w * w);
   const auto zero = norm < Scalar(QUAT_MIN_NORM);
   const Scalar scale = select(norm < Scalar(INFINITY), norm, norm * Scalar(NAN));
   for (int c = 0; c < 4; ++c) out[c] = select(zero, Scalar(c == 3), in[c] / scale);
+  return select(zero, Scalar(1), norm);
 }
+
+// Where component c of a quaternion's xyzw sits among its four coordinates in layout L (MuJoCo's wxyz).
+template <int L> TG_HD_INLINE int quat_slot(int c) { return L == MUJOCO ? (c + 1) & 3 : c; }
 
 // Joint i's part of q' = q (+) u (q in Pinocchio's layout, q' in the convention's) and, at a
 // quaternion joint, its n x n blocks Jq, Jv unless Jq is null (n = 3 or 6; returns n, 0 at the other joints).
@@ -233,6 +238,97 @@ template <class Robot, class Scalar, int C> TG_HD void difference_joint(int i, c
     } else {
       const Mat3<Scalar> Rt = transpose3(quat_rotation(a[0], a[1], a[2], a[3]));
       store3(mul(so3_terms(w, Scalar(-0.5), so3_coefficients(w).beta), mul(Rt, dp)), v + vi);
+    }
+  }
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// Tangent Jacobians and gradients between q's coordinates and its tangent space (torch_grid/space/tangent.py holds
+// the same maps in torch). At a quaternion joint, with Q = (xyz, w) xyzw:
+//   A(q)    the change of q along a tangent direction: dQ = Q (x) (u, 0) / 2, a free joint's position R u_lin
+//           (Pinocchio's local increment) or u_lin (MuJoCo's, world frame);
+//   T(q)^T  a tangent gradient carried to q's coordinates through Q's normalisation: the rotation
+//           u = 2 vec(conj(Q/|Q|) (x) dQ) / |Q| transposed, R g_lin or g_lin at a free joint's position.
+// Every other joint: the identity.
+// ---------------------------------------------------------------------------------------------------------------
+
+// A free joint's 3 x 3 blocks of J_q0 that are structurally zero (below the diagonal; and above it in MuJoCo's
+// convention): difference_jacobians keeps them exact zeros whatever the others hold.
+template <int C> TG_HD bool zero_block(int n, int r, int c) {
+  return n == 6 && ((r >= 3 && c < 3) || (C == MUJOCO && r < 3 && c >= 3));
+}
+
+// Joint i's part of v = difference(q0, q1) and its tangent Jacobians at a quaternion joint, the n x n blocks J0 = -Jv(v)^-1
+// Jq(v) and J1 = Jv(v)^-1 = dexp(v)^-1, from q1 = q0 (+) v (integrate_joint's blocks at v); returns n (3 or 6), or 0 at the
+// other joints, whose Jacobians are -1 and 1 (q0 in Pinocchio's layout, q1 and v in the convention's).
+template <class Robot, class Scalar, int C>
+TG_HD int difference_jacobians(int i, const Scalar* q0, const Scalar* q1, Scalar* v, Scalar* J0, Scalar* J1) {
+  Scalar Jq[36], Jv[36], qs[Robot::NQ];
+  difference_joint<Robot, Scalar, C>(i, q0, q1, v);
+  const int n = integrate_joint<Robot, Scalar, C>(i, q0, v, qs, Jq, Jv);
+  if (!n) return 0;
+  const Scalar* vj = v + data<Robot, Scalar>().vi[i];
+  dexp_inverse_matrix<Scalar, C>(n, vj, J1);
+  for (int r = 0; r < n; ++r)
+    for (int c = 0; c < n; ++c) {
+      Scalar s = Scalar(0);
+      for (int m = 0; m < n; ++m)
+        if (!zero_block<C>(n, r, m) && !zero_block<C>(n, m, c)) s += J1[n * r + m] * Jq[n * m + c];
+      J0[n * r + c] = zero_block<C>(n, r, c) ? Scalar(0) : Scalar(-1) * s;
+    }
+  return n;
+}
+
+// Joint i's part of T(q)^T g: a gradient g along the tangent space (the convention's) as a gradient gq in q's coordinates
+// (the convention's layout; q's quaternion in layout L). A norm below QUAT_MIN_NORM reads as the identity of norm 1.
+template <class Robot, class Scalar, int C, int L> TG_HD void tangent_to_ambient_joint(int i, const Scalar* q, const Scalar* g, Scalar* gq) {
+  const auto& d = data<Robot, Scalar>();
+  const int qi = d.qi[i], vi = d.vi[i], t = d.jtype[i];
+  if (t != FREE && t != BALL) {
+    gq[qi] = g[vi];
+    return;
+  }
+  const int qa = t == FREE ? qi + 3 : qi, va = t == FREE ? vi + 3 : vi;
+  Scalar u[4];
+  const Scalar norm = unit_quat(q[qa + quat_slot<L>(0)], q[qa + quat_slot<L>(1)], q[qa + quat_slot<L>(2)], q[qa + quat_slot<L>(3)], u);
+  const Vec3<Scalar> xyz = v3(u[0], u[1], u[2]), ga = load3(g + va);
+  const Scalar s = Scalar(2) / norm;
+  // d xyz = 2 (w g + xyz x g) / |Q|,  d w = -2 xyz . g / |Q|
+  const Vec3<Scalar> dxyz = s * (u[3] * ga + cross(xyz, ga));
+  for (int c = 0; c < 3; ++c) gq[qa + quat_slot<C>(c)] = dxyz.x[c];
+  gq[qa + quat_slot<C>(3)] = Scalar(-1) * s * dot(xyz, ga);
+  if (t == FREE) {
+    const Vec3<Scalar> gl = load3(g + vi);
+    if constexpr (C == MUJOCO)
+      store3(gl, gq + qi);
+    else
+      store3(mul(quat_rotation(u[0], u[1], u[2], u[3]), gl), gq + qi);
+  }
+}
+
+// Joint i's part of A(q)^T g: a gradient g in q's coordinates as one along the tangent space, gv (q, g and gv in the
+// convention's layout). A's quaternion rows use Q as it is, unnormalised; a free joint's rotation R is Q/|Q|'s.
+template <class Robot, class Scalar, int C> TG_HD void ambient_to_tangent_joint(int i, const Scalar* q, const Scalar* g, Scalar* gv) {
+  const auto& d = data<Robot, Scalar>();
+  const int qi = d.qi[i], vi = d.vi[i], t = d.jtype[i];
+  if (t != FREE && t != BALL) {
+    gv[vi] = g[qi];
+    return;
+  }
+  const int qa = t == FREE ? qi + 3 : qi, va = t == FREE ? vi + 3 : vi;
+  const Vec3<Scalar> xyz = v3(q[qa + quat_slot<C>(0)], q[qa + quat_slot<C>(1)], q[qa + quat_slot<C>(2)]);
+  const Vec3<Scalar> gx = v3(g[qa + quat_slot<C>(0)], g[qa + quat_slot<C>(1)], g[qa + quat_slot<C>(2)]);
+  const Scalar w = q[qa + quat_slot<C>(3)], gw = g[qa + quat_slot<C>(3)];
+  // dxyz = (w u + xyz x u) / 2, dw = -xyz . u / 2, transposed
+  store3(Scalar(0.5) * (w * gx + cross(gx, xyz) - gw * xyz), gv + va);
+  if (t == FREE) {
+    const Vec3<Scalar> gl = load3(g + qi);
+    if constexpr (C == MUJOCO) {
+      store3(gl, gv + vi);
+    } else {
+      Scalar u[4];
+      unit_quat(xyz.x[0], xyz.x[1], xyz.x[2], w, u);
+      store3(mul(transpose3(quat_rotation(u[0], u[1], u[2], u[3])), gl), gv + vi);
     }
   }
 }
