@@ -1,8 +1,8 @@
 """Per-call time of Robot.step (float64, Pinocchio's convention, one thread, nothing differentiated) for
 each scheme and batch size, beside forward_dynamics', integrate's, difference's, their Jacobians' (d_integrate,
-d_difference) and state_cost's on the same inputs, and integrate's and difference's forward and backward (the
-gradients of q and v, of q0 and q1): what a rollout of small batches pays a step, and an MPC iteration a state
-cost. Run it against two checkouts in turn for an A/B (PYTHONPATH=<checkout>).
+d_difference) and state_cost's on the same inputs, and forward and backward calls: integrate's and difference's
+(the gradients of q and v, of q0 and q1), inverse_dynamics' (of q and qd) and the first scheme's step (of q, qd
+and tau): what a rollout of small batches pays a step, an MPC iteration a state cost, and a loss a gradient. Run it against two checkouts in turn for an A/B (PYTHONPATH=<checkout>).
 
     python bench/bench_step_calls.py [--robots iiwa14 go2] [--integrators semi_implicit_euler rk4]
 """
@@ -39,7 +39,8 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     others = ("forward_dynamics", "integrate", "difference", "d_integrate", "d_difference", "state_cost",
-              "integrate + backward", "difference + backward")
+              "integrate + backward", "difference + backward", "inverse_dynamics + backward",
+              f"{args.integrators[0]} step + backward")
     print("| robot | B | " + " | ".join(args.integrators + list(others)) + " |")
     print("|---|---:|" + "---:|" * (len(args.integrators) + len(others)))
     for name in args.robots:
@@ -61,6 +62,10 @@ def main() -> None:
             qg, vg, q1g = (x.clone().requires_grad_() for x in (q, qd, q1))
             times.append(per_call_us(lambda: torch.autograd.grad(robot.integrate(qg, vg, 1e-3).sum(), (qg, vg)), batch))
             times.append(per_call_us(lambda: torch.autograd.grad(robot.difference(qg, q1g).sum(), (qg, q1g)), batch))
+            times.append(per_call_us(lambda: torch.autograd.grad(robot.inverse_dynamics(qg, vg, tau).sum(), (qg, vg)), batch))
+            tg = tau.clone().requires_grad_()
+            times.append(per_call_us(lambda: torch.autograd.grad(
+                sum(x.sum() for x in robot.step(qg, vg, tg, 1e-3, args.integrators[0])), (qg, vg, tg)), batch))
             print(f"| {name} | {batch} | " + " | ".join(f"{t:.1f}" for t in times) + " |", flush=True)
 
 
