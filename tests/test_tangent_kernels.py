@@ -10,21 +10,17 @@ import pytest
 import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 
-from torch_grid.space.tangent import tangent_to_ambient
+from torch_grid.space.tangent import layout, tangent_to_ambient
 
 ROBOTS = ["go2", "trees"]
-
-
-def _quaternion_slices(robot) -> list[slice]:
-    return [slice(qi + 3 if j.type == "free" else qi, (qi + 3 if j.type == "free" else qi) + 4)
-            for j, qi in zip(robot.model.joints, robot.model.q_index) if j.type in ("free", "ball")]
 
 
 def _configurations(view, generator: torch.Generator) -> torch.Tensor:
     """(2, 3, nq): norms 1.7 but for a zero quaternion at (0, 1), a NaN at (1, 0) and an infinity at (1, 2)."""
     q = view.random_configuration(2, 3, generator=generator)
-    first, last = _quaternion_slices(view._robot)[0], _quaternion_slices(view._robot)[-1]
-    for s in _quaternion_slices(view._robot):
+    quats = [slice(j.quat, j.quat + 4) for j in layout(view._robot.model).quaternions]
+    first, last = quats[0], quats[-1]
+    for s in quats:
         q[..., s] *= 1.7
     q[0, 1, first] = 0
     q[1, 0, last.start + 1] = float("nan")

@@ -27,6 +27,15 @@ def top_transform() -> TransformType | None:
     return coerce_cinterpreter(torch._C._functorch.peek_interpreter_stack()).key() if transforming() else None
 
 
+def kernels_kept_off(model, convention: int, q) -> bool:
+    """Whether the kernels that fuse a composition (the step's, integrate's and difference's, and the maps inside
+    backwards) are kept off a call: on CUDA in MuJoCo's convention of a robot with quaternion joints. There an H100
+    gave the step kernels NaN (the Runge-Kutta schemes on a floating base, every scheme but Euler with ball joints:
+    bench/RESULTS.md), where the CPU build and the composition of the other ops were right; the composition runs
+    instead until a GPU run shows the kernels right."""
+    return isinstance(q, torch.Tensor) and q.is_cuda and bool(convention) and model.conventions_differ
+
+
 def dual(args) -> bool:
     """Whether an argument carries a torch.autograd.forward_ad tangent."""
     return forward_ad._current_level >= 0 and any(

@@ -9,8 +9,8 @@ tangent.tangent_to_ambient):
 (J_q, J_u: the tangent Jacobians of q (+) u at dt = 1; J_q0, J_q1: difference's). A plain backward runs one kernel
 for each (tangent_to_ambient, integrate_vjp, difference_vjp); a backward that is itself differentiated (create_graph,
 the torch.func transforms, forward-mode AD) runs the torch composition (space/tangent.py, space/lie.py), which autograd
-differentiates once more. So does a CUDA call in MuJoCo's convention of a robot with quaternion joints, as the step
-kernels (step/integrators.py: _fused_kept_off).
+differentiates once more. So does a CUDA call in MuJoCo's convention of a robot with quaternion joints, as for the
+step kernels (levels.kernels_kept_off).
 """
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ import torch
 from ..model.description import RobotModel
 from ..space import lie
 from ..space.tangent import ambient_to_tangent, layout, tangent_to_ambient
-from .levels import dual, transforming
+from .levels import dual, kernels_kept_off, transforming
 
 
 def to_ambient(ops, model: RobotModel, q: torch.Tensor, g: torch.Tensor, convention: int) -> torch.Tensor:
@@ -58,11 +58,11 @@ def difference_backward(ops, model: RobotModel, needs, grads, output, q0, q1, co
 
 
 def _kernel_runs(model: RobotModel, convention: int, *tensors: torch.Tensor) -> bool:
-    """Whether a backward's kernel computes this map: nothing differentiates the backward itself, and the call is not
-    a CUDA one in MuJoCo's convention of a robot whose conventions differ."""
+    """Whether a backward's kernel computes this map: nothing differentiates the backward itself, and the kernels
+    are not kept off the call (levels.kernels_kept_off; tensors[0] is q)."""
     if torch.is_grad_enabled() or transforming() or dual(tensors):
         return False
-    return not (convention and model.conventions_differ and tensors[0].is_cuda)
+    return not kernels_kept_off(model, convention, tensors[0])
 
 
 def _transposed_times(j: torch.Tensor, g: torch.Tensor) -> torch.Tensor:

@@ -119,7 +119,7 @@ def model_sizes(model: RobotModel) -> dict[str, int]:
 
 # How an op is differentiated, declared in its entry. Its backward (reverse mode, autograd.py):
 #   "formula"   a formula of its own over kernels, mostly the O(n) vector-Jacobian product of inverse dynamics
-#               (integrate's and difference's: the tangent Jacobians of d_integrate and d_difference);
+#               (integrate's and difference's: their vector-Jacobian product kernels, integrate_vjp and difference_vjp);
 #   "composed"  a formula over other ops' outputs and backwards (the op's outputs are products of theirs);
 #   "dual"      its own kernel on dual numbers (<op>_backward): outputs that are already derivatives;
 #   "step"      none: the kernels that fuse a composition (the step, its derivatives, d_integrate, d_difference), which

@@ -1,7 +1,7 @@
 """The configuration-space functions of a robot's views: integrate, difference and their tangent Jacobians, each one
 kernel call, else the composition of space/lie.py, which autograd and the torch.func transforms see through.
 integrate and difference of a robot with quaternion joints run their kernels under autograd's reverse mode too,
-their backwards formulas of the Jacobians' kernels (differentiable_kernel_runs); the Jacobians' kernels run only
+their backwards one kernel each (differentiable_kernel_runs); the Jacobians' kernels run only
 when nothing differentiates them (fused_kernel_runs)."""
 from __future__ import annotations
 

@@ -25,7 +25,7 @@ import torch
 from torch.autograd import forward_ad
 
 from ..ops.arguments import check_dt
-from ..ops.levels import dual, transforming
+from ..ops.levels import dual, kernels_kept_off, transforming
 from ..space.constants import scalar_or_tensor
 from ..space.lie import d_dexp_inverse_blocks, d_integrate_blocks, dexp_inverse, dt_column, tangent_map
 from .compiled import compiled_step, opaque
@@ -246,8 +246,8 @@ def fused_kernel_runs(view, q, *args) -> bool:
 
 
 def differentiable_kernel_runs(view, q, *args) -> bool:
-    """Whether the integrate or difference kernel computes this call, its backward a formula of the tangent
-    Jacobians (ops/lie_backward.py): as fused_kernel_runs, and also when autograd's reverse mode records the
+    """Whether the integrate or difference kernel computes this call, its backward one kernel too
+    (ops/lie_backward.py: integrate_vjp, difference_vjp): as fused_kernel_runs, and also when autograd's reverse mode records the
     call of a robot with quaternion joints (without them the composition is a few elementwise ops, its
     backward too); not under the torch.func transforms or forward-mode AD, nor where torch.compile traces a
     gradient, which all see the composition."""
@@ -261,11 +261,8 @@ def differentiable_kernel_runs(view, q, *args) -> bool:
 
 
 def _fused_kept_off(view, q) -> bool:
-    """Whether the step kernels (values and derivatives) are kept off this call: on CUDA in MuJoCo's
-    convention of a robot with quaternion joints. There an H100 gave them NaN (the Runge-Kutta schemes on a floating base,
-    every scheme but Euler with ball joints: bench/RESULTS.md), where the CPU build and the composition of
-    the other ops were right; the composition runs instead until a GPU run shows the kernels right."""
-    return isinstance(q, torch.Tensor) and q.is_cuda and view._differs()
+    """Whether the step kernels (values and derivatives) are kept off this call of a view (levels.kernels_kept_off)."""
+    return kernels_kept_off(view._robot.model, view._convention, q)
 
 
 def _differentiated(*args) -> bool:
