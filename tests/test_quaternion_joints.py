@@ -156,6 +156,38 @@ def test_ambient_direction_is_the_tangent_matrix_product(balls, convention):
     assert torch.allclose(ambient_direction(robot.model, q, u, convention), ref, rtol=1e-14, atol=1e-14)
 
 
+@pytest.mark.parametrize("convention", [0, 1])
+def test_tangent_direction_is_tangent_to_ambient_transposed(balls, convention):
+    """tangent.tangent_direction (a direction of q's coordinates carried to the tangent space, what forward mode
+    feeds the derivative kernels) against the explicit transpose of tangent_to_ambient, column by column, at
+    quaternions of norms 1.7 and 0.4 and a zero one (the identity), t's batch broadcast; a NaN quaternion gives
+    NaN in its own joint's entries and leaves the others as they were."""
+    from torch_grid.space.tangent import layout, tangent_direction, tangent_to_ambient
+
+    robot, _ = balls
+    model = robot.model
+    view = robot.mujoco if convention else robot.pin
+    free, ball = layout(model).quaternions[:2]
+    q = view.random_configuration(3, generator=torch.Generator().manual_seed(7))
+    q[0, free.quat:free.quat + 4] *= 1.7
+    q[1, ball.quat:ball.quat + 4] *= 0.4
+    q[2, ball.quat:ball.quat + 4] = 0
+    t = torch.randn(2, 3, robot.nq, dtype=torch.float64, generator=torch.Generator().manual_seed(8))
+    eye = torch.eye(robot.nv, dtype=torch.float64)
+    columns = torch.stack([tangent_to_ambient(model, q, eye[k].expand(3, -1), convention) for k in range(robot.nv)], -2)
+    ref = (columns @ t.unsqueeze(-1)).squeeze(-1)
+    got = tangent_direction(model, q, t, convention)
+    assert got.shape == (2, 3, robot.nv)
+    assert torch.allclose(got, ref, rtol=1e-14, atol=1e-14)
+    spoiled = q.clone()
+    spoiled[1, ball.quat] = float("nan")
+    got_nan = tangent_direction(model, spoiled, t, convention)
+    own = torch.zeros(robot.nv, dtype=torch.bool)
+    own[ball.angular:ball.angular + 3] = True
+    assert got_nan[:, 1, own].isnan().all()
+    assert torch.equal(got_nan[:, 1, ~own], got[:, 1, ~own]) and torch.equal(got_nan[:, [0, 2]], got[:, [0, 2]])
+
+
 def test_free_joints_at_every_root(trees):
     robot, m = trees
     assert [j.type for j in robot.model.joints] == ["free", "revolute", "revolute", "free", "ball", "prismatic"]

@@ -17,7 +17,7 @@ import torch
 from torch.autograd import forward_ad
 
 from ..model.description import RobotModel
-from ..space.tangent import tangent_to_ambient
+from ..space.tangent import tangent_direction
 from .autograd import backward_formula, mass_product_jvp, repeat
 from .levels import dual, transforming
 from .mujoco_second_order import kinematic_hessian_from_ops, second_order_from_ops
@@ -194,12 +194,11 @@ def _inertia_solve_jvp(ops, y, q, x, params, convention, t_q, t_x, t_params, _):
 
 
 def _tangent_space(model, q, t_q, convention):
-    """A tangent t_q of q's coordinates as a direction of the tangent space (..., nv): the transpose of
-    tangent_to_ambient's map (it is linear, so by its gradient); zero for None."""
-    g0 = torch.zeros(*q.shape[:-1], model.nv, dtype=q.dtype, device=q.device)
+    """A tangent t_q of q's coordinates as a direction of the tangent space (..., nv) (tangent_direction); zero
+    for None."""
     if t_q is None:
-        return g0
-    return torch.func.grad(lambda g: (tangent_to_ambient(model, q, g, convention) * t_q).sum())(g0)
+        return torch.zeros(*q.shape[:-1], model.nv, dtype=q.dtype, device=q.device)
+    return tangent_direction(model, q, t_q, convention)
 
 
 def _frame_jacobian_jvp(ops, J, q, frame, reference, convention, t_q, _f, _r, _c):

@@ -194,6 +194,29 @@ def tangent_to_ambient(model: RobotModel, q: torch.Tensor, g: torch.Tensor, conv
     return _in_q_order(pieces)
 
 
+def tangent_direction(model: RobotModel, q: torch.Tensor, t: torch.Tensor, convention: int) -> torch.Tensor:
+    """(..., nv): a direction t (..., nq) of q's coordinates as a direction of the tangent space (a forward-mode
+    tangent of q carried to where the kernels' derivatives act), tangent_to_ambient's transpose:
+    t . tangent_to_ambient(q, g) = tangent_direction(q, t) . g for every g, with the same reading of a zero
+    (the identity) and of a NaN or infinite quaternion (NaN)."""
+    lay = layout(model)
+    if not lay.quaternions:
+        return t
+    q, t = broadcast_batch(q, t)
+    pieces = [(vi, t[..., qi:qi + n]) for qi, vi, n in lay.scalar_runs]
+    for j in lay.quaternions:
+        xyz, w, iw, ixyz = _xyzw(q, j, convention)
+        unit, norm = unit_quaternion(torch.cat([xyz, w], dim=-1))
+        xyz_n, w_n = unit[..., :3], unit[..., 3:]
+        t_xyz, t_w = t[..., ixyz], t[..., iw:iw + 1]
+        if j.free:  # R^T t (the rotation of the conjugate) in Pinocchio's convention
+            t_lin = t[..., j.qi:j.qi + 3]
+            pieces.append((j.vi, t_lin if convention else _rotate(torch.cat([-xyz_n, w_n], dim=-1), t_lin)))
+        # tangent_to_ambient's 2 / |Q| (w u + xyz x u, -xyz . u), transposed
+        pieces.append((j.angular, 2 / norm * (w_n * t_xyz + torch.cross(t_xyz, xyz_n, dim=-1) - t_w * xyz_n)))
+    return _in_q_order(pieces)
+
+
 def _cross(a: list[float], b: list[float]) -> list[float]:
     return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 
