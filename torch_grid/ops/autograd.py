@@ -27,6 +27,7 @@ from ..space.tangent import (
     has_brackets,
     tangent_directions,
 )
+from .levels import differentiated
 from .lie_backward import difference_backward, integrate_backward, to_ambient
 from .mujoco_second_order import crba_vjp as mujoco_crba_vjp
 from .parameters import (
@@ -125,14 +126,18 @@ def _forward_mode(spec: OpSpec) -> Callable:
 
 def _inverse_dynamics(ops, model, needs, grads, output, q, qd, qdd, f_ext, params, convention):
     """tau = ID(q, qd, qdd, f_ext; pi): d/dq and d/dqd as one O(n) vector-Jacobian product, d/dqdd = M,
-    d/df_ext = -J^T, d/dpi = Y (the regressor)."""
+    d/df_ext = -J^T, d/dpi = Y (the regressor). With all three of q or qd and qdd, a plain backward takes M grad
+    from the same pass (inverse_dynamics_vjp_full, which has no derivative of its own) rather than building M."""
     grad = grads[0]
     dq = dqd = dqdd = df = dparams = None
     if needs[0] or needs[1]:
-        g_q, g_qd = ops.inverse_dynamics_vjp(q, qd, qdd, f_ext, grad, params, convention)
+        if needs[2] and not differentiated((q, qd, qdd, grad)):
+            g_q, g_qd, dqdd, _ = ops.inverse_dynamics_vjp_full(q, qd, qdd, f_ext, grad, params, convention)
+        else:
+            g_q, g_qd = ops.inverse_dynamics_vjp(q, qd, qdd, f_ext, grad, params, convention)
         dq = to_ambient(ops, model, q, g_q, convention) if needs[0] else None
         dqd = g_qd if needs[1] else None
-    if needs[2]:
+    if needs[2] and dqdd is None:
         dqdd = _vjp(ops.crba(q, params, convention), grad)
     if needs[3]:
         # d tau / d f_k = -J_k^T (J_k: body k's Jacobian in its frame), so the gradient is -J_k grad:

@@ -36,6 +36,12 @@ def kernels_kept_off(model, convention: int, q) -> bool:
     return isinstance(q, torch.Tensor) and q.is_cuda and bool(convention) and model.conventions_differ
 
 
+def differentiated(tensors) -> bool:
+    """Inside a backward: whether something differentiates it in turn (create_graph's grad mode, a torch.func
+    transform, a forward-mode dual tensor), so that it must be made of ops with derivatives of their own."""
+    return torch.is_grad_enabled() or transforming() or dual(tensors)
+
+
 def dual(args) -> bool:
     """Whether an argument carries a torch.autograd.forward_ad tangent."""
     return forward_ad._current_level >= 0 and any(

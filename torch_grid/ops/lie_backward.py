@@ -19,7 +19,7 @@ import torch
 from ..model.description import RobotModel
 from ..space import lie
 from ..space.tangent import ambient_to_tangent, layout, tangent_to_ambient
-from .levels import dual, kernels_kept_off, transforming
+from .levels import differentiated, kernels_kept_off
 
 
 def to_ambient(ops, model: RobotModel, q: torch.Tensor, g: torch.Tensor, convention: int) -> torch.Tensor:
@@ -60,9 +60,7 @@ def difference_backward(ops, model: RobotModel, needs, grads, output, q0, q1, co
 def _kernel_runs(model: RobotModel, convention: int, *tensors: torch.Tensor) -> bool:
     """Whether a backward's kernel computes this map: nothing differentiates the backward itself, and the kernels
     are not kept off the call (levels.kernels_kept_off; tensors[0] is q)."""
-    if torch.is_grad_enabled() or transforming() or dual(tensors):
-        return False
-    return not kernels_kept_off(model, convention, tensors[0])
+    return not differentiated(tensors) and not kernels_kept_off(model, convention, tensors[0])
 
 
 def _transposed_times(j: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
