@@ -1,8 +1,8 @@
 """Per-call time of Robot.step (float64, Pinocchio's convention, one thread, nothing differentiated) for
 each scheme and batch size, beside forward_dynamics', integrate's, difference's, their Jacobians' (d_integrate,
 d_difference) and state_cost's on the same inputs, and forward and backward calls: integrate's and difference's
-(the gradients of q and v, of q0 and q1), inverse_dynamics' (of q and qd) and the first scheme's step (of q, qd
-and tau): what a rollout of small batches pays a step, an MPC iteration a state cost, and a loss a gradient. Run it against two checkouts in turn for an A/B (PYTHONPATH=<checkout>).
+(the gradients of q and v, of q0 and q1), inverse_dynamics' (of q and qd; of q, qd and qdd), forward_dynamics' and
+the first scheme's step (of q, qd and tau): what a rollout of small batches pays a step, an MPC iteration a state cost, and a loss a gradient. Run it against two checkouts in turn for an A/B (PYTHONPATH=<checkout>).
 
     python bench/bench_step_calls.py [--robots iiwa14 go2] [--integrators semi_implicit_euler rk4]
 """
@@ -40,7 +40,8 @@ def main() -> None:
     torch.set_num_threads(1)
     others = ("forward_dynamics", "integrate", "difference", "d_integrate", "d_difference", "state_cost",
               "integrate + backward", "difference + backward", "inverse_dynamics + backward",
-              f"{args.integrators[0]} step + backward")
+              f"{args.integrators[0]} step + backward", "inverse_dynamics + backward (q, qd, qdd)",
+              "forward_dynamics + backward")
     print("| robot | B | " + " | ".join(args.integrators + list(others)) + " |")
     print("|---|---:|" + "---:|" * (len(args.integrators) + len(others)))
     for name in args.robots:
@@ -66,6 +67,8 @@ def main() -> None:
             tg = tau.clone().requires_grad_()
             times.append(per_call_us(lambda: torch.autograd.grad(
                 sum(x.sum() for x in robot.step(qg, vg, tg, 1e-3, args.integrators[0])), (qg, vg, tg)), batch))
+            times.append(per_call_us(lambda: torch.autograd.grad(robot.inverse_dynamics(qg, vg, tg).sum(), (qg, vg, tg)), batch))
+            times.append(per_call_us(lambda: torch.autograd.grad(robot.forward_dynamics(qg, vg, tg).sum(), (qg, vg, tg)), batch))
             print(f"| {name} | {batch} | " + " | ".join(f"{t:.1f}" for t in times) + " |", flush=True)
 
 

@@ -16,6 +16,7 @@ from .model.description import RobotModel, inertia_about_origin
 from .ops import mujoco_second_order
 from .ops.arguments import check_batch_shape, check_tensor, forward_mode, reference_code
 from .ops.dispatch import dispatch, kernel_call
+from .ops.eager import EagerOps
 from .ops.fd_second_order import second_order
 from .ops.func import FuncOps
 from .ops.mimic import Coupling
@@ -480,6 +481,7 @@ class Robot(_Functions):
         self._implicit_damping = self._with_passive and model.eulerdamp and self._passive.damps
         self._ops = getattr(torch.ops, namespace)
         self._func = FuncOps(self._ops, model.kernel_model)
+        self._eager = EagerOps(self._ops, model.kernel_model)
         self._enable_mujoco_kernels = mujoco_kernels
         self._mujoco_kernels = mujoco_kernels or not model.conventions_differ
         self._frame_index = {f.name: i for i, f in enumerate(model.frames)}

@@ -56,7 +56,7 @@ def register_autograd(namespace: str, model: RobotModel) -> None:
     for spec in OPS.values():
         backward = backward_formula(spec)
         if backward is None:
-            torch.library.register_autograd(f"{namespace}::{spec.name}", _no_backward(spec.name),
+            torch.library.register_autograd(f"{namespace}::{spec.name}", no_backward(spec.name),
                                             setup_context=_save_nothing)
         else:
             torch.library.register_autograd(f"{namespace}::{spec.name}", _backward(spec.name, backward, ops, model),
@@ -75,7 +75,7 @@ def _save_inputs(ctx, inputs, output) -> None:
     ctx.save_for_backward(*(output if ctx.several else (output,)))
 
 
-def _no_backward(name: str) -> Callable:
+def no_backward(name: str) -> Callable:
     # Every op without a backward computes derivatives (a backward's kernels, the second-order tensors):
     # differentiating it is a third derivative, or the second of an op whose outputs are derivatives.
     # The fused kernels are the fast paths of step, step_derivatives, d_integrate and d_difference, which compose

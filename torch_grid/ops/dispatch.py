@@ -2,7 +2,8 @@
 
 `view` is a Robot or one of its RobotViews: it carries `_convention` (0 pin, 1 mujoco), `_params` (the
 inertial parameters bound by with_parameters, or None) and `_robot`, whose `_ops` are the robot's
-registered torch ops, `_func` the same under torch.func transforms (func.FuncOps), `_tensor_args`
+registered torch ops, `_func` the same under torch.func transforms (func.FuncOps), `_eager` in eager
+reverse mode (eager.EagerOps), `_tensor_args`
 each op's tensor arguments for the checks, and `_coupling` its mimic coupling (mimic.Coupling) or None.
 The arguments are the op's, in its table order (table.py), the convention left out.
 """
@@ -11,11 +12,11 @@ from __future__ import annotations
 import torch
 
 from .arguments import checked, forward_mode
+from .eager import kernel_keyset
 from .func import FORWARD_MODE, FuncOps
 from .levels import traced_transform
 from .table import INERTIA_FREE, OPS
 
-_CPU, _CUDA = torch._C.DispatchKeySet(torch._C.DispatchKey.CPU), torch._C.DispatchKeySet(torch._C.DispatchKey.CUDA)
 # The ops a view of with_parameters runs: those that take the inertial parameters, and those free of them.
 _WITH_PARAMETERS = frozenset(name for name, spec in OPS.items()
                              if any(a.kind == "parameters" for a in spec.args)
@@ -53,13 +54,13 @@ def kernel_call(view, name: str, *args):
     if stack or forward:  # each op through an autograd.Function that torch.func and forward AD transform
         return robot._func.call(name, *checked(name, robot._tensor_args[name], args), convention)
     if torch.is_grad_enabled() and torch._C._any_requires_grad(*args):
-        return op(*checked(name, robot._tensor_args[name], args), convention)
+        # reverse mode: the op's Function without torch.library's Python wrapper around it (eager.py)
+        return robot._eager.call(name, *checked(name, robot._tensor_args[name], args), convention)
     # Nothing to differentiate: go straight to the CPU or CUDA kernel, past the (Python) autograd
     # kernel that is most of a small call's cost, and let the glue check the arguments and broadcast
     # their batch shapes. Only when it refuses them are they checked here, to word the error (the
     # argument, what was expected and what was received).
-    q = args[0]
-    keyset = (_CPU if q.is_cpu else _CUDA if q.is_cuda else None) if isinstance(q, torch.Tensor) else None
+    keyset = kernel_keyset(args[0])
     if keyset is None:
         return op(*checked(name, robot._tensor_args[name], args), convention)
     try:
