@@ -11,7 +11,8 @@ leaves the others' results: the builds; per robot, every function's values (floa
 conventions), batch sizes and memory layouts, gradients, double backward, forward mode and vmap, and
 the functions given inertial parameters; the device stages (streams, CUDA graphs, torch.compile, the
 examples, the local-memory reservation and the budget refusal); compute-sanitizer's memcheck and
-initcheck; the kernels' resources (cuobjdump) and one kernel's achieved occupancy (ncu); the MPC path
+initcheck; the kernels' resources (cuobjdump), one kernel's achieved occupancy and five kernels' ncu sections
+(gpu_device.PROFILED: throughput, memory traffic, warp stalls); the MPC path
 (gpu_mpc.py: examples/ilqr.py's go2 task, 256 samples by 50 knots, and its parts, eager and from CUDA
 graphs, against the CPU build); the figures. Into --out (default $OUT, else bench/gpu):
 check.log, results.json (one record per figure), resources.txt, sanitizer.log and ncu.txt.
@@ -123,6 +124,8 @@ def run_stage(stage: str, robot: str | None, cpu: bool, threads: int) -> int:
         checks.run("calls under compute-sanitizer", lambda: None)
     elif stage == "profiled_call":
         gpu_device.profiled_call(_robot("go2"), device)
+    elif stage == "profiled_calls":
+        gpu_device.profiled_calls({name: _robot(name) for name in {r for r, _, _ in gpu_device.PROFILED}}, device)
     elif stage == "resources":
         from torch_grid.ops.build import _REGISTERED, op_namespace
 
@@ -299,6 +302,12 @@ def _tools(stage, log: Log, out: Path, skip: list[str]) -> None:
             text = stage("ncu", ["--stage", "profiled_call"], 60,
                          wrapper=[tool("ncu"), "--clock-control", "none", "--target-processes", "all", "-k",
                                   "regex:batch_kernel", "--launch-skip", "1", "--launch-count", "1", "--metrics", metrics])
+            from gpu_device import NCU_SECTIONS, PROFILED
+
+            sections = [a for name in NCU_SECTIONS for a in ("--section", name)]
+            text += "\n" + stage("ncu sections", ["--stage", "profiled_calls"], 150,
+                                 wrapper=[tool("ncu"), "--clock-control", "none", "--target-processes", "all", "-k",
+                                          "regex:batch_kernel", "--launch-count", str(len(PROFILED)), *sections])
             (out / "ncu.txt").write_text(text)
     (out / "sanitizer.log").write_text("\n".join(sanitizer))
 

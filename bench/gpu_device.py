@@ -238,3 +238,25 @@ def profiled_call(robot, device: torch.device) -> None:
     for _ in range(2):
         view.forward_dynamics_derivatives(q, qd, x)
     torch.cuda.synchronize()
+
+
+# Kernels ncu reads section by section (throughput against the device's peaks, the memory hierarchy's traffic,
+# why warps stall, occupancy), the measurements GPU kernels that cooperate within a sample are designed from:
+# (robot, op, N), a light op and a derivative, a small and a full batch, a 7-dof arm and the humanoid.
+PROFILED = (("iiwa14", "inverse_dynamics", 65536), ("iiwa14", "forward_dynamics_derivatives", 256),
+            ("iiwa14", "forward_dynamics_derivatives", 65536), ("g1", "inverse_dynamics", 256),
+            ("g1", "forward_dynamics_derivatives", 65536))
+NCU_SECTIONS = ("LaunchStats", "Occupancy", "SpeedOfLight", "ComputeWorkloadAnalysis", "MemoryWorkloadAnalysis",
+                "WarpStateStats", "SchedulerStats")
+
+
+def profiled_calls(robots: dict, device: torch.device) -> None:
+    """One call of each PROFILED kernel in turn, each named on a line before it (ncu reports the kernels in the
+    order they ran); on the CPU, 4 samples each."""
+    for k, (name, op, n) in enumerate(PROFILED):
+        view = robots[name].pin
+        q, qd, x, _ = on(states(view, n if device.type == "cuda" else 4, seed=10), device)
+        print(f"PROFILED {k + 1}: {name} {op}, N = {n}", flush=True)
+        getattr(view, op)(q, qd, x)
+        if device.type == "cuda":
+            torch.cuda.synchronize()

@@ -31,3 +31,21 @@ def test_gpu_check_with_the_cpu_standing_in(tmp_path):
     assert all(f["us_per_sample"] > 0 for f in figures)
     mpc = {f["op"] for f in figures if f["op"].startswith("mpc[")}
     assert mpc == {"mpc[ilqr iteration]", "mpc[horizon call]", "mpc[riccati pass]", "mpc[rollout]"}, mpc
+
+
+def test_the_profiled_calls_name_each_kernel_before_it_runs(capsys, monkeypatch):
+    """The stage ncu reads section by section calls each listed op once, in the listed order, each named first
+    (ncu's report gives the kernels in the order they ran, not which robot they belong to)."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    import gpu_device
+    import torch
+    import torch_grid
+
+    robot = torch_grid.load(str(ROOT / "bench" / "gpu" / "models" / "iiwa14.json"))
+    assert {name for name, _, _ in gpu_device.PROFILED} <= {"iiwa14", "go2", "g1"}  # robots the figures load
+    profiled = (("iiwa14", "inverse_dynamics", 65536), ("iiwa14", "forward_dynamics_derivatives", 256))
+    monkeypatch.setattr(gpu_device, "PROFILED", profiled)
+    gpu_device.profiled_calls({"iiwa14": robot}, torch.device("cpu"))
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("PROFILED")]
+    assert lines == ["PROFILED 1: iiwa14 inverse_dynamics, N = 65536",
+                     "PROFILED 2: iiwa14 forward_dynamics_derivatives, N = 256"]
