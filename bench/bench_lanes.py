@@ -103,7 +103,7 @@ def robot_rows(name: str) -> tuple[list[list], dict]:
     return rows, summary
 
 
-def two_thread_speedup(fn, rounds: int = 3) -> float:
+def two_thread_speedup(fn, rounds: int = 5) -> float:
     """One thread's best per-sample time over two threads', one and two threads taken in turn `rounds` times:
     this machine's two virtual CPUs share a core's arithmetic at some moments and not at others
     (machine_cores.py), and a single pair can fall either side of such a change."""
