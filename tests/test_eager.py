@@ -106,3 +106,22 @@ def test_an_op_without_a_derivative_refuses_a_backward(robots):
     gq, = torch.autograd.grad(dA.sum(), q, create_graph=True)
     with pytest.raises(NotImplementedError, match="no derivative"):
         torch.autograd.grad(gq.sum(), q)
+
+
+@pytest.mark.parametrize("name", ["go2", "damped_planar"])
+def test_inverse_dynamics_plain_backward_is_the_differentiable_one(robots, name):
+    """A plain backward of inverse_dynamics takes qdd's gradient from its vector-Jacobian product's pass on a
+    robot without rotor armature (go2), and from M with it (damped_planar: that pass's M is the bodies' alone);
+    a differentiable backward (create_graph) builds M: the gradients agree, both conventions."""
+    robot = robots[name]
+    g = torch.Generator().manual_seed(15)
+    for view in (robot.pin, robot.mujoco):
+        inputs = _inputs(robot, view, g)
+        tau = view.inverse_dynamics(*inputs)
+        w = torch.randn(tau.shape, dtype=torch.float64, generator=g)
+        with _Spy() as spy:
+            plain = torch.autograd.grad((tau * w).sum(), inputs, retain_graph=True)
+        assert ("inverse_dynamics_vjp_full" in spy.names) == (name == "go2"), spy.names
+        differentiable = torch.autograd.grad((tau * w).sum(), inputs, create_graph=True)
+        for a, b in zip(plain, differentiable):
+            _close(a, b.detach())

@@ -127,11 +127,12 @@ def _forward_mode(spec: OpSpec) -> Callable:
 def _inverse_dynamics(ops, model, needs, grads, output, q, qd, qdd, f_ext, params, convention):
     """tau = ID(q, qd, qdd, f_ext; pi): d/dq and d/dqd as one O(n) vector-Jacobian product, d/dqdd = M,
     d/df_ext = -J^T, d/dpi = Y (the regressor). With all three of q or qd and qdd, a plain backward takes M grad
-    from the same pass (inverse_dynamics_vjp_full, which has no derivative of its own) rather than building M."""
+    from the same pass (inverse_dynamics_vjp_full, which has no derivative of its own) rather than building M,
+    for a robot without rotor armature (that pass's M is the bodies' alone)."""
     grad = grads[0]
     dq = dqd = dqdd = df = dparams = None
     if needs[0] or needs[1]:
-        if needs[2] and not differentiated((q, qd, qdd, grad)):
+        if needs[2] and not _has_armature(model) and not differentiated((q, qd, qdd, grad)):
             g_q, g_qd, dqdd, _ = ops.inverse_dynamics_vjp_full(q, qd, qdd, f_ext, grad, params, convention)
         else:
             g_q, g_qd = ops.inverse_dynamics_vjp(q, qd, qdd, f_ext, grad, params, convention)
@@ -146,6 +147,17 @@ def _inverse_dynamics(ops, model, needs, grads, output, q, qd, qdd, f_ext, param
     if needs[4]:
         dparams = regressor_vjp(ops, q, qd, qdd, grad, convention)
     return dq, dqd, dqdd, df, dparams, None
+
+
+_ARMATURE: dict[str, bool] = {}
+
+
+def _has_armature(model: RobotModel) -> bool:
+    """Whether any joint of the model has a rotor armature (cached per model)."""
+    found = _ARMATURE.get(model.hash)
+    if found is None:
+        found = _ARMATURE[model.hash] = any(joint.armature for joint in model.joints)
+    return found
 
 
 def _forward_dynamics(ops, model, needs, grads, output, q, qd, tau, f_ext, params, convention):
