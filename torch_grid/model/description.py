@@ -124,6 +124,11 @@ class RobotModel:
         return any(j.type in ("free", "ball") for j in self.joints)
 
     @property
+    def has_armature(self) -> bool:
+        """Whether any joint has a rotor armature (added to M's diagonal)."""
+        return any(j.armature for j in self.joints)
+
+    @property
     def q_index(self) -> list[int]:
         """First configuration coordinate of each joint."""
         return _offsets([j.nq for j in self.joints])

@@ -132,7 +132,7 @@ def _inverse_dynamics(ops, model, needs, grads, output, q, qd, qdd, f_ext, param
     grad = grads[0]
     dq = dqd = dqdd = df = dparams = None
     if needs[0] or needs[1]:
-        if needs[2] and not _has_armature(model) and not differentiated((q, qd, qdd, grad)):
+        if needs[2] and not model.has_armature and not differentiated((q, qd, qdd, grad)):
             g_q, g_qd, dqdd, _ = ops.inverse_dynamics_vjp_full(q, qd, qdd, f_ext, grad, params, convention)
         else:
             g_q, g_qd = ops.inverse_dynamics_vjp(q, qd, qdd, f_ext, grad, params, convention)
@@ -147,17 +147,6 @@ def _inverse_dynamics(ops, model, needs, grads, output, q, qd, qdd, f_ext, param
     if needs[4]:
         dparams = regressor_vjp(ops, q, qd, qdd, grad, convention)
     return dq, dqd, dqdd, df, dparams, None
-
-
-_ARMATURE: dict[str, bool] = {}
-
-
-def _has_armature(model: RobotModel) -> bool:
-    """Whether any joint of the model has a rotor armature (cached per model)."""
-    found = _ARMATURE.get(model.hash)
-    if found is None:
-        found = _ARMATURE[model.hash] = any(joint.armature for joint in model.joints)
-    return found
 
 
 def _forward_dynamics(ops, model, needs, grads, output, q, qd, tau, f_ext, params, convention):
