@@ -27,6 +27,13 @@ def kernel_keyset(x) -> torch._C.DispatchKeySet | None:
     return _CPU if x.is_cpu else _CUDA if x.is_cuda else None
 
 
+def call_kernel(op, *args):
+    """op on args, straight to its CPU or CUDA kernel below the autograd key where kernel_keyset allows, else through
+    the dispatcher."""
+    keyset = kernel_keyset(args[0])
+    return op(*args) if keyset is None else op.default.redispatch(keyset, *args)
+
+
 class DirectOps:
     """A robot build's ops for a backward's formula: each kernel called below the autograd key when nothing records
     the call, else the registered op. Any other attribute is the ops' own."""
@@ -40,10 +47,7 @@ class DirectOps:
             return op
 
         def call(*args):
-            keyset = kernel_keyset(args[0])
-            if keyset is None or torch.is_grad_enabled():
-                return op(*args)
-            return op.default.redispatch(keyset, *args)
+            return op(*args) if torch.is_grad_enabled() else call_kernel(op, *args)
 
         return call
 
@@ -70,8 +74,7 @@ class EagerOps:
         ops, direct, model = self._ops, self._direct, self._model
 
         def forward(ctx, *args):
-            keyset = kernel_keyset(args[0])
-            out = op(*args) if keyset is None else op.default.redispatch(keyset, *args)
+            out = call_kernel(op, *args)
             # the inputs as they are, the outputs saved: in a double backward these are the graph's, whose
             # gradients reach the formula's ops (autograd._save_inputs)
             ctx.inputs = args

@@ -119,11 +119,19 @@ def _in_q_order(pieces: list[tuple[int, torch.Tensor]]) -> torch.Tensor:
     return torch.cat([part for _, part in sorted(pieces, key=lambda piece: piece[0])], dim=-1)
 
 
-def _rotate(unit: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
-    """R v for the rotation of the unit (..., 4) xyzw quaternion: v + 2 w (u x v) + 2 u x (u x v)."""
-    u, w = unit[..., :3], unit[..., 3:]
+def _rotate(u: torch.Tensor, w: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """R v for the rotation of the unit quaternion (u (..., 3), w (..., 1)): v + 2 w (u x v) + 2 u x (u x v); R^T v
+    is the rotation of its conjugate, (-u, w)."""
     uv = torch.cross(u, v, dim=-1)
     return v + 2 * (w * uv + torch.cross(u, uv, dim=-1))
+
+
+def _unit_xyzw(q: torch.Tensor, j: QuaternionJoint, convention: int):
+    """(xyz, w) of joint j's quaternion normalised (unit_quaternion: a zero one the identity, a non-finite one NaN),
+    its norm (..., 1), the index of w and the slice of xyz in q."""
+    xyz, w, iw, ixyz = _xyzw(q, j, convention)
+    unit, norm = unit_quaternion(torch.cat([xyz, w], dim=-1))
+    return unit[..., :3], unit[..., 3:], norm, iw, ixyz
 
 
 def ambient_direction(model: RobotModel, q: torch.Tensor, u: torch.Tensor, convention: int) -> torch.Tensor:
@@ -139,7 +147,7 @@ def ambient_direction(model: RobotModel, q: torch.Tensor, u: torch.Tensor, conve
         w_ang = u[..., j.angular:j.angular + 3]
         if j.free:
             u_lin = u[..., j.vi:j.vi + 3]
-            pieces.append((j.qi, u_lin if convention else _rotate(unit_quaternion(torch.cat([xyz, w], dim=-1))[0], u_lin)))
+            pieces.append((j.qi, u_lin if convention else _rotate(*_unit_xyzw(q, j, convention)[:2], u_lin)))
         pieces.append((ixyz.start, 0.5 * (w * w_ang + torch.cross(xyz, w_ang, dim=-1))))
         pieces.append((iw, -0.5 * (xyz * w_ang).sum(-1, keepdim=True)))
     return _in_q_order(pieces)
@@ -158,9 +166,9 @@ def ambient_to_tangent(model: RobotModel, q: torch.Tensor, g: torch.Tensor, conv
         g_xyz, g_w = g[..., ixyz], g[..., iw:iw + 1]
         if j.free:
             g_lin = g[..., j.qi:j.qi + 3]
-            if not convention:  # R^T g: the rotation of the conjugate
-                unit = unit_quaternion(torch.cat([xyz, w], dim=-1))[0]
-                g_lin = _rotate(torch.cat([-unit[..., :3], unit[..., 3:]], dim=-1), g_lin)
+            if not convention:  # R^T g
+                xyz_n, w_n, _, _, _ = _unit_xyzw(q, j, convention)
+                g_lin = _rotate(-xyz_n, w_n, g_lin)
             pieces.append((j.vi, g_lin))
         # dxyz = (w u + xyz x u) / 2, dw = -xyz . u / 2, transposed
         pieces.append((j.angular, 0.5 * (w * g_xyz + torch.cross(g_xyz, xyz, dim=-1) - g_w * xyz)))
@@ -182,13 +190,11 @@ def tangent_to_ambient(model: RobotModel, q: torch.Tensor, g: torch.Tensor, conv
     q, g = broadcast_batch(q, g)
     pieces = [(qi, g[..., vi:vi + n]) for qi, vi, n in lay.scalar_runs]
     for j in lay.quaternions:
-        xyz, w, iw, ixyz = _xyzw(q, j, convention)
-        unit, norm = unit_quaternion(torch.cat([xyz, w], dim=-1))
-        xyz_n, w_n = unit[..., :3], unit[..., 3:]
+        xyz_n, w_n, norm, iw, ixyz = _unit_xyzw(q, j, convention)
         g_ang = g[..., j.angular:j.angular + 3]
         if j.free:
             g_lin = g[..., j.vi:j.vi + 3]
-            pieces.append((j.qi, g_lin if convention else _rotate(unit, g_lin)))
+            pieces.append((j.qi, g_lin if convention else _rotate(xyz_n, w_n, g_lin)))
         pieces.append((ixyz.start, 2 / norm * (w_n * g_ang + torch.cross(xyz_n, g_ang, dim=-1))))
         pieces.append((iw, -2 / norm * (xyz_n * g_ang).sum(-1, keepdim=True)))
     return _in_q_order(pieces)
@@ -205,13 +211,11 @@ def tangent_direction(model: RobotModel, q: torch.Tensor, t: torch.Tensor, conve
     q, t = broadcast_batch(q, t)
     pieces = [(vi, t[..., qi:qi + n]) for qi, vi, n in lay.scalar_runs]
     for j in lay.quaternions:
-        xyz, w, iw, ixyz = _xyzw(q, j, convention)
-        unit, norm = unit_quaternion(torch.cat([xyz, w], dim=-1))
-        xyz_n, w_n = unit[..., :3], unit[..., 3:]
+        xyz_n, w_n, norm, iw, ixyz = _unit_xyzw(q, j, convention)
         t_xyz, t_w = t[..., ixyz], t[..., iw:iw + 1]
-        if j.free:  # R^T t (the rotation of the conjugate) in Pinocchio's convention
+        if j.free:  # R^T t in Pinocchio's convention
             t_lin = t[..., j.qi:j.qi + 3]
-            pieces.append((j.vi, t_lin if convention else _rotate(torch.cat([-xyz_n, w_n], dim=-1), t_lin)))
+            pieces.append((j.vi, t_lin if convention else _rotate(-xyz_n, w_n, t_lin)))
         # tangent_to_ambient's 2 / |Q| (w u + xyz x u, -xyz . u), transposed
         pieces.append((j.angular, 2 / norm * (w_n * t_xyz + torch.cross(t_xyz, xyz_n, dim=-1) - t_w * xyz_n)))
     return _in_q_order(pieces)
