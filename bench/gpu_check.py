@@ -11,7 +11,7 @@ leaves the others' results: the builds; per robot, every function's values (floa
 conventions), batch sizes and memory layouts, gradients, double backward, forward mode and vmap, and
 the functions given inertial parameters; the device stages (streams, CUDA graphs, torch.compile, the
 examples, the local-memory reservation and the budget refusal); compute-sanitizer's memcheck and
-initcheck; the kernels' resources (cuobjdump), one kernel's achieved occupancy and five kernels' ncu sections
+initcheck; the kernels' resources (cuobjdump), one kernel's achieved occupancy and six kernels' ncu sections
 (gpu_device.PROFILED: throughput, memory traffic, warp stalls); the MPC path
 (gpu_mpc.py: examples/ilqr.py's go2 task, 256 samples by 50 knots, and its parts, eager and from CUDA
 graphs, against the CPU build); the figures. Into --out (default $OUT, else bench/gpu):

@@ -8,6 +8,7 @@ import os
 import torch
 
 from gpu_correctness import F64_TOL, GRAD_TOL, Checks, Skip, compare, on, states, tensors, value_calls
+from gpu_figures import OPS as FIGURE_CALLS
 
 
 def _cuda_only(checks: Checks, name: str, robot, device: torch.device, batch: int, seed: int):
@@ -245,7 +246,7 @@ def profiled_call(robot, device: torch.device) -> None:
 # (robot, op, N), a light op and a derivative, a small and a full batch, a 7-dof arm and the humanoid.
 PROFILED = (("iiwa14", "inverse_dynamics", 65536), ("iiwa14", "forward_dynamics_derivatives", 256),
             ("iiwa14", "forward_dynamics_derivatives", 65536), ("g1", "inverse_dynamics", 256),
-            ("g1", "forward_dynamics_derivatives", 65536))
+            ("g1", "forward_dynamics_derivatives", 65536), ("go2", "step_derivatives[semi_implicit_euler]", 65536))
 NCU_SECTIONS = ("LaunchStats", "Occupancy", "SpeedOfLight", "ComputeWorkloadAnalysis", "MemoryWorkloadAnalysis",
                 "WarpStateStats", "SchedulerStats")
 
@@ -257,6 +258,6 @@ def profiled_calls(robots: dict, device: torch.device) -> None:
         view = robots[name].pin
         q, qd, x, _ = on(states(view, n if device.type == "cuda" else 4, seed=10), device)
         print(f"PROFILED {k + 1}: {name} {op}, N = {n}", flush=True)
-        getattr(view, op)(q, qd, x)
+        FIGURE_CALLS[op](view, q, qd, x)
         if device.type == "cuda":
             torch.cuda.synchronize()

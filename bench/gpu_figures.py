@@ -27,6 +27,10 @@ OPS = {
     "inverse_dynamics_second_derivatives": lambda v, q, qd, x: v.inverse_dynamics_second_derivatives(q, qd, x),
     "step_derivatives[semi_implicit_euler]": lambda v, q, qd, x: v.step_derivatives(q, qd, x, 0.01, "semi_implicit_euler"),
     "step_derivatives[rk4]": lambda v, q, qd, x: v.step_derivatives(q, qd, x, 0.01, "rk4"),
+    # the torch composition the fused kernel replaces (forward_dynamics, forward_dynamics_derivatives and batched
+    # products): on a GPU its coalesced products may beat one thread's loops over the 2 nv x 2 nv matrices
+    "step_derivatives[semi_implicit_euler, composed]":
+        lambda v, q, qd, x: v._step_derivatives(q, qd, x, 0.01, None, v._params, "semi_implicit_euler")[2:],
 }
 # floats written per sample, for the memory cap below
 OUTPUTS = {"inverse_dynamics_second_derivatives": lambda nv: 4 * nv ** 3, "step_derivatives[rk4]": lambda nv: 6 * nv ** 2}

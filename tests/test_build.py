@@ -207,6 +207,10 @@ def test_op_table_limits_are_checked_when_it_is_built():
                                           outputs=(ops.Out("Y", "force_rows", ("nv", "nparams")), ops.Out("Z", "plain", (1,)))),
         "on lanes": dataclasses.replace(crba, name="nolanes", lanes=0),
         "compile-time sizes": dataclasses.replace(ops.OPS["end_effector_pose"], lanes=100),
+        "products among its own outputs": dataclasses.replace(crba, name="product", negated_products=("M", "X")),
+        "a product of a kernel run on dual numbers": dataclasses.replace(
+            crba, name="dualproduct", backward="dual", outputs=(ops.Out("M", "congruence", NVxNV), ops.Out("X", "plain", NVxNV)),
+            negated_products=("M", "X")),
     }
     for words, op in bad.items():
         with pytest.raises(ValueError, match=re.escape(op.name)) as info:

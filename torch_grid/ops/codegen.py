@@ -263,7 +263,7 @@ def table_unit(model: RobotModel, mujoco: bool, cuda: bool, namespace: str) -> s
                                    + "}" for _, suffix in _SCALARS) + "}"
 
         entries.append(f"    {{{grid('cpu')}, {grid('lanes')}, {grid('cuda')}, {cpu_grain(op, model)}}},  // {op.name}")
-    flags = f"{int(model.conventions_differ)}, {int(mujoco)}, {int(cuda)}, {'tg::kLanes' if cpu_lanes() != 1 else 1}"
+    flags = f"{int(model.conventions_differ)}, {int(mujoco)}, {int(cuda)}, {'tg::kLanes' if cpu_lanes() != 1 else 1}, TG_DEVICE_PATH"
     return _unit(["batch/batch.h", "kernels/spatial/lanes.h"], [
         f"namespace {namespace} {{", *decls,
         "const tg::OpKernels kOps[] = {\n" + "\n".join(entries) + "\n};",
@@ -446,6 +446,9 @@ def _wrapper(index: int, op: OpSpec) -> str:
         make = "workspace" if o.kind == "workspace" else "output"
         body.append(f"  at::Tensor {name} = call.{make}({{{', '.join(_SIZE.get(d, str(d)) for d in o.shape)}}});")
     body.append(f"  call.run(r.ops[{index}]);")
+    if op.negated_products:
+        factor, *products = (outs[[o.name for o in op.outputs].index(n)] for n in op.negated_products)
+        body.append(f"  call.negated_products({factor}, {{{', '.join('&' + x for x in products)}}});")
     if len(outs) == 1:
         ret, value = "at::Tensor", outs[0]
     else:

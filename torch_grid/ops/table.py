@@ -79,6 +79,11 @@ class OpSpec:
     # gathering and scattering the samples costs more than the lanes save (bench/bench_lanes.py); a number:
     # lanes for a robot whose outputs are at most that many numbers a sample (on_lanes)
     lanes: bool | int = True
+    # (F, X, ...): on a device path (a GPU, or the CPU build of a GPU thread's paths: TG_DEVICE_PATH) the kernel
+    # leaves each output X as it is before the last step X <- -F X, and the glue finishes them with one batched
+    # matrix product (glue.h: Call::negated_products), where a GPU thread's own loop over it was the larger
+    # part of the kernel
+    negated_products: tuple[str, ...] = ()
 
     @property
     def has_dual_backward(self) -> bool:
@@ -210,7 +215,7 @@ _VALUE_OPS = (
                "second_order", mujoco_twin=False),
         OpSpec("forward_dynamics_derivatives", "ForwardDynamicsDerivatives", (Q, QD, TAU, FEXT, PARAMS),
                (Out("dqdd_dq", "twin", NVxNV), Out("dqdd_dqd", "twin", NVxNV), Out("dqdd_dtau", "twin", NVxNV)),
-               "derivatives", backward="composed", jvp="rule"),
+               "derivatives", backward="composed", jvp="rule", negated_products=("dqdd_dtau", "dqdd_dq", "dqdd_dqd")),
         OpSpec("integrate", "Integrate", (Q, Arg("v", "plain", shape=NV), Arg("dt", "plain", shape=(1,))),
                (Out("q_next", "twin", ("nq",)),), "kinematics", backward="formula"),
         OpSpec("difference", "Difference", (Q, Arg("q1", "plain", shape=("nq",))),
@@ -366,6 +371,13 @@ def check_table(table: dict[str, OpSpec]) -> None:
         if not isinstance(op.lanes, bool) and (op.lanes < 1 or any(d == "nsel" for o in op.outputs for d in o.shape)):
             raise ValueError(f"op {op.name}: lanes is True, False or the most output numbers a sample on lanes (at least "
                              f"1, outputs of compile-time sizes), got {op.lanes!r}")
+        square = {o.name for o in op.outputs if o.shape == ("nv", "nv")}
+        if op.negated_products and (len(op.negated_products) < 2 or not square.issuperset(op.negated_products)
+                                    or op.has_dual_backward
+                                    or any(op.name in (o.forward_mode_of, o.jvp_of) for o in table.values())):
+            raise ValueError(f"op {op.name}: negated_products names a factor and at least one product among its own "
+                             f"(nv, nv) outputs {sorted(square)}, on an op whose kernel no other kernel runs on dual "
+                             f"numbers, got {op.negated_products}")
 
 
 check_table(OPS)
@@ -450,6 +462,7 @@ def _fake(spec: OpSpec, model: RobotModel):
 
 def op_signature() -> str:
     """Hash of the op table as the glue and a robot library both see it: the ops, in order, with their
-    schemas. A robot library and the glue must agree on it; it is part of a robot's op namespace."""
-    text = "\n".join(f"{op.kernel} {op.schema()}" for op in OPS.values())
+    schemas and the products the glue finishes. A robot library and the glue must agree on it; it is part of a
+    robot's op namespace."""
+    text = "\n".join(f"{op.kernel} {op.schema()} {' '.join(op.negated_products)}" for op in OPS.values())
     return hashlib.sha256(text.encode()).hexdigest()[:16]

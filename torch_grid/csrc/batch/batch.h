@@ -82,13 +82,14 @@ struct OpKernels {
 
 // What a robot library exports (one C symbol, named after its op namespace): its sizes and one
 // OpKernels per op, in the order of the op table whose signature it carries.
-constexpr int kTableAbi = 5;
+constexpr int kTableAbi = 6;
 struct RobotTable {
   int abi;
   const char* op_signature;  // hash of the op table the library was generated from
   int nq, nv, nb, nf;
   int converts, mujoco, cuda;  // flags: a quaternion joint (the conventions differ); MuJoCo-convention kernels built; CUDA kernels built
   int lanes;                   // doubles per vector of the CPU lane kernels (1: none)
+  int device_paths;            // the CPU kernels take a GPU thread's code paths (TG_DEVICE_PATH)
   int nops;
   const OpKernels* ops;
 };

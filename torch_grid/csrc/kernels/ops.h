@@ -205,11 +205,12 @@ template <class Robot, class Scalar> struct InverseDynamicsDerivativesTangent {
   }
 };
 
+// On a device path the glue finishes dqdd/dq and dqdd/dqd as -M^-1 dtau/dx (ops/table.py: negated_products).
 template <class Robot, class Scalar> struct ForwardDynamicsDerivatives {
   template <int C> TG_HD static void run(const ForwardDynamicsDerivativesArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
     Scalar qdd[Robot::NV];
-    forward_dynamics_derivatives<Robot, Scalar>(Placements<Robot, Scalar>(a.q), a.qd, a.tau, a.f_ext, cv, a.dqdd_dq, a.dqdd_dqd, a.dqdd_dtau,
-                                                qdd, {a.params});
+    forward_dynamics_derivatives<Robot, Scalar, C, !TG_DEVICE_PATH>(Placements<Robot, Scalar>(a.q), a.qd, a.tau, a.f_ext, cv, a.dqdd_dq,
+                                                                    a.dqdd_dqd, a.dqdd_dtau, qdd, {a.params});
   }
 };
 

@@ -4,8 +4,10 @@
 // time, so this compiles once per torch version and serves every robot.
 #pragma once
 
+#include <ATen/Context.h>
 #include <ATen/Parallel.h>
 #include <ATen/core/Tensor.h>
+#include <ATen/ops/baddbmm.h>
 #include <ATen/ops/empty.h>
 #include <ATen/ops/from_blob.h>
 #include <torch/library.h>
@@ -257,6 +259,23 @@ class Call {
     // Several pieces a thread, none under an eighth of the grain, each a whole number of lane groups.
     Pieces pieces(n_, threads == 1 ? n_ : whole_groups(std::max((n_ + 8 * threads - 1) / (8 * threads), kernels.grain / 8)));
     at::parallel_for(0, threads, 1, [this, fn, range, &pieces](int64_t, int64_t) { (this->*range)(fn, pieces); });
+  }
+
+  // On a device path the kernel leaves each X of a negated product (ops/table.py: negated_products) as it is
+  // before its last step, X <- -F X, done here as one batched matrix product: on a GPU, in the matrix library's
+  // coalesced blocks rather than in each thread's local memory. A float32 product runs in float64 wherever
+  // torch lets float32 matrix products take TF32 (torch.backends.cuda.matmul.allow_tf32), whose 10-bit
+  // mantissas the op's float32 results do not have.
+  void negated_products(const at::Tensor& f, std::initializer_list<at::Tensor*> xs) const {
+    if (n_ == 0 || !(device_.is_cuda() || robot_.device_paths)) return;
+    const bool widen = dtype_ == at::kFloat && device_.is_cuda() && at::globalContext().allowTF32CuBLAS();
+    const int64_t nv = robot_.nv;
+    const at::Tensor m = (widen ? f.to(at::kDouble) : f).reshape({n_, nv, nv});
+    for (at::Tensor* x : xs) {
+      const at::Tensor x3 = (widen ? x->to(at::kDouble) : *x).reshape({n_, nv, nv});
+      const at::Tensor p = at::baddbmm(x3, m, x3, /*beta=*/0, /*alpha=*/-1).view(x->sizes());  // beta 0: x3 only shapes it
+      *x = widen ? p.to(at::kFloat) : p;
+    }
   }
 
  private:

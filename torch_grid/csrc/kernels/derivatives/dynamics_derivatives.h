@@ -130,15 +130,16 @@ TG_HD void inverse_dynamics_derivatives_at_forward_dynamics(const Placements<Rob
 
 // Since ID(q, qd, FD(q, qd, tau)) = tau, dqdd/dx = -M^-1 dtau/dx at qdd = FD(q, qd, tau), and
 // dqdd/dtau = M^-1, in either convention.
-// dqdd/dq, dqdd/dqd, dqdd/dtau (NV x NV each, in the convention) and qdd (in Pinocchio's).
-template <class Robot, class Scalar, int C>
+// dqdd/dq, dqdd/dqd, dqdd/dtau (NV x NV each, in the convention) and qdd (in Pinocchio's). Without Product,
+// dq and dqd are left as dtau/dq and dtau/dqd, for the caller to finish as -M^-1 X.
+template <class Robot, class Scalar, int C, bool Product = true>
 TG_HD void forward_dynamics_derivatives(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* tau, const Scalar* fext,
                                      const Conv<Robot, Scalar, C>& cv, Scalar* dq, Scalar* dqd, Scalar* dtau, Scalar* qdd,
                                      const InertialParameters<Robot, Scalar>& pi = {}) {
   minv<Robot, Scalar>(K, dtau, pi);
   inverse_dynamics_derivatives_at_forward_dynamics<Robot, Scalar>(K, qd, tau, fext, cv, dtau, dq, dqd, qdd, pi);
   cv.congruence_out(dtau);
-  negate_minv_products<Robot, Scalar>(dtau, dq, dqd);
+  if constexpr (Product) negate_minv_products<Robot, Scalar>(dtau, dq, dqd);
 }
 
 // (M + dt D) qdd = tau + p - b(q, qd): the acceleration of MuJoCo's Euler step, the joint damping D taken
