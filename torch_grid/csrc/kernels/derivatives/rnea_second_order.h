@@ -73,7 +73,8 @@ TG_HD PairTerms<Scalar> pair_terms(const RneaDerivativesWork<Robot, Scalar>& W, 
 }
 
 // Eight values that one instruction adds or multiplies on a CPU with 512-bit vectors (GCC's vector
-// extension); a plain array on a GPU thread, and for a scalar that is itself a vector of samples.
+// extension); a plain array on a GPU thread (and in the CPU build of its paths, TG_DEVICE_PATH), and for a
+// scalar that is itself a vector of samples.
 template <class Scalar, class = void> struct Octet {
   Scalar x[8];
   TG_HD Scalar operator[](int l) const { return x[l]; }
@@ -84,7 +85,7 @@ template <class Scalar, class = void> struct Octet {
     for (int l = 0; l < 8; ++l) x[l] += a.x[l] * b.x[l];
   }
 };
-#if defined(__GNUC__) && !defined(__CUDACC__)
+#if defined(__GNUC__) && !defined(__CUDACC__) && !TG_DEVICE_PATH
 template <class Scalar> struct Octet<Scalar, std::enable_if_t<std::is_floating_point_v<Scalar>>> {
   typedef Scalar V __attribute__((vector_size(8 * sizeof(Scalar))));
   V x;

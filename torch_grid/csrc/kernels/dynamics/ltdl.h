@@ -59,8 +59,9 @@ TG_HD void less_rows_plain(int n, const int* ks, const Scalar* c, const Scalar* 
 }
 // On a CPU x is held in registers as 8-lane vectors (GCC's vector extension) while the rows stream past:
 // each FMA then has a dozen independent others beside it, where a few columns at a time would wait on the
-// one before. A GPU thread, or a scalar that is itself a vector of samples, updates x in place.
-#if defined(__GNUC__) && !defined(__CUDACC__)
+// one before. A GPU thread, or a scalar that is itself a vector of samples, updates x in place (as does the
+// CPU build of a GPU thread's paths, TG_DEVICE_PATH, so that the CPU's tests run the GPU's loop).
+#if defined(__GNUC__) && !defined(__CUDACC__) && !TG_DEVICE_PATH
 template <int XS, int COLS, class Scalar>
 inline void less_rows(int n, const int* ks, const Scalar* c, const Scalar* X, Scalar* x, Scalar a = Scalar(1), Scalar* t = nullptr) {
   if constexpr (!std::is_floating_point_v<Scalar>) {  // a scalar of lanes (lanes.h) is a vector already
