@@ -208,6 +208,9 @@ def test_op_table_limits_are_checked_when_it_is_built():
         "on lanes": dataclasses.replace(crba, name="nolanes", lanes=0),
         "compile-time sizes": dataclasses.replace(ops.OPS["end_effector_pose"], lanes=100),
         "products among its own outputs": dataclasses.replace(crba, name="product", negated_products=("M", "X")),
+        "products reframed after the kernel, of kind 'twin' or 'plain'": dataclasses.replace(
+            crba, name="reframed", outputs=(ops.Out("M", "congruence", NVxNV), ops.Out("X", "plain", NVxNV)),
+            negated_products=("M", "X")),
         "a product of a kernel run on dual numbers": dataclasses.replace(
             crba, name="dualproduct", backward="dual", outputs=(ops.Out("M", "congruence", NVxNV), ops.Out("X", "plain", NVxNV)),
             negated_products=("M", "X")),

@@ -371,13 +371,14 @@ def check_table(table: dict[str, OpSpec]) -> None:
         if not isinstance(op.lanes, bool) and (op.lanes < 1 or any(d == "nsel" for o in op.outputs for d in o.shape)):
             raise ValueError(f"op {op.name}: lanes is True, False or the most output numbers a sample on lanes (at least "
                              f"1, outputs of compile-time sizes), got {op.lanes!r}")
-        square = {o.name for o in op.outputs if o.shape == ("nv", "nv")}
+        # (nv, nv) outputs that nothing reframes after the kernel
+        square = {o.name for o in op.outputs if o.shape == ("nv", "nv") and o.kind in ("twin", "plain")}
         if op.negated_products and (len(op.negated_products) < 2 or not square.issuperset(op.negated_products)
                                     or op.has_dual_backward
                                     or any(op.name in (o.forward_mode_of, o.jvp_of) for o in table.values())):
             raise ValueError(f"op {op.name}: negated_products names a factor and at least one product among its own "
-                             f"(nv, nv) outputs {sorted(square)}, on an op whose kernel no other kernel runs on dual "
-                             f"numbers, got {op.negated_products}")
+                             f"(nv, nv) outputs of kind 'twin' or 'plain' {sorted(square)}, on an op whose kernel no "
+                             f"other kernel runs on dual numbers, got {op.negated_products}")
 
 
 check_table(OPS)

@@ -10,6 +10,7 @@
 #include <ATen/ops/baddbmm.h>
 #include <ATen/ops/empty.h>
 #include <ATen/ops/from_blob.h>
+#include <c10/core/impl/LocalDispatchKeySet.h>
 #include <torch/library.h>
 
 #include <algorithm>
@@ -263,12 +264,21 @@ class Call {
 
   // On a device path the kernel leaves each X of a negated product (ops/table.py: negated_products) as it is
   // before its last step, X <- -F X, done here as one batched matrix product: on a GPU, in the matrix library's
-  // coalesced blocks rather than in each thread's local memory. A float32 product runs in float64 wherever
-  // torch lets float32 matrix products take TF32 (torch.backends.cuda.matmul.allow_tf32), whose 10-bit
-  // mantissas the op's float32 results do not have.
+  // coalesced blocks rather than in each thread's local memory. The op's dtype is its own: autocast, which
+  // sees this product inside the op, is off for it. A float32 product runs in float64 wherever torch lets
+  // float32 matrix products take TF32 (torch.backends.cuda.matmul.allow_tf32, or flags torch cannot read),
+  // whose 10-bit mantissas the op's float32 results do not have.
   void negated_products(const at::Tensor& f, std::initializer_list<at::Tensor*> xs) const {
     if (n_ == 0 || !(device_.is_cuda() || robot_.device_paths)) return;
-    const bool widen = dtype_ == at::kFloat && device_.is_cuda() && at::globalContext().allowTF32CuBLAS();
+    const c10::impl::ExcludeDispatchKeyGuard no_autocast(c10::autocast_dispatch_keyset);
+    bool widen = false;
+    if (dtype_ == at::kFloat && device_.is_cuda()) {
+      try {
+        widen = at::globalContext().allowTF32CuBLAS();
+      } catch (const c10::Error&) {  // TF32 flags set through both of torch's interfaces, in disagreement
+        widen = true;
+      }
+    }
     const int64_t nv = robot_.nv;
     const at::Tensor m = (widen ? f.to(at::kDouble) : f).reshape({n_, nv, nv});
     for (at::Tensor* x : xs) {

@@ -32,7 +32,9 @@ inline int64_t register_robot(const char* signature, int nops, DefineFn define, 
   const auto table_fn = reinterpret_cast<TableFn>(dlsym(handle, symbol.c_str()));
   TORCH_CHECK(table_fn, "torch_grid: ", library, " does not export ", symbol);
   const RobotTable* table = table_fn();
-  TORCH_CHECK(table->abi == kTableAbi && table->nops == nops && std::strcmp(table->op_signature, signature) == 0,
+  TORCH_CHECK(table->abi == kTableAbi, "torch_grid: the robot library ", library, " has table layout ", table->abi,
+              ", this glue reads layout ", kTableAbi, ": build it again");
+  TORCH_CHECK(table->nops == nops && std::strcmp(table->op_signature, signature) == 0,
               "torch_grid: the robot library ", library, " was generated from another op table (", table->op_signature,
               ", ", table->nops, " ops) than this glue (", signature, ", ", nops, " ops)");
   auto def = std::make_unique<torch::Library>(torch::Library::DEF, ns, std::nullopt, __FILE__, __LINE__);
