@@ -30,14 +30,15 @@ FLOAT32 = ("forward_dynamics_derivatives",)
 def outputs(robot) -> dict:
     """Every public function's outputs, both conventions, on fixed inputs; FLOAT32's also in float32, with and
     without autocast to bfloat16."""
+    value_calls = calls.value_calls(robot)
     out = {f"{conv} {op}": calls.tensors(call(view, *calls.states(view, 5, seed=3)))
-           for conv, view in calls.views(robot) for op, call in calls.value_calls(robot).items()}
+           for conv, view in calls.views(robot) for op, call in value_calls.items()}
     for conv, view in calls.views(robot):
         for op in FLOAT32:
             inputs = calls.on(calls.states(view, (2, 3), seed=4), "cpu", torch.float32)
-            out[f"{conv} {op} float32"] = calls.tensors(calls.value_calls(robot)[op](view, *inputs))
+            out[f"{conv} {op} float32"] = calls.tensors(value_calls[op](view, *inputs))
             with torch.autocast("cpu", dtype=torch.bfloat16):
-                out[f"{conv} {op} autocast float32"] = calls.tensors(calls.value_calls(robot)[op](view, *inputs))
+                out[f"{conv} {op} autocast float32"] = calls.tensors(value_calls[op](view, *inputs))
     return out
 
 

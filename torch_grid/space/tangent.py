@@ -126,12 +126,11 @@ def _rotate(u: torch.Tensor, w: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     return v + 2 * (w * uv + torch.cross(u, uv, dim=-1))
 
 
-def _unit_xyzw(q: torch.Tensor, j: QuaternionJoint, convention: int):
-    """(xyz, w) of joint j's quaternion normalised (unit_quaternion: a zero one the identity, a non-finite one NaN),
-    its norm (..., 1), the index of w and the slice of xyz in q."""
-    xyz, w, iw, ixyz = _xyzw(q, j, convention)
+def _normalised(xyz: torch.Tensor, w: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(xyz, w) of a quaternion read by _xyzw, normalised (unit_quaternion: a zero one the identity, a non-finite one
+    NaN), and its norm (..., 1)."""
     unit, norm = unit_quaternion(torch.cat([xyz, w], dim=-1))
-    return unit[..., :3], unit[..., 3:], norm, iw, ixyz
+    return unit[..., :3], unit[..., 3:], norm
 
 
 def ambient_direction(model: RobotModel, q: torch.Tensor, u: torch.Tensor, convention: int) -> torch.Tensor:
@@ -147,7 +146,7 @@ def ambient_direction(model: RobotModel, q: torch.Tensor, u: torch.Tensor, conve
         w_ang = u[..., j.angular:j.angular + 3]
         if j.free:
             u_lin = u[..., j.vi:j.vi + 3]
-            pieces.append((j.qi, u_lin if convention else _rotate(*_unit_xyzw(q, j, convention)[:2], u_lin)))
+            pieces.append((j.qi, u_lin if convention else _rotate(*_normalised(xyz, w)[:2], u_lin)))
         pieces.append((ixyz.start, 0.5 * (w * w_ang + torch.cross(xyz, w_ang, dim=-1))))
         pieces.append((iw, -0.5 * (xyz * w_ang).sum(-1, keepdim=True)))
     return _in_q_order(pieces)
@@ -167,7 +166,7 @@ def ambient_to_tangent(model: RobotModel, q: torch.Tensor, g: torch.Tensor, conv
         if j.free:
             g_lin = g[..., j.qi:j.qi + 3]
             if not convention:  # R^T g
-                xyz_n, w_n, _, _, _ = _unit_xyzw(q, j, convention)
+                xyz_n, w_n, _ = _normalised(xyz, w)
                 g_lin = _rotate(-xyz_n, w_n, g_lin)
             pieces.append((j.vi, g_lin))
         # dxyz = (w u + xyz x u) / 2, dw = -xyz . u / 2, transposed
@@ -190,7 +189,8 @@ def tangent_to_ambient(model: RobotModel, q: torch.Tensor, g: torch.Tensor, conv
     q, g = broadcast_batch(q, g)
     pieces = [(qi, g[..., vi:vi + n]) for qi, vi, n in lay.scalar_runs]
     for j in lay.quaternions:
-        xyz_n, w_n, norm, iw, ixyz = _unit_xyzw(q, j, convention)
+        xyz, w, iw, ixyz = _xyzw(q, j, convention)
+        xyz_n, w_n, norm = _normalised(xyz, w)
         g_ang = g[..., j.angular:j.angular + 3]
         if j.free:
             g_lin = g[..., j.vi:j.vi + 3]
@@ -211,7 +211,8 @@ def tangent_direction(model: RobotModel, q: torch.Tensor, t: torch.Tensor, conve
     q, t = broadcast_batch(q, t)
     pieces = [(vi, t[..., qi:qi + n]) for qi, vi, n in lay.scalar_runs]
     for j in lay.quaternions:
-        xyz_n, w_n, norm, iw, ixyz = _unit_xyzw(q, j, convention)
+        xyz, w, iw, ixyz = _xyzw(q, j, convention)
+        xyz_n, w_n, norm = _normalised(xyz, w)
         t_xyz, t_w = t[..., ixyz], t[..., iw:iw + 1]
         if j.free:  # R^T t in Pinocchio's convention
             t_lin = t[..., j.qi:j.qi + 3]
