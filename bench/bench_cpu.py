@@ -117,7 +117,8 @@ def cuda_stack(name: str = "g1") -> list[str]:
     model = torch_grid.model.parse.source_to_model(bundled or src, floating)
     rows = ["| op | convention | registers | stack (bytes) | spill stores / loads (bytes) |", "|---|---|---|---|---|"]
     for u in cuda_report.report(model, ("float64",)):
-        rows.append(f"| {u.op} | {u.convention} | {u.registers} | {u.stack} | {u.spill_stores} / {u.spill_loads} |")
+        name = u.op if u.kernel == "thread" else f"{u.op} [{u.kernel}]"
+        rows.append(f"| {name} | {u.convention} | {u.registers} | {u.stack} | {u.spill_stores} / {u.spill_loads} |")
     return rows
 
 

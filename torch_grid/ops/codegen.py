@@ -369,27 +369,39 @@ def _binding(op: OpSpec) -> str:
         tensors += arg.is_tensor
         iargs += not arg.is_tensor
     inputs = list(body)
-    body += [f"    a.{o.name} = out[{k}];" for k, o in enumerate(op.outputs)] + ["    a.outputs_zeroed = zeroed;"]
+    outputs = [f"    a.{o.name} = out[{k}];" for k, o in enumerate(op.outputs)]
+    body += outputs + ["    a.outputs_zeroed = zeroed;"]
     body.append(f"    ::tg::{op.kernel}<Robot, Scalar>::run(a{', cv' if op.twin else ''});")
     reframe = {"force": "cv.force_out(a.{o})", "acceleration": f"cv.acceleration_out(a.{velocity}, a.{{o}})",
                "congruence": "cv.congruence_out(a.{o})", "columns": "cv.columns_out(a.{o}, {rows})",
                "force_rows": "cv.force_rows_out(a.{o}, {cols})"}
+    reframes = []
     for o in op.outputs:
         if o.kind in reframe:
             rows = _kernel_size(o.shape[0])
             cols = " * ".join(_kernel_size(d) for d in o.shape[1:])
-            body.append(f"    {reframe[o.kind].format(o=o.name, rows=rows, cols=cols)};")
+            reframes.append(f"    {reframe[o.kind].format(o=o.name, rows=rows, cols=cols)};")
+    body += reframes
+    # A team (kernels/spatial/team.h): every lane converts the inputs alike, the kernel's team path runs, and the
+    # leader reframes the outputs, which the team path leaves whole to every lane.
+    team = inputs + outputs + [f"    ::tg::{op.kernel}<Robot, Scalar>::run_team(t, w, a{', cv' if op.twin else ''});"]
+    if reframes:
+        team += ["    if (t.leader()) {", *(f"  {r}" for r in reframes), "    }"]
     if not iargs:
         body.insert(0, "    (void)iargs; (void)n_iargs;")
         inputs.insert(0, "    (void)iargs; (void)n_iargs;")
+        team.insert(0, "    (void)iargs; (void)n_iargs;")
     contract = ""
     if op.name in CONTRACTED:  # sum(weight * output) without the output: see ForwardModeVjp
         contract = ("\n  template <class T>\n  TG_HD static Scalar contract(const Scalar* const* in, const T* weight, const int* iargs, "
                     "int n_iargs) {\n" + "\n".join(inputs)
                     + f"\n    return ::tg::{op.kernel}<Robot, Scalar>::contract(a, weight, cv);\n  }}")
     return (f"template <class Robot, class Scalar, int C> struct {op.kernel} {{\n"
+            f"  using TeamWork = typename ::tg::TeamWorkOf<::tg::{op.kernel}<Robot, Scalar>>::type;\n"
             f"  TG_HD static void run(const Scalar* const* in, Scalar* const* out, const int* iargs, int n_iargs, bool zeroed = false) {{\n"
-            + "\n".join(body) + "\n  }" + contract + "\n};")
+            + "\n".join(body) + "\n  }" + contract
+            + "\n  template <class Team>\n  TG_HD static void run_team(const Team& t, TeamWork& w, const Scalar* const* in, "
+            "Scalar* const* out, const int* iargs, int n_iargs) {\n" + "\n".join(team) + "\n  }\n};")
 
 
 def bindings_header(table: dict[str, OpSpec] = OPS) -> str:

@@ -4,7 +4,8 @@
                                          [--cache DIR]
 
 compiles every CUDA kernel of the robot (both conventions) with nvcc for `--arch` and prints one
-line per kernel: op, dtype, convention, registers, local memory (stack frame) bytes, spill bytes;
+line per kernel (an op's team kernel, a warp a sample, marked [team]): op, dtype, convention, registers,
+local memory (stack frame) bytes, spill bytes;
 then `max stack: N bytes (kernel)`. It exits with status 1 when a kernel's stack exceeds the budget.
 A GPU reserves that stack for every resident thread (2048 per SM), so it bounds what a launch costs.
 With `--cache DIR`, a unit whose compilation inputs are unchanged (its text, every header it can
@@ -44,9 +45,11 @@ class KernelUsage:
     stack: int  # bytes of local memory per thread
     spill_stores: int
     spill_loads: int
+    kernel: str = "thread"  # "thread": a thread a sample; "team": a warp a sample (the op's team path)
 
     def line(self) -> str:
-        return (f"{self.op:48s} {self.dtype:8s} {self.convention:7s} registers {self.registers:4d}  stack {self.stack:7d} B  "
+        name = self.op if self.kernel == "thread" else f"{self.op} [{self.kernel}]"
+        return (f"{name:48s} {self.dtype:8s} {self.convention:7s} registers {self.registers:4d}  stack {self.stack:7d} B  "
                 f"spill {self.spill_stores}/{self.spill_loads} B")
 
 
@@ -127,25 +130,26 @@ def out_of_line_functions(log: str) -> list[str]:
     """The device functions of ptxas's report other than the kernels and CUDA's own (its slow path of
     trigonometry for huge arguments): functions the kernels call rather than inline."""
     names = set(re.findall(r"Function properties for (\w+)", log))
-    return sorted(_demangle(sorted(n for n in names if "batch_kernel" not in n and not n.startswith("__internal"))))
+    return sorted(_demangle(sorted(n for n in names if not re.search(r"(batch|team)_kernel", n) and not n.startswith("__internal"))))
 
 
 _KERNELS = {op.kernel: op.name for op in OPS.values()}
 
 
 def _parse(log: str) -> list[KernelUsage]:
-    """Read ptxas's 'Function properties' and 'Used N registers' lines of each batch_kernel."""
-    mangled = re.findall(r"Function properties for (_Z\w*batch_kernel\w*)\n\s*(\d+) bytes stack frame, (\d+) bytes spill "
-                         r"stores, (\d+) bytes spill loads\n.*?Used (\d+) registers", log)
+    """Read ptxas's 'Function properties' and 'Used N registers' lines of each batch_kernel and team_kernel."""
+    mangled = re.findall(r"Function properties for (_Z\w*(?:batch|team)_kernel\w*)\n\s*(\d+) bytes stack frame, (\d+) bytes "
+                         r"spill stores, (\d+) bytes spill loads\n.*?Used (\d+) registers", log)
     names = _demangle([m[0] for m in mangled])
     usages = []
     for (_, stack, stores, loads, regs), name in zip(mangled, names):
-        found = re.search(r"batch_kernel<tg::bind::(\w+), [\w:]+, (float|double), (\d)>", name)
+        found = re.search(r"(batch|team)_kernel<tg::bind::(\w+), [\w:]+, (float|double), (\d)>", name)
         if not found:
             raise RuntimeError(f"cannot read the kernel name {name!r}")
-        kernel, scalar, conv = found.groups()
+        launch, kernel, scalar, conv = found.groups()
         usages.append(KernelUsage(_KERNELS[kernel], "float64" if scalar == "double" else "float32",
-                                  "mujoco" if conv == "1" else "pin", int(regs), int(stack), int(stores), int(loads)))
+                                  "mujoco" if conv == "1" else "pin", int(regs), int(stack), int(stores), int(loads),
+                                  "thread" if launch == "batch" else "team"))
     return usages
 
 

@@ -57,6 +57,16 @@ TG_HD void run_sample_coordinate(const Batch& b, int64_t s, int c) {
   Op<Robot, Scalar, C>::run_coordinate(in, out, b.iargs, b.n_iargs, c);
 }
 
+// Sample s by a team (kernels/spatial/team.h) with its shared workspace w: an op with a team path.
+template <template <class, class, int> class Op, class Robot, class Scalar, int C, class Team>
+TG_HD void run_sample_team(const Batch& b, int64_t s, const Team& t, typename Op<Robot, Scalar, C>::TeamWork& w) {
+  const Scalar* in[kMaxIn];
+  Scalar* out[kMaxOut];
+  for (int k = 0; k < kMaxIn; ++k) in[k] = b.in[k] ? static_cast<const Scalar*>(b.in[k]) + s * b.in_stride[k] : nullptr;
+  for (int k = 0; k < kMaxOut; ++k) out[k] = b.out[k] ? static_cast<Scalar*>(b.out[k]) + s * b.out_stride[k] : nullptr;
+  Op<Robot, Scalar, C>::run_team(t, w, in, out, b.iargs, b.n_iargs);
+}
+
 // Samples [begin, end) on the calling CPU thread (cpu_range.h).
 using CpuFn = void (*)(const Batch& b, int64_t begin, int64_t end);
 

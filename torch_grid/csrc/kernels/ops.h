@@ -49,7 +49,11 @@ template <class Robot, class Scalar> struct MassProductVjp {
 };
 
 template <class Robot, class Scalar> struct Minv {
+  using TeamWork = MinvTeamWork<Robot, Scalar>;
   TG_HD static void run(const MinvArgs<Scalar>& a) { minv<Robot, Scalar>(a.q, a.Minv, {a.params}); }
+  template <class Team> TG_HD static void run_team(const Team& t, TeamWork& w, const MinvArgs<Scalar>& a) {
+    minv_team<Robot, Scalar>(t, w, a.q, a.Minv, {a.params});
+  }
 };
 
 template <class Robot, class Scalar> struct GeneralizedGravity {

@@ -273,20 +273,24 @@ template <class Robot, class Scalar> struct JointPlacements {
 #endif
 };
 
+// World placements oMi (NB) from q, body after body, each joint placement built as it is needed.
+template <class Robot, class Scalar> TG_HD void world_placements(const Scalar* q, SE3<Scalar>* oMi) {
+  const auto& d = data<Robot, Scalar>();
+  for (int i = 0; i < Robot::NB; ++i) {
+    const SE3<Scalar> X = joint_placement<Robot, Scalar>(i, q);
+    oMi[i] = d.parent[i] < 0 ? X : oMi[d.parent[i]] * X;
+  }
+}
+
 // The first named pass of an op that runs several algorithms on one sample: world placements oMi
 // and joint placements liMi (local(i)), computed once from q and read by each algorithm in turn.
 // A GPU thread keeps only oMi (its stack) and rebuilds liMi = oMi[parent]^-1 oMi[i], without
 // trigonometry.
+
 template <class Robot, class Scalar> struct Placements {
   SE3<Scalar> oMi[Robot::NB];
 #if TG_DEVICE_PATH
-  TG_HD explicit Placements(const Scalar* q) {
-    const auto& d = data<Robot, Scalar>();
-    for (int i = 0; i < Robot::NB; ++i) {
-      const SE3<Scalar> X = joint_placement<Robot, Scalar>(i, q);
-      oMi[i] = d.parent[i] < 0 ? X : oMi[d.parent[i]] * X;
-    }
-  }
+  TG_HD explicit Placements(const Scalar* q) { world_placements<Robot, Scalar>(q, oMi); }
   TG_HD SE3<Scalar> local(int i) const {
     const int p = data<Robot, Scalar>().parent[i];
     return p < 0 ? oMi[i] : inverse_times(oMi[p], oMi[i]);

@@ -1,0 +1,113 @@
+// The team paths of the op kernels (kernels/spatial/team.h) on 32 CPU threads, one per lane of a GPU warp, with
+// a barrier for the warp's sync: built with ThreadSanitizer by tests/test_teams.py, it reports any entry of the
+// shared workspace or of the outputs that two lanes touch without a sync between them. Each op's outputs are also
+// held equal to its one-thread kernel's, in each convention the robot library has.
+//
+//   team_harness SAMPLES [--no-sync]   (prints one line per op and convention; exit status 1 on a difference)
+// --no-sync leaves the syncs out: the races they prevent then show (tests/test_teams.py checks that they do).
+#include <pthread.h>
+
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "batch/batch.h"
+#include "bindings.h"
+#include "robot.h"
+
+using Robot = TG_NAMESPACE::Robot;
+
+bool skip_syncs = false;
+
+struct ThreadTeam {
+  static constexpr int lanes = 32;
+  int lane_;
+  pthread_barrier_t* barrier;
+  int lane() const { return lane_; }
+  bool leader() const { return lane_ == 0; }
+  void sync() const {
+    if (!skip_syncs) pthread_barrier_wait(barrier);
+  }
+  tg::TeamItems items(int b, int e) const { return {b, e, tg::team_first(b, lane_, lanes), lanes, false}; }
+};
+
+// A random configuration in layout C: unit quaternions at free and ball joints, angles elsewhere.
+std::vector<double> configuration(std::mt19937& gen, int C) {
+  const auto& d = Robot::data<double>();
+  std::normal_distribution<double> normal;
+  std::vector<double> q(Robot::NQ);
+  for (double& x : q) x = normal(gen);
+  for (int i = 0; i < Robot::NB; ++i) {
+    if (d.jtype[i] != tg::FREE && d.jtype[i] != tg::BALL) continue;
+    double* quat = q.data() + d.qi[i] + (d.jtype[i] == tg::FREE ? 3 : 0);
+    const double n = std::sqrt(quat[0] * quat[0] + quat[1] * quat[1] + quat[2] * quat[2] + quat[3] * quat[3]);
+    for (int c = 0; c < 4; ++c) quat[c] /= n;
+  }
+  (void)C;  // any unit 4-vector is a unit quaternion in either order
+  return q;
+}
+
+// One op on n samples: the team of threads against the one-thread kernel; the largest difference, relative to the
+// largest entry.
+template <template <class, class, int> class Op, int C>
+double compare(int n, int in_count, int out_size) {
+  using Bound = Op<Robot, double, C>;
+  std::mt19937 gen(7);
+  double worst = 0;
+  for (int s = 0; s < n; ++s) {
+    const std::vector<double> q = configuration(gen, C);
+    const double* in[tg::kMaxIn] = {q.data()};
+    for (int k = 1; k < in_count; ++k) in[k] = nullptr;
+    std::vector<double> solo(out_size, NAN), team(out_size, NAN);
+    double* out_solo[tg::kMaxOut] = {solo.data()};
+    double* out_team[tg::kMaxOut] = {team.data()};
+    int iargs[1] = {0};
+    Bound::run(in, out_solo, iargs, 0, false);
+    typename Bound::TeamWork w;
+    pthread_barrier_t barrier;
+    pthread_barrier_init(&barrier, nullptr, ThreadTeam::lanes);
+    std::vector<pthread_t> threads(ThreadTeam::lanes);
+    struct Lane {
+      ThreadTeam t;
+      typename Bound::TeamWork* w;
+      const double* const* in;
+      double* const* out;
+      int* iargs;
+    };
+    std::vector<Lane> lanes;
+    for (int l = 0; l < ThreadTeam::lanes; ++l) lanes.push_back({{l, &barrier}, &w, in, out_team, iargs});
+    for (int l = 0; l < ThreadTeam::lanes; ++l)
+      pthread_create(&threads[l], nullptr, [](void* p) -> void* {
+        Lane* lane = static_cast<Lane*>(p);
+        Bound::run_team(lane->t, *lane->w, lane->in, lane->out, lane->iargs, 0);
+        return nullptr;
+      }, &lanes[l]);
+    for (pthread_t& t : threads) pthread_join(t, nullptr);
+    pthread_barrier_destroy(&barrier);
+    double scale = 0, diff = 0;
+    for (int k = 0; k < out_size; ++k) {
+      scale = std::fmax(scale, std::fabs(solo[k]));
+      diff = std::isfinite(team[k]) ? std::fmax(diff, std::fabs(team[k] - solo[k])) : INFINITY;
+    }
+    worst = std::fmax(worst, diff / scale);
+  }
+  return worst;
+}
+
+int main(int argc, char** argv) {
+  const int n = argc > 1 ? std::atoi(argv[1]) : 3;
+  skip_syncs = argc > 2 && std::string(argv[2]) == "--no-sync";
+  bool ok = true;
+  const auto report = [&](const char* op, const char* conv, double err) {
+    std::printf("%s %s %.3g\n", op, conv, err);
+    ok = ok && err <= 1e-13;
+  };
+  report("minv", "pin", compare<tg::bind::Minv, tg::PIN>(n, 2, Robot::NV * Robot::NV));
+#ifdef TG_MUJOCO
+  report("minv", "mujoco", compare<tg::bind::Minv, tg::MUJOCO>(n, 2, Robot::NV * Robot::NV));
+#endif
+  return ok ? 0 : 1;
+}

@@ -1,0 +1,56 @@
+"""The team paths of the op kernels (csrc/kernels/spatial/team.h), which a GPU runs as one warp per sample
+(TORCH_GRID_CUDA_TEAMS=1), run here by 32 CPU threads with a barrier for the warp's sync (tests/team_harness.cpp)
+under ThreadSanitizer: no entry of the shared workspace or of the outputs is touched by two lanes without a sync
+between them, and the outputs equal the one-thread kernel's in both conventions. The harness is also run with its
+syncs left out, where ThreadSanitizer must report the races the syncs prevent."""
+from __future__ import annotations
+
+import os
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from torch_grid.model.parse import source_to_model
+from torch_grid.ops import codegen
+from torch_grid.ops.build import CSRC, op_namespace
+
+HERE = Path(__file__).resolve().parent
+MODELS = HERE.parent / "bench" / "gpu" / "models"
+RACE = 66  # the exit status ThreadSanitizer is told to use
+
+
+def harness(name: str, directory: Path) -> Path:
+    """The harness for one saved robot model, built with ThreadSanitizer on its generated sources (CPU paths of
+    a GPU thread: TG_DEVICE_PATHS)."""
+    model = source_to_model(str(MODELS / f"{name}.json"), None)
+    namespace = op_namespace(model, True)
+    codegen.write_robot_sources(model, True, False, namespace, directory)
+    exe = directory / "team_harness"
+    cmd = [os.environ.get("CXX", "c++"), "-std=c++17", "-O1", "-g", "-fsanitize=thread", "-pthread", "-DTG_DEVICE_PATHS",
+           f"-DTG_NAMESPACE={namespace}", *(["-DTG_MUJOCO"] if model.conventions_differ else []),
+           f"-I{CSRC}", f"-I{directory}", str(HERE / "team_harness.cpp"), "-o", str(exe)]
+    subprocess.run(cmd, check=True, capture_output=True, text=True, timeout=600)
+    return exe
+
+
+def run(exe: Path, *args: str) -> subprocess.CompletedProcess:
+    env = dict(os.environ, TSAN_OPTIONS=f"halt_on_error=1 exitcode={RACE}")
+    return subprocess.run([str(exe), *args], capture_output=True, text=True, timeout=600, env=env)
+
+
+# go2: a free root; the humanoid: ball joints and bodies of several joints; iiwa14: a fixed base (one convention)
+@pytest.mark.parametrize("name", ["go2", "humanoid", "iiwa14"])
+def test_a_warp_of_threads_computes_what_one_thread_computes_without_a_race(name, tmp_path):
+    exe = harness(name, tmp_path)
+    result = run(exe, "3")
+    assert result.returncode == 0, result.stdout + result.stderr[-4000:]
+    lines = dict(line.rsplit(" ", 1) for line in result.stdout.splitlines())
+    conventions = ["pin", "mujoco"] if name != "iiwa14" else ["pin"]
+    assert sorted(lines) == sorted(f"minv {c}" for c in conventions), result.stdout
+    assert all(float(err) <= 1e-13 for err in lines.values()), result.stdout
+
+
+def test_the_harness_reports_the_races_that_the_syncs_prevent(tmp_path):
+    result = run(harness("go2", tmp_path), "1", "--no-sync")
+    assert result.returncode == RACE and "ThreadSanitizer: data race" in result.stderr, result.stdout + result.stderr[-2000:]
