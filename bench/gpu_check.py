@@ -9,9 +9,10 @@ archive is there, a build takes each object whose digest matches the unit it gen
 the others). Stages run as separate processes, each with its own time limit, so a crash or hang in one
 leaves the others' results: the builds; per robot, every function's values (float64 and float32, both
 conventions), batch sizes and memory layouts, gradients, double backward, forward mode and vmap, and
-the functions given inertial parameters; the device stages (streams, CUDA graphs, torch.compile, the
-examples, the local-memory reservation and the budget refusal); compute-sanitizer's memcheck and
-initcheck; the kernels' resources (cuobjdump), one kernel's achieved occupancy and six kernels' ncu sections
+the functions given inertial parameters, and the ops' team paths (one warp per sample, TORCH_GRID_CUDA_TEAMS=1);
+the device stages (streams, CUDA graphs, torch.compile, the examples, the local-memory reservation and the
+budget refusal); compute-sanitizer's memcheck and initcheck; the kernels' resources (cuobjdump), one kernel's
+achieved occupancy and eight kernels' ncu sections
 (gpu_device.PROFILED: throughput, memory traffic, warp stalls); the MPC path
 (gpu_mpc.py: examples/ilqr.py's go2 task, 256 samples by 50 knots, and its parts, eager and from CUDA
 graphs, against the CPU build); the figures. Into --out (default $OUT, else bench/gpu):
@@ -43,7 +44,7 @@ sys.path.insert(0, str(HERE))
 from gpu_models import MODELS, MODELS_DIR  # noqa: E402
 
 PREBUILT = ROOT / ".gpu" / "prebuilt.tar.xz"
-PER_ROBOT = ("values", "batches", "gradients", "parameters")
+PER_ROBOT = ("values", "batches", "gradients", "parameters", "teams")
 
 
 # -- one stage, in its own process ----------------------------------------------------------------
@@ -86,6 +87,8 @@ def run_stage(stage: str, robot: str | None, cpu: bool, threads: int) -> int:
         correctness.gradients(checks, _robot(robot), device, 5)
     elif stage == "parameters":
         correctness.parameters(checks, _robot(robot), device)
+    elif stage == "teams":
+        correctness.teams(checks, _robot(robot), device, [1, 7, 33] if cpu else [1, 7, 255, 5000])
     elif stage == "device":
         gpu_device.streams(checks, _robot("go2"), device)
         gpu_device.graphs(checks, _robot("go2"), device)
@@ -307,7 +310,7 @@ def _tools(stage, log: Log, out: Path, skip: list[str]) -> None:
             sections = [a for name in NCU_SECTIONS for a in ("--section", name)]
             text += "\n" + stage("ncu sections", ["--stage", "profiled_calls"], 150,
                                  wrapper=[tool("ncu"), "--clock-control", "none", "--target-processes", "all", "-k",
-                                          "regex:batch_kernel", "--launch-count", str(len(PROFILED)), *sections])
+                                          "regex:(batch|team)_kernel", "--launch-count", str(len(PROFILED)), *sections])
             (out / "ncu.txt").write_text(text)
     (out / "sanitizer.log").write_text("\n".join(sanitizer))
 

@@ -7,6 +7,7 @@ Each check prints one line, `PASS name`, `FAIL name: why` or `SKIP name: why` (g
 """
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 
@@ -343,3 +344,49 @@ def parameters(checks: Checks, robot, device: torch.device) -> None:
                 q_, qd_, x_, p_ = on(inputs, dev)
                 return torch.func.jvp(lambda p: tuple(tensors(call(view, q_, qd_, x_, p))), (p_,), (tangent.to(dev),))
             checks.run(f"{conv} params forward mode {name}", lambda jvp=jvp: compare(jvp(device), jvp("cpu"), GRAD_TOL, device))
+
+
+# The ops with a team path (csrc/kernels/spatial/team.h), which TORCH_GRID_CUDA_TEAMS=1 runs as one warp per sample.
+TEAM_CALLS = {
+    "minv": lambda v, q, p: v.minv(q),
+    "minv params": lambda v, q, p: v.minv(q, params=p),
+}
+
+
+class TeamPaths:
+    """TORCH_GRID_CUDA_TEAMS=1 inside, restored after (the robot libraries read it at each launch)."""
+
+    def __enter__(self):
+        self.before = os.environ.get("TORCH_GRID_CUDA_TEAMS")
+        os.environ["TORCH_GRID_CUDA_TEAMS"] = "1"
+
+    def __exit__(self, *exc):
+        if self.before is None:
+            del os.environ["TORCH_GRID_CUDA_TEAMS"]
+        else:
+            os.environ["TORCH_GRID_CUDA_TEAMS"] = self.before
+
+
+def teams(checks: Checks, robot, device: torch.device, sizes: list[int]) -> None:
+    """The team paths on the device against the CPU build, both conventions, float64 to 1e-12 and float32 against
+    float64 on the same rounded inputs, at every batch size (with per-sample inertial parameters at the last)."""
+    for conv, view in views(robot):
+        for size in sizes:
+            q = states(view, size, seed=6)[0]
+            p = _inertial_parameters(robot)[torch.arange(size) % 3]
+            for name, call in TEAM_CALLS.items():
+                def f64(call=call):
+                    with TeamPaths():
+                        got = call(view, *on((q, p), device))
+                    return compare(got, call(view, q, p), F64_TOL, device, torch.float64)
+                checks.run(f"{conv} teams float64 batch {size} {name}", f64)
+
+                def f32(name=name, call=call):
+                    rounded = on((q, p), "cpu", torch.float32)
+                    with TeamPaths():
+                        got = call(view, *on(rounded, device))
+                    ref = call(view, *on(rounded, "cpu", torch.float64))
+                    why = compare(got, ref, float("inf"), device, torch.float32)
+                    err = relative_error(got, ref)
+                    return why or (None if err <= f32_tolerance(name) else f"float32 relative error {err:.2e}")
+                checks.run(f"{conv} teams float32 batch {size} {name}", f32)

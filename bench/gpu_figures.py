@@ -6,6 +6,7 @@ Each figure is printed as `FIGURE {json}`; gpu_check.py gathers them into result
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 import shutil
@@ -15,13 +16,15 @@ import time
 
 import torch
 
-from gpu_correctness import on, states
+from gpu_correctness import TeamPaths, on, states
 
 OPS = {
     "inverse_dynamics": lambda v, q, qd, x: v.inverse_dynamics(q, qd, x),
     "forward_dynamics": lambda v, q, qd, x: v.forward_dynamics(q, qd, x),
     "crba": lambda v, q, qd, x: v.crba(q),
     "minv": lambda v, q, qd, x: v.minv(q),
+    # one warp a sample (TORCH_GRID_CUDA_TEAMS=1, the ops' team paths), on the device only
+    "minv[teams]": lambda v, q, qd, x: _with_teams(lambda: v.minv(q)),
     "inverse_dynamics_derivatives": lambda v, q, qd, x: v.inverse_dynamics_derivatives(q, qd, x),
     "forward_dynamics_derivatives": lambda v, q, qd, x: v.forward_dynamics_derivatives(q, qd, x),
     "inverse_dynamics_second_derivatives": lambda v, q, qd, x: v.inverse_dynamics_second_derivatives(q, qd, x),
@@ -32,9 +35,17 @@ OPS = {
     "step_derivatives[semi_implicit_euler, composed]":
         lambda v, q, qd, x: v._step_derivatives(q, qd, x, 0.01, None, v._params, "semi_implicit_euler")[2:],
 }
+# The team figures: the op of that name timed with the team paths taken for the whole measurement.
+TEAMS = {"minv[teams]": "minv"}
 # floats written per sample, for the memory cap below
 OUTPUTS = {"inverse_dynamics_second_derivatives": lambda nv: 4 * nv ** 3, "step_derivatives[rk4]": lambda nv: 6 * nv ** 2}
 MAX_OUTPUT_BYTES = 8 << 30
+
+
+def _with_teams(call):
+    """call() with the ops' team paths taken (gpu_correctness.TeamPaths)."""
+    with TeamPaths():
+        return call()
 
 
 def _cuda_seconds(fn, target: float = 0.03) -> tuple[float, float]:
@@ -86,7 +97,7 @@ def timings(robots: dict, device: torch.device, sizes: list[int], cpu_sizes: lis
             for op, call in OPS.items():
                 per_sample = OUTPUTS.get(op, lambda nv: 0)(robot.nv) * (8 if dtype == torch.float64 else 4)
                 for where, batch_sizes in (("device", sizes), ("cpu", cpu_sizes)):
-                    if where == "device" and device.type != "cuda":
+                    if (where == "device" and device.type != "cuda") or (where == "cpu" and op in TEAMS):
                         continue
                     for n in batch_sizes:
                         if per_sample * n > MAX_OUTPUT_BYTES:
@@ -94,7 +105,10 @@ def timings(robots: dict, device: torch.device, sizes: list[int], cpu_sizes: lis
                                   "outputs", flush=True)
                             continue
                         x = [t[:n].to(device if where == "device" else "cpu") for t in base]
-                        best, median = (_cuda_seconds if where == "device" else _cpu_seconds)(lambda x=x: call(view, *x))
+                        timed = OPS[TEAMS[op]] if op in TEAMS else call
+                        with TeamPaths() if op in TEAMS else contextlib.nullcontext():
+                            best, median = (_cuda_seconds if where == "device" else _cpu_seconds)(
+                                lambda x=x, timed=timed: timed(view, *x))
                         record = {"device": meta["device"] if where == "device" else cpu_label, "robot": name, "op": op,
                                   "dtype": str(dtype).replace("torch.", ""), "batch": n,
                                   "us_per_sample": best * 1e6 / n, "us_per_call_median": median * 1e6,
@@ -130,13 +144,15 @@ def call_overhead(robot, device: torch.device, meta: dict) -> None:
 
 
 def _kernel_of(mangled: str) -> tuple[str, str, str] | None:
-    """(kernel struct, scalar, convention) of a mangled tg::batch_kernel<tg::bind::K, Robot, S, C> name."""
+    """(kernel struct, scalar, convention) of a mangled tg::batch_kernel<tg::bind::K, Robot, S, C> name, the struct
+    marked [team] for a tg::team_kernel (a warp a sample)."""
     bind = re.search(r"4bind(\d+)", mangled)
-    tail = re.search(r"E([df])Li(\d)EEEvNS_5BatchE$", mangled)
-    if "batch_kernel" not in mangled or not bind or not tail:
+    tail = re.search(r"E([df])Li(\d)EEEvNS_5BatchE(i?)$", mangled)
+    team = "team_kernel" in mangled
+    if not (team or "batch_kernel" in mangled) or not bind or not tail or team != (tail.group(3) == "i"):
         return None
     start = bind.end()
-    return (mangled[start:start + int(bind.group(1))], "double" if tail.group(1) == "d" else "float",
+    return (mangled[start:start + int(bind.group(1))] + (" [team]" if team else ""), "double" if tail.group(1) == "d" else "float",
             "mjx" if tail.group(2) == "1" else "pin")
 
 
@@ -170,6 +186,7 @@ def resources(libraries: dict[str, str], threads_per_block: int = 128) -> str:
             warps_per_block = threads_per_block // 32
             per_warp = ((max(regs_i, 1) * 32 + 255) // 256) * 256
             blocks = min(32, (65536 // per_warp) // warps_per_block, 64 // warps_per_block)
-            occupancy = blocks * warps_per_block / 64
-            lines.append(f"{robot:10s} {op:52s} {scalar:6s} {conv:6s} {regs_i:4d} {int(stack):8d} {occupancy:9.3f}")
+            # a team kernel's blocks are also bounded by their shared memory, which cuobjdump does not give here
+            occupancy = "-" if op.endswith("[team]") else f"{blocks * warps_per_block / 64:.3f}"
+            lines.append(f"{robot:10s} {op:52s} {scalar:6s} {conv:6s} {regs_i:4d} {int(stack):8d} {occupancy:>9s}")
     return "\n".join(lines) + "\n"

@@ -23,7 +23,7 @@ def test_gpu_check_with_the_cpu_standing_in(tmp_path):
     assert found and found.group(2) == "0" and result.returncode == 0, result.stdout[-6000:] + result.stderr[-3000:]
     assert int(found.group(1)) > 700  # every function, both conventions, gradients, batches, the examples
     log = (tmp_path / "check.log").read_text()
-    for stage in ("values iiwa14", "batches gripper", "gradients gripper", "device", "mpc", "figures"):
+    for stage in ("values iiwa14", "batches gripper", "gradients gripper", "teams iiwa14", "device", "mpc", "figures"):
         assert f"---- {stage}: ok" in log, stage
     figures = json.loads((tmp_path / "results.json").read_text())
     assert figures and all({"device", "robot", "op", "dtype", "batch", "us_per_sample", "torch", "commit"} <= set(f)
