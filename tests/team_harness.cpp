@@ -34,8 +34,9 @@ struct ThreadTeam {
   tg::TeamItems items(int b, int e) const { return {b, e, tg::team_first(b, lane_, lanes), lanes, false}; }
 };
 
-// A random configuration in layout C: unit quaternions at free and ball joints, angles elsewhere.
-std::vector<double> configuration(std::mt19937& gen, int C) {
+// A random configuration: unit quaternions at free and ball joints (any unit 4-vector is one, in either
+// convention's order), angles elsewhere.
+std::vector<double> configuration(std::mt19937& gen) {
   const auto& d = Robot::data<double>();
   std::normal_distribution<double> normal;
   std::vector<double> q(Robot::NQ);
@@ -46,7 +47,6 @@ std::vector<double> configuration(std::mt19937& gen, int C) {
     const double n = std::sqrt(quat[0] * quat[0] + quat[1] * quat[1] + quat[2] * quat[2] + quat[3] * quat[3]);
     for (int c = 0; c < 4; ++c) quat[c] /= n;
   }
-  (void)C;  // any unit 4-vector is a unit quaternion in either order
   return q;
 }
 
@@ -58,7 +58,7 @@ double compare(int n, int in_count, int out_size) {
   std::mt19937 gen(7);
   double worst = 0;
   for (int s = 0; s < n; ++s) {
-    const std::vector<double> q = configuration(gen, C);
+    const std::vector<double> q = configuration(gen);
     const double* in[tg::kMaxIn] = {q.data()};
     for (int k = 1; k < in_count; ++k) in[k] = nullptr;
     std::vector<double> solo(out_size, NAN), team(out_size, NAN);
