@@ -18,9 +18,10 @@ namespace tg {
 // A team runs one sample (team.h): the columns col of M^-1 and of F and A are col's lane's alone, from the first
 // loop to the last; each body's axes and U about the root's origin the leader stores, and D^-1 and IA's update
 // every lane computes alike (the leader storing D^-1 for the forward pass); IA's entries spread over the lanes as
-// they pass to the parent.
-template <class Robot, class Scalar> struct MinvWork {
+// they pass to the parent. ByDepth: A's slots (Levels).
+template <class Robot, class Scalar, bool ByDepth = TG_DEVICE_PATH != 0> struct MinvWork {
   static constexpr int NV = Robot::NV;
+  using L = Levels<Robot, ByDepth>;
   const SE3<Scalar>* oMi;  // world placements (the Placements pass)
   M6<Scalar> IA[Robot::NB];  // articulated inertias, about joint i's origin
   // Per dof (joint i's k-th at vi + k): its axis and U = IA S about the root's origin, and row k of
@@ -28,18 +29,19 @@ template <class Robot, class Scalar> struct MinvWork {
   Sv<Scalar> Sw[NV], Uw[NV];
   Scalar Dinv[NV][6];
   Sv<Scalar> F[NV];  // F[col]: force on the subtree owning col per unit torque at col, about the root's origin
-  Sv<Scalar> A[Levels<Robot>::N][NV];  // A[body][col]: its acceleration per unit torque at col, likewise (Levels)
+  Sv<Scalar> A[L::N][NV];  // A[body][col]: its acceleration per unit torque at col, likewise (Levels)
 };
 
-// A team's shared workspace: the world placements beside the above.
+// A team's shared workspace: the world placements beside the above, by depth on the host too (team_launch sizes it).
 template <class Robot, class Scalar> struct MinvTeamWork {
   SE3<Scalar> oMi[Robot::NB];
-  MinvWork<Robot, Scalar> w;
+  MinvWork<Robot, Scalar, true> w;
 };
 
 // Backward step of body i: U, Dinv, the subtree block of rows i of Minv, and IA passed to the
 // parent.
-template <int N, class Robot, class Scalar, class Team> TG_HD void minv_backward(const Team& t, int i, MinvWork<Robot, Scalar>& w, Scalar* Minv) {
+template <int N, class Robot, class Scalar, bool ByDepth, class Team>
+TG_HD void minv_backward(const Team& t, int i, MinvWork<Robot, Scalar, ByDepth>& w, Scalar* Minv) {
   const auto& d = data<Robot, Scalar>();
   constexpr int NV = Robot::NV;
   const int vi = d.vi[i], p = d.parent[i];
@@ -88,10 +90,11 @@ template <int N, class Robot, class Scalar, class Team> TG_HD void minv_backward
 }
 
 // Forward step of body i on the upper triangle: Minv_i -= Dinv U^T A_parent, A_i = A_parent + S Minv_i.
-template <int N, class Robot, class Scalar, class Team> TG_HD void minv_forward(const Team& t, int i, MinvWork<Robot, Scalar>& w, Scalar* Minv) {
+template <int N, class Robot, class Scalar, bool ByDepth, class Team>
+TG_HD void minv_forward(const Team& t, int i, MinvWork<Robot, Scalar, ByDepth>& w, Scalar* Minv) {
   const auto& d = data<Robot, Scalar>();
   constexpr int NV = Robot::NV;
-  using L = Levels<Robot>;
+  using L = typename MinvWork<Robot, Scalar, ByDepth>::L;
   const int vi = d.vi[i], p = d.parent[i], l = L::of(d, i), lp = L::parent(d, i);
   for (const int col : t.items(vi, NV)) {
     Scalar x[N];
@@ -114,8 +117,9 @@ template <int N, class Robot, class Scalar, class Team> TG_HD void minv_forward(
 
 // M^-1 (NV x NV, row-major) at the world placements oMi, by team t with its workspace w; all of it written when
 // every lane returns.
-template <class Robot, class Scalar, class Team>
-TG_HD void minv(const Team& t, const SE3<Scalar>* oMi, MinvWork<Robot, Scalar>& w, Scalar* Minv, const InertialParameters<Robot, Scalar>& pi = {}) {
+template <class Robot, class Scalar, bool ByDepth, class Team>
+TG_HD void minv(const Team& t, const SE3<Scalar>* oMi, MinvWork<Robot, Scalar, ByDepth>& w, Scalar* Minv,
+                const InertialParameters<Robot, Scalar>& pi = {}) {
   const auto& d = data<Robot, Scalar>();
   constexpr int NV = Robot::NV;
   if (t.leader()) w.oMi = oMi;

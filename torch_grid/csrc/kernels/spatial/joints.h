@@ -242,17 +242,18 @@ template <class Robot, class Scalar> TG_HD void body_velocities(const Scalar* q,
 
 // Storage for what a forward pass leaves a body's children (velocity, acceleration): on a GPU thread
 // one slot per tree level, since in depth-first order a body's ancestors hold the levels above its
-// own (a small stack); on the host one per body, which the compiler keeps faster.
-template <class Robot> struct Levels {
-#if TG_DEVICE_PATH
+// own (a small stack); on the host one per body, which the compiler keeps faster. A workspace the
+// host sizes for a GPU (a team's, in shared memory) asks for ByDepth itself: a CUDA unit's host pass
+// has TG_DEVICE_PATH 0, and would count one slot per body.
+template <class Robot, bool ByDepth = TG_DEVICE_PATH != 0> struct Levels {
   static constexpr int N = Robot::ND;
   template <class Scalar> TG_HD static int of(const Scalar& d, int i) { return d.depth[i]; }
   template <class Scalar> TG_HD static int parent(const Scalar& d, int i) { return d.depth[i] - 1; }
-#else
+};
+template <class Robot> struct Levels<Robot, false> {
   static constexpr int N = Robot::NB;
   template <class Scalar> TG_HD static int of(const Scalar&, int i) { return i; }
   template <class Scalar> TG_HD static int parent(const Scalar& d, int i) { return d.parent[i]; }
-#endif
 };
 
 // Joint placements liMi: place(i) computes one in a forward pass and [i] reads it again in a later
