@@ -51,19 +51,31 @@ std::vector<double> configuration(std::mt19937& gen) {
 }
 
 // One op on n samples: the team of threads against the one-thread kernel; the largest difference, relative to the
-// largest entry.
+// largest entry of each output. Inputs after q are normal random numbers, of the sizes given (0: absent); the
+// outputs are of the sizes given.
 template <template <class, class, int> class Op, int C>
-double compare(int n, int in_count, int out_size) {
+double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes) {
   using Bound = Op<Robot, double, C>;
   std::mt19937 gen(7);
+  std::normal_distribution<double> normal;
   double worst = 0;
   for (int s = 0; s < n; ++s) {
-    const std::vector<double> q = configuration(gen);
-    const double* in[tg::kMaxIn] = {q.data()};
-    for (int k = 1; k < in_count; ++k) in[k] = nullptr;
-    std::vector<double> solo(out_size, NAN), team(out_size, NAN);
-    double* out_solo[tg::kMaxOut] = {solo.data()};
-    double* out_team[tg::kMaxOut] = {team.data()};
+    std::vector<std::vector<double>> inputs{configuration(gen)};
+    for (std::size_t k = 1; k < in_sizes.size(); ++k) {
+      inputs.emplace_back(in_sizes[k]);
+      for (double& x : inputs.back()) x = normal(gen);
+    }
+    const double* in[tg::kMaxIn] = {};
+    for (std::size_t k = 0; k < in_sizes.size(); ++k) in[k] = in_sizes[k] ? inputs[k].data() : nullptr;
+    std::vector<std::vector<double>> solo, team;
+    double* out_solo[tg::kMaxOut] = {};
+    double* out_team[tg::kMaxOut] = {};
+    for (std::size_t k = 0; k < out_sizes.size(); ++k) {
+      solo.emplace_back(out_sizes[k], NAN);
+      team.emplace_back(out_sizes[k], NAN);
+      out_solo[k] = solo[k].data();
+      out_team[k] = team[k].data();
+    }
     int iargs[1] = {0};
     Bound::run(in, out_solo, iargs, 0, false);
     typename Bound::TeamWork w;
@@ -87,27 +99,39 @@ double compare(int n, int in_count, int out_size) {
       }, &lanes[l]);
     for (pthread_t& t : threads) pthread_join(t, nullptr);
     pthread_barrier_destroy(&barrier);
-    double scale = 0, diff = 0;
-    for (int k = 0; k < out_size; ++k) {
-      scale = std::fmax(scale, std::fabs(solo[k]));
-      diff = std::isfinite(team[k]) ? std::fmax(diff, std::fabs(team[k] - solo[k])) : INFINITY;
+    for (std::size_t k = 0; k < out_sizes.size(); ++k) {
+      double scale = 0, diff = 0;
+      for (int e = 0; e < out_sizes[k]; ++e) {
+        scale = std::fmax(scale, std::fabs(solo[k][e]));
+        diff = std::isfinite(team[k][e]) ? std::fmax(diff, std::fabs(team[k][e] - solo[k][e])) : INFINITY;
+      }
+      worst = std::fmax(worst, diff / scale);
     }
-    worst = std::fmax(worst, diff / scale);
   }
   return worst;
+}
+
+// Every op with a team path, in convention C: minv, inverse_dynamics_derivatives (with external forces) and
+// forward_dynamics_derivatives (without).
+template <int C> void compare_all(int n, const char* conv, bool& ok) {
+  constexpr int NQ = Robot::NQ, NV = Robot::NV, NB = Robot::NB;
+  const auto report = [&](const char* op, double err) {
+    std::printf("%s %s %.3g\n", op, conv, err);
+    ok = ok && err <= 1e-13;
+  };
+  report("minv", compare<tg::bind::Minv, C>(n, {NQ, 0}, {NV * NV}));
+  report("inverse_dynamics_derivatives", compare<tg::bind::InverseDynamicsDerivatives, C>(n, {NQ, NV, NV, 6 * NB, 0}, {NV * NV, NV * NV}));
+  report("forward_dynamics_derivatives",
+         compare<tg::bind::ForwardDynamicsDerivatives, C>(n, {NQ, NV, NV, 0, 0}, {NV * NV, NV * NV, NV * NV}));
 }
 
 int main(int argc, char** argv) {
   const int n = argc > 1 ? std::atoi(argv[1]) : 3;
   skip_syncs = argc > 2 && std::string(argv[2]) == "--no-sync";
   bool ok = true;
-  const auto report = [&](const char* op, const char* conv, double err) {
-    std::printf("%s %s %.3g\n", op, conv, err);
-    ok = ok && err <= 1e-13;
-  };
-  report("minv", "pin", compare<tg::bind::Minv, tg::PIN>(n, 2, Robot::NV * Robot::NV));
+  compare_all<tg::PIN>(n, "pin", ok);
 #ifdef TG_MUJOCO
-  report("minv", "mujoco", compare<tg::bind::Minv, tg::MUJOCO>(n, 2, Robot::NV * Robot::NV));
+  compare_all<tg::MUJOCO>(n, "mujoco", ok);
 #endif
   return ok ? 0 : 1;
 }

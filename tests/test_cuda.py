@@ -24,9 +24,10 @@ needs_gpu = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA de
 # compiler, the flags and the text of every source a unit can include).
 NVCC_CACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "torch_grid_tests" / "nvcc"
 # The kernels with a team path (csrc/kernels/spatial/team.h: a warp a sample), and the most stack a lane of one
-# may take on the G1 humanoid (its workspace is in shared memory; one thread a sample takes 12-37 KB for minv).
-TEAM_KERNELS = {"Minv"}
-TEAM_STACK = 2048
+# may take on the G1 humanoid, by convention: the sample's workspace is in shared memory (one thread a sample takes
+# 25-42 KB for these), and the MuJoCo twins' leader alone reframes the outputs, with arrays of its own.
+TEAM_KERNELS = {"Minv", "InverseDynamicsDerivatives", "ForwardDynamicsDerivatives"}
+TEAM_STACK = {"pin": 2048, "mujoco": 6144}
 
 
 @pytest.fixture(scope="module")
@@ -92,7 +93,7 @@ def test_cuda_stack_budget_on_a_humanoid(erd_robots_dir):
     teams = [u for u in usages if u.kernel == "team"]
     assert {(OPS[u.op].kernel, u.convention) for u in teams} == {(k, c) for k in TEAM_KERNELS for c in ("pin", "mujoco")}
     for u in teams:
-        assert u.stack <= TEAM_STACK, f"{u.op} [team] ({u.convention}): {u.stack} bytes of stack per thread"
+        assert u.stack <= TEAM_STACK[u.convention], f"{u.op} [team] ({u.convention}): {u.stack} bytes of stack per thread"
 
 
 def test_compile_cache_reuses_only_unchanged_inputs(tmp_path):

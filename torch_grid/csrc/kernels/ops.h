@@ -169,9 +169,14 @@ template <class Robot, class Scalar> struct FramesVjp {
 };
 
 template <class Robot, class Scalar> struct InverseDynamicsDerivatives {
+  using TeamWork = InverseDynamicsDerivativesTeamWork<Robot, Scalar>;
   template <int C> TG_HD static void run(const InverseDynamicsDerivativesArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
     const Placements<Robot, Scalar> K(a.q);
     inverse_dynamics_derivatives<Robot, Scalar>(K, a.qd, a.qdd, a.f_ext, cv, a.dtau_dq, a.dtau_dqd, {a.params});
+  }
+  template <int C, class Team>
+  TG_HD static void run_team(const Team& t, TeamWork& w, const InverseDynamicsDerivativesArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
+    inverse_dynamics_derivatives<Robot, Scalar>(t, w, a.q, a.qd, a.qdd, a.f_ext, cv, a.dtau_dq, a.dtau_dqd, {a.params});
   }
 };
 
@@ -209,13 +214,21 @@ template <class Robot, class Scalar> struct InverseDynamicsDerivativesTangent {
   }
 };
 
-// On a device path the glue finishes dqdd/dq and dqdd/dqd as -M^-1 dtau/dx (ops/table.py: negated_products).
+// On a device path the glue finishes dqdd/dq and dqdd/dqd as -M^-1 dtau/dx (ops/table.py: negated_products), as
+// it does on a GPU after the team path (which the CPU build of the GPU's paths has too, for tests/team_harness.cpp).
 template <class Robot, class Scalar> struct ForwardDynamicsDerivatives {
   template <int C> TG_HD static void run(const ForwardDynamicsDerivativesArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
     Scalar qdd[Robot::NV];
     forward_dynamics_derivatives<Robot, Scalar, C, !TG_DEVICE_PATH>(Placements<Robot, Scalar>(a.q), a.qd, a.tau, a.f_ext, cv, a.dqdd_dq,
                                                                     a.dqdd_dqd, a.dqdd_dtau, qdd, {a.params});
   }
+#if TG_DEVICE_PATH || defined(__CUDACC__)
+  using TeamWork = ForwardDynamicsDerivativesTeamWork<Robot, Scalar>;
+  template <int C, class Team>
+  TG_HD static void run_team(const Team& t, TeamWork& w, const ForwardDynamicsDerivativesArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
+    forward_dynamics_derivatives<Robot, Scalar>(t, w, a.q, a.qd, a.tau, a.f_ext, cv, a.dqdd_dq, a.dqdd_dqd, a.dqdd_dtau, {a.params});
+  }
+#endif
 };
 
 // One Euler step (scheme 0: explicit, 1: semi-implicit) and its Jacobians (step.h): G is computed

@@ -48,19 +48,24 @@ template <class Robot, class Scalar> TG_HD void forward_dynamics_from_minv(const
   }
 }
 
-// d tau/dq, d tau/dqd in the convention C (qd, qdd in Pinocchio's) from W, set up at (q, qd, qdd, fext);
-// without Zero, the entries between branches of the tree are left as they were (the reframe mixes a free
-// joint's rows and columns, related to every dof of its tree). The free joints' columns of M come from the
-// derivatives' composite inertias.
-template <class Robot, class Scalar, int C, bool Zero = true>
-TG_HD void inverse_dynamics_derivatives_from(const RneaDerivativesWork<Robot, Scalar>& W, const Scalar* qd, const Scalar* qdd,
+// d tau/dq, d tau/dqd in the convention C (qd, qdd in Pinocchio's) from W, set up at (q, qd, qdd, fext), by
+// team t (the MuJoCo reframe by its leader, once both are whole); without Zero, the entries between branches
+// of the tree are left as they were (the reframe mixes a free joint's rows and columns, related to every dof
+// of its tree). The free joints' columns of M come from the derivatives' composite inertias. All written when
+// every lane returns.
+template <class Robot, class Scalar, int C, bool Zero = true, class Team>
+TG_HD void inverse_dynamics_derivatives_from(const Team& t, const RneaDerivativesWork<Robot, Scalar>& W, const Scalar* qd, const Scalar* qdd,
                                              const Conv<Robot, Scalar, C>& cv, Scalar* dtau_dq, Scalar* dtau_dqd) {
-  Scalar tau[Robot::NV];
-  rnea_derivatives<Robot, Scalar, Zero>(W, tau, dtau_dq, dtau_dqd);
+  rnea_derivatives<Robot, Scalar, Zero>(t, W, dtau_dq, dtau_dqd);
+  t.sync();
   if constexpr (Conv<Robot, Scalar, C>::active) {
-    Scalar Mb[Robot::NV * Conv<Robot, Scalar, C>::NB3];
-    mass_base_columns<Robot, Scalar>(W, Mb);
-    cv.inverse_dynamics_derivatives_out(qd, qdd, tau, Mb, dtau_dq, dtau_dqd);
+    if (t.leader()) {
+      Scalar tau[Robot::NV], Mb[Robot::NV * Conv<Robot, Scalar, C>::NB3];
+      rnea_torques<Robot, Scalar>(W, tau);
+      mass_base_columns<Robot, Scalar>(W, Mb);
+      cv.inverse_dynamics_derivatives_out(qd, qdd, tau, Mb, dtau_dq, dtau_dqd);
+    }
+    t.sync();
   }
 }
 
@@ -72,7 +77,23 @@ TG_HD void inverse_dynamics_derivatives(const Placements<Robot, Scalar>& K, cons
                                         const InertialParameters<Robot, Scalar>& pi = {}) {
   RneaDerivativesWork<Robot, Scalar> W;
   rnea_derivatives_setup<Robot, Scalar>(K, qd, qdd, fext, W, pi);
-  inverse_dynamics_derivatives_from<Robot, Scalar, C, Zero>(W, qd, qdd, cv, dtau_dq, dtau_dqd);
+  inverse_dynamics_derivatives_from<Robot, Scalar, C, Zero>(Solo{}, W, qd, qdd, cv, dtau_dq, dtau_dqd);
+}
+
+// A team's shared workspace for inverse_dynamics_derivatives: the world placements and the derivatives'.
+template <class Robot, class Scalar> struct InverseDynamicsDerivativesTeamWork {
+  SE3<Scalar> oMi[Robot::NB];
+  RneaDerivativesWork<Robot, Scalar> w;
+};
+
+template <class Robot, class Scalar, int C, class Team>
+TG_HD void inverse_dynamics_derivatives(const Team& t, InverseDynamicsDerivativesTeamWork<Robot, Scalar>& tw, const Scalar* q, const Scalar* qd,
+                                        const Scalar* qdd, const Scalar* fext, const Conv<Robot, Scalar, C>& cv, Scalar* dtau_dq,
+                                        Scalar* dtau_dqd, const InertialParameters<Robot, Scalar>& pi = {}) {
+  if (t.leader()) world_placements<Robot, Scalar>(q, tw.oMi);
+  t.sync();
+  rnea_derivatives_setup<Robot, Scalar>(t, tw.oMi, qd, qdd, fext, tw.w, pi);
+  inverse_dynamics_derivatives_from<Robot, Scalar, C>(t, tw.w, qd, qdd, cv, dtau_dq, dtau_dqd);
 }
 
 // X <- -M^-1 X for each X zero between dofs on different branches (d tau/dq, d tau/dqd) and a symmetric
@@ -101,45 +122,79 @@ template <class Robot, class Scalar> TG_HD void negate_minv_products(const Scala
   negate_left_multiply<Robot, Scalar, NV>(Minv, X1);
 }
 
-// qdd = FD(q, qd, tau) (Pinocchio's convention) from M^-1, and d tau/dq, d tau/dqd at it (in the convention
-// C). The RNEA derivatives' forward pass, run at qdd = 0, gives the bias b = S^T F, so qdd = M^-1 (tau - b);
-// the pass then moves to qdd (rnea_derivatives_accelerate). Its workspace lives in this function's frame,
-// which a GPU thread's stack holds only while it runs (not beside minv's).
-template <class Robot, class Scalar, int C>
-TG_HD void inverse_dynamics_derivatives_at_forward_dynamics(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* tau,
-                                                          const Scalar* fext, const Conv<Robot, Scalar, C>& cv, const Scalar* Minv,
-                                                          Scalar* dq, Scalar* dqd, Scalar* qdd,
-                                                          const InertialParameters<Robot, Scalar>& pi) {
+// What forward_dynamics_derivatives computes in: minv's workspace, then, in the same place, the RNEA
+// derivatives' and tau - b (a GPU thread's stack or a team's shared memory holds the larger alone).
+template <class Robot, class Scalar, bool ByDepth = TG_DEVICE_PATH != 0> struct ForwardDynamicsDerivativesWork {
+  struct Rnea {
+    RneaDerivativesWork<Robot, Scalar> W;
+    Scalar r[Robot::NV];
+  };
+  union {
+    MinvWork<Robot, Scalar, ByDepth> minv;
+    Rnea rnea;
+  };
+};
+
+// Since ID(q, qd, FD(q, qd, tau)) = tau, dqdd/dx = -M^-1 dtau/dx at qdd = FD(q, qd, tau), and dqdd/dtau = M^-1,
+// in either convention. By team t at the world placements oMi: dtau = M^-1 (in the convention), dq and dqd
+// left as dtau/dq and dtau/dqd (for the caller to finish as -M^-1 X), and qdd (in Pinocchio's convention).
+// The RNEA derivatives' pass, run at qdd = 0, gives the bias b = S^T F, so qdd = M^-1 (tau - b); the pass then
+// moves to qdd (rnea_derivatives_accelerate). All written when every lane returns.
+template <class Robot, class Scalar, int C, bool ByDepth, class Team>
+TG_HD void forward_dynamics_derivatives(const Team& t, const SE3<Scalar>* oMi, ForwardDynamicsDerivativesWork<Robot, Scalar, ByDepth>& w,
+                                        const Scalar* qd, const Scalar* tau, const Scalar* fext, const Conv<Robot, Scalar, C>& cv,
+                                        Scalar* dq, Scalar* dqd, Scalar* dtau, Scalar* qdd, const InertialParameters<Robot, Scalar>& pi) {
   constexpr int NV = Robot::NV;
   const auto& d = data<Robot, Scalar>();
-  RneaDerivativesWork<Robot, Scalar> W;
-  Scalar r[NV];
-  for (int k = 0; k < NV; ++k) r[k] = Scalar(0);
-  rnea_derivatives_setup<Robot, Scalar>(K, qd, r, fext, W, pi);
-  // r = tau - b, qdd = M^-1 r
-  for (int i = 0; i < Robot::NB; ++i)
+  minv<Robot, Scalar>(t, oMi, w.minv, dtau, pi);
+  RneaDerivativesWork<Robot, Scalar>& W = w.rnea.W;
+  Scalar* const r = w.rnea.r;
+  if (t.leader())
+    for (int k = 0; k < NV; ++k) qdd[k] = Scalar(0);
+  rnea_derivatives_setup<Robot, Scalar>(t, oMi, qd, qdd, fext, W, pi);
+  // r = tau - b, then qdd = M^-1 r by rows
+  for (const int i : t.items(0, Robot::NB))
     for (int l = 0; l < d.nvj[i]; ++l) r[d.vi[i] + l] = tau[d.vi[i] + l] - dot(W.s[d.vi[i] + l], W.F[i]);
-  for (int row = 0; row < NV; ++row) {
+  t.sync();
+  for (const int row : t.items(0, NV)) {
     Scalar acc = 0;
-    for (int k = 0; k < NV; ++k) acc += Minv[NV * row + k] * r[k];
+    for (int k = 0; k < NV; ++k) acc += dtau[NV * row + k] * r[k];
     qdd[row] = acc;
   }
-  rnea_derivatives_accelerate<Robot, Scalar>(qdd, W);
-  inverse_dynamics_derivatives_from<Robot, Scalar, C>(W, qd, qdd, cv, dq, dqd);
+  t.sync();
+  if (t.leader()) rnea_derivatives_accelerate<Robot, Scalar>(qdd, W);
+  t.sync();
+  inverse_dynamics_derivatives_from<Robot, Scalar, C>(t, W, qd, qdd, cv, dq, dqd);
+  if (t.leader()) cv.congruence_out(dtau);
+  t.sync();
 }
 
-// Since ID(q, qd, FD(q, qd, tau)) = tau, dqdd/dx = -M^-1 dtau/dx at qdd = FD(q, qd, tau), and
-// dqdd/dtau = M^-1, in either convention.
-// dqdd/dq, dqdd/dqd, dqdd/dtau (NV x NV each, in the convention) and qdd (in Pinocchio's). Without Product,
-// dq and dqd are left as dtau/dq and dtau/dqd, for the caller to finish as -M^-1 X.
+// dqdd/dq, dqdd/dqd, dqdd/dtau (NV x NV each, in the convention) and qdd (in Pinocchio's) by one thread.
+// Without Product, dq and dqd are left as dtau/dq and dtau/dqd, for the caller to finish as -M^-1 X.
 template <class Robot, class Scalar, int C, bool Product = true>
 TG_HD void forward_dynamics_derivatives(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* tau, const Scalar* fext,
                                      const Conv<Robot, Scalar, C>& cv, Scalar* dq, Scalar* dqd, Scalar* dtau, Scalar* qdd,
                                      const InertialParameters<Robot, Scalar>& pi = {}) {
-  minv<Robot, Scalar>(K, dtau, pi);
-  inverse_dynamics_derivatives_at_forward_dynamics<Robot, Scalar>(K, qd, tau, fext, cv, dtau, dq, dqd, qdd, pi);
-  cv.congruence_out(dtau);
+  ForwardDynamicsDerivativesWork<Robot, Scalar> w;
+  forward_dynamics_derivatives<Robot, Scalar>(Solo{}, K.oMi, w, qd, tau, fext, cv, dq, dqd, dtau, qdd, pi);
   if constexpr (Product) negate_minv_products<Robot, Scalar>(dtau, dq, dqd);
+}
+
+// A team's shared workspace for forward_dynamics_derivatives: the world placements, the above (by depth on
+// the host too: team_launch sizes it) and qdd.
+template <class Robot, class Scalar> struct ForwardDynamicsDerivativesTeamWork {
+  SE3<Scalar> oMi[Robot::NB];
+  ForwardDynamicsDerivativesWork<Robot, Scalar, true> w;
+  Scalar qdd[Robot::NV];
+};
+
+template <class Robot, class Scalar, int C, class Team>
+TG_HD void forward_dynamics_derivatives(const Team& t, ForwardDynamicsDerivativesTeamWork<Robot, Scalar>& tw, const Scalar* q, const Scalar* qd,
+                                        const Scalar* tau, const Scalar* fext, const Conv<Robot, Scalar, C>& cv, Scalar* dq, Scalar* dqd,
+                                        Scalar* dtau, const InertialParameters<Robot, Scalar>& pi = {}) {
+  if (t.leader()) world_placements<Robot, Scalar>(q, tw.oMi);
+  t.sync();
+  forward_dynamics_derivatives<Robot, Scalar>(t, tw.oMi, tw.w, qd, tau, fext, cv, dq, dqd, dtau, tw.qdd, pi);
 }
 
 // (M + dt D) qdd = tau + p - b(q, qd): the acceleration of MuJoCo's Euler step, the joint damping D taken

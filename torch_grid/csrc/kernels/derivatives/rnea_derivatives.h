@@ -14,7 +14,10 @@
 // Pinocchio's Coriolis matrix has the same pairs with dS/dt = v x S in place of alpha, S / 2 for s.
 #pragma once
 
+#include <type_traits>
+
 #include "kernels/spatial/joints.h"
+#include "kernels/spatial/team.h"
 
 namespace tg {
 
@@ -50,70 +53,109 @@ template <class Scalar> TG_HD M6<Scalar> momentum_rate_matrix(const Inertia<Scal
   return B;
 }
 
-// Body i's velocity terms: its world axes and velocity, and its own world inertia and B (summed
-// over subtrees by velocity_sums).
-template <class Robot, class Scalar> TG_HD_INLINE void velocity_step(int i, const Scalar* qd, VelocityWork<Robot, Scalar>& W,
-                                const InertialParameters<Robot, Scalar>& pi = {}) {
+// Body i's own terms, which read no other body: its world axes and its world inertia (summed over subtrees
+// by subtree_sums).
+template <class Robot, class Scalar> TG_HD_INLINE void body_terms(int i, const SE3<Scalar>* oMi, VelocityWork<Robot, Scalar>& W,
+                                                                 const InertialParameters<Robot, Scalar>& pi) {
+  const auto& d = data<Robot, Scalar>();
+  for (int k = 0; k < d.nvj[i]; ++k) W.s[d.vi[i] + k] = act_motion(oMi[i], joint_axis<Robot, Scalar>(i, k));
+  W.Yc[i] = act(oMi[i], pi[i]);
+}
+
+// Body i's world velocity, from its parent's: v_i = v_p + S_i qd_i.
+template <class Robot, class Scalar> TG_HD_INLINE void body_velocity(int i, const Scalar* qd, VelocityWork<Robot, Scalar>& W) {
   const auto& d = data<Robot, Scalar>();
   const int p = d.parent[i], vi = d.vi[i];
   W.v[i] = p < 0 ? sv_zero<Scalar>() : W.v[p];
-  for (int k = 0; k < d.nvj[i]; ++k) {
-    W.s[vi + k] = act_motion(W.oMi[i], joint_axis<Robot, Scalar>(i, k));
-    W.v[i] = W.v[i] + qd[vi + k] * W.s[vi + k];
-  }
-  W.Yc[i] = act(W.oMi[i], pi[i]);
-  W.B[i] = momentum_rate_matrix(W.Yc[i], W.v[i]);
+  for (int k = 0; k < d.nvj[i]; ++k) W.v[i] = W.v[i] + qd[vi + k] * W.s[vi + k];
 }
 
-template <class Robot, class Scalar> TG_HD void velocity_sums(VelocityWork<Robot, Scalar>& W) {
+// Entry e of an inertia: its mass, then h, then Io.
+template <class Scalar> TG_HD_INLINE Scalar& inertia_entry(Inertia<Scalar>& I, int e) {
+  return e == 0 ? I.m : e < 4 ? I.h.x[e - 1] : I.Io.m[e - 4];
+}
+
+// Yc, B (and F where W has it) summed over subtrees: by one thread body by body, each sum whole; by a team,
+// each of their 13 + 36 (+ 6) entries by one lane over every body (the same sums, in the same order).
+template <class Robot, class Scalar, class Work, class Team> TG_HD void subtree_sums(const Team& t, Work& W) {
   const auto& d = data<Robot, Scalar>();
-  for (int i = Robot::NB - 1; i > 0; --i) {
-    const int p = d.parent[i];
-    if (p < 0) continue;
-    W.Yc[p] = W.Yc[p] + W.Yc[i];
-    for (int k = 0; k < 36; ++k) W.B[p].m[k] += W.B[i].m[k];
+  constexpr bool forces = std::is_base_of_v<RneaDerivativesWork<Robot, Scalar>, Work>;
+  if constexpr (Team::lanes == 1) {
+    for (int i = Robot::NB - 1; i > 0; --i) {
+      const int p = d.parent[i];
+      if (p < 0) continue;
+      W.Yc[p] = W.Yc[p] + W.Yc[i];
+      for (int k = 0; k < 36; ++k) W.B[p].m[k] += W.B[i].m[k];
+      if constexpr (forces) W.F[p] = W.F[p] + W.F[i];
+    }
+  } else {
+    for (const int e : t.items(0, forces ? 55 : 49))
+      for (int i = Robot::NB - 1; i > 0; --i) {
+        const int p = d.parent[i];
+        if (p < 0) continue;
+        if (e < 13) inertia_entry(W.Yc[p], e) += inertia_entry(W.Yc[i], e);
+        else if (e < 49) W.B[p].m[e - 13] += W.B[i].m[e - 13];
+        else if constexpr (forces) W.F[p].v[e - 49] += W.F[i].v[e - 49];
+      }
   }
 }
 
 template <class Robot, class Scalar> TG_HD void velocity_setup(const Placements<Robot, Scalar>& K, const Scalar* qd, VelocityWork<Robot, Scalar>& W,
                           const InertialParameters<Robot, Scalar>& pi = {}) {
   W.oMi = K.oMi;
-  for (int i = 0; i < Robot::NB; ++i) velocity_step<Robot, Scalar>(i, qd, W, pi);
-  velocity_sums<Robot, Scalar>(W);
+  for (int i = 0; i < Robot::NB; ++i) {
+    body_terms<Robot, Scalar>(i, K.oMi, W, pi);
+    body_velocity<Robot, Scalar>(i, qd, W);
+    W.B[i] = momentum_rate_matrix(W.Yc[i], W.v[i]);
+  }
+  subtree_sums<Robot, Scalar>(Solo{}, W);
 }
 
-// Forward pass (world placements, axes, velocities, accelerations, body forces and the per-column
-// terms), then the subtree sums Yc, B, F.
-template <class Robot, class Scalar>
-TG_HD void rnea_derivatives_setup(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* qdd, const Scalar* fext,
+// By team t at the world placements oMi: each body's axes and inertia; the leader's pass down the tree
+// (velocities, accelerations, the per-column terms and the body forces); each body's B; then the subtree
+// sums Yc, B, F. All of W written when every lane returns.
+template <class Robot, class Scalar, class Team>
+TG_HD void rnea_derivatives_setup(const Team& t, const SE3<Scalar>* oMi, const Scalar* qd, const Scalar* qdd, const Scalar* fext,
                                   RneaDerivativesWork<Robot, Scalar>& W, const InertialParameters<Robot, Scalar>& pi = {}) {
   const auto& d = data<Robot, Scalar>();
   using L = Levels<Robot>;
-  Sv<Scalar> a[L::N];  // world accelerations (gravity included), only for the children
-  W.oMi = K.oMi;
-  for (int i = 0; i < Robot::NB; ++i) {
-    velocity_step<Robot, Scalar>(i, qd, W, pi);
-    const int p = d.parent[i], n = d.nvj[i], vi = d.vi[i];
-    const Sv<Scalar> vp = p < 0 ? sv_zero<Scalar>() : W.v[p];
-    const Sv<Scalar> ap = p < 0 ? base_acceleration<Robot, Scalar>() : a[L::parent(d, i)];
-    Sv<Scalar>& ai = a[L::of(d, i)];
-    ai = ap;
-    for (int k = 0; k < n; ++k) ai = ai + qdd[vi + k] * W.s[vi + k] + qd[vi + k] * cross_motion(W.v[i], W.s[vi + k]);
-    for (int k = 0; k < n; ++k) {
-      const Sv<Scalar>& s = W.s[vi + k];
-      W.w[vi + k] = cross_motion(vp, s);
-      W.u[vi + k] = cross_motion(ap, s) + cross_motion(vp, W.w[vi + k]);
-      W.alpha[vi + k] = cross_motion(vp + W.v[i], s);
-    }
-    W.F[i] = mul(W.Yc[i], ai) + cross_force(W.v[i], mul(W.Yc[i], W.v[i]));
-    if (fext) {
-      const Sv<Scalar> fe = {{fext[6 * i], fext[6 * i + 1], fext[6 * i + 2], fext[6 * i + 3], fext[6 * i + 4], fext[6 * i + 5]}};
-      W.F[i] = W.F[i] - act_force(W.oMi[i], fe);
+  if (t.leader()) W.oMi = oMi;
+  for (const int i : t.items(0, Robot::NB)) body_terms<Robot, Scalar>(i, oMi, W, pi);
+  t.sync();
+  if (t.leader()) {
+    Sv<Scalar> a[L::N];  // world accelerations (gravity included), only for the children
+    for (int i = 0; i < Robot::NB; ++i) {
+      body_velocity<Robot, Scalar>(i, qd, W);
+      const int p = d.parent[i], n = d.nvj[i], vi = d.vi[i];
+      const Sv<Scalar> vp = p < 0 ? sv_zero<Scalar>() : W.v[p];
+      const Sv<Scalar> ap = p < 0 ? base_acceleration<Robot, Scalar>() : a[L::parent(d, i)];
+      Sv<Scalar>& ai = a[L::of(d, i)];
+      ai = ap;
+      for (int k = 0; k < n; ++k) ai = ai + qdd[vi + k] * W.s[vi + k] + qd[vi + k] * cross_motion(W.v[i], W.s[vi + k]);
+      for (int k = 0; k < n; ++k) {
+        const Sv<Scalar>& s = W.s[vi + k];
+        W.w[vi + k] = cross_motion(vp, s);
+        W.u[vi + k] = cross_motion(ap, s) + cross_motion(vp, W.w[vi + k]);
+        W.alpha[vi + k] = cross_motion(vp + W.v[i], s);
+      }
+      W.F[i] = mul(W.Yc[i], ai) + cross_force(W.v[i], mul(W.Yc[i], W.v[i]));
+      if (fext) {
+        const Sv<Scalar> fe = {{fext[6 * i], fext[6 * i + 1], fext[6 * i + 2], fext[6 * i + 3], fext[6 * i + 4], fext[6 * i + 5]}};
+        W.F[i] = W.F[i] - act_force(oMi[i], fe);
+      }
     }
   }
-  velocity_sums<Robot, Scalar>(W);
-  for (int i = Robot::NB - 1; i > 0; --i)
-    if (d.parent[i] >= 0) W.F[d.parent[i]] = W.F[d.parent[i]] + W.F[i];
+  t.sync();
+  for (const int i : t.items(0, Robot::NB)) W.B[i] = momentum_rate_matrix(W.Yc[i], W.v[i]);
+  t.sync();
+  subtree_sums<Robot, Scalar>(t, W);
+  t.sync();
+}
+
+template <class Robot, class Scalar>
+TG_HD void rnea_derivatives_setup(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* qdd, const Scalar* fext,
+                                  RneaDerivativesWork<Robot, Scalar>& W, const InertialParameters<Robot, Scalar>& pi = {}) {
+  rnea_derivatives_setup<Robot, Scalar>(Solo{}, K.oMi, qd, qdd, fext, W, pi);
 }
 
 // The NV x NV matrix (row-major) with, for every joint j and each joint m on its support chain
@@ -121,14 +163,18 @@ TG_HD void rnea_derivatives_setup(const Placements<Robot, Scalar>& K, const Scal
 //   row m, column j:  S_m^T (Yc_m X_j + B_m Y_j)                        (m below or at j)
 //   row m, column j:  S_m^T (Yc_j X_j + B_j Y_j [+ s_j x* F_j])          (m strictly above j)
 // Entries of unrelated branches are zero (left as they were without Zero, for a reader of the tree's
-// entries alone). HalfY takes Y / 2 for Y (exactly, without its storage).
-template <bool ForceTerm, bool HalfY, class Robot, class Scalar, class Work, bool Zero = true>
-TG_HD void ancestor_pairs(const Work& W, const Sv<Scalar>* X, const Sv<Scalar>* Y, Scalar* out) {
+// entries alone). HalfY takes Y / 2 for Y (exactly, without its storage). By team t: body i's rows (the
+// first loop) and columns (the second) are i's lane's, entries that no other body's lane writes.
+template <bool ForceTerm, bool HalfY, class Robot, class Scalar, class Work, bool Zero = true, class Team>
+TG_HD void ancestor_pairs(const Team& t, const Work& W, const Sv<Scalar>* X, const Sv<Scalar>* Y, Scalar* out) {
   const auto& d = data<Robot, Scalar>();
   constexpr int NV = Robot::NV;
-  if constexpr (Zero)
-    for (int k = 0; k < NV * NV; ++k) out[k] = Scalar(0);
-  for (int i = 0; i < Robot::NB; ++i) {
+  if constexpr (Zero) {
+    for (const int r : t.items(0, NV))
+      for (int c = 0; c < NV; ++c) out[NV * r + c] = Scalar(0);
+    t.sync();
+  }
+  for (const int i : t.items(0, Robot::NB)) {
     // Rows of joint i, columns of its ancestors and itself.
     for (int l = 0; l < d.nvj[i]; ++l) {
       const int row = d.vi[i] + l;
@@ -177,16 +223,20 @@ template <class Robot, class Scalar> TG_HD void rnea_derivatives_accelerate(cons
   }
 }
 
-// tau (NV), dtau_dq and dtau_dqd (NV x NV, row-major) at the (q, qd, qdd, fext) W was set up at; without
-// Zero, the entries between branches are left as they were.
-template <class Robot, class Scalar, bool Zero = true>
-TG_HD void rnea_derivatives(const RneaDerivativesWork<Robot, Scalar>& W, Scalar* tau, Scalar* dtau_dq, Scalar* dtau_dqd) {
+// tau = S^T F (NV) at the (q, qd, qdd, fext) W was set up at.
+template <class Robot, class Scalar> TG_HD void rnea_torques(const RneaDerivativesWork<Robot, Scalar>& W, Scalar* tau) {
   const auto& d = data<Robot, Scalar>();
-  using Work = RneaDerivativesWork<Robot, Scalar>;
   for (int i = 0; i < Robot::NB; ++i)
     for (int l = 0; l < d.nvj[i]; ++l) tau[d.vi[i] + l] = dot(W.s[d.vi[i] + l], W.F[i]);
-  ancestor_pairs<true, false, Robot, Scalar, Work, Zero>(W, W.u, W.w, dtau_dq);
-  ancestor_pairs<false, false, Robot, Scalar, Work, Zero>(W, W.alpha, W.s, dtau_dqd);
+}
+
+// dtau_dq and dtau_dqd (NV x NV, row-major) there, by team t; without Zero, the entries between branches
+// are left as they were.
+template <class Robot, class Scalar, bool Zero = true, class Team>
+TG_HD void rnea_derivatives(const Team& t, const RneaDerivativesWork<Robot, Scalar>& W, Scalar* dtau_dq, Scalar* dtau_dqd) {
+  using Work = RneaDerivativesWork<Robot, Scalar>;
+  ancestor_pairs<true, false, Robot, Scalar, Work, Zero>(t, W, W.u, W.w, dtau_dq);
+  ancestor_pairs<false, false, Robot, Scalar, Work, Zero>(t, W, W.alpha, W.s, dtau_dqd);
 }
 
 // lambda^T d tau / dq and lambda^T d tau / dqd (NV each) in O(n), the pairs above summed over their rows
@@ -276,7 +326,7 @@ template <class Robot, class Scalar> TG_HD void coriolis_matrix(const VelocityWo
   Sv<Scalar> sdot[Robot::NV];
   for (int i = 0; i < Robot::NB; ++i)
     for (int k = 0; k < d.nvj[i]; ++k) sdot[d.vi[i] + k] = cross_motion(W.v[i], W.s[d.vi[i] + k]);
-  ancestor_pairs<false, true, Robot, Scalar>(W, sdot, W.s, C);
+  ancestor_pairs<false, true, Robot, Scalar>(Solo{}, W, sdot, W.s, C);
 }
 
 // The linear columns of M of each free joint f (NV x 3 NFREE, row-major, f's at 3f), from W's
