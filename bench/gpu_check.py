@@ -11,8 +11,8 @@ leaves the others' results: the builds; per robot, every function's values (floa
 conventions), batch sizes and memory layouts, gradients, double backward, forward mode and vmap, and
 the functions given inertial parameters, and the ops' team paths (one warp per sample, TORCH_GRID_CUDA_TEAMS=1);
 the device stages (streams, CUDA graphs, torch.compile, the examples, the local-memory reservation and the
-budget refusal); compute-sanitizer's memcheck and initcheck; the kernels' resources (cuobjdump), one kernel's
-achieved occupancy and eight kernels' ncu sections
+budget refusal); compute-sanitizer's memcheck and initcheck, and racecheck on the team paths; the kernels' resources (cuobjdump), one kernel's
+achieved occupancy and nine kernels' ncu sections
 (gpu_device.PROFILED: throughput, memory traffic, warp stalls); the MPC path
 (gpu_mpc.py: examples/ilqr.py's go2 task, 256 samples by 50 knots, and its parts, eager and from CUDA
 graphs, against the CPU build); the figures. Into --out (default $OUT, else bench/gpu):
@@ -125,6 +125,9 @@ def run_stage(stage: str, robot: str | None, cpu: bool, threads: int) -> int:
     elif stage == "sanitized_calls":
         gpu_device.small_calls(_robot(robot), device)
         checks.run("calls under compute-sanitizer", lambda: None)
+    elif stage == "team_calls":
+        gpu_device.team_calls(_robot(robot), device)
+        checks.run("team calls under compute-sanitizer", lambda: None)
     elif stage == "profiled_call":
         gpu_device.profiled_call(_robot("go2"), device)
     elif stage == "profiled_calls":
@@ -312,6 +315,12 @@ def _tools(stage, log: Log, out: Path, skip: list[str]) -> None:
                                  wrapper=[tool("ncu"), "--clock-control", "none", "--target-processes", "all", "-k",
                                           "regex:(batch|team)_kernel", "--launch-count", str(len(PROFILED)), *sections])
             (out / "ncu.txt").write_text(text)
+    # the team kernels' shared workspaces: no lane reads an entry another lane writes without a sync between them
+    if "racecheck" not in skip:
+        text = stage("compute-sanitizer racecheck go2 teams", ["--stage", "team_calls", "--robot", "go2"], 60,
+                     extra_env={"TORCH_GRID_CUDA_TEAMS": "1"},
+                     wrapper=[tool("compute-sanitizer"), "--tool", "racecheck", "--error-exitcode", "9", "--print-limit", "20"])
+        sanitizer.append(f"==== racecheck go2 teams\n{text}")
     (out / "sanitizer.log").write_text("\n".join(sanitizer))
 
 

@@ -348,8 +348,12 @@ def parameters(checks: Checks, robot, device: torch.device) -> None:
 
 # The ops with a team path (csrc/kernels/spatial/team.h), which TORCH_GRID_CUDA_TEAMS=1 runs as one warp per sample.
 TEAM_CALLS = {
-    "minv": lambda v, q, p: v.minv(q),
-    "minv params": lambda v, q, p: v.minv(q, params=p),
+    "minv": lambda v, q, qd, x, f, p: v.minv(q),
+    "minv params": lambda v, q, qd, x, f, p: v.minv(q, params=p),
+    "inverse_dynamics_derivatives": lambda v, q, qd, x, f, p: v.inverse_dynamics_derivatives(q, qd, x, f),
+    "inverse_dynamics_derivatives params": lambda v, q, qd, x, f, p: v.inverse_dynamics_derivatives(q, qd, x, params=p),
+    "forward_dynamics_derivatives": lambda v, q, qd, x, f, p: v.forward_dynamics_derivatives(q, qd, x, f),
+    "forward_dynamics_derivatives params": lambda v, q, qd, x, f, p: v.forward_dynamics_derivatives(q, qd, x, params=p),
 }
 
 
@@ -372,17 +376,16 @@ def teams(checks: Checks, robot, device: torch.device, sizes: list[int]) -> None
     float64 on the same rounded inputs, at every batch size (with per-sample inertial parameters at the last)."""
     for conv, view in views(robot):
         for size in sizes:
-            q = states(view, size, seed=6)[0]
-            p = _inertial_parameters(robot)[torch.arange(size) % 3]
+            inputs = (*states(view, size, seed=6), _inertial_parameters(robot)[torch.arange(size) % 3])
             for name, call in TEAM_CALLS.items():
                 def f64(call=call):
                     with TeamPaths():
-                        got = call(view, *on((q, p), device))
-                    return compare(got, call(view, q, p), F64_TOL, device, torch.float64)
+                        got = call(view, *on(inputs, device))
+                    return compare(got, call(view, *inputs), F64_TOL, device, torch.float64)
                 checks.run(f"{conv} teams float64 batch {size} {name}", f64)
 
                 def f32(name=name, call=call):
-                    rounded = on((q, p), "cpu", torch.float32)
+                    rounded = on(inputs, "cpu", torch.float32)
                     with TeamPaths():
                         got = call(view, *on(rounded, device))
                     ref = call(view, *on(rounded, "cpu", torch.float64))

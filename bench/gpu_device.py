@@ -232,6 +232,20 @@ def small_calls(robot, device: torch.device) -> None:
         torch.cuda.synchronize()
 
 
+def team_calls(robot, device: torch.device) -> None:
+    """Two samples of each op with a team path (gpu_correctness.TEAM_CALLS), both conventions, float64 and float32,
+    for compute-sanitizer's racecheck to watch the shared workspace (the stage runs with TORCH_GRID_CUDA_TEAMS=1)."""
+    from gpu_correctness import TEAM_CALLS, _inertial_parameters
+
+    for view in (robot.mujoco, robot.pin):
+        for dtype in (torch.float64, torch.float32):
+            inputs = on((*states(view, 2, seed=9), _inertial_parameters(robot)[:2]), device, dtype)
+            for call in TEAM_CALLS.values():
+                tensors(call(view, *inputs))
+    if device.type == "cuda":
+        torch.cuda.synchronize()
+
+
 def profiled_call(robot, device: torch.device) -> None:
     """Two calls of forward_dynamics_derivatives at N = 65536 (ncu profiles the second)."""
     view = robot.pin
@@ -244,12 +258,12 @@ def profiled_call(robot, device: torch.device) -> None:
 # Kernels ncu reads section by section (throughput against the device's peaks, the memory hierarchy's traffic,
 # why warps stall, occupancy), the measurements GPU kernels that cooperate within a sample are designed from:
 # (robot, op, N), a light op and a derivative, a small and a full batch, a 7-dof arm and the humanoid, and
-# go2's fused semi-implicit step_derivatives, and G1's minv one thread a sample and one warp a sample (op: a name of
-# gpu_figures.OPS).
+# go2's fused semi-implicit step_derivatives, and G1's minv and forward_dynamics_derivatives one warp a sample beside
+# one thread a sample (op: a name of gpu_figures.OPS).
 PROFILED = (("iiwa14", "inverse_dynamics", 65536), ("iiwa14", "forward_dynamics_derivatives", 256),
             ("iiwa14", "forward_dynamics_derivatives", 65536), ("g1", "inverse_dynamics", 256),
             ("g1", "forward_dynamics_derivatives", 65536), ("go2", "step_derivatives[semi_implicit_euler]", 65536),
-            ("g1", "minv", 65536), ("g1", "minv[teams]", 65536))
+            ("g1", "minv", 65536), ("g1", "minv[teams]", 65536), ("g1", "forward_dynamics_derivatives[teams]", 65536))
 NCU_SECTIONS = ("LaunchStats", "Occupancy", "SpeedOfLight", "ComputeWorkloadAnalysis", "MemoryWorkloadAnalysis",
                 "WarpStateStats", "SchedulerStats")
 

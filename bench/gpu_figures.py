@@ -23,10 +23,11 @@ OPS = {
     "forward_dynamics": lambda v, q, qd, x: v.forward_dynamics(q, qd, x),
     "crba": lambda v, q, qd, x: v.crba(q),
     "minv": lambda v, q, qd, x: v.minv(q),
-    # one warp a sample (TORCH_GRID_CUDA_TEAMS=1, the ops' team paths), on the device only
-    "minv[teams]": lambda v, q, qd, x: _with_teams(lambda: v.minv(q)),
+    "minv[teams]": None,
     "inverse_dynamics_derivatives": lambda v, q, qd, x: v.inverse_dynamics_derivatives(q, qd, x),
+    "inverse_dynamics_derivatives[teams]": None,
     "forward_dynamics_derivatives": lambda v, q, qd, x: v.forward_dynamics_derivatives(q, qd, x),
+    "forward_dynamics_derivatives[teams]": None,
     "inverse_dynamics_second_derivatives": lambda v, q, qd, x: v.inverse_dynamics_second_derivatives(q, qd, x),
     "step_derivatives[semi_implicit_euler]": lambda v, q, qd, x: v.step_derivatives(q, qd, x, 0.01, "semi_implicit_euler"),
     "step_derivatives[rk4]": lambda v, q, qd, x: v.step_derivatives(q, qd, x, 0.01, "rk4"),
@@ -35,17 +36,23 @@ OPS = {
     "step_derivatives[semi_implicit_euler, composed]":
         lambda v, q, qd, x: v._step_derivatives(q, qd, x, 0.01, None, v._params, "semi_implicit_euler")[2:],
 }
-# The team figures: the op of that name timed with the team paths taken for the whole measurement.
-TEAMS = {"minv[teams]": "minv"}
+# The team figures, OP[teams]: OP with the ops' team paths taken (one warp a sample, TORCH_GRID_CUDA_TEAMS=1) for the
+# whole measurement, on the device only.
+TEAMS = {name: name.removesuffix("[teams]") for name in OPS if name.endswith("[teams]")}
 # floats written per sample, for the memory cap below
 OUTPUTS = {"inverse_dynamics_second_derivatives": lambda nv: 4 * nv ** 3, "step_derivatives[rk4]": lambda nv: 6 * nv ** 2}
 MAX_OUTPUT_BYTES = 8 << 30
 
 
-def _with_teams(call):
-    """call() with the ops' team paths taken (gpu_correctness.TeamPaths)."""
-    with TeamPaths():
-        return call()
+def _with_teams(op: str):
+    """OPS[op] with the ops' team paths taken (gpu_correctness.TeamPaths)."""
+    def call(v, q, qd, x):
+        with TeamPaths():
+            return OPS[op](v, q, qd, x)
+    return call
+
+
+OPS.update({name: _with_teams(op) for name, op in TEAMS.items()})
 
 
 def _cuda_seconds(fn, target: float = 0.03) -> tuple[float, float]:

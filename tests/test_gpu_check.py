@@ -49,3 +49,21 @@ def test_the_profiled_calls_name_each_kernel_before_it_runs(capsys, monkeypatch)
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("PROFILED")]
     assert lines == ["PROFILED 1: iiwa14 inverse_dynamics, N = 65536",
                      "PROFILED 2: iiwa14 forward_dynamics_derivatives, N = 256"]
+
+
+def test_the_team_calls_run_every_team_op(monkeypatch):
+    """The stage compute-sanitizer's racecheck watches on a GPU (gpu_device.team_calls: every op with a team path, both
+    conventions, float64 and float32) runs, here on the CPU build."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    import gpu_correctness
+    import gpu_device
+    import torch
+    import torch_grid
+
+    robot = torch_grid.load(str(ROOT / "bench" / "gpu" / "models" / "iiwa14.json"))
+    called = []
+    calls = {name: (lambda *a, name=name, call=call: called.append(name) or call(*a))
+             for name, call in gpu_correctness.TEAM_CALLS.items()}
+    monkeypatch.setattr(gpu_correctness, "TEAM_CALLS", calls)
+    gpu_device.team_calls(robot, torch.device("cpu"))
+    assert sorted(called) == sorted(4 * list(calls)), called
