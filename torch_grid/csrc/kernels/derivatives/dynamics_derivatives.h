@@ -90,8 +90,7 @@ template <class Robot, class Scalar, int C, class Team>
 TG_HD void inverse_dynamics_derivatives(const Team& t, InverseDynamicsDerivativesTeamWork<Robot, Scalar>& tw, const Scalar* q, const Scalar* qd,
                                         const Scalar* qdd, const Scalar* fext, const Conv<Robot, Scalar, C>& cv, Scalar* dtau_dq,
                                         Scalar* dtau_dqd, const InertialParameters<Robot, Scalar>& pi = {}) {
-  if (t.leader()) world_placements<Robot, Scalar>(q, tw.oMi);
-  t.sync();
+  world_placements<Robot, Scalar>(t, q, tw.oMi);
   rnea_derivatives_setup<Robot, Scalar>(t, tw.oMi, qd, qdd, fext, tw.w, pi);
   inverse_dynamics_derivatives_from<Robot, Scalar, C>(t, tw.w, qd, qdd, cv, dtau_dq, dtau_dqd);
 }
@@ -192,8 +191,7 @@ template <class Robot, class Scalar, int C, class Team>
 TG_HD void forward_dynamics_derivatives(const Team& t, ForwardDynamicsDerivativesTeamWork<Robot, Scalar>& tw, const Scalar* q, const Scalar* qd,
                                         const Scalar* tau, const Scalar* fext, const Conv<Robot, Scalar, C>& cv, Scalar* dq, Scalar* dqd,
                                         Scalar* dtau, const InertialParameters<Robot, Scalar>& pi = {}) {
-  if (t.leader()) world_placements<Robot, Scalar>(q, tw.oMi);
-  t.sync();
+  world_placements<Robot, Scalar>(t, q, tw.oMi);
   forward_dynamics_derivatives<Robot, Scalar>(t, tw.oMi, tw.w, qd, tau, fext, cv, dq, dqd, dtau, tw.qdd, pi);
 }
 

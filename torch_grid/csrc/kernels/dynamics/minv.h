@@ -157,11 +157,10 @@ template <class Robot, class Scalar> TG_HD void minv(const Scalar* q, Scalar* Mi
   minv<Robot, Scalar>(K, Minv, pi);
 }
 
-// The same by a team from q, the placements computed by the leader into the shared workspace.
+// The same by a team from q, the placements computed into the shared workspace.
 template <class Robot, class Scalar, class Team>
 TG_HD void minv_team(const Team& t, MinvTeamWork<Robot, Scalar>& tw, const Scalar* q, Scalar* Minv, const InertialParameters<Robot, Scalar>& pi = {}) {
-  if (t.leader()) world_placements<Robot, Scalar>(q, tw.oMi);
-  t.sync();
+  world_placements<Robot, Scalar>(t, q, tw.oMi);
   minv<Robot, Scalar>(t, tw.oMi, tw.w, Minv, pi);
 }
 

@@ -6,6 +6,7 @@
 #pragma once
 
 #include "kernels/spatial/spatial.h"
+#include "kernels/spatial/team.h"
 #include "kernels/spatial/trig.h"
 
 namespace tg {
@@ -281,6 +282,18 @@ template <class Robot, class Scalar> TG_HD void world_placements(const Scalar* q
     const SE3<Scalar> X = joint_placement<Robot, Scalar>(i, q);
     oMi[i] = d.parent[i] < 0 ? X : oMi[d.parent[i]] * X;
   }
+}
+
+// The same by team t: each lane its bodies' joint placements (their trigonometry), then the leader composes them
+// down the tree in place; all of oMi written when every lane returns.
+template <class Robot, class Scalar, class Team> TG_HD void world_placements(const Team& t, const Scalar* q, SE3<Scalar>* oMi) {
+  const auto& d = data<Robot, Scalar>();
+  for (const int i : t.items(0, Robot::NB)) oMi[i] = joint_placement<Robot, Scalar>(i, q);
+  t.sync();
+  if (t.leader())
+    for (int i = 0; i < Robot::NB; ++i)
+      if (d.parent[i] >= 0) oMi[i] = oMi[d.parent[i]] * oMi[i];
+  t.sync();
 }
 
 // The first named pass of an op that runs several algorithms on one sample: world placements oMi
