@@ -18,6 +18,7 @@ import torch
 
 from gpu_correctness import TeamPaths, on, states
 
+# OP[teams] entries are placeholders, filled in below (TEAMS), that place each team figure beside its op's
 OPS = {
     "inverse_dynamics": lambda v, q, qd, x: v.inverse_dynamics(q, qd, x),
     "forward_dynamics": lambda v, q, qd, x: v.forward_dynamics(q, qd, x),
