@@ -32,11 +32,26 @@ def _guarded(label: str, fn) -> None:
         traceback.print_exc()
 
 
+def _ranges(indices: list[int]) -> str:
+    """Sorted indices as runs: [0, 1, 2, 5] -> '0-2,5'."""
+    runs: list[list[int]] = []
+    for k in indices:
+        if runs and k == runs[-1][1] + 1:
+            runs[-1][1] = k
+        else:
+            runs.append([k, k])
+    return ",".join(f"{a}-{b}" if b > a else f"{a}" for a, b in runs) or "none"
+
+
 def _pattern(bad: torch.Tensor) -> str:
-    """The rows and columns that hold non-finite entries of one sample's matrix."""
+    """The rows and columns that hold non-finite entries of one sample's matrix, and each such row's columns
+    (rows that share them named together), so that the pattern names the terms of runge_kutta.h it comes from."""
     rows = bad.any(1).nonzero().flatten().tolist()
-    cols = bad.any(0).nonzero().flatten().tolist()
-    return f"rows {rows[:12]}{'...' if len(rows) > 12 else ''} cols {cols[:12]}{'...' if len(cols) > 12 else ''}"
+    groups: dict[str, list[int]] = {}
+    for r in rows:
+        groups.setdefault(_ranges(bad[r].nonzero().flatten().tolist()), []).append(r)
+    per_row = "; ".join(f"rows {_ranges(rs)}: cols {cols}" for cols, rs in groups.items())
+    return f"rows {_ranges(rows)} cols {_ranges(bad.any(0).nonzero().flatten().tolist())} [{per_row}]"
 
 
 def _kernel_outputs(view, scheme: str, q, qd, x, dt):
