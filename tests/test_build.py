@@ -4,6 +4,7 @@ entries, interrupted and failed builds, unusable locations. Each test uses its o
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -289,3 +290,37 @@ def test_glue_must_share_the_shared_cxx_runtime(tmp_path):
     subprocess.run(["c++", "-shared", "-fPIC", "-static-libstdc++", str(source), "-o", str(library)], check=True)
     with pytest.raises(RuntimeError, match="libstatic.so was linked with a static C\\+\\+ runtime"):
         build._check_shared_cxx_runtime(library)
+
+
+# A robot library whose table (batch/batch.h: RobotTable) has the layout and op table given.
+FAKE_TABLE = """#include "batch/batch.h"
+extern "C" const tg::RobotTable* fake_table() {{
+  static const tg::RobotTable table{{{abi}, "{signature}", 1, 1, 1, 0, 0, 0, 0, 1, 0, {nops}, nullptr}};
+  return &table;
+}}
+"""
+
+
+def test_the_glue_refuses_a_robot_library_it_cannot_read(tmp_path):
+    """register_robot (csrc/torch/register.h) names the library and what is wrong with it: a file it cannot load,
+    a missing table symbol, a table of another layout, a library generated from another op table."""
+    build._load_glue(build._cache_root(None), build._cuda_available())
+    register = torch.ops.torch_grid_glue.register_robot
+    with pytest.raises(RuntimeError, match="cannot load the robot library .*missing.so"):
+        register("torch_grid_refused_a", str(tmp_path / "missing.so"), "fake_table")
+
+    def library(name: str, **table) -> str:
+        source = tmp_path / f"{name}.cpp"
+        source.write_text(FAKE_TABLE.format(**table))
+        path = tmp_path / f"{name}.so"
+        subprocess.run(["c++", "-std=c++17", "-shared", "-fPIC", f"-I{build.CSRC}", str(source), "-o", str(path)], check=True)
+        return str(path)
+
+    abi = int(re.search(r"kTableAbi = (\d+);", (build.CSRC / "batch" / "batch.h").read_text()).group(1))
+    table = {"abi": abi, "signature": build.ops.op_signature(), "nops": len(build.ops.OPS)}
+    with pytest.raises(RuntimeError, match="exact.so does not export torch_grid_x_table"):
+        register("torch_grid_refused_b", library("exact", **table), "torch_grid_x_table")
+    with pytest.raises(RuntimeError, match=f"old.so has table layout {abi - 1}, this glue reads layout {abi}: build it again"):
+        register("torch_grid_refused_c", library("old", **{**table, "abi": abi - 1}), "fake_table")
+    with pytest.raises(RuntimeError, match="other.so was generated from another op table"):
+        register("torch_grid_refused_d", library("other", **{**table, "signature": "0123"}), "fake_table")
