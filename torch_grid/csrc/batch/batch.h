@@ -32,13 +32,20 @@ struct Batch {
   bool poisoned = false;  // TORCH_GRID_POISON_OUTPUTS: the outputs start as NaN (a test of the kernels)
 };
 
-template <template <class, class, int> class Op, class Robot, class Scalar, int C>
-TG_HD void run_sample(const Batch& b, int64_t s) {
+// Sample s's inputs and outputs: each present array advanced by s of its strides, the absent ones null.
+template <class Scalar> struct SampleArrays {
   const Scalar* in[kMaxIn];
   Scalar* out[kMaxOut];
-  for (int k = 0; k < kMaxIn; ++k) in[k] = b.in[k] ? static_cast<const Scalar*>(b.in[k]) + s * b.in_stride[k] : nullptr;
-  for (int k = 0; k < kMaxOut; ++k) out[k] = b.out[k] ? static_cast<Scalar*>(b.out[k]) + s * b.out_stride[k] : nullptr;
-  Op<Robot, Scalar, C>::run(in, out, b.iargs, b.n_iargs, b.zeroed);
+  TG_HD SampleArrays(const Batch& b, int64_t s) {
+    for (int k = 0; k < kMaxIn; ++k) in[k] = b.in[k] ? static_cast<const Scalar*>(b.in[k]) + s * b.in_stride[k] : nullptr;
+    for (int k = 0; k < kMaxOut; ++k) out[k] = b.out[k] ? static_cast<Scalar*>(b.out[k]) + s * b.out_stride[k] : nullptr;
+  }
+};
+
+template <template <class, class, int> class Op, class Robot, class Scalar, int C>
+TG_HD void run_sample(const Batch& b, int64_t s) {
+  const SampleArrays<Scalar> x(b, s);
+  Op<Robot, Scalar, C>::run(x.in, x.out, b.iargs, b.n_iargs, b.zeroed);
 }
 
 // Ops that split a sample into independent work items (a forward-mode backward: one per input
@@ -50,21 +57,15 @@ template <class T> struct Coordinates<T, std::void_t<decltype(T::kCoordinates)>>
 
 template <template <class, class, int> class Op, class Robot, class Scalar, int C>
 TG_HD void run_sample_coordinate(const Batch& b, int64_t s, int c) {
-  const Scalar* in[kMaxIn];
-  Scalar* out[kMaxOut];
-  for (int k = 0; k < kMaxIn; ++k) in[k] = b.in[k] ? static_cast<const Scalar*>(b.in[k]) + s * b.in_stride[k] : nullptr;
-  for (int k = 0; k < kMaxOut; ++k) out[k] = b.out[k] ? static_cast<Scalar*>(b.out[k]) + s * b.out_stride[k] : nullptr;
-  Op<Robot, Scalar, C>::run_coordinate(in, out, b.iargs, b.n_iargs, c);
+  const SampleArrays<Scalar> x(b, s);
+  Op<Robot, Scalar, C>::run_coordinate(x.in, x.out, b.iargs, b.n_iargs, c);
 }
 
 // Sample s by a team (kernels/spatial/team.h) with its shared workspace w: an op with a team path.
 template <template <class, class, int> class Op, class Robot, class Scalar, int C, class Team>
 TG_HD void run_sample_team(const Batch& b, int64_t s, const Team& t, typename Op<Robot, Scalar, C>::TeamWork& w) {
-  const Scalar* in[kMaxIn];
-  Scalar* out[kMaxOut];
-  for (int k = 0; k < kMaxIn; ++k) in[k] = b.in[k] ? static_cast<const Scalar*>(b.in[k]) + s * b.in_stride[k] : nullptr;
-  for (int k = 0; k < kMaxOut; ++k) out[k] = b.out[k] ? static_cast<Scalar*>(b.out[k]) + s * b.out_stride[k] : nullptr;
-  Op<Robot, Scalar, C>::run_team(t, w, in, out, b.iargs, b.n_iargs);
+  const SampleArrays<Scalar> x(b, s);
+  Op<Robot, Scalar, C>::run_team(t, w, x.in, x.out, b.iargs, b.n_iargs);
 }
 
 // Samples [begin, end) on the calling CPU thread (cpu_range.h).
