@@ -30,6 +30,7 @@ OPS = {
     "forward_dynamics_derivatives": lambda v, q, qd, x: v.forward_dynamics_derivatives(q, qd, x),
     "forward_dynamics_derivatives[teams]": None,
     "inverse_dynamics_second_derivatives": lambda v, q, qd, x: v.inverse_dynamics_second_derivatives(q, qd, x),
+    "inverse_dynamics_second_derivatives[teams]": None,
     "step_derivatives[semi_implicit_euler]": lambda v, q, qd, x: v.step_derivatives(q, qd, x, 0.01, "semi_implicit_euler"),
     "step_derivatives[rk4]": lambda v, q, qd, x: v.step_derivatives(q, qd, x, 0.01, "rk4"),
     # the torch composition the fused kernel replaces (forward_dynamics, forward_dynamics_derivatives and batched
@@ -103,7 +104,7 @@ def timings(robots: dict, device: torch.device, sizes: list[int], cpu_sizes: lis
         for dtype in dtypes:
             base = on(states(view, max(sizes + cpu_sizes), seed=11)[:3], "cpu", dtype)
             for op, call in OPS.items():
-                per_sample = OUTPUTS.get(op, lambda nv: 0)(robot.nv) * (8 if dtype == torch.float64 else 4)
+                per_sample = OUTPUTS.get(TEAMS.get(op, op), lambda nv: 0)(robot.nv) * (8 if dtype == torch.float64 else 4)
                 for where, batch_sizes in (("device", sizes), ("cpu", cpu_sizes)):
                     if (where == "device" and device.type != "cuda") or (where == "cpu" and op in TEAMS):
                         continue

@@ -112,7 +112,8 @@ double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes) {
 }
 
 // Every op with a team path, in convention C: minv, inverse_dynamics_derivatives (with external forces) and
-// forward_dynamics_derivatives (without).
+// forward_dynamics_derivatives (without); inverse_dynamics_second_derivatives (with external forces) has
+// Pinocchio's convention alone.
 template <int C> void compare_all(int n, const char* conv, bool& ok) {
   constexpr int NQ = Robot::NQ, NV = Robot::NV, NB = Robot::NB;
   const auto report = [&](const char* op, double err) {
@@ -123,6 +124,11 @@ template <int C> void compare_all(int n, const char* conv, bool& ok) {
   report("inverse_dynamics_derivatives", compare<tg::bind::InverseDynamicsDerivatives, C>(n, {NQ, NV, NV, 6 * NB, 0}, {NV * NV, NV * NV}));
   report("forward_dynamics_derivatives",
          compare<tg::bind::ForwardDynamicsDerivatives, C>(n, {NQ, NV, NV, 0, 0}, {NV * NV, NV * NV, NV * NV}));
+  if constexpr (C == tg::PIN) {
+    constexpr int N3 = NV * NV * NV;
+    report("inverse_dynamics_second_derivatives",
+           compare<tg::bind::InverseDynamicsSecondDerivatives, C>(n, {NQ, NV, NV, 6 * NB, 0}, {N3, N3, N3, N3}));
+  }
 }
 
 int main(int argc, char** argv) {

@@ -26,8 +26,10 @@ NVCC_CACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "t
 # The kernels with a team path (csrc/kernels/spatial/team.h: a warp a sample), and the most stack a lane of one
 # may take on the G1 humanoid, by convention: the sample's workspace is in shared memory (one thread a sample takes
 # 25-42 KB for these), and the MuJoCo twins' leader alone reframes the outputs, with arrays of its own.
-TEAM_KERNELS = {"Minv", "InverseDynamicsDerivatives", "ForwardDynamicsDerivatives"}
+TEAM_KERNELS = {"Minv", "InverseDynamicsDerivatives", "ForwardDynamicsDerivatives", "InverseDynamicsSecondDerivatives"}
 TEAM_STACK = {"pin": 2048, "mujoco": 6144}
+# a second-derivative lane holds a column's 6x6 terms and a pair's vectors (ptxas on G1: 2624 bytes)
+TEAM_STACK_OF = {"InverseDynamicsSecondDerivatives": 3072}
 
 
 @pytest.fixture(scope="module")
@@ -91,9 +93,12 @@ def test_cuda_stack_budget_on_a_humanoid(erd_robots_dir):
             assert u.stack <= halved[u.op] // 2, f"{u.op} ({u.convention}): {u.stack} bytes, more than half of {halved[u.op]}"
     # a team kernel keeps its sample's workspace in shared memory: a lane's stack holds its own variables alone
     teams = [u for u in usages if u.kernel == "team"]
-    assert {(OPS[u.op].kernel, u.convention) for u in teams} == {(k, c) for k in TEAM_KERNELS for c in ("pin", "mujoco")}
+    twins = {op.kernel: op.mujoco_twin for op in OPS.values()}
+    assert {(OPS[u.op].kernel, u.convention) for u in teams} == {(k, c) for k in TEAM_KERNELS
+                                                                 for c in (("pin", "mujoco") if twins[k] else ("pin",))}
     for u in teams:
-        assert u.stack <= TEAM_STACK[u.convention], f"{u.op} [team] ({u.convention}): {u.stack} bytes of stack per thread"
+        budget = TEAM_STACK_OF.get(OPS[u.op].kernel, TEAM_STACK[u.convention])
+        assert u.stack <= budget, f"{u.op} [team] ({u.convention}): {u.stack} bytes of stack per thread, budget {budget}"
 
 
 def test_compile_cache_reuses_only_unchanged_inputs(tmp_path):

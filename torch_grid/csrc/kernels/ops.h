@@ -181,13 +181,19 @@ template <class Robot, class Scalar> struct InverseDynamicsDerivatives {
 };
 
 // The second derivatives of tau in Pinocchio's convention (its only kernel: the op table gives it no
-// MuJoCo twin).
+// MuJoCo twin). A team shares the first-order workspace and takes the tensors' columns a lane each.
 template <class Robot, class Scalar> struct InverseDynamicsSecondDerivatives {
+  using TeamWork = InverseDynamicsDerivativesTeamWork<Robot, Scalar>;
   TG_HD static void run(const InverseDynamicsSecondDerivativesArgs<Scalar>& a) {
     const Placements<Robot, Scalar> K(a.q);
     RneaDerivativesWork<Robot, Scalar> W;
     rnea_derivatives_setup<Robot, Scalar>(K, a.qd, a.qdd, a.f_ext, W, {a.params});
     rnea_second_order<Robot, Scalar>(W, a.d2tau_dq2, a.d2tau_dqd2, a.d2tau_dqdqd, a.dM_dq, a.outputs_zeroed);
+  }
+  template <class Team> TG_HD static void run_team(const Team& t, TeamWork& w, const InverseDynamicsSecondDerivativesArgs<Scalar>& a) {
+    world_placements<Robot, Scalar>(t, a.q, w.oMi);
+    rnea_derivatives_setup<Robot, Scalar>(t, w.oMi, a.qd, a.qdd, a.f_ext, w.w, {a.params});
+    rnea_second_order<Robot, Scalar>(w.w, a.d2tau_dq2, a.d2tau_dqd2, a.d2tau_dqdqd, a.dM_dq, a.outputs_zeroed, t);
   }
 };
 

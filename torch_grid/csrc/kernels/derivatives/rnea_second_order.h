@@ -122,86 +122,106 @@ template <class Scalar> TG_HD void pair_octet(const PairTerms<Scalar>& P, bool s
 // The tensors an entry belongs to.
 enum SecondOrderTensor : int { D2Q = 0, D2V = 1, DQDV = 2, DADQ = 3 };
 
-// Visits every non-zero entry of the four tensors at the (q, qd, qdd, fext) W was set up at, once
-// each: put(tensor, i, j, k, value). Entries of columns on different branches are zero.
-template <class Robot, class Scalar, class Put> TG_HD void rnea_second_order_visit(const RneaDerivativesWork<Robot, Scalar>& W, Put&& put) {
+// Column c's row r in the lanes of PairOctet::p2.
+template <class Robot, class Scalar> TG_HD Octet<Scalar> column_octet(const RneaDerivativesWork<Robot, Scalar>& W, int c, int r) {
+  return octet(W.s[c].v[r], W.w[c].v[r], W.w[c].v[r], W.w[c].v[r], W.u[c].v[r], W.u[c].v[r], W.alpha[c].v[r], W.alpha[c].v[r]);
+}
+
+// The entries of column a (of body i) as the first index of its triples, once each: put(tensor, i, j, k, value);
+// mixed(c, r) is column_octet(W, c, r).
+template <class Robot, class Scalar, class Mixed, class Put>
+TG_HD_INLINE void rnea_second_order_column(const RneaDerivativesWork<Robot, Scalar>& W, int i, int a, const Mixed& mixed, Put& put) {
   const auto& d = data<Robot, Scalar>();
-  // column c's row r in the lanes of PairOctet::p2: a table on the CPU, built as met on a GPU thread
-  const auto column_octet = [&W](int c, int r) {
-    return octet(W.s[c].v[r], W.w[c].v[r], W.w[c].v[r], W.w[c].v[r], W.u[c].v[r], W.u[c].v[r], W.alpha[c].v[r],
-                 W.alpha[c].v[r]);
-  };
-#if TG_DEVICE_PATH
-  const auto mixed = column_octet;
-#else
-  Octet<Scalar> table[Robot::NV][6];
-  for (int c = 0; c < Robot::NV; ++c)
-    for (int r = 0; r < 6; ++r) table[c][r] = column_octet(c, r);
-  const auto mixed = [&table](int c, int r) -> const Octet<Scalar>& { return table[c][r]; };
-#endif
-  for (int i = 0; i < Robot::NB; ++i)
-    for (int a = d.vi[i]; a < d.vi[i] + d.nvj[i]; ++a) {
-      const ColumnTerms<Scalar> A = column_terms<Robot, Scalar>(W, i, a);
-      for (int j = i; j >= 0; j = d.parent[j])
-        for (int b = d.vi[j]; b < d.vi[j] + d.nvj[j]; ++b) {
-          const PairTerms<Scalar> P = pair_terms<Robot, Scalar>(W, A, i, a, b);
-          PairOctet<Scalar> L;
-          pair_octet(P, j == i, L);
-          for (int k = j; k >= 0; k = d.parent[k])
-            for (int c = d.vi[k]; c < d.vi[k] + d.nvj[k]; ++c) {
-              Octet<Scalar> one = octet<Scalar>(0, 0, 0, 0, 0, 0, 0, 0), two = one;
-              for (int r = 0; r < 6; ++r) {
-                one.fma(W.s[c].v[r], L.p1[r]);
-                two.fma(mixed(c, r), L.p2[r]);
-              }
-              const Scalar p1 = two[1], p2 = two[4] + two[2];
-              put(D2Q, a, b, c, p2);
-              put(DQDV, a, c, b, -p1);
-              if (j != i) {
-                const Scalar q2 = two[3] + two[5];
-                put(D2Q, b, c, a, q2);
-                put(D2Q, b, a, c, q2);
-                put(DQDV, b, c, a, p1);
-                put(DQDV, b, a, c, one[2] + two[6]);
-                put(D2V, b, c, a, one[0]);
-                put(D2V, b, a, c, one[0]);
-                put(DADQ, b, c, a, one[1]);
-                if (k != j) put(DADQ, c, b, a, one[1]);  // within one body, (c, b) is another visit's (b, c)
-              }
-              if (k != j) {
-                put(D2Q, a, c, b, p2);
-                put(D2Q, c, a, b, one[3]);
-                put(D2V, a, b, c, -one[0]);
-                put(D2V, a, c, b, -one[0]);
-                put(DQDV, a, b, c, one[5] + two[7]);
-                put(DQDV, c, b, a, one[6]);
-                put(DADQ, c, a, b, one[4]);
-                put(DADQ, a, c, b, one[4]);
-                if (j != i) {
-                  put(D2Q, c, b, a, one[3]);
-                  put(D2V, c, a, b, one[7]);
-                  put(D2V, c, b, a, one[7]);
-                  put(DQDV, c, a, b, two[0]);
-                } else {
-                  put(D2V, c, b, a, two[0]);
-                }
-              } else {
-                put(D2V, a, b, c, -dot(P.DT_Sb, W.s[c]));
-              }
+  const ColumnTerms<Scalar> A = column_terms<Robot, Scalar>(W, i, a);
+  for (int j = i; j >= 0; j = d.parent[j])
+    for (int b = d.vi[j]; b < d.vi[j] + d.nvj[j]; ++b) {
+      const PairTerms<Scalar> P = pair_terms<Robot, Scalar>(W, A, i, a, b);
+      PairOctet<Scalar> L;
+      pair_octet(P, j == i, L);
+      for (int k = j; k >= 0; k = d.parent[k])
+        for (int c = d.vi[k]; c < d.vi[k] + d.nvj[k]; ++c) {
+          Octet<Scalar> one = octet<Scalar>(0, 0, 0, 0, 0, 0, 0, 0), two = one;
+          for (int r = 0; r < 6; ++r) {
+            one.fma(W.s[c].v[r], L.p1[r]);
+            two.fma(mixed(c, r), L.p2[r]);
+          }
+          const Scalar p1 = two[1], p2 = two[4] + two[2];
+          put(D2Q, a, b, c, p2);
+          put(DQDV, a, c, b, -p1);
+          if (j != i) {
+            const Scalar q2 = two[3] + two[5];
+            put(D2Q, b, c, a, q2);
+            put(D2Q, b, a, c, q2);
+            put(DQDV, b, c, a, p1);
+            put(DQDV, b, a, c, one[2] + two[6]);
+            put(D2V, b, c, a, one[0]);
+            put(D2V, b, a, c, one[0]);
+            put(DADQ, b, c, a, one[1]);
+            if (k != j) put(DADQ, c, b, a, one[1]);  // within one body, (c, b) is another visit's (b, c)
+          }
+          if (k != j) {
+            put(D2Q, a, c, b, p2);
+            put(D2Q, c, a, b, one[3]);
+            put(D2V, a, b, c, -one[0]);
+            put(D2V, a, c, b, -one[0]);
+            put(DQDV, a, b, c, one[5] + two[7]);
+            put(DQDV, c, b, a, one[6]);
+            put(DADQ, c, a, b, one[4]);
+            put(DADQ, a, c, b, one[4]);
+            if (j != i) {
+              put(D2Q, c, b, a, one[3]);
+              put(D2V, c, a, b, one[7]);
+              put(D2V, c, b, a, one[7]);
+              put(DQDV, c, a, b, two[0]);
+            } else {
+              put(D2V, c, b, a, two[0]);
             }
+          } else {
+            put(D2V, a, b, c, -dot(P.DT_Sb, W.s[c]));
+          }
         }
     }
 }
 
-// The four NV x NV x NV tensors (row-major, [i][j][k] at NV (NV i + j) + k); the entries off the
-// visit's fixed pattern zeroed unless they hold zeros already.
-template <class Robot, class Scalar>
-TG_HD void rnea_second_order(const RneaDerivativesWork<Robot, Scalar>& W, Scalar* d2q, Scalar* d2v, Scalar* dqdv, Scalar* dadq, bool zeroed) {
+// Visits every non-zero entry of the four tensors at the (q, qd, qdd, fext) W was set up at, once
+// each: put(tensor, i, j, k, value). Entries of columns on different branches are zero. One thread takes
+// the columns body by body, on a CPU with a table of their octets; a team's lanes take a column each
+// (its body found as they go), every entry still written once, by one lane.
+template <class Robot, class Scalar, class Put, class Team = Solo>
+TG_HD void rnea_second_order_visit(const RneaDerivativesWork<Robot, Scalar>& W, Put&& put, const Team& t = {}) {
+  const auto& d = data<Robot, Scalar>();
+  const auto direct = [&W](int c, int r) { return column_octet<Robot, Scalar>(W, c, r); };
+  if constexpr (Team::lanes > 1) {
+    for (const int a : t.items(0, Robot::NV)) {
+      int i = 0;
+      while (d.vi[i] + d.nvj[i] <= a) ++i;
+      rnea_second_order_column<Robot, Scalar>(W, i, a, direct, put);
+    }
+  } else {
+#if TG_DEVICE_PATH
+    const auto& mixed = direct;
+#else
+    Octet<Scalar> table[Robot::NV][6];
+    for (int c = 0; c < Robot::NV; ++c)
+      for (int r = 0; r < 6; ++r) table[c][r] = direct(c, r);
+    const auto mixed = [&table](int c, int r) -> const Octet<Scalar>& { return table[c][r]; };
+#endif
+    for (int i = 0; i < Robot::NB; ++i)
+      for (int a = d.vi[i]; a < d.vi[i] + d.nvj[i]; ++a) rnea_second_order_column<Robot, Scalar>(W, i, a, mixed, put);
+  }
+}
+
+// The four NV x NV x NV tensors (row-major, [i][j][k] at NV (NV i + j) + k) by team t; the entries off the
+// visit's fixed pattern zeroed unless they hold zeros already. All written when every lane returns.
+template <class Robot, class Scalar, class Team = Solo>
+TG_HD void rnea_second_order(const RneaDerivativesWork<Robot, Scalar>& W, Scalar* d2q, Scalar* d2v, Scalar* dqdv, Scalar* dadq, bool zeroed,
+                             const Team& t = {}) {
   constexpr int NV = Robot::NV;
   if (!zeroed)
-    for (int n = 0; n < NV * NV * NV; ++n) d2q[n] = d2v[n] = dqdv[n] = dadq[n] = Scalar(0);
+    for (const int n : t.items(0, NV * NV * NV)) d2q[n] = d2v[n] = dqdv[n] = dadq[n] = Scalar(0);
+  t.sync();
   Scalar* const T[4] = {d2q, d2v, dqdv, dadq};
-  rnea_second_order_visit<Robot, Scalar>(W, [&](int t, int i, int j, int k, Scalar v) { T[t][NV * (NV * i + j) + k] = v; });
+  rnea_second_order_visit<Robot, Scalar>(W, [&](int tensor, int i, int j, int k, Scalar v) { T[tensor][NV * (NV * i + j) + k] = v; }, t);
 }
 
 // The derivatives of dtau/dq, dtau/dqd and M (NV x NV each) along tangents tq (of q, along its
