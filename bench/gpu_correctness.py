@@ -348,6 +348,8 @@ def parameters(checks: Checks, robot, device: torch.device) -> None:
 
 # The ops with a team path (csrc/kernels/spatial/team.h), which TORCH_GRID_CUDA_TEAMS=1 runs as one warp per sample.
 TEAM_CALLS = {
+    "crba": lambda v, q, qd, x, f, p: v.crba(q),
+    "crba params": lambda v, q, qd, x, f, p: v.crba(q, params=p),
     "minv": lambda v, q, qd, x, f, p: v.minv(q),
     "minv params": lambda v, q, qd, x, f, p: v.minv(q, params=p),
     "inverse_dynamics_derivatives": lambda v, q, qd, x, f, p: v.inverse_dynamics_derivatives(q, qd, x, f),

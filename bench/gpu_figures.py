@@ -23,6 +23,7 @@ OPS = {
     "inverse_dynamics": lambda v, q, qd, x: v.inverse_dynamics(q, qd, x),
     "forward_dynamics": lambda v, q, qd, x: v.forward_dynamics(q, qd, x),
     "crba": lambda v, q, qd, x: v.crba(q),
+    "crba[teams]": None,
     "minv": lambda v, q, qd, x: v.minv(q),
     "minv[teams]": None,
     "inverse_dynamics_derivatives": lambda v, q, qd, x: v.inverse_dynamics_derivatives(q, qd, x),

@@ -111,7 +111,7 @@ double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes) {
   return worst;
 }
 
-// Every op with a team path, in convention C: minv, inverse_dynamics_derivatives (with external forces) and
+// Every op with a team path, in convention C: crba, minv, inverse_dynamics_derivatives (with external forces) and
 // forward_dynamics_derivatives (without); inverse_dynamics_second_derivatives (with external forces) has
 // Pinocchio's convention alone.
 template <int C> void compare_all(int n, const char* conv, bool& ok) {
@@ -120,6 +120,7 @@ template <int C> void compare_all(int n, const char* conv, bool& ok) {
     std::printf("%s %s %.3g\n", op, conv, err);
     ok = ok && err <= 1e-13;
   };
+  report("crba", compare<tg::bind::Crba, C>(n, {NQ, 0}, {NV * NV}));
   report("minv", compare<tg::bind::Minv, C>(n, {NQ, 0}, {NV * NV}));
   report("inverse_dynamics_derivatives", compare<tg::bind::InverseDynamicsDerivatives, C>(n, {NQ, NV, NV, 6 * NB, 0}, {NV * NV, NV * NV}));
   report("forward_dynamics_derivatives",

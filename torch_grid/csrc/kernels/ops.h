@@ -35,7 +35,11 @@ template <class Robot, class Scalar> struct ForwardDynamics {
 };
 
 template <class Robot, class Scalar> struct Crba {
+  using TeamWork = CrbaTeamWork<Robot, Scalar>;
   TG_HD static void run(const CrbaArgs<Scalar>& a) { crba<Robot, Scalar>(a.q, a.M, {a.params}); }
+  template <class Team> TG_HD static void run_team(const Team& t, TeamWork& w, const CrbaArgs<Scalar>& a) {
+    crba<Robot, Scalar>(t, w, a.q, a.M, {a.params});
+  }
 };
 
 template <class Robot, class Scalar> struct CrbaVjp {

@@ -70,11 +70,6 @@ template <class Robot, class Scalar> TG_HD_INLINE void body_velocity(int i, cons
   for (int k = 0; k < d.nvj[i]; ++k) W.v[i] = W.v[i] + qd[vi + k] * W.s[vi + k];
 }
 
-// Entry e of an inertia: its mass, then h, then Io.
-template <class Scalar> TG_HD_INLINE Scalar& inertia_entry(Inertia<Scalar>& I, int e) {
-  return e == 0 ? I.m : e < 4 ? I.h.x[e - 1] : I.Io.m[e - 4];
-}
-
 // Yc, B (and F where W has it) summed over subtrees: by one thread body by body, each sum whole; by a team,
 // each of their 13 + 36 (+ 6) entries by one lane over every body (the same sums, in the same order).
 template <class Robot, class Scalar, class Work, class Team> TG_HD void subtree_sums(const Team& t, Work& W) {

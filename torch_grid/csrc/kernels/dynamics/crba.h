@@ -72,6 +72,47 @@ template <class Robot, class Scalar> TG_HD void crba(const Scalar* q, Scalar* Mo
   crba<Robot, Scalar>(Placements<Robot, Scalar>(q), Mout, pi);
 }
 
+// A team's shared workspace for crba: the world placements, and the world axes and composite inertias, both
+// about the root's origin.
+template <class Robot, class Scalar> struct CrbaTeamWork {
+  SE3<Scalar> oMi[Robot::NB];
+  Sv<Scalar> S[Robot::NV];
+  Inertia<Scalar> Ic[Robot::NB];
+};
+
+// M(q) by team t, with crba_vjp's layout: each lane its bodies' axes S and inertias about the root's origin and
+// its share of M's zeros; each of the inertias' 13 entries summed over subtrees by one lane; then a lane per
+// column c, of body b: M[r, c] = M[c, r] = S_r . Ic_b S_c for the dofs r before c in b and those of b's
+// ancestors (a pair belongs to its later column alone), the armature on the diagonal. All of M written when
+// every lane returns.
+template <class Robot, class Scalar, class Team>
+TG_HD void crba(const Team& t, CrbaTeamWork<Robot, Scalar>& w, const Scalar* q, Scalar* M, const InertialParameters<Robot, Scalar>& pi = {}) {
+  const auto& d = data<Robot, Scalar>();
+  constexpr int NV = Robot::NV;
+  world_placements<Robot, Scalar>(t, q, w.oMi);
+  for (const int i : t.items(0, Robot::NB)) {
+    const SE3<Scalar> X{w.oMi[i].R, w.oMi[i].p - w.oMi[0].p};  // joint i seen from the root's origin, world axes
+    for (int k = 0; k < d.nvj[i]; ++k) w.S[d.vi[i] + k] = placed_axis<Robot, Scalar>(X, i, k);
+    w.Ic[i] = shift(rotate(X.R, pi[i]), X.p);
+  }
+  for (const int n : t.items(0, NV * NV)) M[n] = Scalar(0);
+  t.sync();
+  for (const int e : t.items(0, 13))
+    for (int i = Robot::NB - 1; i > 0; --i)
+      if (d.parent[i] >= 0) inertia_entry(w.Ic[d.parent[i]], e) += inertia_entry(w.Ic[i], e);
+  t.sync();
+  for (const int c : t.items(0, NV)) {
+    int b = 0;
+    while (d.vi[b] + d.nvj[b] <= c) ++b;
+    const Sv<Scalar> F = mul(w.Ic[b], w.S[c]);
+    M[(NV + 1) * c] = dot(w.S[c], F) + Scalar(d.armature[c]);
+    for (int r = d.vi[b]; r < c; ++r) M[NV * r + c] = M[NV * c + r] = dot(w.S[r], F);
+    for (int j = d.parent[b]; j >= 0; j = d.parent[j])
+      for (int r = d.vi[j]; r < d.vi[j] + d.nvj[j]; ++r) M[NV * r + c] = M[NV * c + r] = dot(w.S[r], F);
+  }
+  t.sync();
+}
+
 // The gradient along the tangent of <G, M(q)> for a weight G (NV x NV), O(n d) for a tree of depth d.
 // With world axes S and composite inertias Ic about one point (the root's origin), a block of M is
 // M[r, s] = S_r . Ic_b S_s for the dof r of joint b and s of a joint a at or above b. A tangent step of

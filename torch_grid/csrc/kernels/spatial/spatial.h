@@ -295,6 +295,11 @@ template <class Scalar> TG_HD_INLINE Sv<Scalar> mul(const Inertia<Scalar>& I, co
   return sv(I.m * lin(x) - cross(I.h, ang(x)), cross(I.h, lin(x)) + mul(I.Io, ang(x)));
 }
 
+// Entry e of an inertia (13 of them): its mass, then h, then Io.
+template <class Scalar> TG_HD_INLINE Scalar& inertia_entry(Inertia<Scalar>& I, int e) {
+  return e == 0 ? I.m : e < 4 ? I.h.x[e - 1] : I.Io.m[e - 4];
+}
+
 template <class Scalar> TG_HD Inertia<Scalar> operator+(const Inertia<Scalar>& a, const Inertia<Scalar>& b) {
   Inertia<Scalar> r{a.m + b.m, a.h + b.h, a.Io};
   for (int k = 0; k < 9; ++k) r.Io.m[k] += b.Io.m[k];
