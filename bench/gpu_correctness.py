@@ -348,6 +348,10 @@ def parameters(checks: Checks, robot, device: torch.device) -> None:
 
 # The ops with a team path (csrc/kernels/spatial/team.h), which TORCH_GRID_CUDA_TEAMS=1 runs as one warp per sample.
 TEAM_CALLS = {
+    "inverse_dynamics": lambda v, q, qd, x, f, p: v.inverse_dynamics(q, qd, x, f),
+    "inverse_dynamics params": lambda v, q, qd, x, f, p: v.inverse_dynamics(q, qd, x, params=p),
+    "forward_dynamics": lambda v, q, qd, x, f, p: v.forward_dynamics(q, qd, x, f),
+    "forward_dynamics params": lambda v, q, qd, x, f, p: v.forward_dynamics(q, qd, x, params=p),
     "crba": lambda v, q, qd, x, f, p: v.crba(q),
     "crba params": lambda v, q, qd, x, f, p: v.crba(q, params=p),
     "minv": lambda v, q, qd, x, f, p: v.minv(q),

@@ -21,7 +21,9 @@ from gpu_correctness import TeamPaths, on, states
 # OP[teams] entries are placeholders, filled in below (TEAMS), that place each team figure beside its op's
 OPS = {
     "inverse_dynamics": lambda v, q, qd, x: v.inverse_dynamics(q, qd, x),
+    "inverse_dynamics[teams]": None,
     "forward_dynamics": lambda v, q, qd, x: v.forward_dynamics(q, qd, x),
+    "forward_dynamics[teams]": None,
     "crba": lambda v, q, qd, x: v.crba(q),
     "crba[teams]": None,
     "minv": lambda v, q, qd, x: v.minv(q),

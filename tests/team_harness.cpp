@@ -111,15 +111,17 @@ double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes) {
   return worst;
 }
 
-// Every op with a team path, in convention C: crba, minv, inverse_dynamics_derivatives (with external forces) and
-// forward_dynamics_derivatives (without); inverse_dynamics_second_derivatives (with external forces) has
-// Pinocchio's convention alone.
+// Every op with a team path, in convention C: inverse_dynamics, forward_dynamics, crba, minv and
+// inverse_dynamics_derivatives (those with forces, with external forces), and forward_dynamics_derivatives
+// (without); inverse_dynamics_second_derivatives (with external forces) has Pinocchio's convention alone.
 template <int C> void compare_all(int n, const char* conv, bool& ok) {
   constexpr int NQ = Robot::NQ, NV = Robot::NV, NB = Robot::NB;
   const auto report = [&](const char* op, double err) {
     std::printf("%s %s %.3g\n", op, conv, err);
     ok = ok && err <= 1e-13;
   };
+  report("inverse_dynamics", compare<tg::bind::InverseDynamics, C>(n, {NQ, NV, NV, 6 * NB, 0}, {NV}));
+  report("forward_dynamics", compare<tg::bind::ForwardDynamics, C>(n, {NQ, NV, NV, 6 * NB, 0}, {NV}));
   report("crba", compare<tg::bind::Crba, C>(n, {NQ, 0}, {NV * NV}));
   report("minv", compare<tg::bind::Minv, C>(n, {NQ, 0}, {NV * NV}));
   report("inverse_dynamics_derivatives", compare<tg::bind::InverseDynamicsDerivatives, C>(n, {NQ, NV, NV, 6 * NB, 0}, {NV * NV, NV * NV}));

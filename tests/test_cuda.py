@@ -26,7 +26,8 @@ NVCC_CACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "t
 # The kernels with a team path (csrc/kernels/spatial/team.h: a warp a sample), and the most stack a lane of one
 # may take on the G1 humanoid, by convention: the sample's workspace is in shared memory (one thread a sample takes
 # 8-42 KB for these), and the MuJoCo twins' leader alone reframes the outputs, with arrays of its own.
-TEAM_KERNELS = {"Crba", "Minv", "InverseDynamicsDerivatives", "ForwardDynamicsDerivatives", "InverseDynamicsSecondDerivatives"}
+TEAM_KERNELS = {"InverseDynamics", "ForwardDynamics", "Crba", "Minv", "InverseDynamicsDerivatives", "ForwardDynamicsDerivatives",
+                "InverseDynamicsSecondDerivatives"}
 TEAM_STACK = {"pin": 2048, "mujoco": 6144}
 # a second-derivative lane holds a column's 6x6 terms and a pair's vectors (ptxas on G1: 2624 bytes)
 TEAM_STACK_OF = {"InverseDynamicsSecondDerivatives": 3072}

@@ -47,7 +47,7 @@ def test_a_warp_of_threads_computes_what_one_thread_computes_without_a_race(name
     assert result.returncode == 0, result.stdout + result.stderr[-4000:]
     lines = dict(line.rsplit(" ", 1) for line in result.stdout.splitlines())
     conventions = ["pin", "mujoco"] if name != "iiwa14" else ["pin"]
-    ops = ["crba", "minv", "inverse_dynamics_derivatives", "forward_dynamics_derivatives"]
+    ops = ["inverse_dynamics", "forward_dynamics", "crba", "minv", "inverse_dynamics_derivatives", "forward_dynamics_derivatives"]
     expected = [f"{op} {c}" for op in ops for c in conventions] + ["inverse_dynamics_second_derivatives pin"]
     assert sorted(lines) == sorted(expected), result.stdout
     assert all(float(err) <= 1e-13 for err in lines.values()), result.stdout

@@ -27,11 +27,19 @@
 namespace tg {
 
 template <class Robot, class Scalar> struct InverseDynamics {
+  using TeamWork = InverseDynamicsTeamWork<Robot, Scalar>;
   TG_HD static void run(const InverseDynamicsArgs<Scalar>& a) { rnea<Robot, Scalar>(a.q, a.qd, a.qdd, a.f_ext, a.tau, {a.params}); }
+  template <class Team> TG_HD static void run_team(const Team& t, TeamWork& w, const InverseDynamicsArgs<Scalar>& a) {
+    rnea<Robot, Scalar>(t, w, a.q, a.qd, a.qdd, a.f_ext, a.tau, {a.params});
+  }
 };
 
 template <class Robot, class Scalar> struct ForwardDynamics {
+  using TeamWork = ForwardDynamicsTeamWork<Robot, Scalar>;
   TG_HD static void run(const ForwardDynamicsArgs<Scalar>& a) { aba<Robot, Scalar>(a.q, a.qd, a.tau, a.f_ext, a.qdd, {a.params}); }
+  template <class Team> TG_HD static void run_team(const Team& t, TeamWork& w, const ForwardDynamicsArgs<Scalar>& a) {
+    forward_dynamics<Robot, Scalar>(t, w, a.q, a.qd, a.tau, a.f_ext, a.qdd, {a.params});
+  }
 };
 
 template <class Robot, class Scalar> struct Crba {

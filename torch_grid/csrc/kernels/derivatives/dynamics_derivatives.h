@@ -48,6 +48,37 @@ template <class Robot, class Scalar> TG_HD void forward_dynamics_from_minv(const
   }
 }
 
+// A team's shared workspace for forward_dynamics: the world placements, M^-1 and tau - b beside minv's workspace
+// and then, in the same place, the bias's.
+template <class Robot, class Scalar> struct ForwardDynamicsTeamWork {
+  SE3<Scalar> oMi[Robot::NB];
+  Scalar Minv[Robot::NV * Robot::NV];
+  Scalar r[Robot::NV];
+  union {
+    MinvWork<Robot, Scalar, true> minv;
+    RneaTeamWork<Robot, Scalar> bias;
+  };
+};
+
+// qdd = M^-1 (tau - b(q, qd, f_ext)) by team t (Pinocchio's convention): M^-1 by minv's team path, the bias b by
+// rnea's at qdd = 0, then qdd by rows, a row a lane. All of qdd written when every lane returns.
+template <class Robot, class Scalar, class Team>
+TG_HD void forward_dynamics(const Team& t, ForwardDynamicsTeamWork<Robot, Scalar>& w, const Scalar* q, const Scalar* qd, const Scalar* tau,
+                            const Scalar* fext, Scalar* qdd, const InertialParameters<Robot, Scalar>& pi = {}) {
+  constexpr int NV = Robot::NV;
+  world_placements<Robot, Scalar>(t, q, w.oMi);
+  minv<Robot, Scalar>(t, w.oMi, w.minv, w.Minv, pi);
+  rnea<Robot, Scalar>(t, w.oMi, w.bias, qd, nullptr, fext, w.r, pi);
+  for (const int c : t.items(0, NV)) w.r[c] = tau[c] - w.r[c];
+  t.sync();
+  for (const int row : t.items(0, NV)) {
+    Scalar acc = Scalar(0);
+    for (int k = 0; k < NV; ++k) acc += w.Minv[NV * row + k] * w.r[k];
+    qdd[row] = acc;
+  }
+  t.sync();
+}
+
 // d tau/dq, d tau/dqd in the convention C (qd, qdd in Pinocchio's) from W, set up at (q, qd, qdd, fext), by
 // team t (the MuJoCo reframe by its leader, once both are whole); without Zero, the entries between branches
 // of the tree are left as they were (the reframe mixes a free joint's rows and columns, related to every dof
