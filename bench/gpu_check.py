@@ -12,7 +12,7 @@ conventions), batch sizes and memory layouts, gradients, double backward, forwar
 the functions given inertial parameters, and the ops' team paths (one warp per sample, TORCH_GRID_CUDA_TEAMS=1);
 the device stages (streams, CUDA graphs, torch.compile, the examples, the local-memory reservation and the
 budget refusal); compute-sanitizer's memcheck and initcheck, and racecheck on the team paths; the kernels'
-resources (cuobjdump), one kernel's achieved occupancy and eleven kernels' ncu sections
+resources (cuobjdump), one kernel's achieved occupancy and twelve kernels' ncu sections
 (gpu_device.PROFILED: throughput, memory traffic, warp stalls); the MPC path
 (gpu_mpc.py: examples/ilqr.py's go2 task, 256 samples by 50 knots, and its parts, eager and from CUDA
 graphs, against the CPU build); the figures. Into --out (default $OUT, else bench/gpu):

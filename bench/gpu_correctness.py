@@ -363,7 +363,22 @@ TEAM_CALLS = {
     "inverse_dynamics_second_derivatives": lambda v, q, qd, x, f, p: v.inverse_dynamics_second_derivatives(q, qd, x, f),
     "inverse_dynamics_second_derivatives params":
         lambda v, q, qd, x, f, p: v.inverse_dynamics_second_derivatives(q, qd, x, params=p),
+    "step_derivatives[euler]": lambda v, q, qd, x, f, p: _fused_step_derivatives(v, "euler", q, qd, x),
+    "step_derivatives[semi_implicit_euler]": lambda v, q, qd, x, f, p: _fused_step_derivatives(v, "semi_implicit_euler", q, qd, x),
 }
+
+
+def _fused_step_derivatives(view, scheme: str, q, qd, x):
+    """(A, B) of the fused Euler step-derivative kernel itself, past the routing that keeps it off CUDA in MuJoCo's
+    convention (gpu_probe.fused), so that its team path is checked in both conventions; of a robot whose joints
+    mimic others, which no fused kernel computes, the public function's."""
+    import gpu_probe  # (which imports this module)
+
+    if view._robot._coupling is not None:
+        return view.step_derivatives(q, qd, x, 0.01, scheme)
+    return gpu_probe.fused(view, scheme, q, qd, x, 0.01)
+
+
 # The largest batch a team call is checked at where the whole batch sizes would hold gigabytes (4 nv^3 numbers a
 # sample: 1.4 MB for G1 in float64)
 TEAM_MAX_BATCH = {"inverse_dynamics_second_derivatives": 255, "inverse_dynamics_second_derivatives params": 255}

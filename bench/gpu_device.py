@@ -258,14 +258,15 @@ def profiled_call(robot, device: torch.device) -> None:
 # Kernels ncu reads section by section (throughput against the device's peaks, the memory hierarchy's traffic,
 # why warps stall, occupancy), the measurements GPU kernels that cooperate within a sample are designed from:
 # (robot, op, N), a light op and a derivative, a small and a full batch, a 7-dof arm and the humanoid, and
-# go2's fused semi-implicit step_derivatives, G1's inverse_dynamics (N = 256), minv and forward_dynamics_derivatives
-# one warp a sample beside one thread a sample, and G1's inverse_dynamics_second_derivatives one warp a sample (op: a
-# name of gpu_figures.OPS).
+# go2's fused semi-implicit step_derivatives and G1's inverse_dynamics (N = 256), minv and
+# forward_dynamics_derivatives, one warp a sample beside one thread a sample, and G1's
+# inverse_dynamics_second_derivatives one warp a sample (op: a name of gpu_figures.OPS).
 PROFILED = (("iiwa14", "inverse_dynamics", 65536), ("iiwa14", "forward_dynamics_derivatives", 256),
             ("iiwa14", "forward_dynamics_derivatives", 65536), ("g1", "inverse_dynamics", 256),
             ("g1", "forward_dynamics_derivatives", 65536), ("go2", "step_derivatives[semi_implicit_euler]", 65536),
             ("g1", "minv", 65536), ("g1", "minv[teams]", 65536), ("g1", "forward_dynamics_derivatives[teams]", 65536),
-            ("g1", "inverse_dynamics_second_derivatives[teams]", 1024), ("g1", "inverse_dynamics[teams]", 256))
+            ("g1", "inverse_dynamics_second_derivatives[teams]", 1024), ("g1", "inverse_dynamics[teams]", 256),
+            ("go2", "step_derivatives[semi_implicit_euler][teams]", 65536))
 NCU_SECTIONS = ("LaunchStats", "Occupancy", "SpeedOfLight", "ComputeWorkloadAnalysis", "MemoryWorkloadAnalysis",
                 "WarpStateStats", "SchedulerStats")
 

@@ -35,6 +35,7 @@ OPS = {
     "inverse_dynamics_second_derivatives": lambda v, q, qd, x: v.inverse_dynamics_second_derivatives(q, qd, x),
     "inverse_dynamics_second_derivatives[teams]": None,
     "step_derivatives[semi_implicit_euler]": lambda v, q, qd, x: v.step_derivatives(q, qd, x, 0.01, "semi_implicit_euler"),
+    "step_derivatives[semi_implicit_euler][teams]": None,
     "step_derivatives[rk4]": lambda v, q, qd, x: v.step_derivatives(q, qd, x, 0.01, "rk4"),
     # the torch composition the fused kernel replaces (forward_dynamics, forward_dynamics_derivatives and batched
     # products): on a GPU its coalesced products may beat one thread's loops over the 2 nv x 2 nv matrices

@@ -52,9 +52,9 @@ std::vector<double> configuration(std::mt19937& gen) {
 
 // One op on n samples: the team of threads against the one-thread kernel; the largest difference, relative to the
 // largest entry of each output. Inputs after q are normal random numbers, of the sizes given (0: absent); the
-// outputs are of the sizes given.
+// outputs are of the sizes given; the integer arguments those given.
 template <template <class, class, int> class Op, int C>
-double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes) {
+double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes, std::vector<int> iargs = {0}) {
   using Bound = Op<Robot, double, C>;
   std::mt19937 gen(7);
   std::normal_distribution<double> normal;
@@ -76,8 +76,7 @@ double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes) {
       out_solo[k] = solo[k].data();
       out_team[k] = team[k].data();
     }
-    int iargs[1] = {0};
-    Bound::run(in, out_solo, iargs, 0, false);
+    Bound::run(in, out_solo, iargs.data(), int(iargs.size()), false);
     typename Bound::TeamWork w;
     pthread_barrier_t barrier;
     pthread_barrier_init(&barrier, nullptr, ThreadTeam::lanes);
@@ -87,14 +86,15 @@ double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes) {
       typename Bound::TeamWork* w;
       const double* const* in;
       double* const* out;
-      int* iargs;
+      const int* iargs;
+      int n_iargs;
     };
     std::vector<Lane> lanes;
-    for (int l = 0; l < ThreadTeam::lanes; ++l) lanes.push_back({{l, &barrier}, &w, in, out_team, iargs});
+    for (int l = 0; l < ThreadTeam::lanes; ++l) lanes.push_back({{l, &barrier}, &w, in, out_team, iargs.data(), int(iargs.size())});
     for (int l = 0; l < ThreadTeam::lanes; ++l)
       pthread_create(&threads[l], nullptr, [](void* p) -> void* {
         Lane* lane = static_cast<Lane*>(p);
-        Bound::run_team(lane->t, *lane->w, lane->in, lane->out, lane->iargs, 0);
+        Bound::run_team(lane->t, *lane->w, lane->in, lane->out, lane->iargs, lane->n_iargs);
         return nullptr;
       }, &lanes[l]);
     for (pthread_t& t : threads) pthread_join(t, nullptr);
@@ -113,7 +113,8 @@ double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes) {
 
 // Every op with a team path, in convention C: inverse_dynamics, forward_dynamics, crba, minv and
 // inverse_dynamics_derivatives (those with forces, with external forces), and forward_dynamics_derivatives
-// (without); inverse_dynamics_second_derivatives (with external forces) has Pinocchio's convention alone.
+// (without); inverse_dynamics_second_derivatives (with external forces) has Pinocchio's convention alone, and
+// step_derivatives (both Euler schemes, with external forces) a robot without passive forces alone.
 template <int C> void compare_all(int n, const char* conv, bool& ok) {
   constexpr int NQ = Robot::NQ, NV = Robot::NV, NB = Robot::NB;
   const auto report = [&](const char* op, double err) {
@@ -127,6 +128,10 @@ template <int C> void compare_all(int n, const char* conv, bool& ok) {
   report("inverse_dynamics_derivatives", compare<tg::bind::InverseDynamicsDerivatives, C>(n, {NQ, NV, NV, 6 * NB, 0}, {NV * NV, NV * NV}));
   report("forward_dynamics_derivatives",
          compare<tg::bind::ForwardDynamicsDerivatives, C>(n, {NQ, NV, NV, 0, 0}, {NV * NV, NV * NV, NV * NV}));
+  if constexpr (tg::has_team<tg::bind::StepDerivatives<Robot, double, C>>)
+    for (int scheme : {0, 1})
+      report(scheme ? "step_derivatives[semi_implicit_euler]" : "step_derivatives[euler]",
+             compare<tg::bind::StepDerivatives, C>(n, {NQ, NV, NV, 6 * NB, 1, 0}, {NQ, NV, 4 * NV * NV, 2 * NV * NV}, {scheme, 0}));
   if constexpr (C == tg::PIN) {
     constexpr int N3 = NV * NV * NV;
     report("inverse_dynamics_second_derivatives",

@@ -254,6 +254,8 @@ template <class Robot, class Scalar> struct ForwardDynamicsDerivatives {
 // (passive 1), G is that of FD(q, qd, tau + p); with the damping implicit (passive 2), that of
 // damped_dynamics_derivatives. A robot without damping or springs compiles neither.
 template <class Robot, class Scalar> struct StepDerivatives {
+  // one warp a sample on a robot without passive forces (with them, one thread a sample)
+  using TeamWork = std::conditional_t<Robot::PASSIVE, NoTeam, StepDerivativesTeamWork<Robot, Scalar>>;
   template <int C> TG_HD static void run(const StepDerivativesArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
     constexpr int NV = Robot::NV;
     Scalar qdd[NV], v[NV];
@@ -272,6 +274,10 @@ template <class Robot, class Scalar> struct StepDerivatives {
     cv.velocity_out(v);
     cv.acceleration_out(a.qd, qdd);
     euler_step<Robot, Scalar, C>(a.q, v, qdd, a.dt[0], a.scheme, a.q_next, a.qd_next, a.A, a.B);
+  }
+  template <int C, class Team>
+  TG_HD static void run_team(const Team& t, TeamWork& w, const StepDerivativesArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
+    euler_step_derivatives<Robot, Scalar>(t, w, cv, a.q, a.qd, a.tau, a.f_ext, a.dt[0], a.scheme, a.q_next, a.qd_next, a.A, a.B, {a.params});
   }
 };
 

@@ -12,6 +12,7 @@
 // (linear rows first; V = Jr(-u_ang) = Jl, Q Barfoot's coupling block at -u).
 #pragma once
 
+#include "kernels/derivatives/dynamics_derivatives.h"
 #include "kernels/spatial/convention.h"
 
 namespace tg {
@@ -333,19 +334,21 @@ template <class Robot, class Scalar, int C> TG_HD void ambient_to_tangent_joint(
   }
 }
 
-// The step and its Jacobians. On entry the rows of q' hold G (A's first NV rows: da/dq then da/dqd,
-// NV x NV each; B's first NV rows: da/dtau), which the rows of qd' are made of before those rows are
-// overwritten; v and acc are qd and a in the convention, q in Pinocchio's layout.
-// Outputs: q_next (NQ), qd_next (NV), A (2 NV x 2 NV), B (2 NV x NV), row-major.
-template <class Robot, class Scalar, int C>
-TG_HD void euler_step(const Scalar* q, const Scalar* v, const Scalar* acc, Scalar h, int scheme, Scalar* q_next, Scalar* qd_next, Scalar* A, Scalar* B) {
+// The step and its Jacobians, by team t: the rows of qd' a lane each, then, once they are all written, the rows
+// of q' a body a lane. On entry the rows of q' hold G (A's first NV rows: da/dq then da/dqd, NV x NV each; B's
+// first NV rows: da/dtau), which the rows of qd' are made of before those rows are overwritten; v and acc are
+// qd and a in the convention, q in Pinocchio's layout. Outputs: q_next (NQ), qd_next (NV), A (2 NV x 2 NV),
+// B (2 NV x NV), row-major; all written when every lane returns.
+template <class Robot, class Scalar, int C, class Team = Solo>
+TG_HD void euler_step(const Scalar* q, const Scalar* v, const Scalar* acc, Scalar h, int scheme, Scalar* q_next, Scalar* qd_next, Scalar* A, Scalar* B,
+                      const Team& t = {}) {
   constexpr int NV = Robot::NV, N2 = 2 * NV;
   const auto& d = data<Robot, Scalar>();
   const Scalar* Gq = A;
   const Scalar* Gv = A + NV * NV;
   const Scalar* Gt = B;
   // qd' = qd + dt a;  dqd'/dz = dt G + [0 I 0], the rows NV.. of A and B
-  for (int r = 0; r < NV; ++r) {
+  for (const int r : t.items(0, NV)) {
     qd_next[r] = v[r] + h * acc[r];
     Scalar* Ar = A + N2 * (NV + r);
     Scalar* Br = B + NV * (NV + r);
@@ -355,10 +358,11 @@ TG_HD void euler_step(const Scalar* q, const Scalar* v, const Scalar* acc, Scala
       Br[c] = h * Gt[NV * r + c];
     }
   }
+  t.sync();
   // q' = q (+) u, u = dt w;  dq'/dz = Jq [I 0 0] + dt Jv dw/dz, dw/dz = dqd'/dz (semi-implicit) or [0 I 0]
   Scalar u[NV];
   for (int r = 0; r < NV; ++r) u[r] = h * (scheme ? qd_next[r] : v[r]);
-  for (int i = 0; i < Robot::NB; ++i) {
+  for (const int i : t.items(0, Robot::NB)) {
     Scalar Jq[36], Jv[36];
     const int n = integrate_joint<Robot, Scalar, C>(i, q, u, q_next, Jq, Jv);
     const int vi = d.vi[i], rows = n ? n : d.nvj[i];
@@ -382,6 +386,45 @@ TG_HD void euler_step(const Scalar* q, const Scalar* v, const Scalar* acc, Scala
       }
     }
   }
+  t.sync();
+}
+
+// A team's shared workspace for step_derivatives: forward_dynamics_derivatives's, and qd and a in the convention.
+template <class Robot, class Scalar> struct StepDerivativesTeamWork {
+  ForwardDynamicsDerivativesTeamWork<Robot, Scalar> fd;
+  Scalar v[Robot::NV], acc[Robot::NV];
+};
+
+// An Euler step's Jacobians by team t on a robot without passive forces: G by forward_dynamics_derivatives's team
+// path, finished as -M^-1 dtau/dx a column a lane, then euler_step. All written when every lane returns.
+template <class Robot, class Scalar, int C, class Team>
+TG_HD void euler_step_derivatives(const Team& t, StepDerivativesTeamWork<Robot, Scalar>& w, const Conv<Robot, Scalar, C>& cv, const Scalar* q,
+                                  const Scalar* qd, const Scalar* tau, const Scalar* fext, Scalar h, int scheme, Scalar* q_next,
+                                  Scalar* qd_next, Scalar* A, Scalar* B, const InertialParameters<Robot, Scalar>& pi = {}) {
+  constexpr int NV = Robot::NV;
+  Scalar* const dq = A;
+  Scalar* const dqd = A + NV * NV;
+  forward_dynamics_derivatives<Robot, Scalar>(t, w.fd, q, qd, tau, fext, cv, dq, dqd, B, pi);
+  // dq, dqd <- -M^-1 dq, -M^-1 dqd (M^-1 in B's first rows): column c of both by c's lane
+  for (const int c : t.items(0, NV)) {
+    Scalar y[NV];
+    Scalar* const Xs[2] = {dq, dqd};
+    for (Scalar* X : Xs) {
+      for (int r = 0; r < NV; ++r) {
+        Scalar acc = Scalar(0);
+        for (int k = 0; k < NV; ++k) acc += B[NV * r + k] * X[NV * k + c];
+        y[r] = -acc;
+      }
+      for (int r = 0; r < NV; ++r) X[NV * r + c] = y[r];
+    }
+  }
+  if (t.leader()) {
+    for (int k = 0; k < NV; ++k) w.v[k] = qd[k], w.acc[k] = w.fd.qdd[k];
+    cv.velocity_out(w.v);
+    cv.acceleration_out(qd, w.acc);
+  }
+  t.sync();
+  euler_step<Robot, Scalar, C>(q, w.v, w.acc, h, scheme, q_next, qd_next, A, B, t);
 }
 
 }  // namespace tg
