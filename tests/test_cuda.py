@@ -29,7 +29,7 @@ NVCC_CACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "t
 TEAM_KERNELS = {"InverseDynamics", "ForwardDynamics", "Crba", "Minv", "InverseDynamicsDerivatives", "ForwardDynamicsDerivatives",
                 "InverseDynamicsSecondDerivatives", "StepDerivatives"}
 TEAM_STACK = {"pin": 2048, "mujoco": 6144}
-# a second-derivative lane holds a column's 6x6 terms and a pair's vectors (ptxas on G1: 2624 bytes)
+# a second-derivative lane holds a column's 6x6 terms and a pair's vectors (ptxas on G1: 2672 bytes)
 TEAM_STACK_OF = {"InverseDynamicsSecondDerivatives": 3072}
 
 

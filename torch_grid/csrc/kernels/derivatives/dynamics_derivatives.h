@@ -48,6 +48,17 @@ template <class Robot, class Scalar> TG_HD void forward_dynamics_from_minv(const
   }
 }
 
+// y = A x for an NV x NV matrix A by team t, a row a lane; all of y written when every lane returns.
+template <class Robot, class Scalar, class Team> TG_HD void matrix_vector(const Team& t, const Scalar* A, const Scalar* x, Scalar* y) {
+  constexpr int NV = Robot::NV;
+  for (const int row : t.items(0, NV)) {
+    Scalar acc = Scalar(0);
+    for (int k = 0; k < NV; ++k) acc += A[NV * row + k] * x[k];
+    y[row] = acc;
+  }
+  t.sync();
+}
+
 // A team's shared workspace for forward_dynamics: the world placements, M^-1 and tau - b beside minv's workspace
 // and then, in the same place, the bias's.
 template <class Robot, class Scalar> struct ForwardDynamicsTeamWork {
@@ -71,12 +82,7 @@ TG_HD void forward_dynamics(const Team& t, ForwardDynamicsTeamWork<Robot, Scalar
   rnea<Robot, Scalar>(t, w.oMi, w.bias, qd, nullptr, fext, w.r, pi);
   for (const int c : t.items(0, NV)) w.r[c] = tau[c] - w.r[c];
   t.sync();
-  for (const int row : t.items(0, NV)) {
-    Scalar acc = Scalar(0);
-    for (int k = 0; k < NV; ++k) acc += w.Minv[NV * row + k] * w.r[k];
-    qdd[row] = acc;
-  }
-  t.sync();
+  matrix_vector<Robot, Scalar>(t, w.Minv, w.r, qdd);
 }
 
 // d tau/dq, d tau/dqd in the convention C (qd, qdd in Pinocchio's) from W, set up at (q, qd, qdd, fext), by
@@ -186,12 +192,7 @@ TG_HD void forward_dynamics_derivatives(const Team& t, const SE3<Scalar>* oMi, F
   for (const int i : t.items(0, Robot::NB))
     for (int l = 0; l < d.nvj[i]; ++l) r[d.vi[i] + l] = tau[d.vi[i] + l] - dot(W.s[d.vi[i] + l], W.F[i]);
   t.sync();
-  for (const int row : t.items(0, NV)) {
-    Scalar acc = 0;
-    for (int k = 0; k < NV; ++k) acc += dtau[NV * row + k] * r[k];
-    qdd[row] = acc;
-  }
-  t.sync();
+  matrix_vector<Robot, Scalar>(t, dtau, r, qdd);
   if (t.leader()) rnea_derivatives_accelerate<Robot, Scalar>(qdd, W);
   t.sync();
   inverse_dynamics_derivatives_from<Robot, Scalar, C>(t, W, qd, qdd, cv, dq, dqd);

@@ -84,14 +84,11 @@ template <class Robot, class Scalar, class Work, class Team> TG_HD void subtree_
       if constexpr (forces) W.F[p] = W.F[p] + W.F[i];
     }
   } else {
-    for (const int e : t.items(0, forces ? 55 : 49))
-      for (int i = Robot::NB - 1; i > 0; --i) {
-        const int p = d.parent[i];
-        if (p < 0) continue;
-        if (e < 13) inertia_entry(W.Yc[p], e) += inertia_entry(W.Yc[i], e);
-        else if (e < 49) W.B[p].m[e - 13] += W.B[i].m[e - 13];
-        else if constexpr (forces) W.F[p].v[e - 49] += W.F[i].v[e - 49];
-      }
+    subtree_entry_sums<Robot, Scalar>(t, forces ? 55 : 49, [&W](int i, int e) -> Scalar& {
+      if constexpr (forces)
+        if (e >= 49) return W.F[i].v[e - 49];
+      return e < 13 ? inertia_entry(W.Yc[i], e) : W.B[i].m[e - 13];
+    });
   }
 }
 

@@ -192,11 +192,7 @@ TG_HD void rnea_second_order_visit(const RneaDerivativesWork<Robot, Scalar>& W, 
   const auto& d = data<Robot, Scalar>();
   const auto direct = [&W](int c, int r) { return column_octet<Robot, Scalar>(W, c, r); };
   if constexpr (Team::lanes > 1) {
-    for (const int a : t.items(0, Robot::NV)) {
-      int i = 0;
-      while (d.vi[i] + d.nvj[i] <= a) ++i;
-      rnea_second_order_column<Robot, Scalar>(W, i, a, direct, put);
-    }
+    for (const int a : t.items(0, Robot::NV)) rnea_second_order_column<Robot, Scalar>(W, dof_body<Robot, Scalar>(a), a, direct, put);
   } else {
 #if TG_DEVICE_PATH
     const auto& mixed = direct;

@@ -97,13 +97,10 @@ TG_HD void crba(const Team& t, CrbaTeamWork<Robot, Scalar>& w, const Scalar* q, 
   }
   for (const int n : t.items(0, NV * NV)) M[n] = Scalar(0);
   t.sync();
-  for (const int e : t.items(0, 13))
-    for (int i = Robot::NB - 1; i > 0; --i)
-      if (d.parent[i] >= 0) inertia_entry(w.Ic[d.parent[i]], e) += inertia_entry(w.Ic[i], e);
+  subtree_entry_sums<Robot, Scalar>(t, 13, [&w](int i, int e) -> Scalar& { return inertia_entry(w.Ic[i], e); });
   t.sync();
   for (const int c : t.items(0, NV)) {
-    int b = 0;
-    while (d.vi[b] + d.nvj[b] <= c) ++b;
+    const int b = dof_body<Robot, Scalar>(c);
     const Sv<Scalar> F = mul(w.Ic[b], w.S[c]);
     M[(NV + 1) * c] = dot(w.S[c], F) + Scalar(d.armature[c]);
     for (int r = d.vi[b]; r < c; ++r) M[NV * r + c] = M[NV * c + r] = dot(w.S[r], F);

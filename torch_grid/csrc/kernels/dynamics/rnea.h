@@ -88,15 +88,9 @@ TG_HD void rnea(const Team& t, const SE3<Scalar>* oMi, RneaTeamWork<Robot, Scala
     }
   }
   t.sync();
-  for (const int e : t.items(0, 6))
-    for (int i = Robot::NB - 1; i > 0; --i)
-      if (d.parent[i] >= 0) w.f[d.parent[i]].v[e] += w.f[i].v[e];
+  subtree_entry_sums<Robot, Scalar>(t, 6, [&w](int i, int e) -> Scalar& { return w.f[i].v[e]; });
   t.sync();
-  for (const int c : t.items(0, Robot::NV)) {
-    int b = 0;
-    while (d.vi[b] + d.nvj[b] <= c) ++b;
-    tau[c] = dot(w.S[c], w.f[b]) + Scalar(d.armature[c]) * acc(c);
-  }
+  for (const int c : t.items(0, Robot::NV)) tau[c] = dot(w.S[c], w.f[dof_body<Robot, Scalar>(c)]) + Scalar(d.armature[c]) * acc(c);
   t.sync();
 }
 

@@ -284,6 +284,23 @@ template <class Robot, class Scalar> TG_HD void world_placements(const Scalar* q
   }
 }
 
+// The body whose joint owns dof c (bodies own contiguous, ascending dof ranges).
+template <class Robot, class Scalar> TG_HD_INLINE int dof_body(int c) {
+  const auto& d = data<Robot, Scalar>();
+  int b = 0;
+  while (d.vi[b] + d.nvj[b] <= c) ++b;
+  return b;
+}
+
+// Per-body quantities summed over subtrees by team t, entry by entry: each of the n entries (entry(i, e), a
+// reference into body i's) by one lane over every body, leaves first.
+template <class Robot, class Scalar, class Team, class Entry> TG_HD void subtree_entry_sums(const Team& t, int n, Entry&& entry) {
+  const auto& d = data<Robot, Scalar>();
+  for (const int e : t.items(0, n))
+    for (int i = Robot::NB - 1; i > 0; --i)
+      if (d.parent[i] >= 0) entry(d.parent[i], e) += entry(i, e);
+}
+
 // The same by team t: each lane its bodies' joint placements (their trigonometry), then the leader composes them
 // down the tree in place; all of oMi written when every lane returns.
 template <class Robot, class Scalar, class Team> TG_HD void world_placements(const Team& t, const Scalar* q, SE3<Scalar>* oMi) {
