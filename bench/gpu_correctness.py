@@ -368,15 +368,31 @@ TEAM_CALLS = {
 }
 
 
-def _fused_step_derivatives(view, scheme: str, q, qd, x):
-    """(A, B) of the fused Euler step-derivative kernel itself, past the routing that keeps it off CUDA in MuJoCo's
-    convention (gpu_probe.fused), so that its team path is checked in both conventions; of a robot whose joints
-    mimic others, which no fused kernel computes, the public function's."""
-    import gpu_probe  # (which imports this module)
+def kernel_outputs(view, scheme: str, q, qd, x, dt):
+    """Every output of the fused step-derivative kernel itself (q', qd', A, B, and a Runge-Kutta scheme's
+    workspace), past the public function's routing, which keeps them off CUDA in MuJoCo's convention
+    (integrators._fused_kept_off)."""
+    from torch_grid.space.lie import dt_column
+    from torch_grid.step.integrators import FUSED, RK_FUSED, _passive_code
 
+    h, passive = dt_column(dt, qd), _passive_code(view._robot, scheme)
+    if scheme in FUSED:
+        return view._kernel_call("step_derivatives", q, qd, x, None, h, None, FUSED[scheme], passive)
+    return view._kernel_call("rk_step_derivatives", q, qd, x, None, h, None, RK_FUSED[scheme], passive)
+
+
+def fused(view, scheme: str, q, qd, x, dt):
+    """(A, B) of the fused step-derivative kernel itself (kernel_outputs)."""
+    return kernel_outputs(view, scheme, q, qd, x, dt)[2:4]
+
+
+def _fused_step_derivatives(view, scheme: str, q, qd, x):
+    """(A, B) of the fused Euler step-derivative kernel (fused) at dt = 0.01, so that its team path is checked in
+    both conventions; of a robot whose joints mimic others, which no fused kernel computes, the public
+    function's."""
     if view._robot._coupling is not None:
         return view.step_derivatives(q, qd, x, 0.01, scheme)
-    return gpu_probe.fused(view, scheme, q, qd, x, 0.01)
+    return fused(view, scheme, q, qd, x, 0.01)
 
 
 # The largest batch a team call is checked at where the whole batch sizes would hold gigabytes (4 nv^3 numbers a

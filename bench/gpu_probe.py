@@ -19,7 +19,7 @@ from pathlib import Path
 
 import torch
 
-from gpu_correctness import on, states
+from gpu_correctness import fused, kernel_outputs, on, states
 
 SCHEMES = ("euler", "semi_implicit_euler", "midpoint", "rk4")
 
@@ -52,24 +52,6 @@ def _pattern(bad: torch.Tensor) -> str:
         groups.setdefault(_ranges(bad[r].nonzero().flatten().tolist()), []).append(r)
     per_row = "; ".join(f"rows {_ranges(rs)}: cols {cols}" for cols, rs in groups.items())
     return f"rows {_ranges(rows)} cols {_ranges(bad.any(0).nonzero().flatten().tolist())} [{per_row}]"
-
-
-def _kernel_outputs(view, scheme: str, q, qd, x, dt):
-    """Every output of the fused step-derivative kernel itself (q', qd', A, B, and a Runge-Kutta scheme's
-    workspace), past the public function's routing, which keeps them off CUDA in MuJoCo's convention
-    (integrators._fused_kept_off)."""
-    from torch_grid.space.lie import dt_column
-    from torch_grid.step.integrators import FUSED, RK_FUSED, _passive_code
-
-    h, passive = dt_column(dt, qd), _passive_code(view._robot, scheme)
-    if scheme in FUSED:
-        return view._kernel_call("step_derivatives", q, qd, x, None, h, None, FUSED[scheme], passive)
-    return view._kernel_call("rk_step_derivatives", q, qd, x, None, h, None, RK_FUSED[scheme], passive)
-
-
-def fused(view, scheme: str, q, qd, x, dt):
-    """(A, B) of the fused step-derivative kernel itself (_kernel_outputs)."""
-    return _kernel_outputs(view, scheme, q, qd, x, dt)[2:4]
 
 
 def step_derivatives(name: str, robot, device: torch.device, poisoned: bool) -> None:
@@ -111,7 +93,7 @@ def rk_workspace(name: str, robot, device: torch.device) -> None:
         for dt in (0.0, 0.01):
             def one():
                 # (the CPU's workspace is a thread's, never returned: the device's alone is read)
-                work = _kernel_outputs(view, scheme, *on((q, qd, x), device), dt)[4].reshape(-1).cpu()
+                work = kernel_outputs(view, scheme, *on((q, qd, x), device), dt)[4].reshape(-1).cpu()
                 parts = [f"{label}: {int((~torch.isfinite(work[start:start + size])).sum())}/{size} non-finite"
                          for label, start, size in regions]
                 print(f"INFO probe {name} work mujoco {scheme} dt={dt}: " + "; ".join(parts), flush=True)
