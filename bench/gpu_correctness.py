@@ -365,6 +365,7 @@ TEAM_CALLS = {
         lambda v, q, qd, x, f, p: v.inverse_dynamics_second_derivatives(q, qd, x, params=p),
     "step_derivatives[euler]": lambda v, q, qd, x, f, p: _fused_step_derivatives(v, "euler", q, qd, x),
     "step_derivatives[semi_implicit_euler]": lambda v, q, qd, x, f, p: _fused_step_derivatives(v, "semi_implicit_euler", q, qd, x),
+    **{f"rk_step_derivatives[{s}]": lambda v, q, qd, x, f, p, s=s: _fused_step_derivatives(v, s, q, qd, x) for s in ("midpoint", "rk3", "rk4")},
 }
 
 
@@ -387,8 +388,8 @@ def fused(view, scheme: str, q, qd, x, dt):
 
 
 def _fused_step_derivatives(view, scheme: str, q, qd, x):
-    """(A, B) of the fused Euler step-derivative kernel (fused) at dt = 0.01, so that its team path is checked in
-    both conventions; of a robot whose joints mimic others, which no fused kernel computes, the public
+    """(A, B) of the fused step-derivative kernel of a scheme (fused) at dt = 0.01, so that its team path is checked
+    in both conventions; of a robot whose joints mimic others, which no fused kernel computes, the public
     function's."""
     if view._robot._coupling is not None:
         return view.step_derivatives(q, qd, x, 0.01, scheme)
@@ -396,8 +397,9 @@ def _fused_step_derivatives(view, scheme: str, q, qd, x):
 
 
 # The largest batch a team call is checked at where the whole batch sizes would hold gigabytes (4 nv^3 numbers a
-# sample: 1.4 MB for G1 in float64)
-TEAM_MAX_BATCH = {"inverse_dynamics_second_derivatives": 255, "inverse_dynamics_second_derivatives params": 255}
+# sample: 1.4 MB for G1 in float64; a Runge-Kutta step's workspace, 24 nv^2: 0.24 MB)
+TEAM_MAX_BATCH = {"inverse_dynamics_second_derivatives": 255, "inverse_dynamics_second_derivatives params": 255,
+                  **{f"rk_step_derivatives[{s}]": 1024 for s in ("midpoint", "rk3", "rk4")}}
 
 
 class TeamPaths:

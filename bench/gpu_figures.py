@@ -37,6 +37,7 @@ OPS = {
     "step_derivatives[semi_implicit_euler]": lambda v, q, qd, x: v.step_derivatives(q, qd, x, 0.01, "semi_implicit_euler"),
     "step_derivatives[semi_implicit_euler][teams]": None,
     "step_derivatives[rk4]": lambda v, q, qd, x: v.step_derivatives(q, qd, x, 0.01, "rk4"),
+    "step_derivatives[rk4][teams]": None,
     # the torch composition the fused kernel replaces (forward_dynamics, forward_dynamics_derivatives and batched
     # products): on a GPU its coalesced products may beat one thread's loops over the 2 nv x 2 nv matrices
     "step_derivatives[semi_implicit_euler, composed]":

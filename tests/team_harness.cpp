@@ -52,9 +52,11 @@ std::vector<double> configuration(std::mt19937& gen) {
 
 // One op on n samples: the team of threads against the one-thread kernel; the largest difference, relative to the
 // largest entry of each output. Inputs after q are normal random numbers, of the sizes given (0: absent); the
-// outputs are of the sizes given; the integer arguments those given.
+// times its scale if given; the outputs are of the sizes given, the last `scratch` of them a workspace (not compared);
+// the integer arguments those given.
 template <template <class, class, int> class Op, int C>
-double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes, std::vector<int> iargs = {0}) {
+double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes, std::vector<int> iargs = {0}, int scratch = 0,
+               std::vector<double> scales = {}) {
   using Bound = Op<Robot, double, C>;
   std::mt19937 gen(7);
   std::normal_distribution<double> normal;
@@ -63,7 +65,7 @@ double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes, std
     std::vector<std::vector<double>> inputs{configuration(gen)};
     for (std::size_t k = 1; k < in_sizes.size(); ++k) {
       inputs.emplace_back(in_sizes[k]);
-      for (double& x : inputs.back()) x = normal(gen);
+      for (double& x : inputs.back()) x = (k < scales.size() ? scales[k] : 1.0) * normal(gen);
     }
     const double* in[tg::kMaxIn] = {};
     for (std::size_t k = 0; k < in_sizes.size(); ++k) in[k] = in_sizes[k] ? inputs[k].data() : nullptr;
@@ -99,7 +101,7 @@ double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes, std
       }, &lanes[l]);
     for (pthread_t& t : threads) pthread_join(t, nullptr);
     pthread_barrier_destroy(&barrier);
-    for (std::size_t k = 0; k < out_sizes.size(); ++k) {
+    for (std::size_t k = 0; k + scratch < out_sizes.size(); ++k) {
       double scale = 0, diff = 0;
       for (int e = 0; e < out_sizes[k]; ++e) {
         scale = std::fmax(scale, std::fabs(solo[k][e]));
@@ -114,12 +116,13 @@ double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes, std
 // Every op with a team path, in convention C: inverse_dynamics, forward_dynamics, crba, minv and
 // inverse_dynamics_derivatives (those with forces, with external forces), and forward_dynamics_derivatives
 // (without); inverse_dynamics_second_derivatives (with external forces) has Pinocchio's convention alone, and
-// step_derivatives (both Euler schemes, with external forces) a robot without passive forces alone.
+// step_derivatives (both Euler schemes, with external forces) a robot without passive forces alone;
+// rk_step_derivatives (each tableau, with external forces, and with the passive forces where the robot has them).
 template <int C> void compare_all(int n, const char* conv, bool& ok) {
   constexpr int NQ = Robot::NQ, NV = Robot::NV, NB = Robot::NB;
-  const auto report = [&](const char* op, double err) {
+  const auto report = [&](const char* op, double err, double tolerance = 1e-13) {
     std::printf("%s %s %.3g\n", op, conv, err);
-    ok = ok && err <= 1e-13;
+    ok = ok && err <= tolerance;
   };
   report("inverse_dynamics", compare<tg::bind::InverseDynamics, C>(n, {NQ, NV, NV, 6 * NB, 0}, {NV}));
   report("forward_dynamics", compare<tg::bind::ForwardDynamics, C>(n, {NQ, NV, NV, 6 * NB, 0}, {NV}));
@@ -132,6 +135,15 @@ template <int C> void compare_all(int n, const char* conv, bool& ok) {
     for (int scheme : {0, 1})
       report(scheme ? "step_derivatives[semi_implicit_euler]" : "step_derivatives[euler]",
              compare<tg::bind::StepDerivatives, C>(n, {NQ, NV, NV, 6 * NB, 1, 0}, {NQ, NV, 4 * NV * NV, 2 * NV * NV}, {scheme, 0}));
+  constexpr const char* tableaux[] = {"midpoint", "rk3", "rk4"};
+  for (int scheme : {2, 3, 4})
+    for (int passive : {0, int(Robot::PASSIVE)}) {
+      const std::string op = std::string("rk_step_derivatives[") + tableaux[scheme - 2] + (passive ? ",passive]" : "]");
+      report(op.c_str(), compare<tg::bind::RkStepDerivatives, C>(n, {NQ, NV, NV, 6 * NB, 1, 0}, {NQ, NV, 4 * NV * NV, 2 * NV * NV, 24 * NV * NV},
+                                                                {scheme, passive}, 1, {1, 1, 1, 1, 0.01}),
+             1e-12);  // the team solves by M^-1, the one thread by M's factor: the same to rounding, not bit for bit
+      if (!Robot::PASSIVE) break;
+    }
   if constexpr (C == tg::PIN) {
     constexpr int N3 = NV * NV * NV;
     report("inverse_dynamics_second_derivatives",

@@ -27,10 +27,11 @@ NVCC_CACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "t
 # may take on the G1 humanoid, by convention: the sample's workspace is in shared memory (one thread a sample takes
 # 8-42 KB for these), and the MuJoCo twins' leader alone reframes the outputs, with arrays of its own.
 TEAM_KERNELS = {"InverseDynamics", "ForwardDynamics", "Crba", "Minv", "InverseDynamicsDerivatives", "ForwardDynamicsDerivatives",
-                "InverseDynamicsSecondDerivatives", "StepDerivatives"}
+                "InverseDynamicsSecondDerivatives", "StepDerivatives", "RkStepDerivatives"}
 TEAM_STACK = {"pin": 2048, "mujoco": 6144}
-# a second-derivative lane holds a column's 6x6 terms and a pair's vectors (ptxas on G1: 2672 bytes)
-TEAM_STACK_OF = {"InverseDynamicsSecondDerivatives": 3072}
+# a second-derivative lane holds a column's 6x6 terms and a pair's vectors (ptxas on G1: 2672 bytes); a Runge-Kutta
+# lane its stage's configuration and the tableau beside forward_dynamics_derivatives's variables (2256, MuJoCo's 5584)
+TEAM_STACK_OF = {"InverseDynamicsSecondDerivatives": {"pin": 3072}, "RkStepDerivatives": {"pin": 2560, "mujoco": 6144}}
 
 
 @pytest.fixture(scope="module")
@@ -98,7 +99,7 @@ def test_cuda_stack_budget_on_a_humanoid(erd_robots_dir):
     assert {(OPS[u.op].kernel, u.convention) for u in teams} == {(k, c) for k in TEAM_KERNELS
                                                                  for c in (("pin", "mujoco") if twins[k] else ("pin",))}
     for u in teams:
-        budget = TEAM_STACK_OF.get(OPS[u.op].kernel, TEAM_STACK[u.convention])
+        budget = TEAM_STACK_OF.get(OPS[u.op].kernel, TEAM_STACK)[u.convention]
         assert u.stack <= budget, f"{u.op} [team] ({u.convention}): {u.stack} bytes of stack per thread, budget {budget}"
 
 

@@ -21,6 +21,7 @@
 #include "kernels/kinematics/frames.h"
 #include "kernels/spatial/convention.h"
 #include "kernels/step/runge_kutta.h"
+#include "kernels/step/runge_kutta_team.h"
 #include "kernels/step/step.h"
 #include "op_args.h"
 
@@ -441,11 +442,18 @@ template <class Robot, class Scalar> struct Step {
 };
 
 // One Runge-Kutta step (scheme 2: midpoint, 3: rk3, 4: rk4) and its Jacobians (runge_kutta.h), the
-// stages' derivatives in the workspace.
+// stages' derivatives in the workspace; a team shares the stages' dynamics and takes the adjoint columns a lane
+// each (runge_kutta_team.h).
 template <class Robot, class Scalar> struct RkStepDerivatives {
+  using TeamWork = RkStepDerivativesTeamWork<Robot, Scalar>;
   template <int C> TG_HD static void run(const RkStepDerivativesArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
     rk_step<Robot, Scalar, C>(cv, a.qd, a.tau, a.f_ext, a.dt[0], a.scheme, Robot::PASSIVE && a.passive, a.q_next, a.qd_next, a.A,
                               a.B, a.work, {a.params});
+  }
+  template <int C, class Team>
+  TG_HD static void run_team(const Team& t, TeamWork& w, const RkStepDerivativesArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
+    rk_step<Robot, Scalar>(t, w, cv, a.qd, a.tau, a.f_ext, a.dt[0], a.scheme, Robot::PASSIVE && a.passive, a.q_next, a.qd_next, a.A, a.B,
+                           a.work, {a.params});
   }
 };
 

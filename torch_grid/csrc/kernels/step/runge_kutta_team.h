@@ -1,0 +1,264 @@
+// A Runge-Kutta step's Jacobians by a team (kernels/spatial/team.h): runge_kutta.h's stages and adjoint
+// columns, shared out. Each stage's dynamics by forward_dynamics_derivatives's team path, which keeps M^-1 whole
+// (in the stage's third NV x NV block of the workspace, where rk_step keeps M's factor); then the reverse pass a
+// column a lane. An adjoint column (one output row) meets no other on the way back, so the lanes run the whole
+// pass apart, without a sync, each over its own columns of A^T, B^T and the stages' slots.
+#pragma once
+
+#include "kernels/derivatives/dynamics_derivatives.h"
+#include "kernels/dynamics/passive.h"
+#include "kernels/spatial/team.h"
+#include "kernels/step/runge_kutta.h"
+#include "kernels/step/step.h"
+
+namespace tg {
+
+// The team's shared workspace: the stages' dynamics' (one stage at a time) and their v and tau + p in Pinocchio's
+// convention, the stages' values as rk_step keeps them, and at each quaternion joint (n x n blocks after one
+// another: 36 entries a free joint, 9 a ball joint, of which there are at most a third of the other dofs): the
+// step's integrate Jacobians, and a stage's (Jq - I, Jv - I) and dexp^-1's (D_u, D_v').
+template <class Robot, class Scalar> struct RkStepDerivativesTeamWork {
+  static constexpr int NV = Robot::NV, NBLK = 36 * Robot::NFREE + (Robot::BALLS ? 3 * (NV - 6 * Robot::NFREE) : 0) + 1;
+  ForwardDynamicsDerivativesTeamWork<Robot, Scalar> fd;
+  Scalar vp[NV], tp[NV];
+  Scalar v0[NV], tau_c[NV], acc[4][NV], car[4][NV], u[4][NV], v[4][NV], qs[Robot::NQ], un[NV];
+  Scalar Jq[NBLK], Jv[NBLK];
+  Scalar Jqs[NBLK], Jvs[NBLK], Du[NBLK], Dx[NBLK];
+  int offset[Robot::NB];  // each joint's first entry in the blocks
+};
+
+// n of a quaternion joint's n x n blocks (6: free, 3: ball), 0 at any other joint.
+template <class Robot, class Scalar> TG_HD_INLINE int quaternion_dofs(int jn) {
+  const int t = data<Robot, Scalar>().jtype[jn];
+  return t == FREE ? 6 : t == BALL ? 3 : 0;
+}
+
+// sum_k G[k, r] x[k] over the dofs k related to r (its ancestors and its subtree), G zero between branches.
+template <class Robot, class Scalar> TG_HD_INLINE Scalar related_dot(const Scalar* G, int r, const Scalar* x, int xs) {
+  const auto& d = data<Robot, Scalar>();
+  Scalar s = Scalar(0);
+  for (const int k : d.dof_ancestors[r]) {
+    if (k < 0) break;
+    s += G[Robot::NV * k + r] * x[xs * k];
+  }
+  for (int k = r; k < d.dof_end[r]; ++k) s += G[Robot::NV * k + r] * x[xs * k];
+  return s;
+}
+
+// A stage's dynamics by team t (rk_stage's, with M^-1 for its factor) at cs: D_q, D_v and M^-1 in the convention,
+// and acc = FD(q, v, tau + p) in it (by the leader, written once every lane has passed the next sync); v and tau
+// in Pinocchio's convention, read by the leader alone.
+template <class Robot, class Scalar, int C, class Team>
+TG_HD void rk_stage(const Team& t, RkStepDerivativesTeamWork<Robot, Scalar>& w, const Conv<Robot, Scalar, C>& cs, const Scalar* v,
+                    const Scalar* tau, const Scalar* fext, bool passive, Scalar* Dq, Scalar* Dv, Scalar* Minv, Scalar* acc,
+                    const InertialParameters<Robot, Scalar>& pi) {
+  constexpr int NV = Robot::NV;
+  if (t.leader()) {
+    for (int k = 0; k < NV; ++k) w.vp[k] = v[k], w.tp[k] = tau[k];
+    if (passive) add_passive<Robot, Scalar>(cs.q, w.vp, w.tp);
+  }
+  t.sync();
+  forward_dynamics_derivatives<Robot, Scalar>(t, w.fd, cs.q, w.vp, w.tp, fext, cs, Dq, Dv, Minv, pi);
+  if (t.leader()) {
+    if (passive) add_passive_diagonals<Robot, Scalar>(Dq, Dv);
+    for (int k = 0; k < NV; ++k) acc[k] = w.fd.qdd[k];
+    cs.acceleration_out(w.vp, acc);
+  }
+}
+
+// Stage i's blocks at each quaternion joint, by the leader: Jq - I and Jv - I (integrate's tangent Jacobians at
+// u_i, less the identity) and dexp(u_i)^-1's along u and v (D_u, D_v'). w.qs is free by then.
+template <class Robot, class Scalar, int C>
+TG_HD void rk_stage_blocks(RkStepDerivativesTeamWork<Robot, Scalar>& w, const Scalar* q, const Scalar* u, const Scalar* v) {
+  const auto& d = data<Robot, Scalar>();
+  for (int jn = 0; jn < Robot::NB; ++jn) {
+    const int o = w.offset[jn], vi = d.vi[jn];
+    const int n = integrate_joint<Robot, Scalar, C>(jn, q, u, w.qs, w.Jqs + o, w.Jvs + o);
+    if (!n) continue;
+    Scalar c[6];
+    dexp_inverse_jacobians<Scalar, C>(n, u + vi, v + vi, c, w.Du + o, w.Dx + o);
+    for (int a = 0; a < n; ++a) w.Jqs[o + n * a + a] -= Scalar(1), w.Jvs[o + n * a + a] -= Scalar(1);
+  }
+}
+
+// Stage i's adjoints on this lane's columns c (rk_adjoint_stage's, column by column): mu = M^-1 abar (none on
+// the last stage's q' columns, where abar is zero; through U's column), taubar += mu, qbar_i = -D_q^T mu (into U),
+// spread to qbar and the fed stages' cbar_j; a quaternion joint's rows mended (w's blocks of the stage, but at the
+// first, at u = 0, which feeds no stage); vbar_i = cbar - D_v^T mu, spread to qdbar and abar_j.
+template <class Robot, class Scalar, class Team>
+TG_HD void rk_adjoint_columns(const Team& t, const RkStepDerivativesTeamWork<Robot, Scalar>& w, const Scalar* Dq, const Scalar* Dv,
+                              const Scalar* Minv, bool first, bool last, Scalar* abar, Scalar* cbar, Scalar* U, int nf, Scalar* const* fa,
+                              Scalar* const* fc, const Scalar* fw, const bool* fresh, Scalar* qbar, Scalar* qdbar, Scalar* taubar) {
+  constexpr int NV = Robot::NV, K2 = 2 * NV;
+  const auto& d = data<Robot, Scalar>();
+  // y (column c) into x's and to[k]'s: x += y, to[k] (+)= w[k] y (written where fresh)
+  const auto spread_column = [&](const Scalar* y, Scalar* x, Scalar* const* to, int c) {
+    for (int r = 0; r < NV; ++r) {
+      const int e = K2 * r + c;
+      x[e] += y[e];
+      for (int k = 0; k < nf; ++k) to[k][e] = (fresh[k] ? Scalar(0) : to[k][e]) + fw[k] * y[e];
+    }
+  };
+  for (const int c : t.items(0, K2)) {
+    if (last && c < NV) {
+      for (int r = 0; r < NV; ++r) U[K2 * r + c] = Scalar(0);
+    } else {
+      for (int r = 0; r < NV; ++r) {
+        Scalar s = Scalar(0);
+        for (int k = 0; k < NV; ++k) s += Minv[NV * r + k] * abar[K2 * k + c];
+        U[K2 * r + c] = s;
+      }
+      for (int r = 0; r < NV; ++r) abar[K2 * r + c] = U[K2 * r + c], taubar[K2 * r + c] += U[K2 * r + c];
+      for (int r = 0; r < NV; ++r) U[K2 * r + c] = -related_dot<Robot, Scalar>(Dq, r, abar + c, K2);
+    }
+    spread_column(U, qbar, fc, c);
+  }
+  // a quaternion joint's rows: qbar += (Jq - I)^T qbar_i, cbar_j += w ((Jv - I)^T qbar_i + D_u^T cbar),
+  // cbar = D_v'^T cbar
+  for (int jn = 0; jn < (first ? 0 : Robot::NB); ++jn) {
+    const int n = quaternion_dofs<Robot, Scalar>(jn), vi = d.vi[jn], o = w.offset[jn];
+    if (!n) continue;
+    const Scalar *Jq = w.Jqs + o, *Jv = w.Jvs + o, *Du = w.Du + o, *Dx = w.Dx + o;
+    for (const int c : t.items(0, K2)) {
+      const Scalar* const Ur = U + K2 * vi + c;
+      Scalar* const Cr = cbar + K2 * vi + c;
+      Scalar fed[6], turned[6];
+      for (int a = 0; a < n; ++a) {
+        Scalar sq = Scalar(0), sf = Scalar(0), sc = Scalar(0);
+        for (int b = 0; b < n; ++b) {
+          sq += Jq[n * b + a] * Ur[K2 * b];
+          sf += Jv[n * b + a] * Ur[K2 * b] + Du[n * b + a] * Cr[K2 * b];
+          sc += Dx[n * b + a] * Cr[K2 * b];
+        }
+        qbar[K2 * (vi + a) + c] += sq;
+        fed[a] = sf, turned[a] = sc;
+      }
+      for (int a = 0; a < n; ++a) {
+        for (int k = 0; k < nf; ++k) fc[k][K2 * (vi + a) + c] += fw[k] * fed[a];
+        Cr[K2 * a] = turned[a];
+      }
+    }
+  }
+  for (const int c : t.items(0, K2)) {
+    if (!(last && c < NV))
+      for (int r = 0; r < NV; ++r) cbar[K2 * r + c] -= related_dot<Robot, Scalar>(Dv, r, abar + c, K2);
+    spread_column(cbar, qdbar, fa, c);
+  }
+}
+
+// rk_step by team t, with its layout of the workspace (M^-1 for M's factor) and of the outputs. All written when
+// every lane returns.
+template <class Robot, class Scalar, int C, class Team>
+TG_HD void rk_step(const Team& t, RkStepDerivativesTeamWork<Robot, Scalar>& w, const Conv<Robot, Scalar, C>& cv, const Scalar* qd,
+                   const Scalar* tau, const Scalar* fext, Scalar h, int scheme, bool passive, Scalar* q_next, Scalar* qd_next, Scalar* A,
+                   Scalar* B, Scalar* work, const InertialParameters<Robot, Scalar>& pi = {}) {
+  constexpr int NV = Robot::NV, K2 = 2 * NV, NN = NV * NV, NA = NV * K2;
+  const auto& d = data<Robot, Scalar>();
+  const RkTableau T = rk_tableau(scheme);
+  const int s = T.stages, nslots = s == 3 ? 3 : 2;
+  Scalar* const slots = work + 3 * NN * s;
+  Scalar* const U = slots + 2 * NA * nslots;
+  const auto slot = [&](int j) { return slots + 2 * NA * (s == 3 ? j : j % 2); };
+  if (t.leader()) {
+    for (int k = 0; k < NV; ++k) w.v0[k] = qd[k], w.tau_c[k] = tau[k];
+    cv.velocity_out(w.v0);
+    cv.force_out(w.tau_c);
+    for (int jn = 0, o = 0; jn < Robot::NB; ++jn) {
+      const int n = quaternion_dofs<Robot, Scalar>(jn);
+      w.offset[jn] = o, o += n * n;
+    }
+  }
+  // the stages' values (by the leader) and dynamics
+  for (int i = 0; i < s; ++i) {
+    if (t.leader()) rk_stage_state<Robot, Scalar, C>(cv.q, T, i, h, w.v0, w.acc, w.car, w.u[i], w.v[i], w.qs);
+    t.sync();
+    Scalar* const Dq = work + 3 * NN * i;
+    if (i == 0) {
+      rk_stage<Robot, Scalar>(t, w, cv, qd, tau, fext, passive, Dq, Dq + NN, Dq + 2 * NN, w.acc[0], pi);
+    } else {
+      // v_i and tau in Pinocchio's convention at q_i, into vp and tp (where they differ), which rk_stage then reads
+      const Conv<Robot, Scalar, C> cs(w.qs);
+      const Scalar* const v = t.leader() ? cs.velocity(w.v[i], w.vp) : w.v[i];
+      const Scalar* const f = t.leader() ? cs.force(w.tau_c, w.tp) : w.tau_c;
+      rk_stage<Robot, Scalar>(t, w, cs, v, f, fext, passive, Dq, Dq + NN, Dq + 2 * NN, w.acc[i], pi);
+    }
+  }
+  // the step (q' = q (+) u', qd' = qd + dt sum_j b_j acc_j) and its integrate Jacobians, by the leader
+  if (t.leader()) {
+    rk_combine<NV>(T, h, w.v0, w.acc, w.car, w.un, qd_next);
+    for (int jn = 0, o = 0; jn < Robot::NB; ++jn) {
+      const int n = integrate_joint<Robot, Scalar, C>(jn, cv.q, w.un, q_next, w.Jq + o, w.Jv + o);
+      o += n * n;
+    }
+  }
+  t.sync();
+  // this lane's columns of the adjoints: qbar = Jq'^T on the q' columns, qdbar = I on the qd' ones (A's storage,
+  // as A^T), taubar = 0 (B's, as B^T)
+  Scalar* const qbar = A;
+  Scalar* const qdbar = A + NA;
+  Scalar* const taubar = B;
+  for (const int c : t.items(0, K2)) {
+    for (int r = 0; r < K2; ++r) A[K2 * r + c] = Scalar(0);
+    for (int r = 0; r < NV; ++r) taubar[K2 * r + c] = Scalar(0);
+    if (c >= NV) {
+      qdbar[K2 * (c - NV) + c] = Scalar(1);
+      continue;
+    }
+    const int jn = dof_body<Robot, Scalar>(c), n = quaternion_dofs<Robot, Scalar>(jn), vi = d.vi[jn], b = c - vi;
+    for (int a = 0; a < (n ? n : d.nvj[jn]); ++a) qbar[K2 * (vi + a) + c] = n ? w.Jq[w.offset[jn] + n * b + a] : Scalar(a == b);
+  }
+  bool fed[4] = {false, false, false, false};
+  for (int i = s - 1; i >= 0; --i) {
+    Scalar* const abar = slot(i);
+    Scalar* const cbar = abar + NA;
+    // the output's own terms: qd' = ... + dt b_i acc_i, u' = ... + dt b_i c_i
+    const Scalar hb = h * Scalar(T.b[i]);
+    for (const int c : t.items(0, K2)) {
+      if (!fed[i])
+        for (int r = 0; r < NV; ++r) abar[K2 * r + c] = cbar[K2 * r + c] = Scalar(0);
+      if (c >= NV) {
+        abar[K2 * (c - NV) + c] += hb;
+        continue;
+      }
+      const int jn = dof_body<Robot, Scalar>(c), n = quaternion_dofs<Robot, Scalar>(jn), vi = d.vi[jn], b = c - vi;
+      for (int a = 0; a < (n ? n : d.nvj[jn]); ++a) cbar[K2 * (vi + a) + c] += hb * (n ? w.Jv[w.offset[jn] + n * b + a] : Scalar(a == b));
+    }
+    // the earlier stages it feeds: v_i = qd + dt sum_j a_ij acc_j, u_i = dt sum_j a_ij c_j
+    Scalar* fa[2];
+    Scalar* fc[2];
+    Scalar fw[2];
+    bool fresh[2];
+    int nf = 0;
+    for (int j = 0; j < i; ++j)
+      if (T.a[i][j] != 0) {
+        fa[nf] = slot(j), fc[nf] = slot(j) + NA, fw[nf] = h * Scalar(T.a[i][j]), fresh[nf++] = !fed[j];
+        fed[j] = true;
+      }
+    // the stage's joint blocks, once every lane is done with the last stage's
+    if (i > 0) {
+      t.sync();
+      if (t.leader()) rk_stage_blocks<Robot, Scalar, C>(w, cv.q, w.u[i], w.v[i]);
+      t.sync();
+    }
+    const Scalar* const Dq = work + 3 * NN * i;
+    rk_adjoint_columns<Robot, Scalar>(t, w, Dq, Dq + NN, Dq + 2 * NN, i == 0, i == s - 1, abar, cbar, U, nf, fa, fc, fw, fresh, qbar, qdbar,
+                                      taubar);
+  }
+  // A and B from their transposes (B through slot 0, free again)
+  t.sync();
+  Scalar* const Bt = slot(0);
+  for (const int r : t.items(0, K2)) {
+    for (int c = 0; c < r; ++c) {
+      const Scalar x = A[K2 * r + c];
+      A[K2 * r + c] = A[K2 * c + r];
+      A[K2 * c + r] = x;
+    }
+    for (int k = 0; k < NV; ++k) Bt[K2 * k + r] = taubar[K2 * k + r];
+  }
+  t.sync();
+  for (const int r : t.items(0, K2))
+    for (int k = 0; k < NV; ++k) B[NV * r + k] = Bt[K2 * k + r];
+  t.sync();
+}
+
+}  // namespace tg
