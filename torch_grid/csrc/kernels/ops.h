@@ -255,8 +255,7 @@ template <class Robot, class Scalar> struct ForwardDynamicsDerivatives {
 // (passive 1), G is that of FD(q, qd, tau + p); with the damping implicit (passive 2), that of
 // damped_dynamics_derivatives. A robot without damping or springs compiles neither.
 template <class Robot, class Scalar> struct StepDerivatives {
-  // one warp a sample on a robot without passive forces (with them, one thread a sample)
-  using TeamWork = std::conditional_t<Robot::PASSIVE, NoTeam, StepDerivativesTeamWork<Robot, Scalar>>;
+  using TeamWork = StepDerivativesTeamWork<Robot, Scalar>;
   template <int C> TG_HD static void run(const StepDerivativesArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
     constexpr int NV = Robot::NV;
     Scalar qdd[NV], v[NV];
@@ -278,7 +277,8 @@ template <class Robot, class Scalar> struct StepDerivatives {
   }
   template <int C, class Team>
   TG_HD static void run_team(const Team& t, TeamWork& w, const StepDerivativesArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
-    euler_step_derivatives<Robot, Scalar>(t, w, cv, a.q, a.qd, a.tau, a.f_ext, a.dt[0], a.scheme, a.q_next, a.qd_next, a.A, a.B, {a.params});
+    euler_step_derivatives<Robot, Scalar>(t, w, cv, a.q, a.qd, a.tau, a.f_ext, a.dt[0], a.scheme, Robot::PASSIVE ? a.passive : 0, a.q_next,
+                                          a.qd_next, a.A, a.B, {a.params});
   }
 };
 

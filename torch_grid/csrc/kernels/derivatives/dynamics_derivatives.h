@@ -273,6 +273,69 @@ TG_HD void damped_dynamics_derivatives(const Placements<Robot, Scalar>& K, const
   ltdl_solve_rows<Robot, NV>(H, dtau);
 }
 
+// A team's shared workspace for damped_dynamics_derivatives: the world placements, crba's axes and then, in the
+// same place, the RNEA derivatives' with tau + p - b and qdd (in Pinocchio's convention).
+template <class Robot, class Scalar> struct DampedDynamicsTeamWork {
+  struct Rnea {
+    RneaDerivativesWork<Robot, Scalar> W;
+    Scalar r[Robot::NV], qdd[Robot::NV];
+  };
+  SE3<Scalar> oMi[Robot::NB];
+  union {
+    CrbaAxes<Robot, Scalar> crba;
+    Rnea rnea;
+  };
+};
+
+// damped_dynamics_derivatives by team t, H (NV x NV) in memory of the caller's: M by crba's team path, which the
+// leader makes H (dt D added, in the convention) and factors; the bias b from the RNEA derivatives' pass at qdd = 0,
+// qdd = H^-1 (tau + p - b) by the leader, the pass moved to qdd and the derivatives of ID - p from it; then
+// dq, dqd, dtau <- -H^-1 dq, -H^-1 dqd, H^-1 a column a lane. w.rnea.qdd holds qdd. All written when every lane
+// returns.
+template <class Robot, class Scalar, int C, class Team>
+TG_HD void damped_dynamics_derivatives(const Team& t, DampedDynamicsTeamWork<Robot, Scalar>& w, const Conv<Robot, Scalar, C>& cv, const Scalar* q,
+                                       const Scalar* qd, const Scalar* tau, const Scalar* fext, Scalar h, Scalar* dq, Scalar* dqd,
+                                       Scalar* dtau, Scalar* H, const InertialParameters<Robot, Scalar>& pi = {}) {
+  constexpr int NV = Robot::NV;
+  const auto& d = data<Robot, Scalar>();
+  RneaDerivativesWork<Robot, Scalar>& W = w.rnea.W;
+  Scalar* const r = w.rnea.r;
+  Scalar* const qdd = w.rnea.qdd;
+  world_placements<Robot, Scalar>(t, q, w.oMi);
+  crba<Robot, Scalar>(t, w.oMi, w.crba, H, pi);
+  if (t.leader()) {
+    cv.congruence_out(H);
+    for (int k = 0; k < NV; ++k) H[(NV + 1) * k] += h * Scalar(d.damping[k]);
+    ltdl_factor<Robot, Scalar>(H);
+    for (int k = 0; k < NV; ++k) qdd[k] = Scalar(0);
+  }
+  t.sync();
+  rnea_derivatives_setup<Robot, Scalar>(t, w.oMi, qd, qdd, fext, W, pi);
+  // r = tau - b, then, by the leader, H_c^-1 G (r + p) = G qdd
+  for (const int i : t.items(0, Robot::NB))
+    for (int l = 0; l < d.nvj[i]; ++l) r[d.vi[i] + l] = tau[d.vi[i] + l] - dot(W.s[d.vi[i] + l], W.F[i]);
+  t.sync();
+  if (t.leader()) {
+    add_passive<Robot, Scalar>(q, qd, r);
+    cv.force_out(r);
+    ltdl_solve<Robot, Scalar>(H, r);
+    const Scalar* const a = cv.velocity(r, qdd);  // G^T
+    for (int k = 0; k < NV; ++k) qdd[k] = a[k];
+    rnea_derivatives_accelerate<Robot, Scalar>(qdd, W);
+  }
+  t.sync();
+  inverse_dynamics_derivatives_from<Robot, Scalar, C>(t, W, qd, qdd, cv, dq, dqd);
+  if (t.leader()) add_passive_diagonals<Robot, Scalar>(dq, dqd);
+  t.sync();
+  for (const int c : t.items(0, NV)) {
+    for (int k = 0; k < NV; ++k) dtau[NV * k + c] = Scalar(k == c), dq[NV * k + c] = -dq[NV * k + c], dqd[NV * k + c] = -dqd[NV * k + c];
+    ltdl_solve_columns<Robot, NV, 1>(H, dq, c);
+    ltdl_solve_columns<Robot, NV, 1>(H, dqd, c);
+    ltdl_solve_columns<Robot, NV, 1>(H, dtau, c);
+  }
+  t.sync();
+}
+
 // forward_dynamics_derivatives at FD(q, qd, tau + p) with passive (1) and dq -= M^-1 K, dqd -= M^-1 D (passive.h);
 // without (0), at tau.
 template <class Robot, class Scalar, int C>

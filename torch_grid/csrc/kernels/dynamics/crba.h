@@ -72,26 +72,23 @@ template <class Robot, class Scalar> TG_HD void crba(const Scalar* q, Scalar* Mo
   crba<Robot, Scalar>(Placements<Robot, Scalar>(q), Mout, pi);
 }
 
-// A team's shared workspace for crba: the world placements, and the world axes and composite inertias, both
-// about the root's origin.
-template <class Robot, class Scalar> struct CrbaTeamWork {
-  SE3<Scalar> oMi[Robot::NB];
+// The world axes and composite inertias, both about the root's origin, of crba's team path.
+template <class Robot, class Scalar> struct CrbaAxes {
   Sv<Scalar> S[Robot::NV];
   Inertia<Scalar> Ic[Robot::NB];
 };
 
-// M(q) by team t, with crba_vjp's layout: each lane its bodies' axes S and inertias about the root's origin and
-// its share of M's zeros; each of the inertias' 13 entries summed over subtrees by one lane; then a lane per
-// column c, of body b: M[r, c] = M[c, r] = S_r . Ic_b S_c for the dofs r before c in b and those of b's
-// ancestors (a pair belongs to its later column alone), the armature on the diagonal. All of M written when
-// every lane returns.
+// M(q) by team t at the world placements oMi, with crba_vjp's layout: each lane its bodies' axes S and inertias
+// about the root's origin and its share of M's zeros; each of the inertias' 13 entries summed over subtrees by
+// one lane; then a lane per column c, of body b: M[r, c] = M[c, r] = S_r . Ic_b S_c for the dofs r before c in b
+// and those of b's ancestors (a pair belongs to its later column alone), the armature on the diagonal. All of M
+// written when every lane returns.
 template <class Robot, class Scalar, class Team>
-TG_HD void crba(const Team& t, CrbaTeamWork<Robot, Scalar>& w, const Scalar* q, Scalar* M, const InertialParameters<Robot, Scalar>& pi = {}) {
+TG_HD void crba(const Team& t, const SE3<Scalar>* oMi, CrbaAxes<Robot, Scalar>& w, Scalar* M, const InertialParameters<Robot, Scalar>& pi = {}) {
   const auto& d = data<Robot, Scalar>();
   constexpr int NV = Robot::NV;
-  world_placements<Robot, Scalar>(t, q, w.oMi);
   for (const int i : t.items(0, Robot::NB)) {
-    const SE3<Scalar> X{w.oMi[i].R, w.oMi[i].p - w.oMi[0].p};  // joint i seen from the root's origin, world axes
+    const SE3<Scalar> X{oMi[i].R, oMi[i].p - oMi[0].p};  // joint i seen from the root's origin, world axes
     for (int k = 0; k < d.nvj[i]; ++k) w.S[d.vi[i] + k] = placed_axis<Robot, Scalar>(X, i, k);
     w.Ic[i] = shift(rotate(X.R, pi[i]), X.p);
   }
@@ -108,6 +105,18 @@ TG_HD void crba(const Team& t, CrbaTeamWork<Robot, Scalar>& w, const Scalar* q, 
       for (int r = d.vi[j]; r < d.vi[j] + d.nvj[j]; ++r) M[NV * r + c] = M[NV * c + r] = dot(w.S[r], F);
   }
   t.sync();
+}
+
+// A team's shared workspace for crba: the world placements and the above.
+template <class Robot, class Scalar> struct CrbaTeamWork {
+  SE3<Scalar> oMi[Robot::NB];
+  CrbaAxes<Robot, Scalar> axes;
+};
+
+template <class Robot, class Scalar, class Team>
+TG_HD void crba(const Team& t, CrbaTeamWork<Robot, Scalar>& w, const Scalar* q, Scalar* M, const InertialParameters<Robot, Scalar>& pi = {}) {
+  world_placements<Robot, Scalar>(t, q, w.oMi);
+  crba<Robot, Scalar>(t, w.oMi, w.axes, M, pi);
 }
 
 // The gradient along the tangent of <G, M(q)> for a weight G (NV x NV), O(n d) for a tree of depth d.

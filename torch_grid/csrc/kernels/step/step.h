@@ -389,37 +389,61 @@ TG_HD void euler_step(const Scalar* q, const Scalar* v, const Scalar* acc, Scala
   t.sync();
 }
 
-// A team's shared workspace for step_derivatives: forward_dynamics_derivatives's, and qd and a in the convention.
+// A team's shared workspace for step_derivatives: forward_dynamics_derivatives's or, with the damping implicit,
+// damped_dynamics_derivatives's; qd and a in the convention, and tau + p.
 template <class Robot, class Scalar> struct StepDerivativesTeamWork {
-  ForwardDynamicsDerivativesTeamWork<Robot, Scalar> fd;
-  Scalar v[Robot::NV], acc[Robot::NV];
+  union {
+    ForwardDynamicsDerivativesTeamWork<Robot, Scalar> fd;
+    DampedDynamicsTeamWork<Robot, Scalar> damped;
+  };
+  Scalar v[Robot::NV], acc[Robot::NV], tau_p[Robot::NV];
 };
 
-// An Euler step's Jacobians by team t on a robot without passive forces: G by forward_dynamics_derivatives's team
-// path, finished as -M^-1 dtau/dx a column a lane, then euler_step. All written when every lane returns.
+// An Euler step's Jacobians by team t: G by forward_dynamics_derivatives's team path at tau (+ p with passive 1,
+// the derivatives of ID - p then), finished as -M^-1 dtau/dx a column a lane; or, with passive 2, by
+// damped_dynamics_derivatives's, H = M + dt D in B's last NV rows until euler_step writes them. Then euler_step.
+// All written when every lane returns.
 template <class Robot, class Scalar, int C, class Team>
 TG_HD void euler_step_derivatives(const Team& t, StepDerivativesTeamWork<Robot, Scalar>& w, const Conv<Robot, Scalar, C>& cv, const Scalar* q,
-                                  const Scalar* qd, const Scalar* tau, const Scalar* fext, Scalar h, int scheme, Scalar* q_next,
-                                  Scalar* qd_next, Scalar* A, Scalar* B, const InertialParameters<Robot, Scalar>& pi = {}) {
+                                  const Scalar* qd, const Scalar* tau, const Scalar* fext, Scalar h, int scheme, int passive,
+                                  Scalar* q_next, Scalar* qd_next, Scalar* A, Scalar* B, const InertialParameters<Robot, Scalar>& pi = {}) {
   constexpr int NV = Robot::NV;
   Scalar* const dq = A;
   Scalar* const dqd = A + NV * NV;
-  forward_dynamics_derivatives<Robot, Scalar>(t, w.fd, q, qd, tau, fext, cv, dq, dqd, B, pi);
-  // dq, dqd <- -M^-1 dq, -M^-1 dqd (M^-1 in B's first rows): column c of both by c's lane
-  for (const int c : t.items(0, NV)) {
-    Scalar y[NV];
-    Scalar* const Xs[2] = {dq, dqd};
-    for (Scalar* X : Xs) {
-      for (int r = 0; r < NV; ++r) {
-        Scalar acc = Scalar(0);
-        for (int k = 0; k < NV; ++k) acc += B[NV * r + k] * X[NV * k + c];
-        y[r] = -acc;
+  const Scalar* qdd = w.fd.qdd;
+  bool damped = false;
+  if constexpr (Robot::PASSIVE) {  // (not compiled for a robot without passive forces, whose passive is 0)
+    if (passive == 2) {
+      damped_dynamics_derivatives<Robot, Scalar>(t, w.damped, cv, q, qd, tau, fext, h, dq, dqd, B, B + NV * NV, pi);
+      qdd = w.damped.rnea.qdd;
+      damped = true;
+    }
+  }
+  if (!damped) {
+    if (passive && t.leader()) {
+      for (int k = 0; k < NV; ++k) w.tau_p[k] = tau[k];
+      add_passive<Robot, Scalar>(q, qd, w.tau_p);
+    }
+    t.sync();
+    forward_dynamics_derivatives<Robot, Scalar>(t, w.fd, q, qd, passive ? w.tau_p : tau, fext, cv, dq, dqd, B, pi);
+    if (passive && t.leader()) add_passive_diagonals<Robot, Scalar>(dq, dqd);
+    t.sync();
+    // dq, dqd <- -M^-1 dq, -M^-1 dqd (M^-1 in B's first rows): column c of both by c's lane
+    for (const int c : t.items(0, NV)) {
+      Scalar y[NV];
+      Scalar* const Xs[2] = {dq, dqd};
+      for (Scalar* X : Xs) {
+        for (int r = 0; r < NV; ++r) {
+          Scalar acc = Scalar(0);
+          for (int k = 0; k < NV; ++k) acc += B[NV * r + k] * X[NV * k + c];
+          y[r] = -acc;
+        }
+        for (int r = 0; r < NV; ++r) X[NV * r + c] = y[r];
       }
-      for (int r = 0; r < NV; ++r) X[NV * r + c] = y[r];
     }
   }
   if (t.leader()) {
-    for (int k = 0; k < NV; ++k) w.v[k] = qd[k], w.acc[k] = w.fd.qdd[k];
+    for (int k = 0; k < NV; ++k) w.v[k] = qd[k], w.acc[k] = qdd[k];
     cv.velocity_out(w.v);
     cv.acceleration_out(qd, w.acc);
   }
