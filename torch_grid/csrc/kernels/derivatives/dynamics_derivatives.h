@@ -34,6 +34,21 @@ template <class Robot, class Scalar, int COLS> TG_HD void negate_left_multiply(c
   if constexpr (R > 0) negate_left_multiply_block<Robot, Scalar, COLS, R>(A, X, COLS - R);
 }
 
+// X <- -A X (NV x NV each) by team t, a column a lane; all of X written when every lane returns.
+template <class Robot, class Scalar, class Team> TG_HD void negate_left_multiply(const Team& t, const Scalar* A, Scalar* X) {
+  constexpr int NV = Robot::NV;
+  for (const int c : t.items(0, NV)) {
+    Scalar y[NV];
+    for (int r = 0; r < NV; ++r) {
+      Scalar acc = Scalar(0);
+      for (int k = 0; k < NV; ++k) acc += A[NV * r + k] * X[NV * k + c];
+      y[r] = -acc;
+    }
+    for (int r = 0; r < NV; ++r) X[NV * r + c] = y[r];
+  }
+  t.sync();
+}
+
 // qdd = M^-1 (tau - nle(q, qd, f_ext)) from a computed M^-1 (Pinocchio's convention).
 template <class Robot, class Scalar> TG_HD void forward_dynamics_from_minv(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* tau,
                                                                  const Scalar* fext, const Scalar* Minv, Scalar* qdd,
