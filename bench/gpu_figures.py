@@ -34,6 +34,8 @@ OPS = {
     "forward_dynamics_derivatives[teams]": None,
     "inverse_dynamics_second_derivatives": lambda v, q, qd, x: v.inverse_dynamics_second_derivatives(q, qd, x),
     "inverse_dynamics_second_derivatives[teams]": None,
+    "step[semi_implicit_euler]": lambda v, q, qd, x: v.step(q, qd, x, 0.01, "semi_implicit_euler"),
+    "step[semi_implicit_euler][teams]": None,
     "step_derivatives[semi_implicit_euler]": lambda v, q, qd, x: v.step_derivatives(q, qd, x, 0.01, "semi_implicit_euler"),
     "step_derivatives[semi_implicit_euler][teams]": None,
     "step_derivatives[rk4]": lambda v, q, qd, x: v.step_derivatives(q, qd, x, 0.01, "rk4"),

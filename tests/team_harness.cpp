@@ -116,8 +116,8 @@ double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes, std
 // Every op with a team path, in convention C: inverse_dynamics, forward_dynamics, crba, minv and
 // inverse_dynamics_derivatives (those with forces, with external forces), and forward_dynamics_derivatives
 // (without); inverse_dynamics_second_derivatives (with external forces) has Pinocchio's convention alone, and
-// step_derivatives (both Euler schemes) and rk_step_derivatives (each tableau), with external forces, and with the
-// passive forces where the robot has them (for an Euler scheme, also with the damping implicit).
+// step (every integrator), step_derivatives (both Euler schemes) and rk_step_derivatives (each tableau), with external
+// forces, and with the passive forces where the robot has them (for an Euler scheme, also with the damping implicit).
 template <int C> void compare_all(int n, const char* conv, bool& ok) {
   constexpr int NQ = Robot::NQ, NV = Robot::NV, NB = Robot::NB;
   const auto report = [&](const char* op, double err, double tolerance = 1e-13) {
@@ -140,6 +140,14 @@ template <int C> void compare_all(int n, const char* conv, bool& ok) {
       report(op.c_str(), compare<tg::bind::StepDerivatives, C>(n, {NQ, NV, NV, 6 * NB, 1, 0}, {NQ, NV, 4 * NV * NV, 2 * NV * NV},
                                                               {scheme, passive}, 0, {1, 1, 1, 1, 0.01}),
              passive == 2 ? 1e-12 : 1e-13);
+    }
+  constexpr const char* integrators[] = {"euler", "semi_implicit_euler", "midpoint", "rk3", "rk4"};
+  for (int scheme = 0; scheme < 5; ++scheme)
+    for (int passive : {0, 1, 2}) {
+      if ((passive && !Robot::PASSIVE) || (passive == 2 && scheme >= 2)) break;
+      const std::string op = std::string("step[") + integrators[scheme] + forces[passive];
+      // the team's accelerations by M^-1 (tau - b), the one thread's by the articulated-body algorithm
+      report(op.c_str(), compare<tg::bind::Step, C>(n, {NQ, NV, NV, 6 * NB, 1, 0}, {NQ, NV}, {scheme, passive}, 0, {1, 1, 1, 1, 0.01}));
     }
   constexpr const char* tableaux[] = {"midpoint", "rk3", "rk4"};
   for (int scheme : {2, 3, 4})

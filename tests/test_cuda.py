@@ -27,7 +27,7 @@ NVCC_CACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "t
 # may take on the G1 humanoid, by convention: the sample's workspace is in shared memory (one thread a sample takes
 # 8-42 KB for these), and the MuJoCo twins' leader alone reframes the outputs, with arrays of its own.
 TEAM_KERNELS = {"InverseDynamics", "ForwardDynamics", "Crba", "Minv", "InverseDynamicsDerivatives", "ForwardDynamicsDerivatives",
-                "InverseDynamicsSecondDerivatives", "StepDerivatives", "RkStepDerivatives"}
+                "InverseDynamicsSecondDerivatives", "Step", "StepDerivatives", "RkStepDerivatives"}
 TEAM_STACK = {"pin": 2048, "mujoco": 6144}
 # a second-derivative lane holds a column's 6x6 terms and a pair's vectors (ptxas on G1: 2672 bytes); a Runge-Kutta
 # lane its stage's configuration and the tableau beside forward_dynamics_derivatives's variables (2256, MuJoCo's 5584)

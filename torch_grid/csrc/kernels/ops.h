@@ -23,6 +23,7 @@
 #include "kernels/step/runge_kutta.h"
 #include "kernels/step/runge_kutta_team.h"
 #include "kernels/step/step.h"
+#include "kernels/step/step_team.h"
 #include "op_args.h"
 
 namespace tg {
@@ -406,8 +407,18 @@ template <class Robot, class Scalar> struct DifferenceVjp {
 
 // One Euler step's values alone (scheme 0: euler, 1: semi-implicit): step_derivatives' q' and qd' without
 // the Jacobians, the acceleration by ABA at tau (+ p with passive 1), or of (M + dt D) qdd = tau + p - b
-// with passive 2 (damped_acceleration).
+// with passive 2 (damped_acceleration); a team's by step_team.h.
 template <class Robot, class Scalar> struct Step {
+  using TeamWork = StepTeamWork<Robot, Scalar>;
+  template <int C, class Team>
+  TG_HD static void run_team(const Team& t, TeamWork& w, const StepArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
+    if (a.scheme >= 2)
+      rk_step_values<Robot, Scalar>(t, w, cv, a.qd, a.tau, a.f_ext, a.dt[0], a.scheme, Robot::PASSIVE && a.passive, a.q_next, a.qd_next,
+                                    {a.params});
+    else
+      euler_step_values<Robot, Scalar>(t, w, cv, a.q, a.qd, a.tau, a.f_ext, a.dt[0], a.scheme, Robot::PASSIVE ? a.passive : 0, a.q_next,
+                                       a.qd_next, {a.params});
+  }
   template <int C> TG_HD static void run(const StepArgs<Scalar>& a, const Conv<Robot, Scalar, C>& cv) {
     constexpr int NV = Robot::NV;
     const Scalar h = a.dt[0];

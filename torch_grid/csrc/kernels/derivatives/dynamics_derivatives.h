@@ -34,21 +34,6 @@ template <class Robot, class Scalar, int COLS> TG_HD void negate_left_multiply(c
   if constexpr (R > 0) negate_left_multiply_block<Robot, Scalar, COLS, R>(A, X, COLS - R);
 }
 
-// X <- -A X (NV x NV each) by team t, a column a lane; all of X written when every lane returns.
-template <class Robot, class Scalar, class Team> TG_HD void negate_left_multiply(const Team& t, const Scalar* A, Scalar* X) {
-  constexpr int NV = Robot::NV;
-  for (const int c : t.items(0, NV)) {
-    Scalar y[NV];
-    for (int r = 0; r < NV; ++r) {
-      Scalar acc = Scalar(0);
-      for (int k = 0; k < NV; ++k) acc += A[NV * r + k] * X[NV * k + c];
-      y[r] = -acc;
-    }
-    for (int r = 0; r < NV; ++r) X[NV * r + c] = y[r];
-  }
-  t.sync();
-}
-
 // qdd = M^-1 (tau - nle(q, qd, f_ext)) from a computed M^-1 (Pinocchio's convention).
 template <class Robot, class Scalar> TG_HD void forward_dynamics_from_minv(const Placements<Robot, Scalar>& K, const Scalar* qd, const Scalar* tau,
                                                                  const Scalar* fext, const Scalar* Minv, Scalar* qdd,
@@ -267,6 +252,46 @@ TG_HD void damped_acceleration(const Placements<Robot, Scalar>& K, const Conv<Ro
   ltdl_solve<Robot, Scalar>(H, f);
   const Scalar* a = cv.velocity(f, buf);  // G^T
   for (int k = 0; k < NV; ++k) qdd[k] = a[k];
+}
+
+// A team's shared workspace for damped_acceleration: the world placements, H and tau + p - b, crba's axes and then,
+// in the same place, the bias's workspace.
+template <class Robot, class Scalar> struct DampedAccelerationTeamWork {
+  SE3<Scalar> oMi[Robot::NB];
+  Scalar H[Robot::NV * Robot::NV], f[Robot::NV];
+  union {
+    CrbaAxes<Robot, Scalar> crba;
+    RneaTeamWork<Robot, Scalar> bias;
+  };
+};
+
+// damped_acceleration by team t: M by crba's team path, made H and factored by the leader, the bias b by rnea's
+// team path at qdd = 0, then qdd = H^-1 (tau + p - b) by the leader (in Pinocchio's convention). All of qdd written
+// when every lane returns.
+template <class Robot, class Scalar, int C, class Team>
+TG_HD void damped_acceleration(const Team& t, DampedAccelerationTeamWork<Robot, Scalar>& w, const Conv<Robot, Scalar, C>& cv, const Scalar* q,
+                               const Scalar* qd, const Scalar* tau, const Scalar* fext, Scalar h, Scalar* qdd,
+                               const InertialParameters<Robot, Scalar>& pi = {}) {
+  constexpr int NV = Robot::NV;
+  const auto& d = data<Robot, Scalar>();
+  world_placements<Robot, Scalar>(t, q, w.oMi);
+  crba<Robot, Scalar>(t, w.oMi, w.crba, w.H, pi);
+  if (t.leader()) {
+    cv.congruence_out(w.H);
+    for (int k = 0; k < NV; ++k) w.H[(NV + 1) * k] += h * Scalar(d.damping[k]);
+    ltdl_factor<Robot, Scalar>(w.H);
+  }
+  rnea<Robot, Scalar>(t, w.oMi, w.bias, qd, nullptr, fext, w.f, pi);
+  // f = tau + p - b, then H_c^-1 G f = G qdd
+  if (t.leader()) {
+    for (int k = 0; k < NV; ++k) w.f[k] = tau[k] - w.f[k];
+    add_passive<Robot, Scalar>(q, qd, w.f);
+    cv.force_out(w.f);
+    ltdl_solve<Robot, Scalar>(w.H, w.f);
+    const Scalar* const a = cv.velocity(w.f, qdd);  // G^T
+    for (int k = 0; k < NV; ++k) qdd[k] = a[k];
+  }
+  t.sync();
 }
 
 // damped_dynamics_derivatives: dqdd/dq, dqdd/dqd, dqdd/dtau (NV x NV each, in the convention) and qdd (in

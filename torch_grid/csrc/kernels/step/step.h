@@ -428,9 +428,19 @@ TG_HD void euler_step_derivatives(const Team& t, StepDerivativesTeamWork<Robot, 
     forward_dynamics_derivatives<Robot, Scalar>(t, w.fd, q, qd, passive ? w.tau_p : tau, fext, cv, dq, dqd, B, pi);
     if (passive && t.leader()) add_passive_diagonals<Robot, Scalar>(dq, dqd);
     t.sync();
-    // dq, dqd <- -M^-1 dq, -M^-1 dqd (M^-1 in B's first rows)
-    negate_left_multiply<Robot, Scalar>(t, B, dq);
-    negate_left_multiply<Robot, Scalar>(t, B, dqd);
+    // dq, dqd <- -M^-1 dq, -M^-1 dqd (M^-1 in B's first rows): column c of both by c's lane
+    for (const int c : t.items(0, NV)) {
+      Scalar y[NV];
+      Scalar* const Xs[2] = {dq, dqd};
+      for (Scalar* X : Xs) {
+        for (int r = 0; r < NV; ++r) {
+          Scalar acc = Scalar(0);
+          for (int k = 0; k < NV; ++k) acc += B[NV * r + k] * X[NV * k + c];
+          y[r] = -acc;
+        }
+        for (int r = 0; r < NV; ++r) X[NV * r + c] = y[r];
+      }
+    }
   }
   if (t.leader()) {
     for (int k = 0; k < NV; ++k) w.v[k] = qd[k], w.acc[k] = qdd[k];
