@@ -414,6 +414,11 @@ TEAM_MAX_BATCH = {"inverse_dynamics_second_derivatives": 255, "inverse_dynamics_
                   **{f"rk_step_derivatives[{s}]": 1024 for s in ("midpoint", "rk3", "rk4")}}
 
 
+# Where a team path takes another road than the one thread (a Runge-Kutta step's solves by M^-1, not by M's factor):
+# on G1's random states the two differ by up to 1.6e-11 relative, each within 2.4e-12 of a long-double evaluation
+TEAM_F64_TOL = {f"rk_step_derivatives[{s}]": 1e-10 for s in ("midpoint", "rk3", "rk4")}
+
+
 class TeamPaths:
     """TORCH_GRID_CUDA_TEAMS=1 inside, restored after (the robot libraries read it at each launch)."""
 
@@ -439,10 +444,10 @@ def teams(checks: Checks, robot, device: torch.device, sizes: list[int]) -> None
                 if size > TEAM_MAX_BATCH.get(name, size):
                     continue
 
-                def f64(call=call):
+                def f64(name=name, call=call):
                     with TeamPaths():
                         got = call(view, *on(inputs, device))
-                    return compare(got, call(view, *inputs), F64_TOL, device, torch.float64)
+                    return compare(got, call(view, *inputs), TEAM_F64_TOL.get(name, F64_TOL), device, torch.float64)
                 checks.run(f"{conv} teams float64 batch {size} {name}", f64)
 
                 def f32(name=name, call=call):
