@@ -37,7 +37,7 @@ def tables(records: list[dict]) -> str:
             if dt != dtype or op.startswith("call_overhead"):
                 continue
             row = [f"{_f(cells.get(('gpu', n)))} / {_f(cells.get(('cpu', n)))}" for n in sizes]
-            grid = GRID.get((robot, op))
+            grid = GRID.get((robot, op.removesuffix("[teams]")))  # a team path's row beside its op's GRiD figure too
             out.append(f"| {robot} | {op} | " + " | ".join(row) + f" | {f'{grid[0]} (N = {grid[1]})' if grid else ''} |")
     calls = [r for r in records if r["op"].startswith("call_overhead")]
     if calls:
