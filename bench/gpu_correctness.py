@@ -414,8 +414,8 @@ TEAM_MAX_BATCH = {"inverse_dynamics_second_derivatives": 255, "inverse_dynamics_
                   **{f"rk_step_derivatives[{s}]": 1024 for s in ("midpoint", "rk3", "rk4")}}
 
 
-# Where a team path takes another road than the one thread (a Runge-Kutta step's solves by M^-1, not by M's factor):
-# on G1's random states the two differ by up to 1.6e-11 relative, each within 2.4e-12 of a long-double evaluation
+# Where a team path's rounding differs from the one thread's and a Runge-Kutta step's Jacobians amplify it: on G1's
+# random states the two differ by up to 5e-11 relative, each within 1.5e-11 of a long-double evaluation
 TEAM_F64_TOL = {f"rk_step_derivatives[{s}]": 1e-10 for s in ("midpoint", "rk3", "rk4")}
 
 

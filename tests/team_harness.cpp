@@ -120,12 +120,15 @@ double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes, std
 // forces, and with the passive forces where the robot has them (for an Euler scheme, also with the damping implicit).
 template <int C> void compare_all(int n, const char* conv, bool& ok) {
   constexpr int NQ = Robot::NQ, NV = Robot::NV, NB = Robot::NB;
-  const auto report = [&](const char* op, double err, double tolerance = 1e-13) {
+  // Equal to 1e-13 relative where the team computes as the one thread does; to 1e-11 where it takes another road
+  // (forward dynamics by M^-1 (tau - b), not by the articulated-body algorithm; a bias from the RNEA derivatives'
+  // pass, not from the RNEA), whose rounding the steps' Jacobians amplify on ill-conditioned random states.
+  const auto report = [&](const char* op, double err, bool another_road = false) {
     std::printf("%s %s %.3g\n", op, conv, err);
-    ok = ok && err <= tolerance;
+    ok = ok && err <= (another_road ? 1e-11 : 1e-13);
   };
   report("inverse_dynamics", compare<tg::bind::InverseDynamics, C>(n, {NQ, NV, NV, 6 * NB, 0}, {NV}));
-  report("forward_dynamics", compare<tg::bind::ForwardDynamics, C>(n, {NQ, NV, NV, 6 * NB, 0}, {NV}));
+  report("forward_dynamics", compare<tg::bind::ForwardDynamics, C>(n, {NQ, NV, NV, 6 * NB, 0}, {NV}), true);
   report("crba", compare<tg::bind::Crba, C>(n, {NQ, 0}, {NV * NV}));
   report("minv", compare<tg::bind::Minv, C>(n, {NQ, 0}, {NV * NV}));
   report("inverse_dynamics_derivatives", compare<tg::bind::InverseDynamicsDerivatives, C>(n, {NQ, NV, NV, 6 * NB, 0}, {NV * NV, NV * NV}));
@@ -136,18 +139,17 @@ template <int C> void compare_all(int n, const char* conv, bool& ok) {
     for (int passive : {0, 1, 2}) {
       if (passive && !Robot::PASSIVE) break;
       const std::string op = std::string(scheme ? "step_derivatives[semi_implicit_euler" : "step_derivatives[euler") + forces[passive];
-      // with the damping implicit, the team's bias comes from the RNEA derivatives' pass, the one thread's from the RNEA
       report(op.c_str(), compare<tg::bind::StepDerivatives, C>(n, {NQ, NV, NV, 6 * NB, 1, 0}, {NQ, NV, 4 * NV * NV, 2 * NV * NV},
                                                               {scheme, passive}, 0, {1, 1, 1, 1, 0.01}),
-             passive == 2 ? 1e-12 : 1e-13);
+             passive == 2);
     }
   constexpr const char* integrators[] = {"euler", "semi_implicit_euler", "midpoint", "rk3", "rk4"};
   for (int scheme = 0; scheme < 5; ++scheme)
     for (int passive : {0, 1, 2}) {
       if ((passive && !Robot::PASSIVE) || (passive == 2 && scheme >= 2)) break;
       const std::string op = std::string("step[") + integrators[scheme] + forces[passive];
-      // the team's accelerations by M^-1 (tau - b), the one thread's by the articulated-body algorithm
-      report(op.c_str(), compare<tg::bind::Step, C>(n, {NQ, NV, NV, 6 * NB, 1, 0}, {NQ, NV}, {scheme, passive}, 0, {1, 1, 1, 1, 0.01}));
+      report(op.c_str(), compare<tg::bind::Step, C>(n, {NQ, NV, NV, 6 * NB, 1, 0}, {NQ, NV}, {scheme, passive}, 0, {1, 1, 1, 1, 0.01}),
+             true);
     }
   constexpr const char* tableaux[] = {"midpoint", "rk3", "rk4"};
   for (int scheme : {2, 3, 4})
@@ -155,7 +157,7 @@ template <int C> void compare_all(int n, const char* conv, bool& ok) {
       const std::string op = std::string("rk_step_derivatives[") + tableaux[scheme - 2] + (passive ? ",passive]" : "]");
       report(op.c_str(), compare<tg::bind::RkStepDerivatives, C>(n, {NQ, NV, NV, 6 * NB, 1, 0}, {NQ, NV, 4 * NV * NV, 2 * NV * NV, 24 * NV * NV},
                                                                 {scheme, passive}, 1, {1, 1, 1, 1, 0.01}),
-             1e-12);  // the team solves by M^-1, the one thread by M's factor: the same to rounding, not bit for bit
+             true);
       if (!Robot::PASSIVE) break;
     }
   if constexpr (C == tg::PIN) {

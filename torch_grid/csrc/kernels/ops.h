@@ -405,9 +405,10 @@ template <class Robot, class Scalar> struct DifferenceVjp {
   }
 };
 
-// One Euler step's values alone (scheme 0: euler, 1: semi-implicit): step_derivatives' q' and qd' without
-// the Jacobians, the acceleration by ABA at tau (+ p with passive 1), or of (M + dt D) qdd = tau + p - b
-// with passive 2 (damped_acceleration); a team's by step_team.h.
+// One step's values alone: a Runge-Kutta scheme's (2: midpoint, 3: rk3, 4: rk4) by rk_step_values, or an Euler
+// scheme's (0: euler, 1: semi-implicit), step_derivatives' q' and qd' without the Jacobians, the acceleration by
+// ABA at tau (+ p with passive 1), or of (M + dt D) qdd = tau + p - b with passive 2 (damped_acceleration); a
+// team's by step_team.h.
 template <class Robot, class Scalar> struct Step {
   using TeamWork = StepTeamWork<Robot, Scalar>;
   template <int C, class Team>

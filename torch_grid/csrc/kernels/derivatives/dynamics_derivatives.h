@@ -313,9 +313,9 @@ TG_HD void damped_dynamics_derivatives(const Placements<Robot, Scalar>& K, const
   ltdl_solve_rows<Robot, NV>(H, dtau);
 }
 
-// A team's shared workspace for damped_dynamics_derivatives: the world placements, crba's axes and then, in the
-// same place, the RNEA derivatives' with tau + p - b and qdd (in Pinocchio's convention).
-template <class Robot, class Scalar> struct DampedDynamicsTeamWork {
+// A team's shared workspace for the dynamics in M's factored form (factored_dynamics_derivatives): the world
+// placements, crba's axes and then, in the same place, the RNEA derivatives' with tau (+ p) - b and qdd.
+template <class Robot, class Scalar> struct FactoredDynamicsTeamWork {
   struct Rnea {
     RneaDerivativesWork<Robot, Scalar> W;
     Scalar r[Robot::NV], qdd[Robot::NV];
@@ -327,15 +327,16 @@ template <class Robot, class Scalar> struct DampedDynamicsTeamWork {
   };
 };
 
-// damped_dynamics_derivatives by team t, H (NV x NV) in memory of the caller's: M by crba's team path, which the
-// leader makes H (dt D added, in the convention) and factors; the bias b from the RNEA derivatives' pass at qdd = 0,
-// qdd = H^-1 (tau + p - b) by the leader, the pass moved to qdd and the derivatives of ID - p from it; then
-// dq, dqd, dtau <- -H^-1 dq, -H^-1 dqd, H^-1 a column a lane. w.rnea.qdd holds qdd. All written when every lane
-// returns.
+// The forward dynamics and inverse-dynamics derivatives at (q, qd, tau) by team t, as a Runge-Kutta stage
+// (rk_stage) and the damped Euler step (damped_acceleration) compute them one thread a sample: H = M + h D (h = 0:
+// M itself) in the convention, by crba's team path, in memory of the caller's, factored by the leader
+// (ltdl_factor); the bias b from the RNEA derivatives' pass at qdd = 0; qdd = H^-1 (tau (+ p) - b) by the leader
+// (in Pinocchio's convention, into w.rnea.qdd); the pass moved to qdd and dq, dqd the derivatives of ID (- p) there,
+// in the convention. All written when every lane returns.
 template <class Robot, class Scalar, int C, class Team>
-TG_HD void damped_dynamics_derivatives(const Team& t, DampedDynamicsTeamWork<Robot, Scalar>& w, const Conv<Robot, Scalar, C>& cv, const Scalar* q,
-                                       const Scalar* qd, const Scalar* tau, const Scalar* fext, Scalar h, Scalar* dq, Scalar* dqd,
-                                       Scalar* dtau, Scalar* H, const InertialParameters<Robot, Scalar>& pi = {}) {
+TG_HD void factored_dynamics_derivatives(const Team& t, FactoredDynamicsTeamWork<Robot, Scalar>& w, const Conv<Robot, Scalar, C>& cv,
+                                         const Scalar* q, const Scalar* qd, const Scalar* tau, const Scalar* fext, Scalar h, bool passive,
+                                         Scalar* dq, Scalar* dqd, Scalar* H, const InertialParameters<Robot, Scalar>& pi = {}) {
   constexpr int NV = Robot::NV;
   const auto& d = data<Robot, Scalar>();
   RneaDerivativesWork<Robot, Scalar>& W = w.rnea.W;
@@ -356,7 +357,7 @@ TG_HD void damped_dynamics_derivatives(const Team& t, DampedDynamicsTeamWork<Rob
     for (int l = 0; l < d.nvj[i]; ++l) r[d.vi[i] + l] = tau[d.vi[i] + l] - dot(W.s[d.vi[i] + l], W.F[i]);
   t.sync();
   if (t.leader()) {
-    add_passive<Robot, Scalar>(q, qd, r);
+    if (passive) add_passive<Robot, Scalar>(q, qd, r);
     cv.force_out(r);
     ltdl_solve<Robot, Scalar>(H, r);
     const Scalar* const a = cv.velocity(r, qdd);  // G^T
@@ -365,8 +366,19 @@ TG_HD void damped_dynamics_derivatives(const Team& t, DampedDynamicsTeamWork<Rob
   }
   t.sync();
   inverse_dynamics_derivatives_from<Robot, Scalar, C>(t, W, qd, qdd, cv, dq, dqd);
-  if (t.leader()) add_passive_diagonals<Robot, Scalar>(dq, dqd);
+  if (passive && t.leader()) add_passive_diagonals<Robot, Scalar>(dq, dqd);
   t.sync();
+}
+
+// damped_dynamics_derivatives by team t, H (NV x NV) in memory of the caller's: the above with the damping and
+// the passive forces, then dq, dqd, dtau <- -H^-1 dq, -H^-1 dqd, H^-1 a column a lane. w.rnea.qdd holds qdd. All
+// written when every lane returns.
+template <class Robot, class Scalar, int C, class Team>
+TG_HD void damped_dynamics_derivatives(const Team& t, FactoredDynamicsTeamWork<Robot, Scalar>& w, const Conv<Robot, Scalar, C>& cv, const Scalar* q,
+                                       const Scalar* qd, const Scalar* tau, const Scalar* fext, Scalar h, Scalar* dq, Scalar* dqd,
+                                       Scalar* dtau, Scalar* H, const InertialParameters<Robot, Scalar>& pi = {}) {
+  constexpr int NV = Robot::NV;
+  factored_dynamics_derivatives<Robot, Scalar>(t, w, cv, q, qd, tau, fext, h, true, dq, dqd, H, pi);
   for (const int c : t.items(0, NV)) {
     for (int k = 0; k < NV; ++k) dtau[NV * k + c] = Scalar(k == c), dq[NV * k + c] = -dq[NV * k + c], dqd[NV * k + c] = -dqd[NV * k + c];
     ltdl_solve_columns<Robot, NV, 1>(H, dq, c);

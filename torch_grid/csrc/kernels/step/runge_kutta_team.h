@@ -1,8 +1,9 @@
 // A Runge-Kutta step's Jacobians by a team (kernels/spatial/team.h): runge_kutta.h's stages and adjoint
-// columns, shared out. Each stage's dynamics by forward_dynamics_derivatives's team path, which keeps M^-1 whole
-// (in the stage's third NV x NV block of the workspace, where rk_step keeps M's factor); then the reverse pass a
-// column a lane. An adjoint column (one output row) meets no other on the way back, so the lanes run the whole
-// pass apart, without a sync, each over its own columns of A^T, B^T and the stages' slots.
+// columns, shared out. Each stage's dynamics by factored_dynamics_derivatives (M by crba's team path, factored by the
+// first lane, the derivatives by the RNEA derivatives' team path), M's factor in the stage's third NV x NV block of
+// the workspace as rk_step keeps it; then the reverse pass a column a lane. An adjoint column (one output row)
+// meets no other on the way back, so the lanes run the pass each over its own columns of A^T, B^T and the stages'
+// slots, meeting only while the first lane computes a stage's joint blocks (two syncs a stage) and at the end.
 #pragma once
 
 #include "kernels/derivatives/dynamics_derivatives.h"
@@ -13,13 +14,13 @@
 
 namespace tg {
 
-// The team's shared workspace: the stages' dynamics' (one stage at a time) and their v and tau + p in Pinocchio's
+// The team's shared workspace: the stages' dynamics' (one stage at a time) and their v and tau in Pinocchio's
 // convention, the stages' values as rk_step keeps them, and at each quaternion joint (n x n blocks after one
 // another: 36 entries a free joint, 9 a ball joint, of which there are at most a third of the other dofs): the
 // step's integrate Jacobians, and a stage's (Jq - I, Jv - I) and dexp^-1's (D_u, D_v').
 template <class Robot, class Scalar> struct RkStepDerivativesTeamWork {
   static constexpr int NV = Robot::NV, NBLK = 36 * Robot::NFREE + (Robot::BALLS ? 3 * (NV - 6 * Robot::NFREE) : 0) + 1;
-  ForwardDynamicsDerivativesTeamWork<Robot, Scalar> fd;
+  FactoredDynamicsTeamWork<Robot, Scalar> dyn;
   Scalar vp[NV], tp[NV];
   Scalar v0[NV], tau_c[NV], acc[4][NV], car[4][NV], u[4][NV], v[4][NV], qs[Robot::NQ], un[NV];
   Scalar Jq[NBLK], Jv[NBLK];
@@ -45,23 +46,20 @@ template <class Robot, class Scalar> TG_HD_INLINE Scalar related_dot(const Scala
   return s;
 }
 
-// A stage's dynamics by team t (rk_stage's, with M^-1 for its factor) at cs: D_q, D_v and M^-1 in the convention,
-// and acc = FD(q, v, tau + p) in it (by the leader, written once every lane has passed the next sync); v and tau
-// in Pinocchio's convention, read by the leader alone.
+// A stage's dynamics by team t (rk_stage's): D_q, D_v and M's factor H in the convention, and acc = FD(q, v, tau
+// (+ p)) in it (by the leader, written once every lane has passed the next sync); v and tau in Pinocchio's
+// convention, read by the leader alone.
 template <class Robot, class Scalar, int C, class Team>
 TG_HD void rk_stage(const Team& t, RkStepDerivativesTeamWork<Robot, Scalar>& w, const Conv<Robot, Scalar, C>& cs, const Scalar* v,
-                    const Scalar* tau, const Scalar* fext, bool passive, Scalar* Dq, Scalar* Dv, Scalar* Minv, Scalar* acc,
+                    const Scalar* tau, const Scalar* fext, bool passive, Scalar* Dq, Scalar* Dv, Scalar* H, Scalar* acc,
                     const InertialParameters<Robot, Scalar>& pi) {
   constexpr int NV = Robot::NV;
-  if (t.leader()) {
+  if (t.leader())
     for (int k = 0; k < NV; ++k) w.vp[k] = v[k], w.tp[k] = tau[k];
-    if (passive) add_passive<Robot, Scalar>(cs.q, w.vp, w.tp);
-  }
   t.sync();
-  forward_dynamics_derivatives<Robot, Scalar>(t, w.fd, cs.q, w.vp, w.tp, fext, cs, Dq, Dv, Minv, pi);
+  factored_dynamics_derivatives<Robot, Scalar>(t, w.dyn, cs, cs.q, w.vp, w.tp, fext, Scalar(0), passive, Dq, Dv, H, pi);
   if (t.leader()) {
-    if (passive) add_passive_diagonals<Robot, Scalar>(Dq, Dv);
-    for (int k = 0; k < NV; ++k) acc[k] = w.fd.qdd[k];
+    for (int k = 0; k < NV; ++k) acc[k] = w.dyn.rnea.qdd[k];
     cs.acceleration_out(w.vp, acc);
   }
 }
@@ -81,13 +79,13 @@ TG_HD void rk_stage_blocks(RkStepDerivativesTeamWork<Robot, Scalar>& w, const Sc
   }
 }
 
-// Stage i's adjoints on this lane's columns c (rk_adjoint_stage's, column by column): mu = M^-1 abar (none on
-// the last stage's q' columns, where abar is zero; through U's column), taubar += mu, qbar_i = -D_q^T mu (into U),
+// Stage i's adjoints on this lane's columns c (rk_adjoint_stage's, column by column): mu = M^-1 abar in place, by
+// M's factor H (none on the last stage's q' columns, where abar is zero), taubar += mu, qbar_i = -D_q^T mu (into U),
 // spread to qbar and the fed stages' cbar_j; a quaternion joint's rows mended (w's blocks of the stage, but at the
 // first, at u = 0, which feeds no stage); vbar_i = cbar - D_v^T mu, spread to qdbar and abar_j.
 template <class Robot, class Scalar, class Team>
 TG_HD void rk_adjoint_columns(const Team& t, const RkStepDerivativesTeamWork<Robot, Scalar>& w, const Scalar* Dq, const Scalar* Dv,
-                              const Scalar* Minv, bool first, bool last, Scalar* abar, Scalar* cbar, Scalar* U, int nf, Scalar* const* fa,
+                              const Scalar* H, bool first, bool last, Scalar* abar, Scalar* cbar, Scalar* U, int nf, Scalar* const* fa,
                               Scalar* const* fc, const Scalar* fw, const bool* fresh, Scalar* qbar, Scalar* qdbar, Scalar* taubar) {
   constexpr int NV = Robot::NV, K2 = 2 * NV;
   const auto& d = data<Robot, Scalar>();
@@ -103,12 +101,7 @@ TG_HD void rk_adjoint_columns(const Team& t, const RkStepDerivativesTeamWork<Rob
     if (last && c < NV) {
       for (int r = 0; r < NV; ++r) U[K2 * r + c] = Scalar(0);
     } else {
-      for (int r = 0; r < NV; ++r) {
-        Scalar s = Scalar(0);
-        for (int k = 0; k < NV; ++k) s += Minv[NV * r + k] * abar[K2 * k + c];
-        U[K2 * r + c] = s;
-      }
-      for (int r = 0; r < NV; ++r) abar[K2 * r + c] = U[K2 * r + c], taubar[K2 * r + c] += U[K2 * r + c];
+      ltdl_solve_columns<Robot, K2, 1>(H, abar, c, taubar);
       for (int r = 0; r < NV; ++r) U[K2 * r + c] = -related_dot<Robot, Scalar>(Dq, r, abar + c, K2);
     }
     spread_column(U, qbar, fc, c);
@@ -146,8 +139,7 @@ TG_HD void rk_adjoint_columns(const Team& t, const RkStepDerivativesTeamWork<Rob
   }
 }
 
-// rk_step by team t, with its layout of the workspace (M^-1 for M's factor) and of the outputs. All written when
-// every lane returns.
+// rk_step by team t, with its layout of the workspace and of the outputs. All written when every lane returns.
 template <class Robot, class Scalar, int C, class Team>
 TG_HD void rk_step(const Team& t, RkStepDerivativesTeamWork<Robot, Scalar>& w, const Conv<Robot, Scalar, C>& cv, const Scalar* qd,
                    const Scalar* tau, const Scalar* fext, Scalar h, int scheme, bool passive, Scalar* q_next, Scalar* qd_next, Scalar* A,
@@ -234,7 +226,7 @@ TG_HD void rk_step(const Team& t, RkStepDerivativesTeamWork<Robot, Scalar>& w, c
         fa[nf] = slot(j), fc[nf] = slot(j) + NA, fw[nf] = h * Scalar(T.a[i][j]), fresh[nf++] = !fed[j];
         fed[j] = true;
       }
-    // the stage's joint blocks, once every lane is done with the last stage's
+    // the stage's joint blocks, once every lane is done with those of the stage before (i + 1)
     if (i > 0) {
       t.sync();
       if (t.leader()) rk_stage_blocks<Robot, Scalar, C>(w, cv.q, w.u[i], w.v[i]);

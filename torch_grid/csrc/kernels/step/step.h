@@ -394,7 +394,7 @@ TG_HD void euler_step(const Scalar* q, const Scalar* v, const Scalar* acc, Scala
 template <class Robot, class Scalar> struct StepDerivativesTeamWork {
   union {
     ForwardDynamicsDerivativesTeamWork<Robot, Scalar> fd;
-    DampedDynamicsTeamWork<Robot, Scalar> damped;
+    FactoredDynamicsTeamWork<Robot, Scalar> damped;
   };
   Scalar v[Robot::NV], acc[Robot::NV], tau_p[Robot::NV];
 };
