@@ -70,9 +70,9 @@ template <class Robot, class Scalar, int C>
 TG_HD void rk_stage_blocks(RkStepDerivativesTeamWork<Robot, Scalar>& w, const Scalar* q, const Scalar* u, const Scalar* v) {
   const auto& d = data<Robot, Scalar>();
   for (int jn = 0; jn < Robot::NB; ++jn) {
+    if (!quaternion_dofs<Robot, Scalar>(jn)) continue;
     const int o = w.offset[jn], vi = d.vi[jn];
     const int n = integrate_joint<Robot, Scalar, C>(jn, q, u, w.qs, w.Jqs + o, w.Jvs + o);
-    if (!n) continue;
     Scalar c[6];
     dexp_inverse_jacobians<Scalar, C>(n, u + vi, v + vi, c, w.Du + o, w.Dx + o);
     for (int a = 0; a < n; ++a) w.Jqs[o + n * a + a] -= Scalar(1), w.Jvs[o + n * a + a] -= Scalar(1);
