@@ -219,6 +219,37 @@ TG_HD void rk_step_values(const Conv<Robot, Scalar, C>& cv, const Scalar* qd, co
   for (int jn = 0; jn < Robot::NB; ++jn) integrate_joint<Robot, Scalar, C>(jn, cv.q, un, q_next, nullptr, nullptr);
 }
 
+// rk_step's workspace (8 NV x 3 NV) for s stages: each stage's D_q, D_v and M's factor (NV x NV each), slots of
+// pending adjoints abar_j, cbar_j (NV x 2 NV each; a stage's slot differs from those of the stages it feeds: rk4's
+// stage i feeds stage i - 1 alone, so two slots alternate; rk3 has one a stage), then ubar_i (NV x 2 NV) and, on
+// one thread, the step's Jv blocks.
+template <int NV, class Scalar> struct RkWorkspace {
+  static constexpr int NN = NV * NV, NA = 2 * NN;
+  Scalar* work;
+  int s;
+  TG_HD Scalar* dynamics(int i) const { return work + 3 * NN * i; }  // D_q; D_v at + NN; the factor at + 2 NN
+  TG_HD Scalar* slot(int j) const { return work + 3 * NN * s + 2 * NA * (s == 3 ? j : j % 2); }  // abar_j; cbar_j at + NA
+  TG_HD Scalar* U() const { return work + 3 * NN * s + 2 * NA * (s == 3 ? 3 : 2); }
+};
+
+// The earlier stages j that stage i feeds (v_i = qd + dt sum_j a_ij acc_j, u_i = dt sum_j a_ij c_j), n of them:
+// their slots' abar_j (fa) and cbar_j (fc), the weights dt a_ij (fw), and whether a slot is fresh, to be written
+// rather than added to (no later stage has fed it: `fed`, which this then marks).
+template <class Scalar> struct RkFeeds {
+  Scalar* fa[2];
+  Scalar* fc[2];
+  Scalar fw[2];
+  bool fresh[2];
+  int n = 0;
+  template <int NV> TG_HD RkFeeds(const RkTableau& T, int i, Scalar h, const RkWorkspace<NV, Scalar>& ws, bool* fed) {
+    for (int j = 0; j < i; ++j)
+      if (T.a[i][j] != 0) {
+        fa[n] = ws.slot(j), fc[n] = ws.slot(j) + RkWorkspace<NV, Scalar>::NA, fw[n] = h * Scalar(T.a[i][j]), fresh[n++] = !fed[j];
+        fed[j] = true;
+      }
+  }
+};
+
 // y += x and, for k < nf, to[k] += w[k] x (written, not added, where fresh), in one pass over N entries.
 template <int N, class Scalar>
 TG_HD void spread(const Scalar* x, Scalar* y, int nf, Scalar* const* to, const Scalar* w, const bool* fresh) {
@@ -237,14 +268,14 @@ TG_HD void spread(const Scalar* x, Scalar* y, int nf, Scalar* const* to, const S
 // acceleration's and carried velocity's:
 // mu = M^-1 abar (in place; on the last stage only the qd' columns, the q' ones being zero), taubar += mu;
 // qbar_i = -D_q^T mu (into U), qbar += Jq^T qbar_i; vbar_i = -D_v^T mu + D_v'^T cbar (in place of cbar),
-// qdbar += vbar_i; and for each earlier stage j it feeds (nf of them, dt a_ij in w), cbar_j += w ubar_i and
+// qdbar += vbar_i; and for each earlier stage j it feeds (f, with w = dt a_ij), cbar_j += w ubar_i and
 // abar_j += w vbar_i (written, not added, where fresh), ubar_i = Jv^T qbar_i + D_u^T cbar. At a
 // vector-space joint Jq, Jv and D_v' are the identity and D_u zero, so qbar_i and vbar_i are spread as they
 // are, and a quaternion joint's rows mended.
 template <class Robot, class Scalar, int C>
 TG_HD void rk_adjoint_stage(const TreeBlocks<Robot, Scalar>& tb, const Scalar* q, const Scalar* u, const Scalar* v, const Scalar* Dq, const Scalar* Dv,
-                            const Scalar* H, bool first, bool last, Scalar* abar, Scalar* cbar, Scalar* U, int nf, Scalar* const* fa, Scalar* const* fc,
-                            const Scalar* fw, const bool* fresh, Scalar* qbar, Scalar* qdbar, Scalar* taubar) {
+                            const Scalar* H, bool first, bool last, Scalar* abar, Scalar* cbar, Scalar* U, const RkFeeds<Scalar>& f,
+                            Scalar* qbar, Scalar* qdbar, Scalar* taubar) {
   constexpr int NV = Robot::NV, K2 = 2 * NV, NA = NV * K2;
   const auto& d = data<Robot, Scalar>();
   const Scalar minus[1] = {Scalar(-1)};
@@ -261,7 +292,7 @@ TG_HD void rk_adjoint_stage(const TreeBlocks<Robot, Scalar>& tb, const Scalar* q
     const Scalar* X[1] = {abar};
     tree_products<Robot, K2, K2, K2, false, true>(tb, 1, gq, minus, X, U);
   }
-  spread<NA>(U, qbar, nf, fc, fw, fresh);
+  spread<NA>(U, qbar, f.n, f.fc, f.fw, f.fresh);
   // a quaternion joint's rows: qbar += (Jq - I)^T qbar_i, cbar_j += w (ubar_i - qbar_i), cbar = D_v'^T cbar
   // (nothing at the first stage: at u = 0 Jq, Jv and D_v' are the identity, and it feeds no stage)
   for (int jn = 0; jn < (first ? 0 : Robot::NB); ++jn) {
@@ -278,8 +309,8 @@ TG_HD void rk_adjoint_stage(const TreeBlocks<Robot, Scalar>& tb, const Scalar* q
     const Scalar* g2[2] = {Jv, Du};
     const Scalar* x2[2] = {Ur, Cr};
     joint_adjoint<K2>(n, 2, g2, x2, blk, false);
-    for (int k = 0; k < nf; ++k)
-      for (int e = 0; e < n * K2; ++e) fc[k][K2 * vi + e] += fw[k] * blk[e];
+    for (int k = 0; k < f.n; ++k)
+      for (int e = 0; e < n * K2; ++e) f.fc[k][K2 * vi + e] += f.fw[k] * blk[e];
     const Scalar* g3[1] = {Dx};
     const Scalar* x3[1] = {Cr};
     joint_adjoint<K2>(n, 1, g3, x3, blk, false);
@@ -293,25 +324,21 @@ TG_HD void rk_adjoint_stage(const TreeBlocks<Robot, Scalar>& tb, const Scalar* q
     const Scalar* X[1] = {abar};
     tree_products<Robot, K2, K2, K2, true, true>(tb, 1, gv, minus, X, cbar);
   }
-  spread<NA>(cbar, qdbar, nf, fa, fw, fresh);
+  spread<NA>(cbar, qdbar, f.n, f.fa, f.fw, f.fresh);
 }
 
 // The step and its Jacobians. cv at q, qd and tau in Pinocchio's convention (as the binding passes them).
 // Outputs: q_next (NQ), qd_next (NV), A (2 NV x 2 NV), B (2 NV x NV), in the convention, A and B holding
-// their transposes (the adjoints of q, qd and tau) until the end. work (8 NV x 3 NV): each stage's D_q, D_v
-// and M's factor (NV x NV each), slots of pending adjoints abar_j, cbar_j (NV x 2 NV each; a stage's slot
-// differs from those of the stages it feeds: rk4's stage i feeds stage i - 1 alone, so two slots alternate;
-// rk3 has one a stage), then ubar_i and the step's Jv blocks.
+// their transposes (the adjoints of q, qd and tau) until the end; work laid out as RkWorkspace.
 template <class Robot, class Scalar, int C>
 TG_HD void rk_step(const Conv<Robot, Scalar, C>& cv, const Scalar* qd, const Scalar* tau, const Scalar* fext, Scalar h, int scheme, bool passive,
                    Scalar* q_next, Scalar* qd_next, Scalar* A, Scalar* B, Scalar* work, const InertialParameters<Robot, Scalar>& pi = {}) {
   constexpr int NV = Robot::NV, K2 = 2 * NV, NN = NV * NV, NA = NV * K2;
   const auto& d = data<Robot, Scalar>();
   const RkTableau T = rk_tableau(scheme);
-  const int s = T.stages, nslots = s == 3 ? 3 : 2;
-  Scalar* const slots = work + 3 * NN * s;
-  Scalar* const U = slots + 2 * NA * nslots;
-  const auto slot = [&](int j) { return slots + 2 * NA * (s == 3 ? j : j % 2); };
+  const int s = T.stages;
+  const RkWorkspace<NV, Scalar> ws{work, s};
+  Scalar* const U = ws.U();
   Scalar v0[NV], tau_c[NV], acc[4][NV], car[4][NV], u[4][NV], v[4][NV], qs[Robot::NQ], un[NV];
   for (int k = 0; k < NV; ++k) v0[k] = qd[k], tau_c[k] = tau[k];
   cv.velocity_out(v0);
@@ -319,7 +346,7 @@ TG_HD void rk_step(const Conv<Robot, Scalar, C>& cv, const Scalar* qd, const Sca
   // the stages' values and dynamics
   for (int i = 0; i < s; ++i) {
     rk_stage_state<Robot, Scalar, C>(cv.q, T, i, h, v0, acc, car, u[i], v[i], qs);
-    Scalar* const Dq = work + 3 * NN * i;
+    Scalar* const Dq = ws.dynamics(i);
     if (i == 0) {
       rk_stage<Robot, Scalar, C>(cv, qd, tau, fext, passive, Dq, Dq + NN, Dq + 2 * NN, acc[0], pi);
     } else {
@@ -350,7 +377,7 @@ TG_HD void rk_step(const Conv<Robot, Scalar, C>& cv, const Scalar* qd, const Sca
   const auto& tb = tree_blocks<Robot, Scalar>();
   bool fed[4] = {false, false, false, false};
   for (int i = s - 1; i >= 0; --i) {
-    Scalar* const abar = slot(i);
+    Scalar* const abar = ws.slot(i);
     Scalar* const cbar = abar + NA;
     // the output's own terms: qd' = ... + dt b_i acc_i, u' = ... + dt b_i c_i
     if (!fed[i])
@@ -358,25 +385,15 @@ TG_HD void rk_step(const Conv<Robot, Scalar, C>& cv, const Scalar* qd, const Sca
     const Scalar hb = h * Scalar(T.b[i]);
     for (int k = 0; k < NV; ++k) abar[K2 * k + NV + k] += hb;
     for (int jn = 0, o = 0; jn < Robot::NB; ++jn) {
-      const int t = d.jtype[jn], n = t == FREE ? 6 : t == BALL ? 3 : 0, vi = d.vi[jn];
+      const int n = quaternion_dofs<Robot, Scalar>(jn), vi = d.vi[jn];
       for (int a = 0; a < (n ? n : d.nvj[jn]); ++a)
         for (int b = 0; b < (n ? n : d.nvj[jn]); ++b) cbar[K2 * (vi + a) + vi + b] += hb * (n ? Jvs[o + n * b + a] : Scalar(a == b));
       o += n * n;
     }
-    // the earlier stages it feeds: v_i = qd + dt sum_j a_ij acc_j, u_i = dt sum_j a_ij c_j
-    Scalar* fa[2];
-    Scalar* fc[2];
-    Scalar fw[2];
-    bool fresh[2];
-    int nf = 0;
-    for (int j = 0; j < i; ++j)
-      if (T.a[i][j] != 0) {
-        fa[nf] = slot(j), fc[nf] = slot(j) + NA, fw[nf] = h * Scalar(T.a[i][j]), fresh[nf++] = !fed[j];
-        fed[j] = true;
-      }
-    const Scalar* const Dq = work + 3 * NN * i;
-    rk_adjoint_stage<Robot, Scalar, C>(tb, cv.q, u[i], v[i], Dq, Dq + NN, Dq + 2 * NN, i == 0, i == s - 1, abar, cbar, U, nf,
-                              fa, fc, fw, fresh, qbar, qdbar, taubar);
+    const RkFeeds<Scalar> feeds(T, i, h, ws, fed);
+    const Scalar* const Dq = ws.dynamics(i);
+    rk_adjoint_stage<Robot, Scalar, C>(tb, cv.q, u[i], v[i], Dq, Dq + NN, Dq + 2 * NN, i == 0, i == s - 1, abar, cbar, U, feeds, qbar,
+                                       qdbar, taubar);
   }
   // A and B from their transposes
   for (int r = 0; r < K2; ++r)
@@ -385,7 +402,7 @@ TG_HD void rk_step(const Conv<Robot, Scalar, C>& cv, const Scalar* qd, const Sca
       A[K2 * r + c] = A[K2 * c + r];
       A[K2 * c + r] = x;
     }
-  Scalar* const Bt = slot(0);
+  Scalar* const Bt = ws.slot(0);
   for (int e = 0; e < NA; ++e) Bt[e] = taubar[e];
   for (int r = 0; r < K2; ++r)
     for (int k = 0; k < NV; ++k) B[NV * r + k] = Bt[K2 * k + r];

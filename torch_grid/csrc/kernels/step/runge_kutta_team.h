@@ -28,12 +28,6 @@ template <class Robot, class Scalar> struct RkStepDerivativesTeamWork {
   int offset[Robot::NB];  // each joint's first entry in the blocks
 };
 
-// n of a quaternion joint's n x n blocks (6: free, 3: ball), 0 at any other joint.
-template <class Robot, class Scalar> TG_HD_INLINE int quaternion_dofs(int jn) {
-  const int t = data<Robot, Scalar>().jtype[jn];
-  return t == FREE ? 6 : t == BALL ? 3 : 0;
-}
-
 // sum_k G[k, r] x[k] over the dofs k related to r (its ancestors and its subtree), G zero between branches.
 template <class Robot, class Scalar> TG_HD_INLINE Scalar related_dot(const Scalar* G, int r, const Scalar* x, int xs) {
   const auto& d = data<Robot, Scalar>();
@@ -85,16 +79,16 @@ TG_HD void rk_stage_blocks(RkStepDerivativesTeamWork<Robot, Scalar>& w, const Sc
 // first, at u = 0, which feeds no stage); vbar_i = cbar - D_v^T mu, spread to qdbar and abar_j.
 template <class Robot, class Scalar, class Team>
 TG_HD void rk_adjoint_columns(const Team& t, const RkStepDerivativesTeamWork<Robot, Scalar>& w, const Scalar* Dq, const Scalar* Dv,
-                              const Scalar* H, bool first, bool last, Scalar* abar, Scalar* cbar, Scalar* U, int nf, Scalar* const* fa,
-                              Scalar* const* fc, const Scalar* fw, const bool* fresh, Scalar* qbar, Scalar* qdbar, Scalar* taubar) {
+                              const Scalar* H, bool first, bool last, Scalar* abar, Scalar* cbar, Scalar* U, const RkFeeds<Scalar>& f,
+                              Scalar* qbar, Scalar* qdbar, Scalar* taubar) {
   constexpr int NV = Robot::NV, K2 = 2 * NV;
   const auto& d = data<Robot, Scalar>();
-  // y (column c) into x's and to[k]'s: x += y, to[k] (+)= w[k] y (written where fresh)
+  // y (column c) into x's and to[k]'s: x += y, to[k] (+)= dt a_ij y (written where fresh)
   const auto spread_column = [&](const Scalar* y, Scalar* x, Scalar* const* to, int c) {
     for (int r = 0; r < NV; ++r) {
       const int e = K2 * r + c;
       x[e] += y[e];
-      for (int k = 0; k < nf; ++k) to[k][e] = (fresh[k] ? Scalar(0) : to[k][e]) + fw[k] * y[e];
+      for (int k = 0; k < f.n; ++k) to[k][e] = (f.fresh[k] ? Scalar(0) : to[k][e]) + f.fw[k] * y[e];
     }
   };
   for (const int c : t.items(0, K2)) {
@@ -104,7 +98,7 @@ TG_HD void rk_adjoint_columns(const Team& t, const RkStepDerivativesTeamWork<Rob
       ltdl_solve_columns<Robot, K2, 1>(H, abar, c, taubar);
       for (int r = 0; r < NV; ++r) U[K2 * r + c] = -related_dot<Robot, Scalar>(Dq, r, abar + c, K2);
     }
-    spread_column(U, qbar, fc, c);
+    spread_column(U, qbar, f.fc, c);
   }
   // a quaternion joint's rows: qbar += (Jq - I)^T qbar_i, cbar_j += w ((Jv - I)^T qbar_i + D_u^T cbar),
   // cbar = D_v'^T cbar
@@ -127,7 +121,7 @@ TG_HD void rk_adjoint_columns(const Team& t, const RkStepDerivativesTeamWork<Rob
         fed[a] = sf, turned[a] = sc;
       }
       for (int a = 0; a < n; ++a) {
-        for (int k = 0; k < nf; ++k) fc[k][K2 * (vi + a) + c] += fw[k] * fed[a];
+        for (int k = 0; k < f.n; ++k) f.fc[k][K2 * (vi + a) + c] += f.fw[k] * fed[a];
         Cr[K2 * a] = turned[a];
       }
     }
@@ -135,7 +129,7 @@ TG_HD void rk_adjoint_columns(const Team& t, const RkStepDerivativesTeamWork<Rob
   for (const int c : t.items(0, K2)) {
     if (!(last && c < NV))
       for (int r = 0; r < NV; ++r) cbar[K2 * r + c] -= related_dot<Robot, Scalar>(Dv, r, abar + c, K2);
-    spread_column(cbar, qdbar, fa, c);
+    spread_column(cbar, qdbar, f.fa, c);
   }
 }
 
@@ -147,10 +141,9 @@ TG_HD void rk_step(const Team& t, RkStepDerivativesTeamWork<Robot, Scalar>& w, c
   constexpr int NV = Robot::NV, K2 = 2 * NV, NN = NV * NV, NA = NV * K2;
   const auto& d = data<Robot, Scalar>();
   const RkTableau T = rk_tableau(scheme);
-  const int s = T.stages, nslots = s == 3 ? 3 : 2;
-  Scalar* const slots = work + 3 * NN * s;
-  Scalar* const U = slots + 2 * NA * nslots;
-  const auto slot = [&](int j) { return slots + 2 * NA * (s == 3 ? j : j % 2); };
+  const int s = T.stages;
+  const RkWorkspace<NV, Scalar> ws{work, s};
+  Scalar* const U = ws.U();
   if (t.leader()) {
     for (int k = 0; k < NV; ++k) w.v0[k] = qd[k], w.tau_c[k] = tau[k];
     cv.velocity_out(w.v0);
@@ -164,7 +157,7 @@ TG_HD void rk_step(const Team& t, RkStepDerivativesTeamWork<Robot, Scalar>& w, c
   for (int i = 0; i < s; ++i) {
     if (t.leader()) rk_stage_state<Robot, Scalar, C>(cv.q, T, i, h, w.v0, w.acc, w.car, w.u[i], w.v[i], w.qs);
     t.sync();
-    Scalar* const Dq = work + 3 * NN * i;
+    Scalar* const Dq = ws.dynamics(i);
     if (i == 0) {
       rk_stage<Robot, Scalar>(t, w, cv, qd, tau, fext, passive, Dq, Dq + NN, Dq + 2 * NN, w.acc[0], pi);
     } else {
@@ -201,7 +194,7 @@ TG_HD void rk_step(const Team& t, RkStepDerivativesTeamWork<Robot, Scalar>& w, c
   }
   bool fed[4] = {false, false, false, false};
   for (int i = s - 1; i >= 0; --i) {
-    Scalar* const abar = slot(i);
+    Scalar* const abar = ws.slot(i);
     Scalar* const cbar = abar + NA;
     // the output's own terms: qd' = ... + dt b_i acc_i, u' = ... + dt b_i c_i
     const Scalar hb = h * Scalar(T.b[i]);
@@ -215,30 +208,19 @@ TG_HD void rk_step(const Team& t, RkStepDerivativesTeamWork<Robot, Scalar>& w, c
       const int jn = dof_body<Robot, Scalar>(c), n = quaternion_dofs<Robot, Scalar>(jn), vi = d.vi[jn], b = c - vi;
       for (int a = 0; a < (n ? n : d.nvj[jn]); ++a) cbar[K2 * (vi + a) + c] += hb * (n ? w.Jv[w.offset[jn] + n * b + a] : Scalar(a == b));
     }
-    // the earlier stages it feeds: v_i = qd + dt sum_j a_ij acc_j, u_i = dt sum_j a_ij c_j
-    Scalar* fa[2];
-    Scalar* fc[2];
-    Scalar fw[2];
-    bool fresh[2];
-    int nf = 0;
-    for (int j = 0; j < i; ++j)
-      if (T.a[i][j] != 0) {
-        fa[nf] = slot(j), fc[nf] = slot(j) + NA, fw[nf] = h * Scalar(T.a[i][j]), fresh[nf++] = !fed[j];
-        fed[j] = true;
-      }
+    const RkFeeds<Scalar> feeds(T, i, h, ws, fed);
     // the stage's joint blocks, once every lane is done with those of the stage before (i + 1)
     if (i > 0) {
       t.sync();
       if (t.leader()) rk_stage_blocks<Robot, Scalar, C>(w, cv.q, w.u[i], w.v[i]);
       t.sync();
     }
-    const Scalar* const Dq = work + 3 * NN * i;
-    rk_adjoint_columns<Robot, Scalar>(t, w, Dq, Dq + NN, Dq + 2 * NN, i == 0, i == s - 1, abar, cbar, U, nf, fa, fc, fw, fresh, qbar, qdbar,
-                                      taubar);
+    const Scalar* const Dq = ws.dynamics(i);
+    rk_adjoint_columns<Robot, Scalar>(t, w, Dq, Dq + NN, Dq + 2 * NN, i == 0, i == s - 1, abar, cbar, U, feeds, qbar, qdbar, taubar);
   }
   // A and B from their transposes (B through slot 0, free again)
   t.sync();
-  Scalar* const Bt = slot(0);
+  Scalar* const Bt = ws.slot(0);
   for (const int r : t.items(0, K2)) {
     for (int c = 0; c < r; ++c) {
       const Scalar x = A[K2 * r + c];

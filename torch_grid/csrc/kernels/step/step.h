@@ -146,6 +146,12 @@ template <class Scalar> TG_HD Scalar unit_quat(Scalar x, Scalar y, Scalar z, Sca
 // Where component c of a quaternion's xyzw sits among its four coordinates in layout L (MuJoCo's wxyz).
 template <int L> TG_HD_INLINE int quat_slot(int c) { return L == MUJOCO ? (c + 1) & 3 : c; }
 
+// n of a quaternion joint's n x n blocks (6: free, 3: ball), 0 at any other joint.
+template <class Robot, class Scalar> TG_HD_INLINE int quaternion_dofs(int jn) {
+  const int t = data<Robot, Scalar>().jtype[jn];
+  return t == FREE ? 6 : t == BALL ? 3 : 0;
+}
+
 // Joint i's part of q' = q (+) u (q in Pinocchio's layout, q' in the convention's) and, at a
 // quaternion joint, its n x n blocks Jq, Jv unless Jq is null (n = 3 or 6; returns n, 0 at the other joints).
 template <class Robot, class Scalar, int C> TG_HD int integrate_joint(int i, const Scalar* q, const Scalar* u, Scalar* q_next, Scalar* Jq, Scalar* Jv) {
