@@ -51,9 +51,9 @@ std::vector<double> configuration(std::mt19937& gen) {
 }
 
 // One op on n samples: the team of threads against the one-thread kernel; the largest difference, relative to the
-// largest entry of each output. Inputs after q are normal random numbers, of the sizes given (0: absent); the
-// times its scale if given; the outputs are of the sizes given, the last `scratch` of them a workspace (not compared);
-// the integer arguments those given.
+// largest entry of each output (infinite where either holds a number that is not finite). Inputs after q are normal
+// random numbers, of the sizes given (0: absent); the times its scale if given; the outputs are of the sizes given,
+// the last `scratch` of them a workspace (not compared); the integer arguments those given.
 template <template <class, class, int> class Op, int C>
 double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes, std::vector<int> iargs = {0}, int scratch = 0,
                std::vector<double> scales = {}) {
@@ -105,7 +105,7 @@ double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes, std
       double scale = 0, diff = 0;
       for (int e = 0; e < out_sizes[k]; ++e) {
         scale = std::fmax(scale, std::fabs(solo[k][e]));
-        diff = std::isfinite(team[k][e]) ? std::fmax(diff, std::fabs(team[k][e] - solo[k][e])) : INFINITY;
+        diff = std::isfinite(team[k][e]) && std::isfinite(solo[k][e]) ? std::fmax(diff, std::fabs(team[k][e] - solo[k][e])) : INFINITY;
       }
       worst = std::fmax(worst, diff / scale);
     }
