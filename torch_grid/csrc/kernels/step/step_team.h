@@ -62,22 +62,18 @@ TG_HD void euler_step_values(const Team& t, StepTeamWork<Robot, Scalar>& w, cons
   if constexpr (Robot::PASSIVE) {  // (not compiled for a robot without passive forces, whose passive is 0)
     if (passive == 2) {
       damped_acceleration<Robot, Scalar>(t, w.damped, cv, q, qd, tau, fext, h, w.qdd, pi);
+      if (t.leader()) {
+        for (int k = 0; k < NV; ++k) w.acc[0][k] = w.qdd[k];
+        cv.acceleration_out(qd, w.acc[0]);
+      }
       damped = true;
     }
   }
-  if (!damped) {
-    if (t.leader()) {
-      for (int k = 0; k < NV; ++k) w.tp[k] = tau[k];
-      if (passive) add_passive<Robot, Scalar>(q, qd, w.tp);
-    }
-    t.sync();
-    forward_dynamics<Robot, Scalar>(t, w.fd, q, qd, w.tp, fext, w.qdd, pi);
-  }
+  if (!damped) step_acceleration<Robot, Scalar>(t, w, cv, qd, tau, fext, passive, w.acc[0], pi);
   // qd' = qd + dt a;  q' = q (+) dt w, w = qd' (semi-implicit) or qd
   if (t.leader()) {
-    for (int k = 0; k < NV; ++k) w.v[k] = qd[k], w.acc[0][k] = w.qdd[k];
+    for (int k = 0; k < NV; ++k) w.v[k] = qd[k];
     cv.velocity_out(w.v);
-    cv.acceleration_out(qd, w.acc[0]);
     for (int k = 0; k < NV; ++k) {
       qd_next[k] = w.v[k] + h * w.acc[0][k];
       w.un[k] = h * (scheme ? qd_next[k] : w.v[k]);
