@@ -68,7 +68,7 @@ template <class Scalar, int C> TG_HD void dexp_inverse_jacobians_lie(int n, cons
   const Vec3<Scalar> w = load3(theta + n - 3);
   const So3Coefficients<Scalar> k = so3_coefficients(w);
   const Mat3<Scalar> Ji = so3_terms(w, Scalar(0.5), k.beta);
-  dexp_inverse_matrix<Scalar, C>(n, theta, Dx);
+  dexp_inverse_matrix<Scalar, C>(n, theta, k, Dx);
   if (n == 6) {
     const Mat3<Scalar> JL = mul(Ji, se3_coupling_along_rho(w, mul(Ji, load3(x + 3)), k));
     for (int r = 0; r < 3; ++r)

@@ -113,10 +113,9 @@ template <class Scalar> TG_HD void put3(Scalar* X, int n, int r, int c, const Ma
 
 // dexp(theta)^-1 (n x n, row-major; n = 3 or 6), the inverse of integrate_joint's Jv at theta: Jr(w)^-1 = I + [w] / 2
 // + beta [w]^2 on a rotation w (MuJoCo's free joint: its position rows the identity); on Pinocchio's free joint SE(3)'s
-// [[Jr^-1, -Jr^-1 Q Jr^-1], [0, Jr^-1]].
-template <class Scalar, int C> TG_HD void dexp_inverse_matrix(int n, const Scalar* theta, Scalar* Dx) {
+// [[Jr^-1, -Jr^-1 Q Jr^-1], [0, Jr^-1]]; k: So3Coefficients at the rotation w.
+template <class Scalar, int C> TG_HD void dexp_inverse_matrix(int n, const Scalar* theta, const So3Coefficients<Scalar>& k, Scalar* Dx) {
   const Vec3<Scalar> w = load3(theta + n - 3);
-  const So3Coefficients<Scalar> k = so3_coefficients(w);
   const Mat3<Scalar> Ji = so3_terms(w, Scalar(0.5), k.beta);
   for (int e = 0; e < n * n; ++e) Dx[e] = Scalar(0);
   put3(Dx, n, n - 3, n - 3, Ji);
@@ -275,7 +274,7 @@ TG_HD int difference_jacobians(int i, const Scalar* q0, const Scalar* q1, Scalar
   const int n = integrate_joint<Robot, Scalar, C>(i, q0, v, qs, Jq, Jv);
   if (!n) return 0;
   const Scalar* vj = v + data<Robot, Scalar>().vi[i];
-  dexp_inverse_matrix<Scalar, C>(n, vj, J1);
+  dexp_inverse_matrix<Scalar, C>(n, vj, so3_coefficients(load3(vj + n - 3)), J1);
   for (int r = 0; r < n; ++r)
     for (int c = 0; c < n; ++c) {
       Scalar s = Scalar(0);
