@@ -30,7 +30,7 @@ TEAM_KERNELS = {"InverseDynamics", "ForwardDynamics", "Crba", "Minv", "InverseDy
                 "InverseDynamicsSecondDerivatives", "Step", "StepDerivatives", "RkStepDerivatives"}
 TEAM_STACK = {"pin": 2048, "mujoco": 6144}
 # a second-derivative lane holds a column's 6x6 terms and a pair's vectors (ptxas on G1: 2672 bytes); a Runge-Kutta
-# lane its stage's configuration and the tableau beside the stage dynamics' variables (2352, MuJoCo's 5296)
+# lane its stage's configuration and the tableau beside the stage dynamics' variables (2336, MuJoCo's 5296)
 TEAM_STACK_OF = {"InverseDynamicsSecondDerivatives": {"pin": 3072}, "RkStepDerivatives": {"pin": 2560, "mujoco": 6144}}
 
 
