@@ -1,8 +1,9 @@
 """CPU benchmark: per-sample time of batched torch_grid ops (B = 4096, float64) on one thread and
 on all threads, against Pinocchio's per-call time through Python and in C++ (pinocchio_cpp.py);
 first build and warm reload times of each robot and of the shared torch glue; a small call's
-overhead; with --cuda, the per-thread stack of the G1 humanoid's CUDA kernels. Writes markdown
-tables to bench/RESULTS.md with --write.
+overhead; with --cuda, the per-thread stack of the G1 humanoid's CUDA kernels. With --write, its
+tables replace bench/RESULTS.md's CPU section (and, with --cuda, the resources table), leaving the
+sections of the other benchmarks as they are.
 
     python bench/bench_cpu.py [--write] [--cuda] [--robots iiwa14 go2 g1]
 """
@@ -109,13 +110,16 @@ def call_overhead(number: int = 20000) -> list[tuple[str, float]]:
             ("pinocchio.rnea from Python", best(lambda: pin.rnea(model, data, x, x, x)))]
 
 
+STACK_HEADER = "| op | convention | registers | stack (bytes) | spill stores / loads (bytes) |"
+
+
 def cuda_stack(name: str = "g1") -> list[str]:
     """Per-thread stack and registers of every float64 CUDA kernel (sm_90), both conventions."""
     from torch_grid.ops import cuda_report
 
     src, floating, bundled = ROBOTS[name]
     model = torch_grid.model.parse.source_to_model(bundled or src, floating)
-    rows = ["| op | convention | registers | stack (bytes) | spill stores / loads (bytes) |", "|---|---|---|---|---|"]
+    rows = [STACK_HEADER, "|---|---|---|---|---|"]
     for u in cuda_report.report(model, ("float64",)):
         name = u.op if u.kernel == "thread" else f"{u.op} [{u.kernel}]"
         rows.append(f"| {name} | {u.convention} | {u.registers} | {u.stack} | {u.spill_stores} / {u.spill_loads} |")
@@ -347,14 +351,40 @@ def main() -> None:
     overhead = call_overhead()
     text += ("\n\nCall overhead: one small call, µs (best of 7 x 20000; iiwa14, float64, CPU).\n\n| call | µs |\n|---|---|\n"
              + "\n".join(f"| {call} | {us:.2f} |" for call, us in overhead) + "\n")
-    if args.cuda:
-        text += ("\n## CUDA per-thread resources, G1 humanoid (float64, sm_90)\n\nFrom `python -m torch_grid.ops.cuda_report` "
-                 "(ptxas, no GPU needed): local memory a GPU reserves for every resident thread; budget 64 KiB.\n\n"
-                 + "\n".join(cuda_stack()) + "\n")
     shutil.rmtree(glue_cache, ignore_errors=True)
     print(text)
+    stack = cuda_stack() if args.cuda else None
+    if stack:
+        print("\n".join(stack))
     if args.write:
-        (HERE / "RESULTS.md").write_text("# Benchmark results\n\nProduced by `python bench/bench_cpu.py --write`.\n\n" + text)
+        path = HERE / "RESULTS.md"
+        path.write_text(updated_results(path.read_text() if path.exists() else "", text, stack))
+
+
+def updated_results(results: str, cpu_section: str, stack: list[str] | None) -> str:
+    """RESULTS.md with its CPU section (from its "## CPU, " heading to the next "## ") replaced by cpu_section, and,
+    given the CUDA resources table, that table's rows in their section; every other section as it was (the GPU
+    figures, lanes, steps and other benchmarks write their own)."""
+    lines = results.splitlines(keepends=True)
+    heading = next((k for k, line in enumerate(lines) if line.startswith("## CPU, ")), None)
+    if heading is None:
+        head = "".join(lines) or "# Benchmark results\n\nProduced by `python bench/bench_cpu.py --write` and the other benchmarks.\n\n"
+        lines = (head.rstrip("\n") + "\n\n" + cpu_section.rstrip("\n") + "\n").splitlines(keepends=True)
+    else:
+        end = next((k for k in range(heading + 1, len(lines)) if lines[k].startswith("## ")), len(lines))
+        lines[heading:end] = (cpu_section.rstrip("\n") + "\n\n").splitlines(keepends=True)
+    if stack:
+        section = next((k for k, line in enumerate(lines) if line.startswith("## CUDA per-thread resources")), None)
+        table = None if section is None else next(
+            (k for k in range(section + 1, len(lines)) if lines[k].rstrip("\n") == STACK_HEADER), None)
+        if table is None:
+            lines += ["\n## CUDA per-thread resources, G1 humanoid (float64, sm_90)\n\n", "From `python -m torch_grid.ops.cuda_report` "
+                      "(ptxas, no GPU needed): local memory a GPU reserves for every resident thread; budget 64 KiB.\n\n",
+                      *(row + "\n" for row in stack)]
+        else:
+            end = next((k for k in range(table, len(lines)) if not lines[k].startswith("|")), len(lines))
+            lines[table:end] = [row + "\n" for row in stack]
+    return "".join(lines)
 
 
 if __name__ == "__main__":
