@@ -1,9 +1,15 @@
-// The team paths of the op kernels (kernels/spatial/team.h) on 32 CPU threads, one per lane of a GPU warp, with
-// a barrier for the warp's sync: built with ThreadSanitizer by tests/test_teams.py, it reports any entry of the
-// shared workspace or of the outputs that two lanes touch without a sync between them. Each op's outputs are also
-// held equal to its one-thread kernel's, in each convention the robot library has.
+// Each op kernel's one-thread run against another run of the same op, in two builds (tests/test_teams.py):
 //
-//   team_harness SAMPLES [--no-sync]   (prints one line per op and convention; exit status 1 on a difference)
+// - the team paths (kernels/spatial/team.h) on 32 CPU threads, one per lane of a GPU warp, with a barrier for the
+//   warp's sync, built with ThreadSanitizer and the GPU's code paths (TG_DEVICE_PATHS): it reports any entry of
+//   the shared workspace or of the outputs that two lanes touch without a sync between them, and holds each op's
+//   outputs equal to its one-thread kernel's, in each convention the robot library has;
+// - with TG_PRECISION, the CPU's own paths in double against the same kernels in long double (the robot's
+//   constants too): how far the kernels' rounding leaves their results from the same formulas computed with
+//   more bits (11 more in x86's 80-bit long double).
+//
+//   team_harness SAMPLES [--no-sync]   (prints one line per op and convention: the largest difference, relative;
+//                                       exit status 1 on one over its bound, or not finite)
 // --no-sync leaves the syncs out: the races they prevent then show (tests/test_teams.py checks that they do).
 #include <pthread.h>
 
@@ -20,6 +26,10 @@
 
 using Robot = TG_NAMESPACE::Robot;
 
+#ifndef TG_PRECISION
+// A workspace output's first value: the GPU's code paths never read an entry of it they did not write, so NaN there
+// never shows; the CPU's, whose Runge-Kutta step reads some as zeros, get it as the glue hands it over, zeroed.
+constexpr double SCRATCH = NAN;
 bool skip_syncs = false;
 
 struct ThreadTeam {
@@ -33,6 +43,57 @@ struct ThreadTeam {
   }
   tg::TeamItems items(int b, int e) const { return {b, e, tg::team_first(b, lane_, lanes), lanes, false}; }
 };
+
+// The other run: a team of threads.
+template <template <class, class, int> class Op, int C>
+void other_run(const double* const* in, double* const* out, std::vector<int>& iargs, const std::vector<int>&, const std::vector<int>&) {
+  using Bound = Op<Robot, double, C>;
+  typename Bound::TeamWork w;
+  pthread_barrier_t barrier;
+  pthread_barrier_init(&barrier, nullptr, ThreadTeam::lanes);
+  std::vector<pthread_t> threads(ThreadTeam::lanes);
+  struct Lane {
+    ThreadTeam t;
+    typename Bound::TeamWork* w;
+    const double* const* in;
+    double* const* out;
+    const int* iargs;
+    int n_iargs;
+  };
+  std::vector<Lane> lanes;
+  for (int l = 0; l < ThreadTeam::lanes; ++l) lanes.push_back({{l, &barrier}, &w, in, out, iargs.data(), int(iargs.size())});
+  for (int l = 0; l < ThreadTeam::lanes; ++l)
+    pthread_create(&threads[l], nullptr, [](void* p) -> void* {
+      Lane* lane = static_cast<Lane*>(p);
+      Bound::run_team(lane->t, *lane->w, lane->in, lane->out, lane->iargs, lane->n_iargs);
+      return nullptr;
+    }, &lanes[l]);
+  for (pthread_t& t : threads) pthread_join(t, nullptr);
+  pthread_barrier_destroy(&barrier);
+}
+#else
+constexpr double SCRATCH = 0;
+
+// The other run: the one-thread kernel in long double, its outputs rounded to double.
+template <template <class, class, int> class Op, int C>
+void other_run(const double* const* in, double* const* out, std::vector<int>& iargs, const std::vector<int>& in_sizes,
+               const std::vector<int>& out_sizes) {
+  std::vector<std::vector<long double>> in_long, out_long;
+  const long double* in_l[tg::kMaxIn] = {};
+  long double* out_l[tg::kMaxOut] = {};
+  for (std::size_t k = 0; k < in_sizes.size(); ++k) {
+    in_long.emplace_back(in[k], in[k] + (in[k] ? in_sizes[k] : 0));
+    in_l[k] = in[k] ? in_long.back().data() : nullptr;  // (a moved vector keeps its storage)
+  }
+  for (std::size_t k = 0; k < out_sizes.size(); ++k) {
+    out_long.emplace_back(out_sizes[k], out[k][0]);  // NaN, or a zeroed workspace
+    out_l[k] = out_long.back().data();
+  }
+  Op<Robot, long double, C>::run(in_l, out_l, iargs.data(), int(iargs.size()), false);
+  for (std::size_t k = 0; k < out_sizes.size(); ++k)
+    for (int e = 0; e < out_sizes[k]; ++e) out[k][e] = double(out_long[k][e]);
+}
+#endif
 
 // A random configuration: unit quaternions at free and ball joints (any unit 4-vector is one, in either
 // convention's order), angles elsewhere.
@@ -50,10 +111,11 @@ std::vector<double> configuration(std::mt19937& gen) {
   return q;
 }
 
-// One op on n samples: the team of threads against the one-thread kernel; the largest difference, relative to the
-// largest entry of each output (infinite where either holds a number that is not finite). Inputs after q are normal
-// random numbers, of the sizes given (0: absent); the times its scale if given; the outputs are of the sizes given,
-// the last `scratch` of them a workspace (not compared); the integer arguments those given.
+// One op on n samples: the other run (a team of threads, or long double) against the one-thread kernel in double;
+// the largest difference, relative to the largest entry of each output (infinite where either holds a number that
+// is not finite). Inputs after q are normal random numbers, of the sizes given (0: absent); the times its scale if
+// given; the outputs are of the sizes given, the last `scratch` of them a workspace (not compared); the integer
+// arguments those given.
 template <template <class, class, int> class Op, int C>
 double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes, std::vector<int> iargs = {0}, int scratch = 0,
                std::vector<double> scales = {}) {
@@ -69,43 +131,23 @@ double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes, std
     }
     const double* in[tg::kMaxIn] = {};
     for (std::size_t k = 0; k < in_sizes.size(); ++k) in[k] = in_sizes[k] ? inputs[k].data() : nullptr;
-    std::vector<std::vector<double>> solo, team;
-    double* out_solo[tg::kMaxOut] = {};
-    double* out_team[tg::kMaxOut] = {};
+    std::vector<std::vector<double>> one, other;
+    double* out_one[tg::kMaxOut] = {};
+    double* out_other[tg::kMaxOut] = {};
     for (std::size_t k = 0; k < out_sizes.size(); ++k) {
-      solo.emplace_back(out_sizes[k], NAN);
-      team.emplace_back(out_sizes[k], NAN);
-      out_solo[k] = solo[k].data();
-      out_team[k] = team[k].data();
+      const double fill = k + scratch < out_sizes.size() ? NAN : SCRATCH;
+      one.emplace_back(out_sizes[k], fill);
+      other.emplace_back(out_sizes[k], fill);
+      out_one[k] = one[k].data();
+      out_other[k] = other[k].data();
     }
-    Bound::run(in, out_solo, iargs.data(), int(iargs.size()), false);
-    typename Bound::TeamWork w;
-    pthread_barrier_t barrier;
-    pthread_barrier_init(&barrier, nullptr, ThreadTeam::lanes);
-    std::vector<pthread_t> threads(ThreadTeam::lanes);
-    struct Lane {
-      ThreadTeam t;
-      typename Bound::TeamWork* w;
-      const double* const* in;
-      double* const* out;
-      const int* iargs;
-      int n_iargs;
-    };
-    std::vector<Lane> lanes;
-    for (int l = 0; l < ThreadTeam::lanes; ++l) lanes.push_back({{l, &barrier}, &w, in, out_team, iargs.data(), int(iargs.size())});
-    for (int l = 0; l < ThreadTeam::lanes; ++l)
-      pthread_create(&threads[l], nullptr, [](void* p) -> void* {
-        Lane* lane = static_cast<Lane*>(p);
-        Bound::run_team(lane->t, *lane->w, lane->in, lane->out, lane->iargs, lane->n_iargs);
-        return nullptr;
-      }, &lanes[l]);
-    for (pthread_t& t : threads) pthread_join(t, nullptr);
-    pthread_barrier_destroy(&barrier);
+    Bound::run(in, out_one, iargs.data(), int(iargs.size()), false);
+    other_run<Op, C>(in, out_other, iargs, in_sizes, out_sizes);
     for (std::size_t k = 0; k + scratch < out_sizes.size(); ++k) {
       double scale = 0, diff = 0;
       for (int e = 0; e < out_sizes[k]; ++e) {
-        scale = std::fmax(scale, std::fabs(solo[k][e]));
-        diff = std::isfinite(team[k][e]) && std::isfinite(solo[k][e]) ? std::fmax(diff, std::fabs(team[k][e] - solo[k][e])) : INFINITY;
+        scale = std::fmax(scale, std::fabs(one[k][e]));
+        diff = std::isfinite(other[k][e]) && std::isfinite(one[k][e]) ? std::fmax(diff, std::fabs(other[k][e] - one[k][e])) : INFINITY;
       }
       worst = std::fmax(worst, diff / scale);
     }
@@ -120,12 +162,18 @@ double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes, std
 // forces, and with the passive forces where the robot has them (for an Euler scheme, also with the damping implicit).
 template <int C> void compare_all(int n, const char* conv, bool& ok) {
   constexpr int NQ = Robot::NQ, NV = Robot::NV, NB = Robot::NB;
-  // Equal to 1e-13 relative where the team computes as the one thread does; to 1e-11 where it takes another road
+  // A team: equal to 1e-13 relative where it computes as the one thread does; to 1e-11 where it takes another road
   // (forward dynamics by M^-1 (tau - b), not by the articulated-body algorithm; a bias from the RNEA derivatives'
   // pass, not from the RNEA), whose rounding the steps' Jacobians amplify on ill-conditioned random states.
+  // Long double: finite (tests/test_teams.py holds each op to its bound).
   const auto report = [&](const char* op, double err, bool another_road = false) {
     std::printf("%s %s %.3g\n", op, conv, err);
+#ifdef TG_PRECISION
+    (void)another_road;
+    ok = ok && std::isfinite(err);
+#else
     ok = ok && err <= (another_road ? 1e-11 : 1e-13);
+#endif
   };
   report("inverse_dynamics", compare<tg::bind::InverseDynamics, C>(n, {NQ, NV, NV, 6 * NB, 0}, {NV}));
   report("forward_dynamics", compare<tg::bind::ForwardDynamics, C>(n, {NQ, NV, NV, 6 * NB, 0}, {NV}), true);
@@ -169,7 +217,9 @@ template <int C> void compare_all(int n, const char* conv, bool& ok) {
 
 int main(int argc, char** argv) {
   const int n = argc > 1 ? std::atoi(argv[1]) : 3;
+#ifndef TG_PRECISION
   skip_syncs = argc > 2 && std::string(argv[2]) == "--no-sync";
+#endif
   bool ok = true;
   compare_all<tg::PIN>(n, "pin", ok);
 #ifdef TG_MUJOCO

@@ -2,7 +2,9 @@
 (TORCH_GRID_CUDA_TEAMS=1), run here by 32 CPU threads with a barrier for the warp's sync (tests/team_harness.cpp)
 under ThreadSanitizer: no entry of the shared workspace or of the outputs is touched by two lanes without a sync
 between them, and the outputs equal the one-thread kernel's in both conventions. The harness is also run with its
-syncs left out, where ThreadSanitizer must report the races the syncs prevent."""
+syncs left out, where ThreadSanitizer must report the races the syncs prevent. Built for the CPU's own paths in
+double and long double (the same kernels, the robot's constants too), it also bounds how far each op's rounding
+leaves it from that computation with more bits."""
 from __future__ import annotations
 
 import os
@@ -27,16 +29,18 @@ RACE = 66  # the exit status ThreadSanitizer is told to use
 MJCF = {"trees": TREES, "damped_floating": DAMPED_FLOATING}
 
 
-def harness(name: str, directory: Path) -> Path:
-    """The harness for one saved robot model (or one of MJCF), built with ThreadSanitizer on its generated sources
-    (CPU paths of a GPU thread: TG_DEVICE_PATHS)."""
+def harness(name: str, directory: Path, precision: bool = False) -> Path:
+    """The harness for one saved robot model (or one of MJCF) on its generated sources: built with ThreadSanitizer
+    and the CPU paths of a GPU thread (TG_DEVICE_PATHS), or, with precision, the CPU's own paths against long
+    double (TG_PRECISION)."""
     if name in MJCF:
         (directory / f"{name}.xml").write_text(MJCF[name])
     model = source_to_model(str(directory / f"{name}.xml" if name in MJCF else MODELS / f"{name}.json"), None)
     namespace = op_namespace(model, True)
     codegen.write_robot_sources(model, True, False, namespace, directory)
-    exe = directory / "team_harness"
-    cmd = [os.environ.get("CXX", "c++"), "-std=c++17", "-O1", "-g", "-fsanitize=thread", "-pthread", "-DTG_DEVICE_PATHS",
+    exe = directory / ("precision_harness" if precision else "team_harness")
+    build = ["-O1", "-DTG_PRECISION"] if precision else ["-O1", "-g", "-fsanitize=thread", "-pthread", "-DTG_DEVICE_PATHS"]
+    cmd = [os.environ.get("CXX", "c++"), "-std=c++17", *build,
            f"-DTG_NAMESPACE={namespace}", *(["-DTG_MUJOCO"] if model.conventions_differ else []),
            f"-I{CSRC}", f"-I{directory}", str(HERE / "team_harness.cpp"), "-o", str(exe)]
     subprocess.run(cmd, check=True, capture_output=True, text=True, timeout=600)
@@ -48,14 +52,8 @@ def run(exe: Path, *args: str) -> subprocess.CompletedProcess:
     return subprocess.run([str(exe), *args], capture_output=True, text=True, timeout=600, env=env)
 
 
-# go2: a free root; the humanoid: bodies of several joints, damped and sprung; iiwa14: a fixed base (one
-# convention); and the MJCF robots above
-@pytest.mark.parametrize("name", ["go2", "humanoid", "iiwa14", *MJCF])
-def test_a_warp_of_threads_computes_what_one_thread_computes_without_a_race(name, tmp_path):
-    exe = harness(name, tmp_path)
-    result = run(exe, "3")
-    assert result.returncode == 0, result.stdout + result.stderr[-4000:]
-    lines = dict(line.rsplit(" ", 1) for line in result.stdout.splitlines())
+def expected_lines(name: str) -> list[str]:
+    """The "op convention" of each line the harness prints for a robot, sorted."""
     conventions = ["pin", "mujoco"] if name != "iiwa14" else ["pin"]
     ops = ["inverse_dynamics", "forward_dynamics", "crba", "minv", "inverse_dynamics_derivatives", "forward_dynamics_derivatives"]
     expected = [f"{op} {c}" for op in ops for c in conventions] + ["inverse_dynamics_second_derivatives pin"]
@@ -65,12 +63,42 @@ def test_a_warp_of_threads_computes_what_one_thread_computes_without_a_race(name
     expected += [f"step[{s}] {c}" for s in schemes + tableaux for c in conventions]
     expected += [f"step_derivatives[{s}] {c}" for s in schemes for c in conventions]
     expected += [f"rk_step_derivatives[{t}] {c}" for t in tableaux for c in conventions]
-    assert sorted(lines) == sorted(expected), result.stdout
+    return sorted(expected)
+
+
+# go2: a free root; the humanoid: bodies of several joints, damped and sprung; iiwa14: a fixed base (one
+# convention); and the MJCF robots above
+@pytest.mark.parametrize("name", ["go2", "humanoid", "iiwa14", *MJCF])
+def test_a_warp_of_threads_computes_what_one_thread_computes_without_a_race(name, tmp_path):
+    exe = harness(name, tmp_path)
+    result = run(exe, "3")
+    assert result.returncode == 0, result.stdout + result.stderr[-4000:]
+    lines = dict(line.rsplit(" ", 1) for line in result.stdout.splitlines())
+    assert sorted(lines) == expected_lines(name), result.stdout
     # equal to rounding where the team takes another road (team_harness.cpp): forward dynamics by M^-1 (tau - b),
     # a bias from the RNEA derivatives' pass
     another_road = ("forward_dynamics ", "step[", "rk_step_derivatives[")
     assert all(float(err) <= (1e-11 if op.startswith(another_road) or ",damped" in op else 1e-13)
                for op, err in lines.items()), result.stdout
+
+
+# How far from long double each op may be, relative to its largest entry: the rounding of M^-1 grows with M's
+# condition number, and derivatives through it more (on G1's worst of 40 random states 6.5e-12, rk4's Jacobians)
+def precision_bound(op: str) -> float:
+    if op.startswith(("forward_dynamics_derivatives", "step_derivatives[", "rk_step_derivatives[")):
+        return 1e-10
+    if op.startswith(("forward_dynamics", "minv", "step[")):
+        return 1e-12
+    return 1e-13
+
+
+@pytest.mark.parametrize("name", ["go2", "humanoid", "iiwa14", "g1", *MJCF])
+def test_the_kernels_round_as_little_as_long_double_shows(name, tmp_path):
+    result = run(harness(name, tmp_path, precision=True), "3")
+    assert result.returncode == 0, result.stdout + result.stderr[-4000:]
+    lines = dict(line.rsplit(" ", 1) for line in result.stdout.splitlines())
+    assert sorted(lines) == expected_lines(name), result.stdout
+    assert all(float(err) <= precision_bound(op) for op, err in lines.items()), result.stdout
 
 
 def test_the_harness_reports_the_races_that_the_syncs_prevent(tmp_path):

@@ -150,6 +150,9 @@ __constant__ RobotData<float> kDeviceData32 = TG_ROBOT_DATA;
 #endif
 constexpr RobotData<double> kHostData64 = TG_ROBOT_DATA;
 constexpr RobotData<float> kHostData32 = TG_ROBOT_DATA;
+#if !defined(__CUDACC__)
+constexpr RobotData<long double> kHostDataLong = TG_ROBOT_DATA;  // the kernels in extended precision: an accuracy reference
+#endif
 #undef TG_ROBOT_DATA
 
 struct Robot {{
@@ -157,7 +160,7 @@ struct Robot {{
   static constexpr int NFREE = {sum(x.type == 'free' for x in model.joints)};  // free joints (tree roots)
   static constexpr bool BALLS = {'true' if any(x.type == 'ball' for x in model.joints) else 'false'};
   static constexpr bool PASSIVE = {'true' if any(x.damping or x.stiffness for x in model.joints) else 'false'};
-  // The constants as float or double (tg::data<Robot, Scalar>() picks the kernel's own precision).
+  // The constants as float, double or (host C++ alone) long double: tg::data<Robot, Scalar>() picks the kernel's own.
   template <class T> TG_HD static const RobotData<T>& data() {{
     if constexpr (sizeof(T) == sizeof(double)) {{
 #if defined(__CUDA_ARCH__)
@@ -165,11 +168,15 @@ struct Robot {{
 #else
       return kHostData64;
 #endif
-    }} else {{
+    }} else if constexpr (sizeof(T) == sizeof(float)) {{
 #if defined(__CUDA_ARCH__)
       return kDeviceData32;
 #else
       return kHostData32;
+#endif
+    }} else {{
+#if !defined(__CUDACC__)
+      return kHostDataLong;
 #endif
     }}
   }}
