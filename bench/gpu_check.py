@@ -2,6 +2,7 @@
 the same machine and measures the first GPU figures.
 
     python3 bench/gpu_check.py [--cpu] [--budget 480] [--out DIR] [--robots iiwa14 go2 g1 humanoid gripper]
+                               [--skip STAGE ... | --only STAGE ...]
 
 It needs no Pinocchio or MuJoCo: the robots are the saved models in bench/gpu/models (written by
 bench/gpu_prebuild.py, which also compiles their CUDA units ahead into .gpu/prebuilt.tar.xz; when that
@@ -45,6 +46,9 @@ from gpu_models import MODELS, MODELS_DIR  # noqa: E402
 
 PREBUILT = ROOT / ".gpu" / "prebuilt.tar.xz"
 PER_ROBOT = ("values", "batches", "gradients", "parameters", "teams")
+# every stage --skip and --only name (the builds always run)
+STAGES = (*PER_ROBOT, "device", "probe", "refusal", "reservation", "cuda-gdb", "resources", "memcheck", "initcheck", "ncu",
+          "racecheck", "mpc", "figures")
 
 
 # -- one stage, in its own process ----------------------------------------------------------------
@@ -199,13 +203,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--budget", type=float, default=480.0, help="seconds for the whole check")
     parser.add_argument("--out", default=os.environ.get("OUT") or str(HERE / "gpu"))
     parser.add_argument("--robots", nargs="+", default=list(MODELS), choices=list(MODELS))
-    parser.add_argument("--skip", nargs="*", default=[], help="stages to leave out")
+    parser.add_argument("--skip", nargs="*", default=[], choices=STAGES, help="stages to leave out")
+    parser.add_argument("--only", nargs="*", choices=STAGES, help="the stages to run (and the builds), the others left out")
     parser.add_argument("--stage", help=argparse.SUPPRESS)
     parser.add_argument("--robot", help=argparse.SUPPRESS)
     parser.add_argument("--threads", type=int, default=0, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.stage:
         return run_stage(args.stage, args.robot, args.cpu, args.threads or os.cpu_count() or 1)
+    if args.only is not None:
+        args.skip = [s for s in STAGES if s not in args.only or s in args.skip]
 
     deadline = time.monotonic() + args.budget
     out = Path(args.out)

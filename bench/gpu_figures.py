@@ -104,11 +104,13 @@ def _cpu_seconds(fn, target: float = 0.1) -> tuple[float, float]:
 
 def timings(robots: dict, device: torch.device, sizes: list[int], cpu_sizes: list[int], meta: dict,
             dtypes=(torch.float64, torch.float32)) -> None:
-    """One FIGURE line per (robot, op, dtype, batch) on the device and on the CPU build."""
+    """One FIGURE line per (robot, op, dtype, batch) on the device and on the CPU build: every robot's figures of the
+    first dtype (float64, the targets') before any of the next, so that a stage cut short by its time limit has
+    them."""
     cpu_label = f"CPU build, {torch.get_num_threads()} threads ({meta['device']} machine)"
-    for name, robot in robots.items():
-        view = robot.pin
-        for dtype in dtypes:
+    for dtype in dtypes:
+        for name, robot in robots.items():
+            view = robot.pin
             base = on(states(view, max(sizes + cpu_sizes), seed=11)[:3], "cpu", dtype)
             for op, call in OPS.items():
                 per_sample = OUTPUTS.get(TEAMS.get(op, op), lambda nv: 0)(robot.nv) * (8 if dtype == torch.float64 else 4)
