@@ -112,10 +112,10 @@ std::vector<double> configuration(std::mt19937& gen) {
 }
 
 // One op on n samples: the other run (a team of threads, or long double) against the one-thread kernel in double;
-// the largest difference, relative to the largest entry of each output (infinite where either holds a number that
-// is not finite). Inputs after q are normal random numbers, of the sizes given (0: absent); the times its scale if
-// given; the outputs are of the sizes given, the last `scratch` of them a workspace (not compared); the integer
-// arguments those given.
+// the largest difference, relative to the largest entry of each output, or absolute where that is below 1 (an
+// output zero but for rounding); infinite where either holds a number that is not finite. Inputs after q are normal
+// random numbers, of the sizes given (0: absent); the times its scale if given; the outputs are of the sizes given,
+// the last `scratch` of them a workspace (not compared); the integer arguments those given.
 template <template <class, class, int> class Op, int C>
 double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes, std::vector<int> iargs = {0}, int scratch = 0,
                std::vector<double> scales = {}) {
@@ -149,19 +149,23 @@ double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes, std
         scale = std::fmax(scale, std::fabs(one[k][e]));
         diff = std::isfinite(other[k][e]) && std::isfinite(one[k][e]) ? std::fmax(diff, std::fabs(other[k][e] - one[k][e])) : INFINITY;
       }
-      worst = std::fmax(worst, diff / scale);
+      worst = std::fmax(worst, diff / std::fmax(scale, 1.0));
     }
   }
   return worst;
 }
+
+#ifdef TG_PRECISION
+#include "precision_ops.h"  // compare_table: every kernel of the op table (tests/precision_table.py)
+#endif
 
 // Every op with a team path, in convention C: inverse_dynamics, forward_dynamics, crba, minv and
 // inverse_dynamics_derivatives (those with forces, with external forces), and forward_dynamics_derivatives
 // (without); inverse_dynamics_second_derivatives (with external forces) has Pinocchio's convention alone, and
 // step (every integrator), step_derivatives (both Euler schemes) and rk_step_derivatives (each tableau), with external
 // forces, and with the passive forces where the robot has them (for an Euler scheme, also with the damping implicit).
+// With TG_PRECISION, every kernel of the op table instead (compare_table).
 template <int C> void compare_all(int n, const char* conv, bool& ok) {
-  constexpr int NQ = Robot::NQ, NV = Robot::NV, NB = Robot::NB;
   // A team: equal to 1e-13 relative where it computes as the one thread does; to 1e-11 where it takes another road
   // (forward dynamics by M^-1 (tau - b), not by the articulated-body algorithm; a bias from the RNEA derivatives'
   // pass, not from the RNEA), whose rounding the steps' Jacobians amplify on ill-conditioned random states.
@@ -175,6 +179,10 @@ template <int C> void compare_all(int n, const char* conv, bool& ok) {
     ok = ok && err <= (another_road ? 1e-11 : 1e-13);
 #endif
   };
+#ifdef TG_PRECISION
+  compare_table<C>(n, report);
+#else
+  constexpr int NQ = Robot::NQ, NV = Robot::NV, NB = Robot::NB;
   report("inverse_dynamics", compare<tg::bind::InverseDynamics, C>(n, {NQ, NV, NV, 6 * NB, 0}, {NV}));
   report("forward_dynamics", compare<tg::bind::ForwardDynamics, C>(n, {NQ, NV, NV, 6 * NB, 0}, {NV}), true);
   report("crba", compare<tg::bind::Crba, C>(n, {NQ, 0}, {NV * NV}));
@@ -213,6 +221,7 @@ template <int C> void compare_all(int n, const char* conv, bool& ok) {
     report("inverse_dynamics_second_derivatives",
            compare<tg::bind::InverseDynamicsSecondDerivatives, C>(n, {NQ, NV, NV, 6 * NB, 0}, {N3, N3, N3, N3}));
   }
+#endif
 }
 
 int main(int argc, char** argv) {

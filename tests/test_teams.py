@@ -3,8 +3,9 @@
 under ThreadSanitizer: no entry of the shared workspace or of the outputs is touched by two lanes without a sync
 between them, and the outputs equal the one-thread kernel's in both conventions. The harness is also run with its
 syncs left out, where ThreadSanitizer must report the races the syncs prevent. Built for the CPU's own paths in
-double and long double (the same kernels, the robot's constants too), it also bounds how far each op's rounding
-leaves it from that computation with more bits."""
+double and long double (the same kernels, the robot's constants too) with every kernel of the op table
+(tests/precision_table.py), it also bounds how far each kernel's rounding leaves it from that computation with
+more bits."""
 from __future__ import annotations
 
 import os
@@ -17,6 +18,7 @@ from torch_grid.model.parse import source_to_model
 from torch_grid.ops import codegen
 from torch_grid.ops.build import CSRC, op_namespace
 
+import precision_table
 from mjcf_models import DAMPED_FLOATING, TREES
 
 HERE = Path(__file__).resolve().parent
@@ -29,15 +31,22 @@ RACE = 66  # the exit status ThreadSanitizer is told to use
 MJCF = {"trees": TREES, "damped_floating": DAMPED_FLOATING}
 
 
+def model_of(name: str, directory: Path):
+    """One saved robot model, or one of MJCF (written into directory)."""
+    if name in MJCF:
+        (directory / f"{name}.xml").write_text(MJCF[name])
+    return source_to_model(str(directory / f"{name}.xml" if name in MJCF else MODELS / f"{name}.json"), None)
+
+
 def harness(name: str, directory: Path, precision: bool = False) -> Path:
     """The harness for one saved robot model (or one of MJCF) on its generated sources: built with ThreadSanitizer
     and the CPU paths of a GPU thread (TG_DEVICE_PATHS), or, with precision, the CPU's own paths against long
     double (TG_PRECISION)."""
-    if name in MJCF:
-        (directory / f"{name}.xml").write_text(MJCF[name])
-    model = source_to_model(str(directory / f"{name}.xml" if name in MJCF else MODELS / f"{name}.json"), None)
+    model = model_of(name, directory)
     namespace = op_namespace(model, True)
     codegen.write_robot_sources(model, True, False, namespace, directory)
+    if precision:
+        (directory / "precision_ops.h").write_text(precision_table.table_calls(model))
     exe = directory / ("precision_harness" if precision else "team_harness")
     build = ["-O1", "-DTG_PRECISION"] if precision else ["-O1", "-g", "-fsanitize=thread", "-pthread", "-DTG_DEVICE_PATHS"]
     cmd = [os.environ.get("CXX", "c++"), "-std=c++17", *build,
@@ -82,22 +91,25 @@ def test_a_warp_of_threads_computes_what_one_thread_computes_without_a_race(name
                for op, err in lines.items()), result.stdout
 
 
-# How far from long double each op may be, relative to its largest entry: the rounding of M^-1 grows with M's
-# condition number, and derivatives through it more (on G1's worst of 40 random states 6.5e-12, rk4's Jacobians)
-def precision_bound(op: str) -> float:
-    if op.startswith(("forward_dynamics_derivatives", "step_derivatives[", "rk_step_derivatives[")):
-        return 1e-10
-    if op.startswith(("forward_dynamics", "minv", "step[")):
-        return 1e-12
-    return 1e-13
+# How far from long double each kernel may be, relative to its output's largest entry: derivatives through M^-1
+# (forward dynamics', the steps') and the operational-space inertia (J M^-1 J^T)^-1 grow with a condition number
+# (on G1's worst of 40 random states, rk4's Jacobians 6.5e-12); everything else stays near the rounding of its inputs.
+ILL_CONDITIONED = ("forward_dynamics_derivatives", "forward_dynamics_external_force_derivatives",
+                   "forward_dynamics_parameter_derivatives", "step_derivatives", "rk_step_derivatives", "osc_inertia")
 
 
+def precision_bound(line: str) -> float:
+    """The bound of a line's "label convention" (an op's name, its integer arguments in brackets)."""
+    return 1e-10 if line.split(" ")[0].split("[")[0] in ILL_CONDITIONED else 1e-12
+
+
+# every kernel of the op table (tests/precision_table.py) on the robots above and G1
 @pytest.mark.parametrize("name", ["go2", "humanoid", "iiwa14", "g1", *MJCF])
-def test_the_kernels_round_as_little_as_long_double_shows(name, tmp_path):
+def test_every_kernel_rounds_as_little_as_long_double_shows(name, tmp_path):
     result = run(harness(name, tmp_path, precision=True), "3")
     assert result.returncode == 0, result.stdout + result.stderr[-4000:]
     lines = dict(line.rsplit(" ", 1) for line in result.stdout.splitlines())
-    assert sorted(lines) == expected_lines(name), result.stdout
+    assert sorted(lines) == precision_table.expected_lines(model_of(name, tmp_path)), result.stdout
     assert all(float(err) <= precision_bound(op) for op, err in lines.items()), result.stdout
 
 
