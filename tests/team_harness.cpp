@@ -30,6 +30,8 @@ using Robot = TG_NAMESPACE::Robot;
 // A workspace output's first value: the GPU's code paths never read an entry of it they did not write, so NaN there
 // never shows; the CPU's, whose Runge-Kutta step reads some as zeros, get it as the glue hands it over, zeroed.
 constexpr double SCRATCH = NAN;
+// A difference is relative to the output's largest entry: a team computes what one thread computes, zeros included.
+constexpr double FLOOR = 0;
 bool skip_syncs = false;
 
 struct ThreadTeam {
@@ -73,6 +75,9 @@ void other_run(const double* const* in, double* const* out, std::vector<int>& ia
 }
 #else
 constexpr double SCRATCH = 0;
+// A difference is relative to the output's largest entry, or absolute where that is below 1: an output zero but for
+// rounding (a frame's own Jacobian rate in its local frame) is noise of 1e-16 in double and of 1e-20 in long double.
+constexpr double FLOOR = 1;
 
 // The other run: the one-thread kernel in long double, its outputs rounded to double.
 template <template <class, class, int> class Op, int C>
@@ -112,8 +117,8 @@ std::vector<double> configuration(std::mt19937& gen) {
 }
 
 // One op on n samples: the other run (a team of threads, or long double) against the one-thread kernel in double;
-// the largest difference, relative to the largest entry of each output, or absolute where that is below 1 (an
-// output zero but for rounding); infinite where either holds a number that is not finite. Inputs after q are normal
+// the largest difference, relative to the largest entry of each output (below FLOOR, to FLOOR); infinite where
+// either holds a number that is not finite. Inputs after q are normal
 // random numbers, of the sizes given (0: absent); the times its scale if given; the outputs are of the sizes given,
 // the last `scratch` of them a workspace (not compared); the integer arguments those given.
 template <template <class, class, int> class Op, int C>
@@ -149,7 +154,7 @@ double compare(int n, std::vector<int> in_sizes, std::vector<int> out_sizes, std
         scale = std::fmax(scale, std::fabs(one[k][e]));
         diff = std::isfinite(other[k][e]) && std::isfinite(one[k][e]) ? std::fmax(diff, std::fabs(other[k][e] - one[k][e])) : INFINITY;
       }
-      worst = std::fmax(worst, diff / std::fmax(scale, 1.0));
+      worst = std::fmax(worst, diff / std::fmax(scale, FLOOR));
     }
   }
   return worst;
