@@ -368,7 +368,8 @@ def updated_results(results: str, cpu_section: str, stack: list[str] | None) -> 
     lines = results.splitlines(keepends=True)
     heading = next((k for k, line in enumerate(lines) if line.startswith("## CPU, ")), None)
     if heading is None:
-        head = "".join(lines) or "# Benchmark results\n\nProduced by `python bench/bench_cpu.py --write` and the other benchmarks.\n\n"
+        head = "".join(lines) or ("# Benchmark results\n\nThe CPU section and the CUDA resources table are produced by "
+                                  "`python bench/bench_cpu.py --write [--cuda]`;\nthe other sections by the benchmarks they name.\n")
         lines = (head.rstrip("\n") + "\n\n" + cpu_section.rstrip("\n") + "\n").splitlines(keepends=True)
     else:
         end = next((k for k in range(heading + 1, len(lines)) if lines[k].startswith("## ")), len(lines))
