@@ -231,27 +231,41 @@ TG_HD void forward_dynamics_derivatives(const Team& t, ForwardDynamicsDerivative
 // implicitly (mj_Euler), p the passive forces (passive.h). Differentiating ID(q, qd, qdd) + dt D qdd - p = tau
 // at that qdd, with H = M + dt D: dqdd/dx = -H^-1 (dID/dx - dp/dx), dqdd/dtau = H^-1. H is factored in the
 // convention (H_c = G H G^T, D being zero on free joints), as a Runge-Kutta stage's M (rk_stage).
-// damped_acceleration: H, factored (ltdl_factor), and qdd in Pinocchio's convention.
+// H = G M G^T + h D in the convention (M as crba leaves it; D the joint damping, zero on free joints, so that
+// G D G^T = D), factored in place (ltdl_factor): MuJoCo's Euler step's M + dt D, a Runge-Kutta stage's M (h = 0).
+template <class Robot, class Scalar, int C> TG_HD void factor_mass(const Conv<Robot, Scalar, C>& cv, Scalar h, Scalar* H) {
+  constexpr int NV = Robot::NV;
+  const auto& d = data<Robot, Scalar>();
+  cv.congruence_out(H);
+  for (int k = 0; k < NV; ++k) H[(NV + 1) * k] += h * Scalar(d.damping[k]);
+  ltdl_factor<Robot, Scalar>(H);
+}
+
+// qdd = G^T H_c^-1 G f, H_c factored by factor_mass and f a generalized force, both in Pinocchio's convention: f
+// overwritten; qdd may be f itself.
+template <class Robot, class Scalar, int C> TG_HD void solve_mass(const Conv<Robot, Scalar, C>& cv, const Scalar* H, Scalar* f, Scalar* qdd) {
+  cv.force_out(f);
+  ltdl_solve<Robot, Scalar>(H, f);
+  const Scalar* const a = cv.velocity(f, qdd);  // in place where it converts
+  if (a != qdd)
+    for (int k = 0; k < Robot::NV; ++k) qdd[k] = a[k];
+}
+
+// damped_acceleration: H, factored (factor_mass), and qdd in Pinocchio's convention.
 template <class Robot, class Scalar, int C>
 TG_HD void damped_acceleration(const Placements<Robot, Scalar>& K, const Conv<Robot, Scalar, C>& cv, const Scalar* q, const Scalar* qd,
                                const Scalar* tau, const Scalar* fext, Scalar h, Scalar* H, Scalar* qdd,
                                const InertialParameters<Robot, Scalar>& pi = {}) {
   constexpr int NV = Robot::NV;
-  const auto& d = data<Robot, Scalar>();
-  Scalar f[NV], zero[NV], buf[Conv<Robot, Scalar, C>::active ? NV : 1];
+  Scalar f[NV], zero[NV];
   crba<Robot, Scalar>(K, H, pi);
-  cv.congruence_out(H);
-  for (int k = 0; k < NV; ++k) H[(NV + 1) * k] += h * Scalar(d.damping[k]);
-  ltdl_factor<Robot, Scalar>(H);
-  // f = tau + p - b, then H_c^-1 G f = G qdd
+  factor_mass<Robot, Scalar>(cv, h, H);
+  // f = tau + p - b, then qdd = H^-1 f
   for (int k = 0; k < NV; ++k) zero[k] = Scalar(0);
   rnea<Robot, Scalar>(K, qd, zero, fext, f, pi);
   for (int k = 0; k < NV; ++k) f[k] = tau[k] - f[k];
   add_passive<Robot, Scalar>(q, qd, f);
-  cv.force_out(f);
-  ltdl_solve<Robot, Scalar>(H, f);
-  const Scalar* a = cv.velocity(f, buf);  // G^T
-  for (int k = 0; k < NV; ++k) qdd[k] = a[k];
+  solve_mass<Robot, Scalar>(cv, H, f, qdd);
 }
 
 // A team's shared workspace for damped_acceleration: the world placements, H and tau + p - b, crba's axes and then,
@@ -273,23 +287,15 @@ TG_HD void damped_acceleration(const Team& t, DampedAccelerationTeamWork<Robot, 
                                const Scalar* qd, const Scalar* tau, const Scalar* fext, Scalar h, Scalar* qdd,
                                const InertialParameters<Robot, Scalar>& pi = {}) {
   constexpr int NV = Robot::NV;
-  const auto& d = data<Robot, Scalar>();
   world_placements<Robot, Scalar>(t, q, w.oMi);
   crba<Robot, Scalar>(t, w.oMi, w.crba, w.H, pi);
-  if (t.leader()) {
-    cv.congruence_out(w.H);
-    for (int k = 0; k < NV; ++k) w.H[(NV + 1) * k] += h * Scalar(d.damping[k]);
-    ltdl_factor<Robot, Scalar>(w.H);
-  }
+  if (t.leader()) factor_mass<Robot, Scalar>(cv, h, w.H);
   rnea<Robot, Scalar>(t, w.oMi, w.bias, qd, nullptr, fext, w.f, pi);
-  // f = tau + p - b, then H_c^-1 G f = G qdd
+  // f = tau + p - b, then qdd = H^-1 f
   if (t.leader()) {
     for (int k = 0; k < NV; ++k) w.f[k] = tau[k] - w.f[k];
     add_passive<Robot, Scalar>(q, qd, w.f);
-    cv.force_out(w.f);
-    ltdl_solve<Robot, Scalar>(w.H, w.f);
-    const Scalar* const a = cv.velocity(w.f, qdd);  // G^T
-    for (int k = 0; k < NV; ++k) qdd[k] = a[k];
+    solve_mass<Robot, Scalar>(cv, w.H, w.f, qdd);
   }
   t.sync();
 }
@@ -330,7 +336,7 @@ template <class Robot, class Scalar> struct FactoredDynamicsTeamWork {
 // The forward dynamics and inverse-dynamics derivatives at (q, qd, tau) by team t, as a Runge-Kutta stage
 // (rk_stage) and the damped Euler step (damped_acceleration) compute them one thread a sample: H = M + h D (h = 0:
 // M itself) in the convention, by crba's team path, in memory of the caller's, factored by the leader
-// (ltdl_factor); the bias b from the RNEA derivatives' pass at qdd = 0; qdd = H^-1 (tau (+ p) - b) by the leader
+// (factor_mass); the bias b from the RNEA derivatives' pass at qdd = 0; qdd = H^-1 (tau (+ p) - b) by the leader
 // (in Pinocchio's convention, into w.rnea.qdd); the pass moved to qdd and dq, dqd the derivatives of ID (- p) there,
 // in the convention. All written when every lane returns.
 template <class Robot, class Scalar, int C, class Team>
@@ -345,23 +351,18 @@ TG_HD void factored_dynamics_derivatives(const Team& t, FactoredDynamicsTeamWork
   world_placements<Robot, Scalar>(t, q, w.oMi);
   crba<Robot, Scalar>(t, w.oMi, w.crba, H, pi);
   if (t.leader()) {
-    cv.congruence_out(H);
-    for (int k = 0; k < NV; ++k) H[(NV + 1) * k] += h * Scalar(d.damping[k]);
-    ltdl_factor<Robot, Scalar>(H);
+    factor_mass<Robot, Scalar>(cv, h, H);
     for (int k = 0; k < NV; ++k) qdd[k] = Scalar(0);
   }
   t.sync();
   rnea_derivatives_setup<Robot, Scalar>(t, w.oMi, qd, qdd, fext, W, pi);
-  // r = tau - b, then, by the leader, H_c^-1 G (r + p) = G qdd
+  // r = tau - b, then, by the leader, qdd = H^-1 (r + p)
   for (const int i : t.items(0, Robot::NB))
     for (int l = 0; l < d.nvj[i]; ++l) r[d.vi[i] + l] = tau[d.vi[i] + l] - dot(W.s[d.vi[i] + l], W.F[i]);
   t.sync();
   if (t.leader()) {
     if (passive) add_passive<Robot, Scalar>(q, qd, r);
-    cv.force_out(r);
-    ltdl_solve<Robot, Scalar>(H, r);
-    const Scalar* const a = cv.velocity(r, qdd);  // G^T
-    for (int k = 0; k < NV; ++k) qdd[k] = a[k];
+    solve_mass<Robot, Scalar>(cv, H, r, qdd);
     rnea_derivatives_accelerate<Robot, Scalar>(qdd, W);
   }
   t.sync();

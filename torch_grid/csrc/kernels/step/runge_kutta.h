@@ -128,24 +128,19 @@ TG_HD void rk_stage(const Conv<Robot, Scalar, C>& cs, const Scalar* v, const Sca
                     Scalar* acc, const InertialParameters<Robot, Scalar>& pi = {}) {
   constexpr int NV = Robot::NV;
   const Placements<Robot, Scalar> K(cs.q);
-  Scalar zero[NV], buf[Conv<Robot, Scalar, C>::active ? NV : 1];
+  Scalar zero[NV];
   crba<Robot, Scalar>(K, H, pi);
-  cs.congruence_out(H);
-  ltdl_factor<Robot, Scalar>(H);
+  factor_mass<Robot, Scalar>(cs, Scalar(0), H);
   for (int k = 0; k < NV; ++k) zero[k] = Scalar(0);
   rnea<Robot, Scalar>(K, v, zero, fext, acc, pi);
   for (int k = 0; k < NV; ++k) acc[k] = tau[k] - acc[k];
   if (passive) add_passive<Robot, Scalar>(cs.q, v, acc);
-  cs.force_out(acc);
-  ltdl_solve<Robot, Scalar>(H, acc);
-  const Scalar* qdd = cs.velocity(acc, buf);  // G^T
+  solve_mass<Robot, Scalar>(cs, H, acc, acc);  // qdd, in Pinocchio's convention until the end
   // Read on the tree's entries alone, the rest left as they were (zero), except in the convention: its reframe
   // writes a free joint's rows and columns whole, so a non-finite sample would leave them NaN for the next one.
   constexpr bool reframed = Conv<Robot, Scalar, C>::active;
-  inverse_dynamics_derivatives<Robot, Scalar, C, reframed>(K, v, qdd, fext, cs, Dq, Dv, pi);
+  inverse_dynamics_derivatives<Robot, Scalar, C, reframed>(K, v, acc, fext, cs, Dq, Dv, pi);
   if (passive) add_passive_diagonals<Robot, Scalar>(Dq, Dv);
-  if (qdd != acc)
-    for (int k = 0; k < NV; ++k) acc[k] = qdd[k];
   cs.acceleration_out(v, acc);
 }
 
@@ -194,29 +189,54 @@ TG_HD void rk_combine(const RkTableau& T, Scalar h, const Scalar* v0, const Scal
   }
 }
 
+// The stages' values: qd and tau in the call's convention, each stage's acceleration and carried velocity, u_i and
+// v_i (S of them: the current stage's alone for the step's values, each stage's for its Jacobians, whose reverse
+// pass reads them again), q_i, and the step's tangent increment u'.
+template <class Robot, class Scalar, int S> struct RkStages {
+  static constexpr int NV = Robot::NV;
+  Scalar v0[NV], tau_c[NV], acc[4][NV], car[4][NV], u[S][NV], v[S][NV], qs[Robot::NQ], un[NV];
+};
+
+// The stages in order, by team t (Solo: one thread): stage i's state by the leader (rk_stage_state), then its
+// dynamics, stage(i, cs, v, f) at cs = Conv(q_i) with v_i and tau in Pinocchio's convention (converted by the
+// leader, into vp and tp (NV each) where the conventions differ; read by the leader alone), which sets acc[i];
+// then u' and qd' by the leader (rk_combine). qd and tau in Pinocchio's convention, as cv takes them.
+template <class Robot, class Scalar, int C, int S, class Team, class Stage>
+TG_HD void rk_stages(const Team& t, RkStages<Robot, Scalar, S>& w, const Conv<Robot, Scalar, C>& cv, const Scalar* qd, const Scalar* tau,
+                     const RkTableau& T, Scalar h, Scalar* vp, Scalar* tp, Scalar* qd_next, Stage&& stage) {
+  if (t.leader()) {
+    for (int k = 0; k < Robot::NV; ++k) w.v0[k] = qd[k], w.tau_c[k] = tau[k];
+    cv.velocity_out(w.v0);
+    cv.force_out(w.tau_c);
+  }
+  for (int i = 0; i < T.stages; ++i) {
+    Scalar* const u = w.u[S == 1 ? 0 : i];
+    Scalar* const v = w.v[S == 1 ? 0 : i];
+    if (t.leader()) rk_stage_state<Robot, Scalar, C>(cv.q, T, i, h, w.v0, w.acc, w.car, u, v, w.qs);
+    t.sync();
+    if (i == 0) {
+      stage(0, cv, qd, tau);
+    } else {
+      const Conv<Robot, Scalar, C> cs(w.qs);
+      stage(i, cs, t.leader() ? cs.velocity(v, vp) : v, t.leader() ? cs.force(w.tau_c, tp) : w.tau_c);
+    }
+  }
+  if (t.leader()) rk_combine<Robot::NV>(T, h, w.v0, w.acc, w.car, w.un, qd_next);
+}
+
 // The step alone, without its Jacobians (rk_step below): the same stages, each acceleration by ABA. cv at q, qd and
 // tau in Pinocchio's convention; q_next (NQ) and qd_next (NV) in the call's.
 template <class Robot, class Scalar, int C>
 TG_HD void rk_step_values(const Conv<Robot, Scalar, C>& cv, const Scalar* qd, const Scalar* tau, const Scalar* fext, Scalar h, int scheme,
                           bool passive, Scalar* q_next, Scalar* qd_next, const InertialParameters<Robot, Scalar>& pi = {}) {
-  constexpr int NV = Robot::NV;
-  const RkTableau T = rk_tableau(scheme);
-  Scalar v0[NV], tau_c[NV], acc[4][NV], car[4][NV], u[NV], v[NV], qs[Robot::NQ], un[NV];
-  for (int k = 0; k < NV; ++k) v0[k] = qd[k], tau_c[k] = tau[k];
-  cv.velocity_out(v0);
-  cv.force_out(tau_c);
-  for (int i = 0; i < T.stages; ++i) {
-    rk_stage_state<Robot, Scalar, C>(cv.q, T, i, h, v0, acc, car, u, v, qs);
-    if (i == 0) {
-      rk_stage_acceleration<Robot, Scalar, C>(cv, qd, tau, fext, passive, acc[0], pi);
-    } else {
-      const Conv<Robot, Scalar, C> cs(qs);
-      Scalar vb[Conv<Robot, Scalar, C>::active ? NV : 1], tb[Conv<Robot, Scalar, C>::active ? NV : 1];
-      rk_stage_acceleration<Robot, Scalar, C>(cs, cs.velocity(v, vb), cs.force(tau_c, tb), fext, passive, acc[i], pi);
-    }
-  }
-  rk_combine<NV>(T, h, v0, acc, car, un, qd_next);
-  for (int jn = 0; jn < Robot::NB; ++jn) integrate_joint<Robot, Scalar, C>(jn, cv.q, un, q_next, nullptr, nullptr);
+  constexpr int NC = Conv<Robot, Scalar, C>::active ? Robot::NV : 1;
+  RkStages<Robot, Scalar, 1> w;
+  Scalar vp[NC], tp[NC];
+  rk_stages<Robot, Scalar>(Solo{}, w, cv, qd, tau, rk_tableau(scheme), h, vp, tp, qd_next,
+                           [&](int i, const Conv<Robot, Scalar, C>& cs, const Scalar* v, const Scalar* f) __attribute__((always_inline)) {
+                             rk_stage_acceleration<Robot, Scalar, C>(cs, v, f, fext, passive, w.acc[i], pi);
+                           });
+  for (int jn = 0; jn < Robot::NB; ++jn) integrate_joint<Robot, Scalar, C>(jn, cv.q, w.un, q_next, nullptr, nullptr);
 }
 
 // rk_step's workspace (8 NV x 3 NV) for s stages: each stage's D_q, D_v and M's factor (NV x NV each), slots of
@@ -339,25 +359,14 @@ TG_HD void rk_step(const Conv<Robot, Scalar, C>& cv, const Scalar* qd, const Sca
   const int s = T.stages;
   const RkWorkspace<NV, Scalar> ws{work, s};
   Scalar* const U = ws.U();
-  Scalar v0[NV], tau_c[NV], acc[4][NV], car[4][NV], u[4][NV], v[4][NV], qs[Robot::NQ], un[NV];
-  for (int k = 0; k < NV; ++k) v0[k] = qd[k], tau_c[k] = tau[k];
-  cv.velocity_out(v0);
-  cv.force_out(tau_c);
-  // the stages' values and dynamics
-  for (int i = 0; i < s; ++i) {
-    rk_stage_state<Robot, Scalar, C>(cv.q, T, i, h, v0, acc, car, u[i], v[i], qs);
-    Scalar* const Dq = ws.dynamics(i);
-    if (i == 0) {
-      rk_stage<Robot, Scalar, C>(cv, qd, tau, fext, passive, Dq, Dq + NN, Dq + 2 * NN, acc[0], pi);
-    } else {
-      const Conv<Robot, Scalar, C> cs(qs);
-      Scalar vb[Conv<Robot, Scalar, C>::active ? NV : 1], tb[Conv<Robot, Scalar, C>::active ? NV : 1];
-      rk_stage<Robot, Scalar, C>(cs, cs.velocity(v[i], vb), cs.force(tau_c, tb), fext, passive, Dq, Dq + NN, Dq + 2 * NN,
-                                 acc[i], pi);
-    }
-  }
-  // the step: q' = q (+) u', qd' = qd + dt sum_j b_j acc_j
-  rk_combine<NV>(T, h, v0, acc, car, un, qd_next);
+  RkStages<Robot, Scalar, 4> w;
+  Scalar vp[Conv<Robot, Scalar, C>::active ? NV : 1], tp[Conv<Robot, Scalar, C>::active ? NV : 1];
+  // the stages' values and dynamics, then the step: q' = q (+) u', qd' = qd + dt sum_j b_j acc_j
+  rk_stages<Robot, Scalar>(Solo{}, w, cv, qd, tau, T, h, vp, tp, qd_next,
+                           [&](int i, const Conv<Robot, Scalar, C>& cs, const Scalar* v, const Scalar* f) __attribute__((always_inline)) {
+                             Scalar* const Dq = ws.dynamics(i);
+                             rk_stage<Robot, Scalar, C>(cs, v, f, fext, passive, Dq, Dq + NN, Dq + 2 * NN, w.acc[i], pi);
+                           });
   // adjoints: qbar = Jq'^T on the q' columns, qdbar = I on the qd' ones (A's storage, as A^T), taubar (B's,
   // as B^T)
   Scalar* const qbar = A;
@@ -369,7 +378,7 @@ TG_HD void rk_step(const Conv<Robot, Scalar, C>& cv, const Scalar* qd, const Sca
   Scalar* const Jvs = U + NA;  // the step's Jv at each quaternion joint, n x n after one another (at most 6 NV)
   for (int jn = 0, o = 0; jn < Robot::NB; ++jn) {
     Scalar Jq[36];
-    const int n = integrate_joint<Robot, Scalar, C>(jn, cv.q, un, q_next, Jq, Jvs + o), vi = d.vi[jn];
+    const int n = integrate_joint<Robot, Scalar, C>(jn, cv.q, w.un, q_next, Jq, Jvs + o), vi = d.vi[jn];
     for (int a = 0; a < (n ? n : d.nvj[jn]); ++a)
       for (int b = 0; b < (n ? n : d.nvj[jn]); ++b) qbar[K2 * (vi + a) + vi + b] = n ? Jq[n * b + a] : Scalar(a == b);
     o += n * n;
@@ -392,7 +401,7 @@ TG_HD void rk_step(const Conv<Robot, Scalar, C>& cv, const Scalar* qd, const Sca
     }
     const RkFeeds<Scalar> feeds(T, i, h, ws, fed);
     const Scalar* const Dq = ws.dynamics(i);
-    rk_adjoint_stage<Robot, Scalar, C>(tb, cv.q, u[i], v[i], Dq, Dq + NN, Dq + 2 * NN, i == 0, i == s - 1, abar, cbar, U, feeds, qbar,
+    rk_adjoint_stage<Robot, Scalar, C>(tb, cv.q, w.u[i], w.v[i], Dq, Dq + NN, Dq + 2 * NN, i == 0, i == s - 1, abar, cbar, U, feeds, qbar,
                                        qdbar, taubar);
   }
   // A and B from their transposes

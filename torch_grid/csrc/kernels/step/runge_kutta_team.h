@@ -22,7 +22,7 @@ template <class Robot, class Scalar> struct RkStepDerivativesTeamWork {
   static constexpr int NV = Robot::NV, NBLK = 36 * Robot::NFREE + (Robot::BALLS ? 3 * (NV - 6 * Robot::NFREE) : 0) + 1;
   FactoredDynamicsTeamWork<Robot, Scalar> dyn;
   Scalar vp[NV], tp[NV];
-  Scalar v0[NV], tau_c[NV], acc[4][NV], car[4][NV], u[4][NV], v[4][NV], qs[Robot::NQ], un[NV];
+  RkStages<Robot, Scalar, 4> rk;
   Scalar Jq[NBLK], Jv[NBLK];
   Scalar Jqs[NBLK], Jvs[NBLK], Du[NBLK], Dx[NBLK];
   int offset[Robot::NB];  // each joint's first entry in the blocks
@@ -59,14 +59,14 @@ TG_HD void rk_stage(const Team& t, RkStepDerivativesTeamWork<Robot, Scalar>& w, 
 }
 
 // Stage i's blocks at each quaternion joint, by the leader: Jq - I and Jv - I (integrate's tangent Jacobians at
-// u_i, less the identity) and dexp(u_i)^-1's along u and v (D_u, D_v'). w.qs is free by then.
+// u_i, less the identity) and dexp(u_i)^-1's along u and v (D_u, D_v'). w.rk.qs is free by then.
 template <class Robot, class Scalar, int C>
 TG_HD void rk_stage_blocks(RkStepDerivativesTeamWork<Robot, Scalar>& w, const Scalar* q, const Scalar* u, const Scalar* v) {
   const auto& d = data<Robot, Scalar>();
   for (int jn = 0; jn < Robot::NB; ++jn) {
     if (!quaternion_dofs<Robot, Scalar>(jn)) continue;
     const int o = w.offset[jn], vi = d.vi[jn];
-    const int n = integrate_joint<Robot, Scalar, C>(jn, q, u, w.qs, w.Jqs + o, w.Jvs + o);
+    const int n = integrate_joint<Robot, Scalar, C>(jn, q, u, w.rk.qs, w.Jqs + o, w.Jvs + o);
     Scalar c[6];
     dexp_inverse_jacobians<Scalar, C>(n, u + vi, v + vi, c, w.Du + o, w.Dx + o);
     for (int a = 0; a < n; ++a) w.Jqs[o + n * a + a] -= Scalar(1), w.Jvs[o + n * a + a] -= Scalar(1);
@@ -144,38 +144,23 @@ TG_HD void rk_step(const Team& t, RkStepDerivativesTeamWork<Robot, Scalar>& w, c
   const int s = T.stages;
   const RkWorkspace<NV, Scalar> ws{work, s};
   Scalar* const U = ws.U();
-  if (t.leader()) {
-    for (int k = 0; k < NV; ++k) w.v0[k] = qd[k], w.tau_c[k] = tau[k];
-    cv.velocity_out(w.v0);
-    cv.force_out(w.tau_c);
+  if (t.leader())
     for (int jn = 0, o = 0; jn < Robot::NB; ++jn) {
       const int n = quaternion_dofs<Robot, Scalar>(jn);
       w.offset[jn] = o, o += n * n;
     }
-  }
-  // the stages' values (by the leader) and dynamics
-  for (int i = 0; i < s; ++i) {
-    if (t.leader()) rk_stage_state<Robot, Scalar, C>(cv.q, T, i, h, w.v0, w.acc, w.car, w.u[i], w.v[i], w.qs);
-    t.sync();
-    Scalar* const Dq = ws.dynamics(i);
-    if (i == 0) {
-      rk_stage<Robot, Scalar>(t, w, cv, qd, tau, fext, passive, Dq, Dq + NN, Dq + 2 * NN, w.acc[0], pi);
-    } else {
-      // v_i and tau in Pinocchio's convention at q_i, into vp and tp (where they differ), which rk_stage then reads
-      const Conv<Robot, Scalar, C> cs(w.qs);
-      const Scalar* const v = t.leader() ? cs.velocity(w.v[i], w.vp) : w.v[i];
-      const Scalar* const f = t.leader() ? cs.force(w.tau_c, w.tp) : w.tau_c;
-      rk_stage<Robot, Scalar>(t, w, cs, v, f, fext, passive, Dq, Dq + NN, Dq + 2 * NN, w.acc[i], pi);
-    }
-  }
-  // the step (q' = q (+) u', qd' = qd + dt sum_j b_j acc_j) and its integrate Jacobians, by the leader
-  if (t.leader()) {
-    rk_combine<NV>(T, h, w.v0, w.acc, w.car, w.un, qd_next);
+  // the stages' values (by the leader) and dynamics, then the step (q' = q (+) u', qd' = qd + dt sum_j b_j acc_j)
+  // and its integrate Jacobians, by the leader
+  rk_stages<Robot, Scalar>(t, w.rk, cv, qd, tau, T, h, w.vp, w.tp, qd_next,
+                           [&](int i, const Conv<Robot, Scalar, C>& cs, const Scalar* v, const Scalar* f) __attribute__((always_inline)) {
+                             Scalar* const Dq = ws.dynamics(i);
+                             rk_stage<Robot, Scalar>(t, w, cs, v, f, fext, passive, Dq, Dq + NN, Dq + 2 * NN, w.rk.acc[i], pi);
+                           });
+  if (t.leader())
     for (int jn = 0, o = 0; jn < Robot::NB; ++jn) {
-      const int n = integrate_joint<Robot, Scalar, C>(jn, cv.q, w.un, q_next, w.Jq + o, w.Jv + o);
+      const int n = integrate_joint<Robot, Scalar, C>(jn, cv.q, w.rk.un, q_next, w.Jq + o, w.Jv + o);
       o += n * n;
     }
-  }
   t.sync();
   // this lane's columns of the adjoints: qbar = Jq'^T on the q' columns, qdbar = I on the qd' ones (A's storage,
   // as A^T), taubar = 0 (B's, as B^T)
@@ -212,7 +197,7 @@ TG_HD void rk_step(const Team& t, RkStepDerivativesTeamWork<Robot, Scalar>& w, c
     // the stage's joint blocks, once every lane is done with those of the stage before (i + 1)
     if (i > 0) {
       t.sync();
-      if (t.leader()) rk_stage_blocks<Robot, Scalar, C>(w, cv.q, w.u[i], w.v[i]);
+      if (t.leader()) rk_stage_blocks<Robot, Scalar, C>(w, cv.q, w.rk.u[i], w.rk.v[i]);
       t.sync();
     }
     const Scalar* const Dq = ws.dynamics(i);

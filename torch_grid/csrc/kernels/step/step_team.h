@@ -14,7 +14,8 @@
 namespace tg {
 
 // The team's shared workspace: an acceleration's (forward_dynamics's or damped_acceleration's), the velocity and
-// tau + p it is taken at and qdd in Pinocchio's convention, and the stages' values as rk_step_values keeps them.
+// tau + p it is taken at and qdd in Pinocchio's convention, and the stages' values as rk_step_values keeps them
+// (an Euler step's: the first stage's).
 template <class Robot, class Scalar> struct StepTeamWork {
   static constexpr int NV = Robot::NV;
   union {
@@ -22,7 +23,7 @@ template <class Robot, class Scalar> struct StepTeamWork {
     DampedAccelerationTeamWork<Robot, Scalar> damped;
   };
   Scalar vp[NV], tp[NV], qdd[NV];
-  Scalar v0[NV], tau_c[NV], acc[4][NV], car[4][NV], u[NV], v[NV], qs[Robot::NQ], un[NV];
+  RkStages<Robot, Scalar, 1> rk;
 };
 
 // FD(q, v, tau + p) at cs by team t, into acc in the call's convention (by the leader, written once every lane has
@@ -58,28 +59,30 @@ TG_HD void euler_step_values(const Team& t, StepTeamWork<Robot, Scalar>& w, cons
                              const Scalar* tau, const Scalar* fext, Scalar h, int scheme, int passive, Scalar* q_next, Scalar* qd_next,
                              const InertialParameters<Robot, Scalar>& pi) {
   constexpr int NV = Robot::NV;
+  Scalar* const acc = w.rk.acc[0];
   bool damped = false;
   if constexpr (Robot::PASSIVE) {  // (not compiled for a robot without passive forces, whose passive is 0)
     if (passive == 2) {
       damped_acceleration<Robot, Scalar>(t, w.damped, cv, q, qd, tau, fext, h, w.qdd, pi);
       if (t.leader()) {
-        for (int k = 0; k < NV; ++k) w.acc[0][k] = w.qdd[k];
-        cv.acceleration_out(qd, w.acc[0]);
+        for (int k = 0; k < NV; ++k) acc[k] = w.qdd[k];
+        cv.acceleration_out(qd, acc);
       }
       damped = true;
     }
   }
-  if (!damped) step_acceleration<Robot, Scalar>(t, w, cv, qd, tau, fext, passive, w.acc[0], pi);
+  if (!damped) step_acceleration<Robot, Scalar>(t, w, cv, qd, tau, fext, passive, acc, pi);
   // qd' = qd + dt a;  q' = q (+) dt w, w = qd' (semi-implicit) or qd
   if (t.leader()) {
-    for (int k = 0; k < NV; ++k) w.v[k] = qd[k];
-    cv.velocity_out(w.v);
+    Scalar* const v = w.rk.v[0];
+    for (int k = 0; k < NV; ++k) v[k] = qd[k];
+    cv.velocity_out(v);
     for (int k = 0; k < NV; ++k) {
-      qd_next[k] = w.v[k] + h * w.acc[0][k];
-      w.un[k] = h * (scheme ? qd_next[k] : w.v[k]);
+      qd_next[k] = v[k] + h * acc[k];
+      w.rk.un[k] = h * (scheme ? qd_next[k] : v[k]);
     }
   }
-  integrate_joints<Robot, Scalar, C>(t, q, w.un, q_next);
+  integrate_joints<Robot, Scalar, C>(t, q, w.rk.un, q_next);
 }
 
 // A Runge-Kutta step's q' and qd' (rk_step_values's) by team t.
@@ -87,28 +90,11 @@ template <class Robot, class Scalar, int C, class Team>
 TG_HD void rk_step_values(const Team& t, StepTeamWork<Robot, Scalar>& w, const Conv<Robot, Scalar, C>& cv, const Scalar* qd, const Scalar* tau,
                           const Scalar* fext, Scalar h, int scheme, bool passive, Scalar* q_next, Scalar* qd_next,
                           const InertialParameters<Robot, Scalar>& pi) {
-  constexpr int NV = Robot::NV;
-  const RkTableau T = rk_tableau(scheme);
-  if (t.leader()) {
-    for (int k = 0; k < NV; ++k) w.v0[k] = qd[k], w.tau_c[k] = tau[k];
-    cv.velocity_out(w.v0);
-    cv.force_out(w.tau_c);
-  }
-  for (int i = 0; i < T.stages; ++i) {
-    if (t.leader()) rk_stage_state<Robot, Scalar, C>(cv.q, T, i, h, w.v0, w.acc, w.car, w.u, w.v, w.qs);
-    t.sync();
-    if (i == 0) {
-      step_acceleration<Robot, Scalar>(t, w, cv, qd, tau, fext, passive, w.acc[0], pi);
-    } else {
-      // v_i and tau in Pinocchio's convention at q_i, into vp and tp (where they differ), which step_acceleration reads
-      const Conv<Robot, Scalar, C> cs(w.qs);
-      const Scalar* const v = t.leader() ? cs.velocity(w.v, w.vp) : w.v;
-      const Scalar* const f = t.leader() ? cs.force(w.tau_c, w.tp) : w.tau_c;
-      step_acceleration<Robot, Scalar>(t, w, cs, v, f, fext, passive, w.acc[i], pi);
-    }
-  }
-  if (t.leader()) rk_combine<NV>(T, h, w.v0, w.acc, w.car, w.un, qd_next);
-  integrate_joints<Robot, Scalar, C>(t, cv.q, w.un, q_next);
+  rk_stages<Robot, Scalar>(t, w.rk, cv, qd, tau, rk_tableau(scheme), h, w.vp, w.tp, qd_next,
+                           [&](int i, const Conv<Robot, Scalar, C>& cs, const Scalar* v, const Scalar* f) __attribute__((always_inline)) {
+                             step_acceleration<Robot, Scalar>(t, w, cs, v, f, fext, passive, w.rk.acc[i], pi);
+                           });
+  integrate_joints<Robot, Scalar, C>(t, cv.q, w.rk.un, q_next);
 }
 
 }  // namespace tg
