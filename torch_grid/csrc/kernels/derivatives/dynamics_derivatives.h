@@ -227,10 +227,6 @@ TG_HD void forward_dynamics_derivatives(const Team& t, ForwardDynamicsDerivative
   forward_dynamics_derivatives<Robot, Scalar>(t, tw.oMi, tw.w, qd, tau, fext, cv, dq, dqd, dtau, tw.qdd, pi);
 }
 
-// (M + dt D) qdd = tau + p - b(q, qd): the acceleration of MuJoCo's Euler step, the joint damping D taken
-// implicitly (mj_Euler), p the passive forces (passive.h). Differentiating ID(q, qd, qdd) + dt D qdd - p = tau
-// at that qdd, with H = M + dt D: dqdd/dx = -H^-1 (dID/dx - dp/dx), dqdd/dtau = H^-1. H is factored in the
-// convention (H_c = G H G^T, D being zero on free joints), as a Runge-Kutta stage's M (rk_stage).
 // H = G M G^T + h D in the convention (M as crba leaves it; D the joint damping, zero on free joints, so that
 // G D G^T = D), factored in place (ltdl_factor): MuJoCo's Euler step's M + dt D, a Runge-Kutta stage's M (h = 0).
 template <class Robot, class Scalar, int C> TG_HD void factor_mass(const Conv<Robot, Scalar, C>& cv, Scalar h, Scalar* H) {
@@ -251,6 +247,10 @@ template <class Robot, class Scalar, int C> TG_HD void solve_mass(const Conv<Rob
     for (int k = 0; k < Robot::NV; ++k) qdd[k] = a[k];
 }
 
+// (M + dt D) qdd = tau + p - b(q, qd): the acceleration of MuJoCo's Euler step, the joint damping D taken
+// implicitly (mj_Euler), p the passive forces (passive.h). Differentiating ID(q, qd, qdd) + dt D qdd - p = tau
+// at that qdd, with H = M + dt D: dqdd/dx = -H^-1 (dID/dx - dp/dx), dqdd/dtau = H^-1. H is factored in the
+// convention (H_c = G H G^T, D being zero on free joints), as a Runge-Kutta stage's M (rk_stage).
 // damped_acceleration: H, factored (factor_mass), and qdd in Pinocchio's convention.
 template <class Robot, class Scalar, int C>
 TG_HD void damped_acceleration(const Placements<Robot, Scalar>& K, const Conv<Robot, Scalar, C>& cv, const Scalar* q, const Scalar* qd,
