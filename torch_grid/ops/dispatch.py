@@ -14,7 +14,7 @@ import torch
 from .arguments import checked, forward_mode
 from .eager import kernel_keyset
 from .func import FORWARD_MODE, FuncOps
-from .levels import traced_transform
+from .levels import miscompiled_vjp, traced_transform
 from .table import INERTIA_FREE, OPS
 
 # The ops a view of with_parameters runs: those that take the inertial parameters, and those free of them.
@@ -51,6 +51,12 @@ def kernel_call(view, name: str, *args):
         # without this check forward mode would return zero tangents
         raise NotImplementedError(f"torch_grid: {name} has no forward-mode derivative (torch.func.jvp, jacfwd, "
                                   "hessian, torch.autograd.forward_ad); use reverse mode (backward, torch.func.jacrev)")
+    if stack and miscompiled_vjp(stack):
+        raise NotImplementedError(
+            f"torch_grid: {name} under torch.func.vjp or jacrev inside torch.compile: torch {torch.__version__} compiles "
+            "that vjp's backward wrongly (zero gradients) where the function breaks the graph, as torch_grid's functions "
+            "do under a transform; torch 2.12 computes it right. Upgrade torch, or call vjp or jacrev outside "
+            "torch.compile (torch.func.grad and backward() compile right)")
     if stack or forward:  # each op through an autograd.Function that torch.func and forward AD transform
         return robot._func.call(name, *checked(name, robot._tensor_args[name], args), convention)
     if torch.is_grad_enabled() and torch._C._any_requires_grad(*args):

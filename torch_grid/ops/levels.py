@@ -3,6 +3,9 @@ torch.compile traces. The ops, their backwards and the Robot methods choose betw
 composition by these."""
 from __future__ import annotations
 
+import inspect
+import sys
+
 import torch
 from torch._C._functorch import TransformType
 from torch._functorch.pyfunctorch import coerce_cinterpreter
@@ -46,3 +49,23 @@ def dual(args) -> bool:
     """Whether an argument carries a torch.autograd.forward_ad tangent."""
     return forward_ad._current_level >= 0 and any(
         isinstance(x, torch.Tensor) and forward_ad.unpack_dual(x).tangent is not None for x in args)
+
+
+# torch 2.11's compiler miscompiles the backward of a torch.func.vjp (and jacrev's, made of one) whose function
+# breaks the graph, as the ops do under a transform: the gradients come back zero (torch 2.12 has it right).
+_VJP_MISCOMPILED = tuple(int(x) for x in torch.__version__.split("+")[0].split(".")[:2]) < (2, 12)
+_VJP_CODE = inspect.unwrap(torch._functorch.eager_transforms._vjp_with_argnums).__code__
+
+
+def miscompiled_vjp(stack) -> bool:
+    """Whether this eager call (interpreter stack `stack`) runs inside a torch.compile'd call, under a torch.func.vjp
+    or jacrev that is the only transform, on a torch that miscompiles that vjp's backward (2.11). Nested in another
+    transform (hessian, jacrev of jacrev, vmap of jacrev), and under grad, the compiled results are right."""
+    if not _VJP_MISCOMPILED or len(stack) != 1 or stack[0].key() != TransformType.Grad:
+        return False
+    if torch._C._dynamo.eval_frame.get_eval_frame_callback() is None:
+        return False
+    frame = sys._getframe(1)
+    while frame is not None and frame.f_code is not _VJP_CODE:
+        frame = frame.f_back
+    return frame is not None
