@@ -8,6 +8,7 @@ import sys
 
 import torch
 from torch._C._functorch import TransformType
+from torch._functorch import eager_transforms
 from torch._functorch.pyfunctorch import coerce_cinterpreter
 from torch.autograd import forward_ad
 
@@ -54,7 +55,6 @@ def dual(args) -> bool:
 # torch 2.11's compiler miscompiles the backward of a torch.func.vjp (and jacrev's, made of one) whose function
 # breaks the graph, as the ops do under a transform: the gradients come back zero (torch 2.12 has it right).
 _VJP_MISCOMPILED = tuple(int(x) for x in torch.__version__.split("+")[0].split(".")[:2]) < (2, 12)
-_VJP_CODE = inspect.unwrap(torch._functorch.eager_transforms._vjp_with_argnums).__code__
 
 
 def miscompiled_vjp(stack) -> bool:
@@ -65,7 +65,8 @@ def miscompiled_vjp(stack) -> bool:
         return False
     if torch._C._dynamo.eval_frame.get_eval_frame_callback() is None:
         return False
+    vjp = inspect.unwrap(eager_transforms._vjp_with_argnums).__code__  # what vjp and jacrev call the function from
     frame = sys._getframe(1)
-    while frame is not None and frame.f_code is not _VJP_CODE:
+    while frame is not None and frame.f_code is not vjp:
         frame = frame.f_back
     return frame is not None
