@@ -332,7 +332,7 @@ def main() -> None:
         f"triangle. crba in C++ without it: {', '.join(crba_upper)}.\n\n" \
         f"First build of a robot: all functions, both conventions, float32 + float64, CPU, into a cache holding " \
         f"only the torch glue (which every robot shares; built once in {glue_seconds:.1f} s); warm load: " \
-        "`torch_grid.load` in a new process after `import torch`.\n\n" + "\n".join(builds) + \
+        "`import torch_grid` and `torch_grid.load` in a new process after `import torch`.\n\n" + "\n".join(builds) + \
         "\n\nAutograd: forward_dynamics alone against forward + backward with respect to q, qd and tau " \
         "(one thread, float64, B = 4096).\n\n" + "\n".join(grads) + \
         "\n\nSecond-order backwards (crba, frame_jacobian and inverse_dynamics_derivatives by their O(n d) kernels, " \

@@ -76,7 +76,7 @@ def kernel_call(view, name: str, *args):
     return op.default.redispatch(keyset, *args, convention)
 
 
-@torch.compiler.disable
+@torch._disable_dynamo  # torch.compiler.disable, made at the first call: importing torch._dynamo takes most of a second
 def _func_call_eagerly(func: FuncOps, name: str, *args):
     """An op under torch.func's grad or jvp, or on forward-mode dual tensors, while torch.compile traces:
     through its autograd.Function, run eagerly (torch.compile traces neither that Function's transforms

@@ -302,7 +302,7 @@ def _split(dq: torch.Tensor, dv: torch.Tensor, nv: int) -> tuple[torch.Tensor, t
     return rows[..., :2 * nv], rows[..., 2 * nv:]
 
 
-@torch.compiler.disable
+@torch._disable_dynamo  # torch.compiler.disable, made at the first call (dispatch._func_call_eagerly)
 def _step_eagerly(view, q, qd, tau, dt, integrator: str, f_ext):
     """The step under an open forward-mode dual level while torch.compile traces: eagerly, as a whole
     (a compiled graph drops the tangents of dual tensors it receives, so none may reach one)."""
