@@ -23,6 +23,17 @@ def test_dir_shows_the_public_names_only():
     assert "Mapping" not in dir(torch_grid) and "annotations" not in dir(torch_grid)
 
 
+def test_import_leaves_torchs_compiler_unimported():
+    """Importing the package and loading a robot do not import torch._dynamo (most of a second of a process's
+    start): the functions torch.compile must not trace import it at their first call, inside a compiled one."""
+    import subprocess
+    import sys
+
+    script = "import sys, torch, torch_grid; torch_grid.load('iiwa14'); print('torch._dynamo' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    assert out.stdout.split()[-1] == "False", out.stderr[-2000:]
+
+
 def test_former_module_paths_import_with_a_warning():
     """The modules that moved into the layers keep their former paths for a release (CHANGELOG.md), with a
     DeprecationWarning naming the new one; torch_grid.conventions stays public."""
