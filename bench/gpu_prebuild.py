@@ -8,7 +8,9 @@ it without Pinocchio or MuJoCo), and into --out:
     named by its digest (torch_grid.ops.build.cuda_unit_digest). With TORCH_GRID_PREBUILT pointing at the
     unpacked folder and TORCH_GRID_CUDA_ARCH=--arch, a build takes an object only where the digest of
     the unit it generates matches, so a stale object is never used: that unit is compiled there.
-No GPU is needed. Objects already in --out/prebuilt are kept (compiled once per digest).
+No GPU is needed. The objects are kept in --objects (default <torch_grid cache>/prebuilt/<arch>, outside the
+working tree, so that a new checkout on the same machine compiles only the units whose digest changed); one
+that no unit of these robots wants any more is removed there after a week unused.
 """
 from __future__ import annotations
 
@@ -36,6 +38,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--arch", default="sm_90")
     parser.add_argument("--robots", nargs="+", default=list(MODELS))
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--objects", help="where the compiled objects are kept (default <torch_grid cache>/prebuilt/<arch>)")
     args = parser.parse_args(argv)
     os.environ["TORCH_GRID_CUDA_ARCH"] = args.arch  # before the flags are read
 
@@ -43,7 +46,8 @@ def main(argv: list[str] | None = None) -> int:
     from torch_grid.model.description import RobotModel
 
     out = Path(args.out)
-    objects = out / "prebuilt"
+    objects = Path(args.objects) if args.objects else build.default_cache_dir() / "prebuilt" / args.arch
+    out.mkdir(parents=True, exist_ok=True)
     MODELS_DIR.mkdir(parents=True, exist_ok=True)
     objects.mkdir(parents=True, exist_ok=True)
     wanted: set[str] = set()
@@ -61,7 +65,9 @@ def main(argv: list[str] | None = None) -> int:
                     continue
                 target = objects / f"{build.cuda_unit_digest(unit)}.o"
                 wanted.add(target.name)
-                if not target.exists():
+                if target.exists():
+                    target.touch()  # in use: kept by the pruning below
+                else:
                     jobs.append((f"{name}/{unit.name}", unit, target))
         print(f"{len(jobs)} CUDA units to compile, {len(wanted) - len(jobs)} already prebuilt", flush=True)
         start = time.monotonic()
@@ -79,8 +85,9 @@ def main(argv: list[str] | None = None) -> int:
 
         with ThreadPoolExecutor(max_workers=args.jobs) as pool:
             list(pool.map(compile_unit, jobs))
+    week = time.time() - 7 * 24 * 3600
     for stale in objects.glob("*.o"):
-        if stale.name not in wanted:
+        if stale.name not in wanted and stale.stat().st_mtime < week:
             stale.unlink()
     archive = out / "prebuilt.tar.xz"
     # xz's strongest preset: what travels to a device machine (the working tree with this) is at most 64 MiB, and

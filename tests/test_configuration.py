@@ -4,12 +4,15 @@ mj_differentiatePos, mjd_quatIntegrate and mjd_subQuat; autograd through them to
 The functions need no kernels: most tests run them on a Space; one goes through a built robot."""
 from __future__ import annotations
 
+import math
+
 import mujoco
 import numpy as np
 import pinocchio as pin
 import pytest
 import torch
 
+import oracles
 from pin_models import pin_ball_model
 from test_quaternion_joints import BALLS, random_qpos
 from torch_grid.space.lie import Space, d_difference, d_integrate, difference, integrate
@@ -280,6 +283,40 @@ def test_integrate_and_difference_kernels_are_the_composition(robots, pin_models
     raw = robot._ops.d_difference(q, q1.clone().requires_grad_(), 0)[0]
     with pytest.raises(NotImplementedError, match=r"d_difference kernel has no derivative; differentiate Robot.d_difference"):
         raw.sum().backward()
+
+
+def test_a_continuous_joint_differs_by_the_shorter_turn(robots, pin_models):
+    """A continuous joint's coordinate is an angle: difference wraps it to (-pi, pi], Pinocchio's difference of its
+    (cos, sin) joint, in the kernel and in the composition, in both views (MuJoCo has no continuous joint), angles far
+    beyond 2 pi included; the other joints' coordinates subtract as they are; the gradient of a wrapped difference is
+    still -1 and 1 (d_difference, and autograd through difference's backward kernel and through the composition)."""
+    robot, model = robots["tiago"], pin_models["tiago"]
+    wheels = [iq for j, iq in zip(robot.model.joints, robot.model.q_index) if j.type == "continuous"]
+    assert wheels, "tiago's wheels are continuous joints"
+    g = torch.Generator().manual_seed(4)
+    q0, q1 = robot.pin.random_configuration(2, 8, generator=g), robot.pin.random_configuration(2, 8, generator=g)
+    q0[..., wheels] = 20 * torch.rand(2, 8, len(wheels), dtype=torch.float64, generator=g) - 10
+    q1[..., wheels] = 20 * torch.rand(2, 8, len(wheels), dtype=torch.float64, generator=g) - 10
+    q1[0, 0, wheels] = q0[0, 0, wheels] + 3.0  # less than a half turn: as it is
+    reference = torch.as_tensor(np.stack([pin.difference(model, a, b) for a, b in zip(
+        oracles.to_pin_q(robot, q0.flatten(0, 1)), oracles.to_pin_q(robot, q1.flatten(0, 1)))])).unflatten(0, (2, 8))
+    for view in (robot.pin, robot.mujoco):
+        kernel = view.difference(q0, q1)
+        _assert_same(kernel, difference(robot._space, q0, q1, view._convention))
+        torch.testing.assert_close(kernel, reference, rtol=0, atol=1e-12)
+        turns = (q1 - q0)[..., wheels] - kernel[..., wheels]
+        torch.testing.assert_close(turns / (2 * math.pi), torch.round(turns / (2 * math.pi)), rtol=0, atol=1e-12)
+        assert (kernel[..., wheels].abs() <= math.pi).all() and (kernel[..., wheels].abs() > 0.5).any()
+        torch.testing.assert_close(kernel[0, 0, wheels], torch.full((len(wheels),), 3.0, dtype=torch.float64), rtol=0, atol=1e-12)
+        j0, j1 = view.d_difference(q0, q1)
+        eye = torch.eye(robot.nv, dtype=torch.float64).expand_as(j1)
+        assert torch.equal(j0, -eye) and torch.equal(j1, eye)
+        leaves, w = (q0.clone().requires_grad_(), q1.clone().requires_grad_()), torch.randn(robot.nv, dtype=torch.float64, generator=g)
+        fused = torch.autograd.grad((view.difference(*leaves) * w).sum(), leaves)
+        composed = torch.autograd.grad((difference(robot._space, *leaves, view._convention) * w).sum(), leaves)
+        for a, b in zip(fused, composed):
+            torch.testing.assert_close(a, b, rtol=0, atol=1e-13)
+        torch.testing.assert_close(fused[1], w.expand_as(fused[1]), rtol=0, atol=1e-13)
 
 
 @pytest.mark.parametrize("name", ["go2", "trees"])

@@ -102,6 +102,8 @@ def robot_header(model: RobotModel, namespace: str) -> str:
         ("int", "last_child", [int(x) for x in last_child]),
         ("int", "has_children", [int(x) for x in has_children]),
         ("int", "jtype", [_JTYPE[x.type] for x in j]),
+        # a continuous joint's coordinate is an angle: a difference of two wraps to (-pi, pi] (step.h: difference_joint)
+        ("int", "angle", [int(x.type == "continuous") for x in j]),
         ("int", "axis_index", [_cardinal(x.axis) for x in j]),
         ("int", "qi", qi),
         ("int", "vi", vi),

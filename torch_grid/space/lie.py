@@ -2,7 +2,8 @@
 
 pin convention, Pinocchio's Lie groups (pin.integrate, difference, dIntegrate, dDifference): a free
 joint is SE(3), q (+) v = M exp6(v) (the linear velocity in the body frame); a ball joint is SO(3),
-Q exp3(w); the others add. mujoco convention, mj_integratePos / mj_differentiatePos: a free joint's
+Q exp3(w); the others add, and a continuous joint's angle differs by the shortest turn, in (-pi, pi] (as
+Pinocchio's (cos, sin) joint; MuJoCo has no continuous joint, its hinge is a revolute one). mujoco convention, mj_integratePos / mj_differentiatePos: a free joint's
 position adds in the world frame; its quaternion and a ball joint's turn by the local rotation.
 Quaternions are read normalised, as the kernels read them (MuJoCo normalises them too).
 
@@ -28,12 +29,14 @@ from .tangent import broadcast_batch
 
 @dataclass(frozen=True)
 class Space:
-    """Joint kinds ("free", "ball" or "scalar") in q's order, with each one's first q and v index."""
+    """Joint kinds ("free", "ball" or "scalar") in q's order, with each one's first q and v index, and the q
+    indices of the continuous joints' angles (scalars whose difference wraps)."""
     kinds: tuple[str, ...]
     qi: tuple[int, ...]
     vi: tuple[int, ...]
     nq: int
     nv: int
+    angles: frozenset[int] = frozenset()
 
     @classmethod
     def of(cls, joint_types: list[str]) -> "Space":
@@ -44,7 +47,8 @@ class Space:
             vi.append(nv)
             nq += {"free": 7, "ball": 4}.get(k, 1)
             nv += {"free": 6, "ball": 3}.get(k, 1)
-        return cls(kinds, tuple(qi), tuple(vi), nq, nv)
+        angles = frozenset(i for i, t in zip(qi, joint_types) if t == "continuous")
+        return cls(kinds, tuple(qi), tuple(vi), nq, nv, angles)
 
 
 def integrate(space: Space, q: torch.Tensor, v: torch.Tensor, dt, convention: int) -> torch.Tensor:
@@ -77,7 +81,8 @@ def difference(space: Space, q0: torch.Tensor, q1: torch.Tensor, convention: int
     parts = []
     for kind, qi in zip(space.kinds, space.qi):
         if kind == "scalar":
-            parts.append(q1[..., qi:qi + 1] - q0[..., qi:qi + 1])
+            d = q1[..., qi:qi + 1] - q0[..., qi:qi + 1]
+            parts.append(torch.atan2(torch.sin(d), torch.cos(d)) if qi in space.angles else d)
             continue
         a, b = _quaternion(q0, kind, qi, convention), _quaternion(q1, kind, qi, convention)
         w = log3(_mul(_conjugate(a), b))

@@ -223,7 +223,8 @@ template <class Robot, class Scalar, int C> TG_HD void difference_joint(int i, c
   const auto& d = data<Robot, Scalar>();
   const int qi = d.qi[i], vi = d.vi[i], t = d.jtype[i];
   if (t != FREE && t != BALL) {
-    v[vi] = q1[qi] - q0[qi];
+    const Scalar dq = q1[qi] - q0[qi];
+    v[vi] = d.angle[i] ? atan2(sin(dq), cos(dq)) : dq;  // a continuous joint: the shorter way round, as Pinocchio's
     return;
   }
   const int n = t == FREE ? 6 : 3, qa = t == FREE ? qi + 3 : qi;
