@@ -197,3 +197,83 @@ def test_mpc_grad_input_is_autograd(damped, name):
         else:  # q's coordinates on the unit sphere: the same along its tangent
             assert rel_err(R[k][:, robot.nq:], jx[:, robot.nq:]) <= 1e-12
         assert rel_err(S[k], ju) <= 1e-12
+
+
+@pytest.mark.parametrize("name", list(MODELS))
+def test_energy_holds_the_springs_as_mj_energy_pos(damped, name):
+    """energy's potential holds the joint springs' (mj_energyPos: gravity and sum k (q - springref)^2 / 2) in MuJoCo's
+    convention and Pinocchio's, and kinetic + potential is the mechanical; a robot loaded without the passive forces
+    has gravity's alone (MuJoCo with its springs turned off). Differentiable: its gradient in q is minus the springs'
+    and gravity's generalized forces, that is generalized_gravity - passive_forces at qd = 0."""
+    robot, text = damped[name][0], damped[name][2]
+    m, d = _mj(text, "semi_implicit_euler", 0.01, True)
+    q, qd, _ = _state(robot.mujoco, robot.nv, 3, 5)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "the MJCF model has")
+        rigid = torch_grid.load(text, passive_forces=False)
+    for view, springs in ((robot.mujoco, True), (rigid.mujoco, False)):
+        m.opt.disableflags = int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | (0 if springs else int(mujoco.mjtDisableBit.mjDSBL_SPRING))
+        energy = view.energy(q, qd)
+        for k in range(3):
+            mujoco.mj_resetData(m, d)
+            d.qpos[:], d.qvel[:] = q[k].numpy(), qd[k].numpy()
+            mujoco.mj_forward(m, d)
+            mujoco.mj_energyPos(m, d)
+            mujoco.mj_energyVel(m, d)
+            reference = np.array([d.energy[1], d.energy[0], d.energy[0] + d.energy[1]])
+            assert np.abs(energy[k].numpy() - reference).max() <= 1e-12 * max(1.0, np.abs(reference).max())
+    pin_q = robot.pin.random_configuration(2, generator=torch.Generator().manual_seed(6))
+    springs = robot.pin.energy(pin_q, torch.zeros(2, robot.nv, dtype=torch.float64))[:, 1] - rigid.pin.energy(
+        pin_q, torch.zeros(2, robot.nv, dtype=torch.float64))[:, 1]
+    torch.testing.assert_close(springs, robot._passive.spring_energy(pin_q), rtol=0, atol=1e-12)
+    assert (springs > 0).all()
+    leaf = q.clone().requires_grad_()
+    (grad,) = torch.autograd.grad(robot.mujoco.energy(leaf, torch.zeros_like(qd))[:, 1].sum(), leaf)
+    zero = torch.zeros_like(qd)
+    expected = robot.mujoco.generalized_gravity(q) - robot.mujoco.passive_forces(q, zero)
+    dofs = [m.jnt_dofadr[j] for j in range(m.njnt) if m.jnt_type[j] in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)]
+    qpos = [m.jnt_qposadr[j] for j in range(m.njnt) if m.jnt_type[j] in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)]
+    torch.testing.assert_close(grad[:, qpos], expected[:, dofs], rtol=0, atol=1e-10)
+
+
+SWITCHED = DAMPED_PLANAR.replace('<option gravity="0 0 -9.81"/>', '<option gravity="0 0 -9.81"><flag {}/></option>')
+
+
+@pytest.mark.parametrize("flags", ['spring="disable"', 'damper="disable"', 'spring="disable" damper="disable"'])
+def test_the_passive_switches_are_mujocos(flags):
+    """MuJoCo's switches of the joints' springs and dampers (<flag spring="disable"/>, damper="disable") hold in the
+    model read: its passive forces are qfrc_passive under them (the model alone, no kernels built)."""
+    from torch_grid.model.mjcf import from_mujoco
+    from torch_grid.step.passive import PassiveForces
+
+    m = mujoco.MjModel.from_xml_string(SWITCHED.format(flags))
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+    d = mujoco.MjData(m)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "the MJCF model has")
+        model = from_mujoco(m)
+    g = np.random.default_rng(2)
+    d.qpos[:], d.qvel[:] = g.normal(size=m.nq), g.normal(size=m.nv)
+    mujoco.mj_forward(m, d)
+    ours = PassiveForces(model)(torch.as_tensor(d.qpos.copy()), torch.as_tensor(d.qvel.copy()))
+    assert np.abs(ours.numpy() - d.qfrc_passive).max() <= 1e-12
+    assert ("spring" in flags) == (not any(j.stiffness for j in model.joints))
+    assert ("damper" in flags) == (not any(j.damping for j in model.joints))
+
+
+def test_nonlinear_passive_coefficients_are_refused_and_invdiscrete_is_named():
+    """MuJoCo 4's higher damping and stiffness coefficients (damping="c0 c1") are refused, naming the joint; the
+    invdiscrete flag (mj_inverse of a discrete step's acceleration) is named in the warning of what is not modelled."""
+    from torch_grid.model.mjcf import from_mujoco
+
+    for attribute, value in (('damping="0.4"', 'damping="0.4 0.8"'), ('stiffness="3"', 'stiffness="3 5"')):
+        m = mujoco.MjModel.from_xml_string(DAMPED_PLANAR.replace(attribute, value, 1))
+        if not hasattr(m, "dof_dampingpoly"):
+            pytest.skip("this MuJoCo has no nonlinear passive coefficients")
+        with pytest.raises(ValueError, match=r"joint 'root\w': \w+ has nonlinear coefficients .* give one coefficient"), \
+                warnings.catch_warnings():
+            warnings.filterwarnings("ignore", "the MJCF model has")
+            from_mujoco(m)
+    m = mujoco.MjModel.from_xml_string(SWITCHED.format('invdiscrete="enable"'))
+    with pytest.warns(UserWarning, match="invdiscrete"):
+        from_mujoco(m)

@@ -111,9 +111,15 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         return dispatch(self, "nonlinear_effects", q, qd, self._parameters(params))
 
     def energy(self, q, qd, params=None) -> torch.Tensor:
-        """[kinetic, potential, mechanical] energy (..., 3); potential is zero at the world origin;
-        params as in inverse_dynamics."""
-        return dispatch(self, "energy", q, qd, self._parameters(params))
+        """[kinetic, potential, mechanical] energy (..., 3); potential: gravity's, zero at the world origin, and
+        the joint springs' sum of stiffness (q - springref)^2 / 2 where the dynamics include them (as
+        MuJoCo's mj_energyPos); params as in inverse_dynamics."""
+        energy = dispatch(self, "energy", q, qd, self._parameters(params))
+        passive = self._robot._passive
+        if not (self._robot._with_passive and passive.springs):
+            return energy
+        spring = passive.spring_energy(q).unsqueeze(-1)
+        return energy + torch.cat([torch.zeros_like(spring), spring, spring], dim=-1)
 
     def com(self, q, params=None) -> torch.Tensor:
         """Centre of mass of the whole robot in the world frame (..., 3); params as in inverse_dynamics."""

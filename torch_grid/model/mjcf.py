@@ -39,6 +39,7 @@ def from_mujoco(m, name: str | None = None) -> RobotModel:
     names = _Names(mujoco, m)
     _refuse_unmodelled_couplings(mujoco, m, names)
     _warn_unmodelled(mujoco, m, names)
+    springs, dampers = _passive_switches(mujoco, m)
     joints: list[dict] = []
     # MuJoCo body b's frame in the frame of the RobotModel body that carries it: (body, R, p)
     carrier: list[tuple[int, np.ndarray, np.ndarray]] = [(-1, np.eye(3), np.zeros(3))]
@@ -76,7 +77,7 @@ def from_mujoco(m, name: str | None = None) -> RobotModel:
                 name=jname, type=_KIND[kind], parent=body,
                 axis=(0.0, 0.0, 0.0) if kind in (_FREE, _BALL) else _tuple(m.jnt_axis[jid]),
                 rotation=_tuple(placement[0].reshape(-1)), translation=_tuple(placement[1]),
-                lower=lower, upper=upper, **_dof_coefficients(m, jid, jname, kind), inertia=_Inertia.zero(),
+                lower=lower, upper=upper, **_dof_coefficients(m, jid, jname, kind, springs, dampers), inertia=_Inertia.zero(),
             ))
             body, R, p = len(joints) - 1, np.eye(3), np.zeros(3)
         if m.body_jntnum[b]:
@@ -106,15 +107,32 @@ _KIND = {_FREE: "free", _BALL: "ball", _SLIDE: "prismatic", _HINGE: "revolute"}
 _DOFS = {_FREE: 6, _BALL: 3, _SLIDE: 1, _HINGE: 1}
 
 
-def _dof_coefficients(m, jid: int, jname: str, kind: int) -> dict:
+def _dof_coefficients(m, jid: int, jname: str, kind: int, springs: bool, dampers: bool) -> dict:
     """Armature, damping, stiffness and spring reference of a joint (one value over a free or ball
     joint's dofs, as MJCF sets them; a ball's spring reference is a quaternion, which the model refuses
-    with a stiffness)."""
+    with a stiffness); no stiffness where the model turns its springs off, no damping where its dampers.
+    MuJoCo's nonlinear terms of either (a second coefficient: damping="c0 c1") are refused."""
     dofs = slice(m.jnt_dofadr[jid], m.jnt_dofadr[jid] + _DOFS[kind])
+    # MuJoCo 4's higher coefficients (absent before it: no rows)
+    damping_poly, stiffness_poly = getattr(m, "dof_dampingpoly", None), getattr(m, "jnt_stiffnesspoly", None)
+    for what, rows in (("damping", np.zeros((0,)) if damping_poly is None else damping_poly[dofs]),
+                       ("stiffness", np.zeros((0,)) if stiffness_poly is None else stiffness_poly[jid:jid + 1])):
+        if np.any(rows != 0):
+            raise ValueError(f"joint {jname!r}: {what} has nonlinear coefficients {rows[0].tolist()} (MJCF "
+                             f'{what}="c0 c1 ..."), which are not supported: give one coefficient')
     springref = float(m.qpos_spring[m.jnt_qposadr[jid]]) if _DOFS[kind] == 1 else 0.0
     return dict(armature=_one(jname, "armature", m.dof_armature[dofs]),
-                damping=_one(jname, "damping", m.dof_damping[dofs]),
-                stiffness=float(m.jnt_stiffness[jid]), springref=springref)
+                damping=_one(jname, "damping", m.dof_damping[dofs]) if dampers else 0.0,
+                stiffness=float(m.jnt_stiffness[jid]) if springs else 0.0, springref=springref)
+
+
+def _passive_switches(mujoco, m) -> tuple[bool, bool]:
+    """Whether MuJoCo applies the joints' springs and their dampers: <flag spring="disable"/> and
+    damper="disable" (passive="disable" before MuJoCo 3.3) turn them off."""
+    off = int(m.opt.disableflags)
+    bit = lambda name: int(getattr(mujoco.mjtDisableBit, name, 0))  # noqa: E731  (0: a flag this MuJoCo lacks)
+    passive = not off & bit("mjDSBL_PASSIVE")
+    return passive and not off & bit("mjDSBL_SPRING"), passive and not off & bit("mjDSBL_DAMPER")
 
 
 def _one(jname: str, what: str, values: np.ndarray) -> float:
@@ -177,7 +195,9 @@ def _refuse_unmodelled_couplings(mujoco, m, names: _Names) -> None:
     for t in range(m.ntendon):
         tname = mujoco.mj_id2name(m, obj.mjOBJ_TENDON, t) or f"tendon{t}"
         for what, value in (("stiffness", m.tendon_stiffness[t]), ("damping", m.tendon_damping[t]),
-                            ("armature", getattr(m, "tendon_armature", np.zeros(m.ntendon))[t])):
+                            ("armature", getattr(m, "tendon_armature", np.zeros(m.ntendon))[t]),
+                            ("nonlinear stiffness", getattr(m, "tendon_stiffnesspoly", np.zeros((m.ntendon, 1)))[t]),
+                            ("nonlinear damping", getattr(m, "tendon_dampingpoly", np.zeros((m.ntendon, 1)))[t])):
             if np.any(value != 0):
                 raise ValueError(f"MJCF tendon {tname!r} has {what} {value}: its passive forces couple joints, "
                                  "which is not supported")
@@ -204,6 +224,8 @@ def _warn_unmodelled(mujoco, m, names: _Names) -> None:
         found.append("joint friction loss")
     if m.opt.density > 0 or m.opt.viscosity > 0:
         found.append("fluid forces")
+    if int(m.opt.enableflags) & int(getattr(mujoco.mjtEnableBit, "mjENBL_INVDISCRETE", 0)):
+        found.append("invdiscrete (mj_inverse of a discrete step's acceleration; inverse_dynamics here is continuous-time)")
     if found:
         warnings.warn(f"the MJCF model has {'; '.join(found)}: torch_grid computes the rigid-body dynamics "
                       "without them", stacklevel=4)

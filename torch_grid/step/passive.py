@@ -31,6 +31,7 @@ class PassiveForces:
         self.nv = nv
         self.any = bool(damping.any() or stiffness.any())
         self.damps = bool(damping.any())
+        self.springs = bool(stiffness.any())
         self._q_index, self._v_index = torch.tensor(q_index, dtype=torch.long), torch.tensor(v_index, dtype=torch.long)
         self._coefficients = (damping, stiffness, springref)
         self._cache: dict[tuple[torch.dtype, torch.device], tuple[torch.Tensor, ...]] = {}
@@ -49,11 +50,19 @@ class PassiveForces:
 
     def __call__(self, q: torch.Tensor, qd: torch.Tensor) -> torch.Tensor:
         """qfrc_passive (..., nv) from q (..., nq) and qd (..., nv)."""
-        damping, stiffness, springref, q_index, v_index = self._on(q)
-        # The 1-dof joints' positions at their dofs; 0 on a free or ball joint's, whose stiffness is 0.
+        damping, stiffness, springref = self.coefficients(q)
+        return -(damping * qd + stiffness * (self._stretch(q) - springref))
+
+    def spring_energy(self, q: torch.Tensor) -> torch.Tensor:
+        """The springs' potential energy (...,): sum of stiffness (q - springref)^2 / 2 (MuJoCo's mj_energyPos)."""
+        _, stiffness, springref = self.coefficients(q)
+        return (stiffness * (self._stretch(q) - springref).square()).sum(-1) / 2
+
+    def _stretch(self, q: torch.Tensor) -> torch.Tensor:
+        """The 1-dof joints' positions at their dofs (..., nv); 0 on a free or ball joint's, whose stiffness is 0."""
+        q_index, v_index = self._on(q)[3:]
         q_dof = torch.zeros(*q.shape[:-1], self.nv, dtype=q.dtype, device=q.device)
-        q_dof = q_dof.index_copy(-1, v_index, q.index_select(-1, q_index))
-        return -(damping * qd + stiffness * (q_dof - springref))
+        return q_dof.index_copy(-1, v_index, q.index_select(-1, q_index))
 
 
 # -- MuJoCo's Euler step with the damping implicit (mj_Euler) ------------------------------------------------
