@@ -115,6 +115,8 @@ def test_convention_selection(robots):
         (lambda r, q, v: r.inverse_dynamics(q, v, v.float()), TypeError, ["qdd", "dtype"]),
         (lambda r, q, v: r.crba(q.long()), TypeError, ["q", "float32 or float64"]),
         (lambda r, q, v: r.crba(q.tolist()), TypeError, ["q", "torch.Tensor"]),
+        (lambda r, q, v: r.crba(None), TypeError, ["crba: q must be a torch.Tensor, got None"]),
+        (lambda r, q, v: r.inverse_dynamics(q, v, None), TypeError, ["inverse_dynamics: qdd must be a torch.Tensor, got None"]),
         (lambda r, q, v: r.inverse_dynamics(q, v, v.to("meta")), ValueError, ["qdd", "device"]),
         (lambda r, q, v: r.inverse_dynamics(q, v, v, torch.zeros(3, 6, dtype=torch.float64)), ValueError, ["f_ext"]),
         (lambda r, q, v: r.frame_jacobian(q, "no_such_frame"), ValueError, ["frame", "no_such_frame"]),

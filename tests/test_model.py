@@ -66,6 +66,21 @@ def test_hash_is_content_hash():
     assert RobotModel(model.name, tuple(joints), model.frames).hash != model.hash
 
 
+def test_a_saved_model_loads_whatever_its_file_name_and_a_broken_one_is_named(robots, tmp_path):
+    """A model saved to a file without the .json suffix loads as one; a file that is not JSON, or JSON that is not a
+    saved model, is refused naming the file."""
+    robot = robots["go2"]
+    path = tmp_path / "go2_model"
+    robot.save(path)
+    assert source_to_model(str(path), None) == robot.model
+    for text, words in (("not json", "is not a saved robot model"), ("[1, 2]", "is JSON but not a saved robot model")):
+        broken = tmp_path / "broken.json"
+        broken.write_text(text)
+        with pytest.raises(ValueError, match=words) as info:
+            source_to_model(str(broken), None)
+        assert str(broken) in str(info.value)
+
+
 def test_save_and_load_without_pinocchio(robots, tmp_path):
     robot = robots["go2"]
     path = tmp_path / "go2_saved.json"

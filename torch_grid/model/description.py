@@ -175,7 +175,13 @@ class RobotModel:
     @classmethod
     def load(cls, path: str | Path) -> "RobotModel":
         """The model saved at `path` by `save`."""
-        return cls.from_dict(json.loads(Path(path).read_text()))
+        try:
+            saved = json.loads(Path(path).read_text())
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{str(path)!r} is not a saved robot model (RobotModel.save writes JSON): {e}") from None
+        if not isinstance(saved, dict) or "joints" not in saved:
+            raise ValueError(f"{str(path)!r} is JSON but not a saved robot model (RobotModel.save): it has no joints")
+        return cls.from_dict(saved)
 
 
 # -- validation --------------------------------------------------------------------------------

@@ -56,9 +56,10 @@ def source_to_model(source, floating_base: bool | None, mimic: bool = False) -> 
     if not path.is_file():
         bundled = ", ".join(sorted(BUNDLED))
         raise ValueError(f"source {source!r} is neither a bundled robot ({bundled}) nor an existing file")
-    if path.suffix == ".json":
+    text = path.read_text()
+    if path.suffix == ".json" or text.lstrip().startswith("{"):  # a saved model, whatever the file's name
         return _check_floating(RobotModel.load(path), floating_base, str(path))
-    return _from_text(path.read_text(), floating_base, name=path.stem, path=path, mimic=mimic)
+    return _from_text(text, floating_base, name=path.stem, path=path, mimic=mimic)
 
 
 def from_pinocchio(model, name: str | None = None) -> RobotModel:

@@ -30,7 +30,11 @@ def check_tensor(op: str, name: str, x, trailing: tuple[int, ...], q) -> None:
 def checked(op: str, tensor_args, args) -> list:
     """The arguments checked (each error names the argument, what was expected and what was received),
     with every tensor expanded to the broadcast of their leading batch shapes."""
-    names = [a.name for a in OPS[op].args]
+    spec = OPS[op].args
+    names = [a.name for a in spec]
+    for k, _ in tensor_args:
+        if args[k] is None and not spec[k].optional:
+            raise TypeError(f"{op}: {names[k]} must be a torch.Tensor, got None")
     q = args[0]
     for k, trailing in tensor_args:
         if args[k] is not None:
