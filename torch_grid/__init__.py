@@ -56,7 +56,7 @@ def load(source, *, floating_base: bool | None = None, convention: str = "pin", 
     an MJCF path or string, a saved model (.json, see Robot.save), a `pinocchio.Model`, a
     `mujoco.MjModel` or a `RobotModel`. MJCF is compiled by MuJoCo: joint, dof and body order are MuJoCo's.
     floating_base: None takes the source's own choice (a bundled robot's default, fixed for a URDF,
-    floating when an MJCF has a free joint); True adds a free-flyer root to a URDF (an MJCF must
+    floating when an MJCF's first joint is free); True adds a free-flyer root to a URDF (an MJCF must
     declare its own free joint).
     convention: default convention of the returned handle, "pin" or "mujoco".
     enable_mujoco_kernels: False builds Pinocchio-convention kernels only (a smaller build); a

@@ -285,9 +285,10 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         return dispatch(self, "osc_inertia", q, index, reference_code(reference), params)
 
     def cmm_time_variation(self, q, qd, params=None) -> torch.Tensor:
-        """Time derivative dA/dt (..., 6, nv) of the centroidal momentum matrix (Pinocchio's
-        computeCentroidalMapTimeVariation); in MuJoCo's convention, of its A at fixed qvel; params as in
-        inverse_dynamics."""
+        """dA (..., 6, nv) with dh/dt = A qdd + dA qd (Pinocchio's dAg, computeCentroidalMapTimeVariation; in
+        MuJoCo's convention, for its A and qacc). Only its product with qd is A's time derivative times qd: its
+        columns are not each one's time derivative (that matrix is centroidal_map_derivatives(q) contracted with
+        qd). params as in inverse_dynamics."""
         return dispatch(self, "cmm_time_variation", q, qd, self._parameters(params))
 
     def dccrba(self, q, qd, params=None) -> torch.Tensor:
@@ -314,15 +315,18 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         return dispatch(self, "coriolis_matrix", q, qd, self._parameters(params))
 
     def inverse_dynamics_regressor(self, q, qd, qdd) -> torch.Tensor:
-        """Y (..., nv, 10 nbodies) with inverse_dynamics(q, qd, qdd) = Y @ inertial_parameters()."""
+        """Y (..., nv, 10 nbodies): the bodies' part of inverse_dynamics(q, qd, qdd) = Y @ inertial_parameters()
+        plus the terms free of them (armature, passive and external forces)."""
         return dispatch(self, "inverse_dynamics_regressor", q, qd, qdd)
 
     def kinetic_energy_regressor(self, q, qd) -> torch.Tensor:
-        """(..., 10 nbodies) with kinetic energy = regressor @ inertial_parameters()."""
+        """(..., 10 nbodies): the bodies' kinetic energy = regressor @ inertial_parameters() (the rotors' armature
+        not included)."""
         return dispatch(self, "kinetic_energy_regressor", q, qd)
 
     def potential_energy_regressor(self, q) -> torch.Tensor:
-        """(..., 10 nbodies) with potential energy = regressor @ inertial_parameters()."""
+        """(..., 10 nbodies): gravity's potential energy = regressor @ inertial_parameters() (the joint springs' not
+        included)."""
         return dispatch(self, "potential_energy_regressor", q)
 
     def forward_dynamics_parameter_derivatives(self, q, qd, tau, params=None) -> torch.Tensor:
