@@ -82,6 +82,30 @@ def test_gradcheck_g1_and_tiago(robots, function):
                                         rtol=1e-5, fast_mode=True)
 
 
+# (passive_forces is linear in q and qd, made of torch ops: its gradient does not read them, and stays right)
+@pytest.mark.parametrize("function", sorted(set(FUNCTIONS) - {"passive_forces"}))
+def test_an_input_modified_in_place_before_the_backward_is_refused(robots, function):
+    """An input changed in place between a function and its backward (the backward would differentiate at the changed
+    value: a wrong gradient) is refused by autograd's check, as torch's own ops refuse it: on every function's eager
+    path, and on an op's registered autograd (the path torch.compile records)."""
+    robot = robots["go2"]
+    call, arity = FUNCTIONS[function]
+    leaves = [t.clone().requires_grad_() for t in _states(robot, 2, 5, "pin")[:arity]]
+    out = call(robot.pin, robot, *leaves)
+    loss = sum(o.double().sum() for o in (out if isinstance(out, tuple) else (out,)))
+    with torch.no_grad():
+        leaves[0].add_(0.1)
+    with pytest.raises(RuntimeError, match="modified by an inplace operation"):
+        torch.autograd.grad(loss, leaves, allow_unused=True)
+    if function == "crba":
+        q = leaves[0].detach().clone().requires_grad_()
+        M = robot._ops.crba(q, None, 0)  # the op itself: its registered autograd
+        with torch.no_grad():
+            q.mul_(2)
+        with pytest.raises(RuntimeError, match="modified by an inplace operation"):
+            M.sum().backward()
+
+
 def test_float32_backward_matches_float64(robots):
     robot = robots["go2"]
     q, qd, qdd, f = _states(robot, 3, 7, "pin")

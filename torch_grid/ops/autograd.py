@@ -67,12 +67,28 @@ def _save_nothing(ctx, inputs, output) -> None:
     pass
 
 
+def save(ctx, inputs, outputs) -> None:
+    """The tensor inputs and the outputs through save_for_backward: an input modified in place before the backward
+    is then refused by autograd (the backward would differentiate at the modified value), and in a double
+    backward the outputs are the graph's, whose gradients reach the op's own backward (a plain attribute would
+    hold them as constants). The other inputs (numbers, None) as they are."""
+    ctx.tensor_positions = [k for k, x in enumerate(inputs) if isinstance(x, torch.Tensor)]
+    ctx.others = [None if isinstance(x, torch.Tensor) else x for x in inputs]
+    ctx.save_for_backward(*[inputs[k] for k in ctx.tensor_positions], *outputs)
+
+
+def saved(ctx) -> tuple[list, tuple]:
+    """The inputs and the outputs `save` kept."""
+    tensors = ctx.saved_tensors
+    inputs = list(ctx.others)
+    for k, t in zip(ctx.tensor_positions, tensors):
+        inputs[k] = t
+    return inputs, tensors[len(ctx.tensor_positions):]
+
+
 def _save_inputs(ctx, inputs, output) -> None:
-    # The outputs through save_for_backward: in a double backward they are then the graph's, whose
-    # gradients reach the op's own backward (a plain attribute would hold them as constants).
-    ctx.inputs = inputs
     ctx.several = isinstance(output, tuple)
-    ctx.save_for_backward(*(output if ctx.several else (output,)))
+    save(ctx, inputs, output if ctx.several else (output,))
 
 
 def no_backward(name: str) -> Callable:
@@ -100,8 +116,8 @@ def _backward(name: str, formula: Callable, ops, model: RobotModel) -> Callable:
     the formula's ops are recorded, so it is differentiated by their own backwards."""
 
     def backward(ctx, *grads):
-        output = ctx.saved_tensors if ctx.several else ctx.saved_tensors[0]
-        return formula(ops, model, ctx.needs_input_grad, grads, output, *ctx.inputs)
+        inputs, outputs = saved(ctx)
+        return formula(ops, model, ctx.needs_input_grad, grads, outputs if ctx.several else outputs[0], *inputs)
 
     return backward
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import torch
 
 from ..model.description import RobotModel
-from .autograd import backward_formula, no_backward
+from .autograd import backward_formula, no_backward, save, saved
 from .table import OPS
 
 _CPU, _CUDA = torch._C.DispatchKeySet(torch._C.DispatchKey.CPU), torch._C.DispatchKeySet(torch._C.DispatchKey.CUDA)
@@ -75,16 +75,13 @@ class EagerOps:
 
         def forward(ctx, *args):
             out = call_kernel(op, *args)
-            # the inputs as they are, the outputs saved: in a double backward these are the graph's, whose
-            # gradients reach the formula's ops (autograd._save_inputs)
-            ctx.inputs = args
-            ctx.save_for_backward(*(out if several else (out,)))
+            save(ctx, args, out if several else (out,))  # as the registered autograd saves them (autograd.save)
             return out
 
         def backward(ctx, *grads):
-            saved = ctx.saved_tensors
+            inputs, outputs = saved(ctx)
             inner = ops if torch.is_grad_enabled() else direct
-            return formula(inner, model, ctx.needs_input_grad, grads, saved if several else saved[0], *ctx.inputs)
+            return formula(inner, model, ctx.needs_input_grad, grads, outputs if several else outputs[0], *inputs)
 
         return type(f"{name}_eager", (torch.autograd.Function,), {
             "forward": staticmethod(forward),
