@@ -70,6 +70,42 @@ def test_second_process_reuses_the_cache(cache):
     assert len(_entries(cache)) == 1
 
 
+def test_a_complete_cache_serves_without_writing(cache):
+    """A cache that holds a robot's build serves it where nothing may be written (read-only: an image, a shared file
+    system): the cache is written only to build, which is refused with the setting named."""
+    urdf = PENDULUM.format(tag="_readonly", mass=2.0)
+    first = _run(_load_and_eval(urdf), cache)
+    readonly = """
+        from torch_grid.ops import build
+        def refuse(root):
+            raise RuntimeError(f"read-only cache {root}")
+        build._writable = refuse
+    """
+    served = _run(readonly + _load_and_eval(urdf), cache)
+    assert served.stdout == first.stdout and "building" not in served.stderr
+    other = _run(readonly + _load_and_eval(PENDULUM.format(tag="_readonly", mass=3.0)), cache, check=False)
+    assert other.returncode != 0 and "read-only cache" in other.stderr
+
+
+def test_a_build_removes_the_folders_of_builds_whose_process_died(cache):
+    """A build killed outright (no cleanup runs) leaves its private build folder; the next build of that entry removes
+    it, and keeps those of processes still running."""
+    urdf = PENDULUM.format(tag="_abandoned", mass=2.0)
+    _run(_load_and_eval(urdf), cache)
+    (entry,) = _entries(cache)
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    abandoned = cache / ".build" / f"{entry.name}-{dead.pid}-1"
+    alive = cache / ".build" / f"{entry.name}-{os.getppid()}-1"
+    for folder in (abandoned, alive):
+        folder.mkdir()
+        (folder / "robot.o").write_text("half an object")
+    (entry / "complete").unlink()  # to be built again
+    again = _run(_load_and_eval(urdf), cache)
+    assert "building kernels" in again.stderr
+    assert not abandoned.exists() and alive.exists()
+
+
 def test_convention_is_not_in_the_cache_key(cache):
     # A fresh process: this one may already hold these libraries from another cache directory.
     out = _run("""

@@ -76,7 +76,14 @@ def build(model: RobotModel, *, mujoco: bool, cache_dir: str | Path | None = Non
 
 
 def _cache_root(cache_dir: str | Path | None) -> Path:
-    root = Path(cache_dir if cache_dir is not None else default_cache_dir()).expanduser()
+    """The cache folder; it need be writable only where something is to be built in it (_writable): a complete
+    cache read-only (in an image, on a shared file system) serves its robots."""
+    return Path(cache_dir if cache_dir is not None else default_cache_dir()).expanduser()
+
+
+def _writable(root: Path) -> None:
+    """Before a build: the cache's lock and build folders, and a file written there; else an error naming the
+    setting the folder came from."""
     try:
         for sub in (".locks", ".build"):
             (root / sub).mkdir(parents=True, exist_ok=True)
@@ -84,12 +91,12 @@ def _cache_root(cache_dir: str | Path | None) -> Path:
         probe.write_text("")
         probe.unlink()
     except OSError as e:
-        where = (f"cache_dir={str(cache_dir)!r}" if cache_dir is not None else
-                 f"TORCH_GRID_CACHE={os.environ['TORCH_GRID_CACHE']!r}" if os.environ.get("TORCH_GRID_CACHE") else
-                 f"the default cache {str(root)!r} (set TORCH_GRID_CACHE or pass cache_dir=)")
+        env = os.environ.get("TORCH_GRID_CACHE")
+        where = (f"TORCH_GRID_CACHE={env!r}" if env and root == Path(env).expanduser() else
+                 f"the default cache {str(root)!r} (set TORCH_GRID_CACHE or pass cache_dir=)" if root == default_cache_dir()
+                 else f"cache_dir={str(root)!r}")
         raise RuntimeError(f"torch_grid: cannot use {where} to keep compiled kernels: it must be a writable "
                            f"directory ({e.strerror or e})") from None
-    return root
 
 
 # -- the glue --------------------------------------------------------------------------------------
@@ -101,6 +108,7 @@ def _load_glue(root: Path, cuda: bool) -> None:
     entry = root / ".glue" / key[:16]
     library = entry / f"torch_grid_glue_{key[:16]}.so"
     if not _complete(entry, library):
+        _writable(root)
         with _file_lock(root, f"glue-{key[:16]}", "the torch glue"):
             if not _complete(entry, library):
                 _compile_glue(root, cuda, key, entry)  # also loads it
@@ -206,6 +214,7 @@ def _robot_library(root: Path, model: RobotModel, mujoco: bool, cuda: bool, name
     entry = root / f"{_safe(model.name)}-{key[:16]}"
     library = entry / f"lib{namespace}.so"
     if not _complete(entry, library):
+        _writable(root)
         with _file_lock(root, entry.name, f"kernels for {model.name!r}"):
             if not _complete(entry, library):
                 _compile_robot(root, model, mujoco, cuda, namespace, entry, library.name)
@@ -398,6 +407,7 @@ def _staging(root: Path, entry: Path):
     any failure or interruption, so the cache never holds a partial entry."""
     tmp = root / ".build" / f"{entry.name}-{os.getpid()}-{threading.get_ident()}"
     shutil.rmtree(tmp, ignore_errors=True)
+    _remove_abandoned(root, entry.name)
     tmp.mkdir(parents=True)
     try:
         yield tmp
@@ -407,6 +417,21 @@ def _staging(root: Path, entry: Path):
         os.rename(tmp, entry)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _remove_abandoned(root: Path, name: str) -> None:
+    """The build folders of entry `name` left by processes that died during a build (killed: no cleanup ran). The
+    caller holds the entry's lock, so no live process of this machine builds it meanwhile."""
+    for folder in (root / ".build").glob(f"{name}-*-*"):
+        pid = folder.name[len(name) + 1:].split("-", 1)[0]
+        if not pid.isdigit() or int(pid) == os.getpid():
+            continue
+        try:
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            shutil.rmtree(folder, ignore_errors=True)
+        except OSError:  # another user's live process
+            pass
 
 
 def _complete(entry: Path, library: Path) -> bool:
