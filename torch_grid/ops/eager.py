@@ -13,7 +13,8 @@ from __future__ import annotations
 import torch
 
 from ..model.description import RobotModel
-from .autograd import backward_formula, no_backward, save, saved
+from .autograd import backward_formula, no_backward
+from .saving import save, saved
 from .table import OPS
 
 _CPU, _CUDA = torch._C.DispatchKeySet(torch._C.DispatchKey.CPU), torch._C.DispatchKeySet(torch._C.DispatchKey.CUDA)
@@ -75,7 +76,7 @@ class EagerOps:
 
         def forward(ctx, *args):
             out = call_kernel(op, *args)
-            save(ctx, args, out if several else (out,))  # as the registered autograd saves them (autograd.save)
+            save(ctx, args, out if several else (out,))  # as the registered autograd saves them
             return out
 
         def backward(ctx, *grads):
