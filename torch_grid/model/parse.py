@@ -56,8 +56,8 @@ def source_to_model(source, floating_base: bool | None, mimic: bool = False) -> 
     if not path.is_file():
         bundled = ", ".join(sorted(BUNDLED))
         raise ValueError(f"source {source!r} is neither a bundled robot ({bundled}) nor an existing file")
-    text = path.read_text()
-    if path.suffix == ".json" or text.lstrip().startswith("{"):  # a saved model, whatever the file's name
+    text = None if path.suffix == ".json" else path.read_text()
+    if text is None or text.lstrip().startswith("{"):  # a saved model, whatever the file's name
         return _check_floating(RobotModel.load(path), floating_base, str(path))
     return _from_text(text, floating_base, name=path.stem, path=path, mimic=mimic)
 

@@ -22,6 +22,7 @@ from .autograd import backward_formula, mass_product_jvp, repeat
 from .levels import dual, transforming
 from .mujoco_second_order import kinematic_hessian_from_ops, second_order_from_ops
 from .parameters import repeat_params
+from .saving import save, saved
 from .table import KERNEL_JVP, OPS
 
 
@@ -61,25 +62,19 @@ class FuncOps:
             return outer.call(name, *args)
 
         def setup_context(ctx, inputs, output):
-            tensors = [k for k, x in enumerate(inputs) if isinstance(x, torch.Tensor)]
-            ctx.tensor_positions = tensors
-            ctx.others = [None if isinstance(x, torch.Tensor) else x for x in inputs]
             outs = output if several else (output,)
-            ctx.save_for_backward(*[inputs[k] for k in tensors], *outs)
-            ctx.save_for_forward(*[inputs[k] for k in tensors], *outs)
+            save(ctx, inputs, outs)
+            ctx.save_for_forward(*[inputs[k] for k in ctx.tensor_positions], *outs)
 
-        def saved(ctx, tensors):
-            inputs = list(ctx.others)
-            for k, t in zip(ctx.tensor_positions, tensors):
-                inputs[k] = t
-            outs = tensors[len(ctx.tensor_positions):]
+        def unpacked(ctx, tensors=None):
+            inputs, outs = saved(ctx, tensors)
             return inputs, outs if several else outs[0]
 
         def backward(ctx, *grads):
             if formula is None:
                 raise NotImplementedError(f"torch_grid: {name} has no derivative; it cannot be back-propagated through"
                                           f"{_THIRD}")
-            inputs, output = saved(ctx, ctx.saved_tensors)
+            inputs, output = unpacked(ctx)
             return formula(outer, model, ctx.needs_input_grad, grads, output, *inputs)
 
         def jvp(ctx, *tangents):
@@ -92,7 +87,7 @@ class FuncOps:
             level = torch._C._functorch.maybe_current_level()
             tensors = tuple(forward_ad.unpack_dual(t).primal if level is None else
                             torch._C._functorch._unwrap_for_grad(t, level) for t in ctx.saved_tensors)
-            inputs, output = saved(ctx, tensors)
+            inputs, output = unpacked(ctx, tensors)
             if spec.jvp in ("rule", "dual"):
                 return _JVPS[name](outer, output, *inputs, *tangents)
             outs = output if several else (output,)

@@ -1,5 +1,5 @@
-"""What an op's autograd.Function keeps for its backward (the registered autograd, autograd.py, and the eager
-Functions, eager.py)."""
+"""What an op's autograd.Function keeps for its backward (the registered autograd, autograd.py; the eager
+Functions, eager.py; torch.func's, func.py)."""
 from __future__ import annotations
 
 import torch
@@ -15,9 +15,9 @@ def save(ctx, inputs, outputs) -> None:
     ctx.save_for_backward(*[inputs[k] for k in ctx.tensor_positions], *outputs)
 
 
-def saved(ctx) -> tuple[list, tuple]:
-    """The inputs and the outputs `save` kept."""
-    tensors = ctx.saved_tensors
+def saved(ctx, tensors: tuple | None = None) -> tuple[list, tuple]:
+    """The inputs and the outputs `save` kept: ctx.saved_tensors, or `tensors` in their place (the same unwrapped)."""
+    tensors = ctx.saved_tensors if tensors is None else tensors
     inputs = list(ctx.others)
     for k, t in zip(ctx.tensor_positions, tensors):
         inputs[k] = t

@@ -2,9 +2,10 @@
 
 pin convention, Pinocchio's Lie groups (pin.integrate, difference, dIntegrate, dDifference): a free
 joint is SE(3), q (+) v = M exp6(v) (the linear velocity in the body frame); a ball joint is SO(3),
-Q exp3(w); the others add, and a continuous joint's angle differs by the shortest turn, in (-pi, pi] (as
-Pinocchio's (cos, sin) joint; MuJoCo has no continuous joint, its hinge is a revolute one). mujoco convention, mj_integratePos / mj_differentiatePos: a free joint's
-position adds in the world frame; its quaternion and a ball joint's turn by the local rotation.
+Q exp3(w); the others add, and a continuous joint's angle differs by the shortest turn, in (-pi, pi]
+(as Pinocchio's (cos, sin) joint; MuJoCo has no continuous joint, its hinge is a revolute one).
+mujoco convention, mj_integratePos / mj_differentiatePos: a free joint's position adds in the world
+frame; its quaternion and a ball joint's turn by the local rotation.
 Quaternions are read normalised, as the kernels read them (MuJoCo normalises them too).
 
 The Jacobians are (..., nv, nv) along the tangent spaces: a configuration moves by q (+) dq, the
