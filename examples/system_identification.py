@@ -11,7 +11,7 @@ inertial parameters: the dynamics take the parameters as an input (`params=`), w
 4. Domain randomisation: one set of parameters per sample, each link's mass and inertia scaled by up
    to 20%, in a batch of PD-controlled rollouts.
 
-    python examples/system_identification.py [--samples 256] [--steps 200]
+    python examples/system_identification.py [--device cuda] [--samples 256] [--steps 200]
 """
 from __future__ import annotations
 
@@ -34,12 +34,14 @@ def point_mass(robot, body: int, offset) -> torch.Tensor:
 
 
 def measurements(robot, truth, samples: int, noise: float, seed: int = 0):
-    """States, applied torques and accelerations of the true robot, the torques with sensor noise."""
+    """States, applied torques and accelerations of the true robot, the torques with sensor noise, on
+    truth's device (drawn on the CPU, so that every device draws the same)."""
     g = torch.Generator().manual_seed(seed)
     q = robot.random_configuration(samples, generator=g)
     qd, qdd = (torch.randn(samples, robot.nv, dtype=torch.float64, generator=g) for _ in range(2))
+    q, qd, qdd = (t.to(truth.device) for t in (q, qd, qdd))
     tau = robot.inverse_dynamics(q, qd, qdd, params=truth)
-    return q, qd, qdd, tau + noise * torch.randn(tau.shape, dtype=torch.float64, generator=g)
+    return q, qd, qdd, tau + noise * torch.randn(tau.shape, dtype=torch.float64, generator=g).to(truth.device)
 
 
 def least_squares_mass(robot, nominal, phi, q, qd, qdd, tau) -> float:
@@ -51,7 +53,7 @@ def least_squares_mass(robot, nominal, phi, q, qd, qdd, tau) -> float:
 
 def gradient_descent_mass(robot, nominal, phi, q, qd, qdd, tau, steps: int, log=print) -> float:
     """m fitted to the accelerations through forward dynamics, by Adam on log m."""
-    log_mass = torch.zeros((), dtype=torch.float64, requires_grad=True)
+    log_mass = torch.zeros((), dtype=torch.float64, device=nominal.device, requires_grad=True)
     optimizer = torch.optim.Adam([log_mass], lr=0.05)
     for step in range(steps):
         optimizer.zero_grad()
@@ -86,12 +88,12 @@ def randomised_rollouts(robot, nominal, batch: int, horizon: int = 100, dt: floa
     """Final joint errors (batch, nv) of computed-torque control towards the neutral configuration with
     the nominal model, on plants with one set of parameters per sample (each link's mass and inertia
     scaled by U(0.8, 1.2)): the model's error leaves each sample its own residual."""
-    g = torch.Generator().manual_seed(seed)
-    scale = 0.8 + 0.4 * torch.rand(batch, robot.nbodies, 1, dtype=torch.float64, generator=g)
+    g, device = torch.Generator().manual_seed(seed), nominal.device
+    scale = 0.8 + 0.4 * torch.rand(batch, robot.nbodies, 1, dtype=torch.float64, generator=g).to(device)
     view = robot.with_parameters(nominal * scale, check=True)
-    q = robot.random_configuration(batch, generator=g)
-    qd = torch.zeros(batch, robot.nv, dtype=torch.float64)
-    target = robot.neutral_configuration(dtype=torch.float64)
+    q = robot.random_configuration(batch, generator=g).to(device)
+    qd = torch.zeros(batch, robot.nv, dtype=torch.float64, device=device)
+    target = robot.neutral_configuration(dtype=torch.float64, device=device)
     for _ in range(horizon):
         a = 100.0 * (target - q) - 20.0 * qd
         tau = (robot.crba(q) @ a.unsqueeze(-1)).squeeze(-1) + robot.nonlinear_effects(q, qd)
@@ -99,10 +101,11 @@ def randomised_rollouts(robot, nominal, batch: int, horizon: int = 100, dt: floa
     return q - target
 
 
-def main(samples: int = 256, steps: int = 200, payload: float = 2.5, noise: float = 0.01, log=print) -> dict:
+def main(samples: int = 256, steps: int = 200, payload: float = 2.5, noise: float = 0.01, device: str = "cpu",
+         log=print) -> dict:
     robot = torch_grid.load("iiwa14")
-    nominal = robot.inertial_parameters().view(robot.nbodies, 10)
-    phi = point_mass(robot, robot.nbodies - 1, (0.0, 0.0, 0.08))
+    nominal = robot.inertial_parameters(device=device).view(robot.nbodies, 10)
+    phi = point_mass(robot, robot.nbodies - 1, (0.0, 0.0, 0.08)).to(device)
     truth = nominal + payload * phi
     q, qd, qdd, tau = measurements(robot, truth, samples, noise)
     log(f"true payload: {payload:.4f} kg")
@@ -120,7 +123,8 @@ def main(samples: int = 256, steps: int = 200, payload: float = 2.5, noise: floa
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--device", default="cpu")
     parser.add_argument("--samples", type=int, default=256)
     parser.add_argument("--steps", type=int, default=200)
     args = parser.parse_args()
-    main(args.samples, args.steps)
+    main(args.samples, args.steps, device=args.device)

@@ -116,10 +116,45 @@ def test_control_cost_and_barriers():
         assert torch.allclose(grad, auto, rtol=1e-12, atol=1e-12), barrier
         second = torch.stack([torch.autograd.grad(auto[:, k].sum(), inside, retain_graph=True)[0] for k in range(5)], -1)
         assert torch.allclose(hess, second, rtol=1e-12, atol=1e-12), barrier
-    outside = torch.tensor([[0.0, 2.0, 0.0, -3.0, 0.5]], dtype=torch.float64)
+    outside = torch.tensor([[0.0, 2.0, 1.0, -3.0, -1.0]], dtype=torch.float64)
     value, grad, hess = torch_grid.log_barrier(outside, lower, upper, w[:1])
-    assert torch.isinf(value).all() and torch.isinf(grad[0, [1, 3]]).all() and not torch.isnan(grad).any()
+    # at or past a bound, the gradient is the limit from inside: -inf at the lower, +inf at the upper
+    assert torch.isinf(value).all() and not torch.isnan(grad).any() and torch.isinf(hess[0, [1, 2, 3, 4], [1, 2, 3, 4]]).all()
+    assert grad[0, 1] == grad[0, 2] == float("inf") and grad[0, 3] == grad[0, 4] == float("-inf")
+    near = torch.tensor([[0.0, 1 - 1e-9, 0.0, -1 + 1e-9, 0.0]], dtype=torch.float64)
+    assert (torch_grid.log_barrier(near, lower, upper, w[:1])[1][0, [1, 3]].sign() == grad[0, [1, 3]].sign()).all()
+    outside = torch.tensor([[0.0, 2.0, 0.0, -3.0, 0.5]], dtype=torch.float64)
     value, grad, _ = torch_grid.quadratic_barrier(outside, lower, upper, w[:1])
     assert torch.allclose(value, 0.5 * (w[0, 1] * 1.0 + w[0, 3] * 4.0).unsqueeze(0))
     with pytest.raises(ValueError, match=r"control_cost: weights must be a tensor of shape \(\.\.\., 5\)"):
         robot_free.control_cost(x, ref, w[:, :3])
+
+
+def test_targets_and_bounds_of_another_shape_are_refused_naming_them(robots):
+    robot = robots["go2"]
+    view, nv, frame = robot.pin, robot.nv, robot.nframes - 1
+    q, qd = view.random_configuration(2), torch.zeros(2, nv, dtype=torch.float64)
+    ones = lambda *shape: torch.ones(*shape, dtype=torch.float64)  # noqa: E731
+    cases = [
+        (r"state_cost: q_ref must be a tensor of shape \(\.\.\., 19\), got \(18,\)",
+         lambda: view.state_cost(q, qd, ones(18), qd, ones(2 * nv))),
+        (r"state_cost: qd_ref must be a tensor of shape \(\.\.\., 18\), got \(2, 19\)",
+         lambda: view.state_cost(q, qd, q, q, ones(2 * nv))),
+        (r"control_cost: tau_ref must be a tensor of shape \(\.\.\., 18\), got \(19,\)",
+         lambda: view.control_cost(qd, ones(19), ones(nv))),
+        (r"frame_translation_cost: target must be a tensor of shape \(\.\.\., 3\), got \(4,\)",
+         lambda: view.frame_translation_cost(q, qd, frame, ones(4), ones(3))),
+        (r"frame_placement_cost: target must be a tensor of shape \(\.\.\., 4, 4\), got \(3, 3\)",
+         lambda: view.frame_placement_cost(q, qd, frame, ones(3, 3), ones(6))),
+        (r"com_cost: target must be a tensor of shape \(\.\.\., 3\), got list",
+         lambda: view.com_cost(q, qd, [0.0, 0.0, 1.0], ones(3))),
+        (r"momentum_cost: target must be a tensor of shape \(\.\.\., 6\), got \(3,\)",
+         lambda: view.momentum_cost(q, qd, ones(3), ones(6))),
+        (r"quadratic_barrier: upper of shape \(4,\) does not broadcast with x's shape \(2, 5\)",
+         lambda: torch_grid.quadratic_barrier(ones(2, 5), -ones(5), ones(4), ones(5))),
+        (r"log_barrier: weights of shape \(3, 5\) does not broadcast with x's shape \(2, 5\)",
+         lambda: torch_grid.log_barrier(ones(2, 5), -ones(5), ones(5), ones(3, 5))),
+    ]
+    for message, call in cases:
+        with pytest.raises(ValueError, match=message):
+            call()

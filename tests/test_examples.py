@@ -1,8 +1,10 @@
 """The examples run (shortened) and do what they print: iLQR lowers the cost on iiwa14 and go2, the
 policy's loss falls through back-propagation over the dynamics, the compiled rollout equals eager, system
-identification recovers a payload, and the package's demo agrees with its oracles."""
+identification recovers a payload, computed-torque control tracks its trajectory, every example takes
+--device, and the package's demo agrees with its oracles."""
 from __future__ import annotations
 
+import subprocess
 import sys
 from pathlib import Path
 
@@ -11,8 +13,10 @@ import torch
 
 import torch_grid
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples"))
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+sys.path.insert(0, str(EXAMPLES))
 
+import computed_torque  # noqa: E402
 import ilqr  # noqa: E402
 import policy_rollout  # noqa: E402
 import system_identification  # noqa: E402
@@ -115,6 +119,20 @@ def test_system_identification_recovers_the_payload():
     assert losses[-1] < 0.02 * losses[0]
     spread = result["rollout_errors"]
     assert torch.isfinite(spread).all() and spread.max() > 2 * spread.min()
+
+
+def test_computed_torque_tracks_the_trajectory():
+    """The tracking error falls from the random start's to well below it within half a second."""
+    errors = computed_torque.main(batch=8, steps=500, log=lambda *_: None)
+    assert len(errors) == 3 and errors[-1] < 1e-3 * errors[0], errors
+
+
+@pytest.mark.parametrize("example", sorted(p.stem for p in EXAMPLES.glob("*.py")))
+def test_every_example_takes_a_device(example):
+    """The docs say each example takes --device cuda: each one's command line has the option."""
+    help_text = subprocess.run([sys.executable, str(EXAMPLES / f"{example}.py"), "--help"], capture_output=True,
+                               text=True, check=True, timeout=120).stdout
+    assert "--device" in help_text, help_text
 
 
 def test_demo_runs_and_matches_the_oracles(capsys):

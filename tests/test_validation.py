@@ -351,3 +351,10 @@ def test_joints_out_of_depth_first_order_are_refused():
     parents = {"a": -1, "b": 0, "c": 1, "d": 0, "e": 1}
     joints = tuple(joint(name, parent) for name, parent in parents.items())
     refused(lambda: RobotModel("split", joints, ()), "'e'", "depth-first", "'d'")
+
+
+def test_a_file_that_is_not_xml_is_refused_naming_it(tmp_path):
+    path = tmp_path / "notes.urdf"
+    path.write_text("# not a robot\n")
+    with pytest.raises(ValueError, match=r"notes\.urdf is not well-formed XML"):
+        torch_grid.load(path)

@@ -150,13 +150,14 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         reference: "local_world_aligned" (frame origin, world axes), "local" (frame axes) or
         "world" (spatial velocity at the world origin).
         """
-        return dispatch(self, "frame_jacobian", q, self._robot.frame_index(frame, "frame"), reference_code(reference))
+        return dispatch(self, "frame_jacobian", q, self._robot.frame_index(frame, "frame"),
+                        reference_code("frame_jacobian", reference))
 
     def frame_kinematic_hessian(self, q, frame: str | int, reference: str = "local_world_aligned") -> torch.Tensor:
         """Kinematic Hessian (..., 6, nv, nv) of a frame: H[..., :, j, k] = d J[..., :, j] / dq_k along the
         tangent, J = frame_jacobian(q, frame, reference) (Pinocchio's getFrameKinematicHessian).
         In the MuJoCo convention, d/dq_k of its Jacobian (qvel's frame) along mj_integratePos's tangent."""
-        index, ref = self._robot.frame_index(frame, "frame"), reference_code(reference)
+        index, ref = self._robot.frame_index(frame, "frame"), reference_code("frame_kinematic_hessian", reference)
         if self._differs():
             return mujoco_second_order.frame_kinematic_hessian(self._robot, q, index, ref)
         return dispatch(self, "frame_kinematic_hessian", q, index, ref)
@@ -164,7 +165,8 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
     def frame_jacobian_dot(self, q, qd, frame: str | int, reference: str = "local_world_aligned") -> torch.Tensor:
         """Time derivative (..., 6, nv) of frame_jacobian at velocity qd (Pinocchio's
         getFrameJacobianTimeVariation); in MuJoCo's convention, of its Jacobian with qvel fixed."""
-        return dispatch(self, "frame_jacobian_dot", q, qd, self._robot.frame_index(frame, "frame"), reference_code(reference))
+        return dispatch(self, "frame_jacobian_dot", q, qd, self._robot.frame_index(frame, "frame"),
+                        reference_code("frame_jacobian_dot", reference))
 
     def body_velocities(self, q, qd) -> torch.Tensor:
         """Spatial velocity [linear; angular] (..., nbodies, 6) of each body, in its joint frame."""
@@ -241,8 +243,9 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
 
     def passive_forces(self, q, qd) -> torch.Tensor:
         """MuJoCo's qfrc_passive of the joints' damping and stiffness (..., nv):
-        -damping qd - stiffness (q - springref) on hinge and slide joints, whether or not the other
-        functions include it (`load(..., passive_forces=...)`); zero for a model without them."""
+        -damping qd - stiffness (q - springref), damping on the dofs of hinge, slide and ball joints, stiffness
+        on hinge and slide joints, whether or not the other functions include it
+        (`load(..., passive_forces=...)`); zero for a model without them."""
         coupling = self._robot._coupling
         if coupling is None:
             return self._robot._passive(q, qd)
@@ -273,7 +276,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         fewer than 6 dofs raises ValueError; at a singular configuration of a frame that has 6 or more,
         the entries are inf or NaN, as the inverse of a singular matrix. params as in inverse_dynamics."""
         robot = self._robot
-        index = robot.frame_index(frame, "frame")
+        index, ref = robot.frame_index(frame, "frame"), reference_code("osc_inertia", reference)
         dofs = robot._frame_dofs(index)
         if dofs < 6:
             raise ValueError(f"osc_inertia: frame {robot.frame_names[index]!r} is moved by {dofs} dofs; its operational-"
@@ -282,7 +285,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         if forward_mode((q, params)):  # composed of ops that have a forward mode (the kernel has none)
             J = self.frame_jacobian(q, index, reference)
             return torch.linalg.inv(J @ self.minv(q, params) @ J.mT)
-        return dispatch(self, "osc_inertia", q, index, reference_code(reference), params)
+        return dispatch(self, "osc_inertia", q, index, ref, params)
 
     def cmm_time_variation(self, q, qd, params=None) -> torch.Tensor:
         """dA (..., 6, nv) with dh/dt = A qdd + dA qd (Pinocchio's dAg, computeCentroidalMapTimeVariation; in
@@ -409,7 +412,8 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
 
     def with_parameters(self, params: torch.Tensor, check: bool = False) -> "RobotView":
         """A view of these functions computing with the inertial parameters `params` instead of the robot's
-        own: every function whose value depends on them uses them, and the others raise.
+        own: every function whose value depends on them uses them; the others (kinematics, regressors,
+        the configuration space) compute as they do on the robot.
 
         Args:
             params: (..., nbodies, 10), each body's [m, m c, I_xx, I_xy, I_yy, I_xz, I_yz, I_zz] in

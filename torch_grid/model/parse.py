@@ -63,7 +63,8 @@ def source_to_model(source, floating_base: bool | None, mimic: bool = False) -> 
 
 
 def from_pinocchio(model, name: str | None = None) -> RobotModel:
-    """Convert a pinocchio.Model (revolute, continuous, prismatic, spherical, free-flyer root) to a RobotModel."""
+    """Convert a pinocchio.Model (revolute, continuous, prismatic, spherical, free-flyer root) to a RobotModel,
+    named `name` (default: the model's own name)."""
     joints = []
     for jid in range(1, model.njoints):
         jm = model.joints[jid]
@@ -139,7 +140,7 @@ def _from_text(text: str, floating_base: bool | None, name: str | None, path: Pa
     try:
         root = ET.fromstring(text)
     except ET.ParseError as e:
-        raise ValueError(f"source is not well-formed XML ({e})") from None
+        raise ValueError(f"{path if path is not None else 'source'} is not well-formed XML ({e})") from None
     if root.tag == "robot":
         _reject_urdf_features(root)
         mimics = _mimic_joints(root, mimic)

@@ -76,11 +76,11 @@ def forward_mode(args, stack=None) -> bool:
     return (bool(stack) and any(i.key() == torch._C._functorch.TransformType.Jvp for i in stack)) or dual(args)
 
 
-def reference_code(reference) -> int:
-    """The code of a frame Jacobian's reference frame, given by name (REFERENCES)."""
+def reference_code(op: str, reference) -> int:
+    """The code of a frame Jacobian's reference frame, given by name (REFERENCES) to `op`."""
     ref = REFERENCES.get(reference.lower()) if isinstance(reference, str) else None
     if ref is None:
-        raise ValueError(f"reference must be one of {sorted(REFERENCES)}, got {reference!r}")
+        raise ValueError(f"{op}: reference must be one of {sorted(REFERENCES)}, got {reference!r}")
     return ref
 
 

@@ -20,6 +20,8 @@ class CostFunctions:
         """r = [difference(q_ref, q); qd - qd_ref], weights (..., 2 nv)."""
         nv = qd.shape[-1]
         w = _checked_weights("state_cost", weights, 2 * nv)
+        _checked("state_cost", "q_ref", q_ref, (q.shape[-1],))
+        _checked("state_cost", "qd_ref", qd_ref, (nv,))
         r_q, r_v = self.difference(q_ref, q), qd - qd_ref
         j_q = self.d_difference(q_ref, q)[1]
         # J = [[j_q, 0], [0, I]]: its blocks apart (the dense 2 nv product costs 8x the q block's)
@@ -31,7 +33,7 @@ class CostFunctions:
 
     def control_cost(self, tau, tau_ref, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = tau - tau_ref, weights (..., nv)."""
-        r = tau - tau_ref
+        r = tau - _checked("control_cost", "tau_ref", tau_ref, tuple(tau.shape[-1:]))
         return _diagonal(r, _checked_weights("control_cost", weights, r.shape[-1]))
 
     def frame_translation_cost(self, q, qd, frame, target, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -39,11 +41,13 @@ class CostFunctions:
         index = self._robot.frame_index(frame)
         position = self.forward_kinematics(q)[0][..., index, :]
         jacobian = self.frame_jacobian(q, index, "local_world_aligned")[..., :3, :]
+        target = _checked("frame_translation_cost", "target", target, (3,))
         return _weighted(position - target, _state_rows(jacobian, qd), _checked_weights("frame_translation_cost", weights, 3))
 
     def frame_placement_cost(self, q, qd, frame, target, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = log6(target^-1 oMf) [linear; angular] (Crocoddyl's ResidualModelFramePlacement), target a
         (..., 4, 4) placement, weights (..., 6); J = Jlog6(target^-1 oMf) J_frame(LOCAL)."""
+        target = _checked("frame_placement_cost", "target", target, (4, 4))
         index = self._robot.frame_index(frame)
         positions, rotations = self.forward_kinematics(q)
         R, p = rotations[..., index, :, :], positions[..., index, :]
@@ -57,12 +61,14 @@ class CostFunctions:
 
     def com_cost(self, q, qd, target, weights, params=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = center of mass - target (..., 3), weights (..., 3); params as in inverse_dynamics."""
+        target = _checked("com_cost", "target", target, (3,))
         return _weighted(self.com(q, params) - target, _state_rows(self.jacobian_com(q, params), qd),
                          _checked_weights("com_cost", weights, 3))
 
     def momentum_cost(self, q, qd, target, weights, params=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = centroidal momentum h(q, qd) [linear; angular] - target (..., 6), weights (..., 6): both its q
         block (dccrba) and its qd block (A); params as in inverse_dynamics."""
+        target = _checked("momentum_cost", "target", target, (6,))
         A, h = self.ccrba(q, qd, params)
         return _weighted(h - target, torch.cat([self.dccrba(q, qd, params), A], dim=-1),
                          _checked_weights("momentum_cost", weights, 6))
@@ -71,6 +77,7 @@ class CostFunctions:
 def quadratic_barrier(x: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, weights: torch.Tensor):
     """Crocoddyl's quadratic barrier: sum(w (min(x - lower, 0)^2 + max(x - upper, 0)^2)) / 2, zero inside
     [lower, upper]; (value (...,), gradient (..., n), Hessian (..., n, n), diagonal)."""
+    _checked_bounds("quadratic_barrier", x, lower, upper, weights)
     r = torch.clamp(x - lower, max=0) + torch.clamp(x - upper, min=0)
     outside = ((x < lower) | (x > upper)).to(x.dtype)
     value = 0.5 * (weights * r * r).sum(-1)
@@ -79,15 +86,17 @@ def quadratic_barrier(x: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor,
 
 def log_barrier(x: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, weights: torch.Tensor):
     """The logarithmic barrier of joint position, velocity or torque limits (as GRiD's):
-    -sum(w (log(x - lower) + log(upper - x))); infinite outside (lower, upper), with an infinite gradient
-    and Hessian there rather than a NaN. (value (...,), gradient (..., n), Hessian (..., n, n), diagonal,
-    exact)."""
+    -sum(w (log(x - lower) + log(upper - x))), lower < upper; infinite outside (lower, upper), with an
+    infinite gradient and Hessian there rather than a NaN: the gradient is -inf at or below lower and +inf
+    at or above upper, its limits from inside. (value (...,), gradient (..., n), Hessian (..., n, n),
+    diagonal, exact)."""
+    _checked_bounds("log_barrier", x, lower, upper, weights)
     a, b = x - lower, upper - x
     inside = (a > 0) & (b > 0)
     a_s, b_s = torch.where(inside, a, torch.ones_like(a)), torch.where(inside, b, torch.ones_like(b))
     inf = torch.full_like(x, float("inf"))
     value = torch.where(inside, -weights * (torch.log(a_s) + torch.log(b_s)), inf).sum(-1)
-    grad = torch.where(inside, weights * (1 / b_s - 1 / a_s), inf)
+    grad = torch.where(inside, weights * (1 / b_s - 1 / a_s), torch.where(a > 0, inf, -inf))
     hess = torch.where(inside, weights * (1 / (a_s * a_s) + 1 / (b_s * b_s)), inf)
     return value, grad, torch.diag_embed(hess)
 
@@ -115,6 +124,26 @@ def _checked_weights(cost: str, weights, n: int) -> torch.Tensor:
         got = tuple(weights.shape) if isinstance(weights, torch.Tensor) else type(weights).__name__
         raise ValueError(f"{cost}: weights must be a tensor of shape (..., {n}), got {got}")
     return weights
+
+
+def _checked(cost: str, name: str, tensor, shape: tuple[int, ...]) -> torch.Tensor:
+    """`tensor` itself, refused unless it is a tensor whose trailing dimensions are `shape`."""
+    if not isinstance(tensor, torch.Tensor) or tuple(tensor.shape[max(0, tensor.dim() - len(shape)):]) != shape:
+        got = tuple(tensor.shape) if isinstance(tensor, torch.Tensor) else type(tensor).__name__
+        want = ", ".join(["..."] + [str(n) for n in shape])
+        raise ValueError(f"{cost}: {name} must be a tensor of shape ({want}), got {got}")
+    return tensor
+
+
+def _checked_bounds(barrier: str, x: torch.Tensor, lower, upper, weights) -> None:
+    """Refuses bounds or weights that do not broadcast with x, naming the argument."""
+    for name, t in (("lower", lower), ("upper", upper), ("weights", weights)):
+        shape = tuple(t.shape) if isinstance(t, torch.Tensor) else ()
+        try:
+            torch.broadcast_shapes(x.shape, shape)
+        except RuntimeError:
+            raise ValueError(f"{barrier}: {name} of shape {shape} does not broadcast with x's shape "
+                             f"{tuple(x.shape)}") from None
 
 
 def _quaternion_of(R: torch.Tensor) -> torch.Tensor:

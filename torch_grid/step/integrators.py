@@ -177,7 +177,7 @@ class StepFunctions:
                                 f_ext: torch.Tensor | None = None, params: torch.Tensor | None = None) -> torch.Tensor:
         """(..., 2 nv, 3 nv, 3 nv): the Hessian at z = 0 of z -> [difference(q', q'(z)); qd'(z) - qd'] with
         (q'(z), qd'(z)) = step(q (+) z_q, qd + z_qd, tau + z_tau), symmetric in its last two indices. The
-        Euler schemes: in closed form from forward_dynamics_second_derivatives (step_hessian.py); the Runge-Kutta
+        Euler schemes: in closed form from forward_dynamics_second_derivatives (euler_hessian.py); the Runge-Kutta
         schemes: the second-order chain rule through the stages, from each stage's forward-dynamics gradient
         and second derivatives and the configuration space's closed forms (rk_hessian.py). params as in step."""
         if params is not None:
