@@ -255,6 +255,27 @@ def test_couplings_are_refused():
     heavy = MODEL.replace('<body name="pendulum" pos="1 1 1">', '<body name="pendulum" pos="1 1 1" gravcomp="1">')
     with pytest.raises(ValueError, match="'pendulum' has gravcomp"):
         source_to_model(heavy, None)
+    yielding = MODEL.replace('<joint name="swing" type="hinge" axis="1 0 0"/>',
+                             '<joint name="swing" type="hinge" axis="1 0 0" stiffness="2" springyield="0.3"/>')
+    with pytest.raises(ValueError, match="'swing' has springyield .*plasticity"):
+        source_to_model(yielding, None)
+    for extra in ('armature="0.2"', 'damping="0.1"'):
+        # MuJoCo adds them to the joint (times gear^2) whether or not the motor is driven: refused
+        driven = MODEL.replace("</worldbody>", f"</worldbody><actuator><motor name='drive' joint='knee' gear='3' {extra}/>"
+                               "</actuator>")
+        m = mujoco.MjModel.from_xml_string(driven)
+        m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
+        plain = mujoco.MjModel.from_xml_string(MODEL)
+        d, d_plain = mujoco.MjData(m), mujoco.MjData(plain)
+        d.qvel[:] = d_plain.qvel[:] = d.qacc[:] = d_plain.qacc[:] = 1.0
+        mujoco.mj_inverse(m, d), mujoco.mj_inverse(plain, d_plain)
+        assert np.abs(d.qfrc_inverse - d_plain.qfrc_inverse).max() > 0.1, extra  # M (+ 1.8) or the passive force
+        with pytest.raises(ValueError, match=f"actuator 'drive' has {extra.split('=')[0]} .*times gear"):
+            source_to_model(driven, None)
+    rope = MODEL.replace("</worldbody>", '<flexcomp name="rope" type="grid" count="3 1 1" spacing="0.1 0.1 0.1" dim="1" '
+                         'radius="0.01" mass="0.3"><edge stiffness="5"/></flexcomp></worldbody>')
+    with pytest.raises(ValueError, match="flex 'rope' .*deformable"):
+        source_to_model(rope, None)
     two_free = MODEL.replace('<joint name="swing" type="hinge" axis="1 0 0"/>', '<freejoint name="loose"/>')
     assert [j.type for j in source_to_model(two_free, None).joints][-1] == "free"  # a root: supported
 
@@ -268,6 +289,15 @@ def test_unmodelled_features_are_listed_once():
     message = str(record[0].message)
     for w in ("2 actuators", "contacts", "joint limits (pitch, swing)", "without them"):
         assert w in message
+    # contacts of an explicit pair between geoms that collide with nothing else, and sleeping
+    quiet = MODEL.replace("<geom ", '<geom contype="0" conaffinity="0" ').replace(
+        '<option gravity="0.5 -1 -7"/>', '<option gravity="0.5 -1 -7"><flag sleep="enable"/></option>').replace(
+        'type="box"', 'name="box" type="box"').replace('type="cylinder"', 'name="rod" type="cylinder"')
+    paired = quiet.replace("</worldbody>", "</worldbody><contact><pair geom1='box' geom2='rod'/></contact>")
+    with pytest.warns(UserWarning) as record:
+        source_to_model(paired, None)
+    message = str(record[0].message)
+    assert len(record) == 1 and "contacts (1 explicit pairs)" in message and "sleep" in message, message
 
 
 def test_floating_base_must_agree():

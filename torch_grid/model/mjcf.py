@@ -204,6 +204,24 @@ def _refuse_unmodelled_couplings(mujoco, m, names: _Names) -> None:
     for b in range(m.nbody):
         if m.body_gravcomp[b] != 0:
             raise ValueError(f"body {names.body(b)!r} has gravcomp {m.body_gravcomp[b]}, which is not supported")
+    if getattr(m, "nflex", 0):
+        fname = mujoco.mj_id2name(m, obj.mjOBJ_FLEX, 0) or "flex0"
+        raise ValueError(f"MJCF flex {fname!r} ({m.nflex} in all) is a deformable object: its elastic forces and "
+                         "contacts act on its vertices' joints, which is not supported")
+    for j in range(m.njnt):
+        if getattr(m, "jnt_springyield", np.zeros(m.njnt))[j] > 0 and m.jnt_stiffness[j] != 0:
+            raise ValueError(f"joint {names.joint(j)!r} has springyield {m.jnt_springyield[j]}: its spring's rest "
+                             "position moves as the simulation runs (plasticity), which is not supported")
+    for a in range(m.nu):
+        # MuJoCo adds an actuator's armature and damping to its transmission's inertia and passive force
+        # (times gear^2 on a joint), with or without its control
+        for what in ("armature", "damping", "dampingpoly"):
+            value = getattr(m, f"actuator_{what}", np.zeros((m.nu, 1)))[a]
+            if np.any(value != 0):
+                aname = mujoco.mj_id2name(m, obj.mjOBJ_ACTUATOR, a) or f"actuator{a}"
+                raise ValueError(f"MJCF actuator {aname!r} has {what} {np.ravel(value).tolist()}: it adds to its "
+                                 f"transmission's {'inertia' if what == 'armature' else 'passive forces'}, which "
+                                 "is not supported; give the joint the equivalent (times gear^2) instead")
 
 
 def _warn_unmodelled(mujoco, m, names: _Names) -> None:
@@ -214,9 +232,9 @@ def _warn_unmodelled(mujoco, m, names: _Names) -> None:
     if m.nu:
         found.append(f"{m.nu} actuators")
     if m.ntendon:
-        found.append(f"{m.ntendon} tendons (actuation and limits)")
-    if not off & bits["mjDSBL_CONTACT"] and np.any((m.geom_contype != 0) | (m.geom_conaffinity != 0)):
-        found.append("contacts")
+        found.append(f"{m.ntendon} tendons (actuation, limits and friction loss)")
+    if not off & bits["mjDSBL_CONTACT"] and (m.npair or np.any((m.geom_contype != 0) | (m.geom_conaffinity != 0))):
+        found.append(f"contacts{f' ({m.npair} explicit pairs)' if m.npair else ''}")
     limited = [names.joint(j) for j in range(m.njnt) if m.jnt_limited[j]]
     if limited and not off & bits["mjDSBL_LIMIT"]:
         found.append(f"joint limits ({', '.join(limited[:5])}{', ...' if len(limited) > 5 else ''})")
@@ -224,6 +242,8 @@ def _warn_unmodelled(mujoco, m, names: _Names) -> None:
         found.append("joint friction loss")
     if m.opt.density > 0 or m.opt.viscosity > 0:
         found.append("fluid forces")
+    if int(m.opt.enableflags) & int(getattr(mujoco.mjtEnableBit, "mjENBL_SLEEP", 0)):
+        found.append("sleep (MuJoCo's step stops trees that come to rest; step here does not)")
     if int(m.opt.enableflags) & int(getattr(mujoco.mjtEnableBit, "mjENBL_INVDISCRETE", 0)):
         found.append("invdiscrete (mj_inverse of a discrete step's acceleration; inverse_dynamics here is continuous-time)")
     if found:
