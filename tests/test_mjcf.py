@@ -298,6 +298,11 @@ def test_unmodelled_features_are_listed_once():
         source_to_model(paired, None)
     message = str(record[0].message)
     assert len(record) == 1 and "contacts (1 explicit pairs)" in message and "sleep" in message, message
+    pid = MODEL.replace("<mujoco model=\"zoo\">", '<mujoco model="zoo"><extension><plugin plugin="mujoco.pid"><instance '
+                        'name="pid"><config key="kp" value="4"/></instance></plugin></extension>').replace(
+        "</worldbody>", "</worldbody><actuator><plugin joint='knee' plugin='mujoco.pid' instance='pid'/></actuator>")
+    with pytest.warns(UserWarning, match=r"1 plugins \(the forces they apply\)"):
+        source_to_model(pid, None)
 
 
 def test_floating_base_must_agree():

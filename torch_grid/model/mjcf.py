@@ -240,6 +240,8 @@ def _warn_unmodelled(mujoco, m, names: _Names) -> None:
         found.append(f"joint limits ({', '.join(limited[:5])}{', ...' if len(limited) > 5 else ''})")
     if np.any(m.dof_frictionloss != 0) and not off & bits["mjDSBL_FRICTIONLOSS"]:
         found.append("joint friction loss")
+    if getattr(m, "nplugin", 0):
+        found.append(f"{m.nplugin} plugins (the forces they apply)")
     if m.opt.density > 0 or m.opt.viscosity > 0:
         found.append("fluid forces")
     if int(m.opt.enableflags) & int(getattr(mujoco.mjtEnableBit, "mjENBL_SLEEP", 0)):
