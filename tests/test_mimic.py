@@ -337,3 +337,16 @@ def test_float32_and_torch_compile(gripper):
     compiled = torch.compile(step, fullgraph=True, backend="aot_eager")
     for got, ref in zip(compiled(q, v, tau), step(q, v, tau)):
         assert torch.allclose(got, ref, rtol=1e-12, atol=1e-12)
+
+
+def test_a_nan_sample_stays_in_its_sample(gripper):
+    """The coupled mass matrix is factored in torch: a sample it cannot factor (a NaN in its q) is NaN alone,
+    the others as without it, instead of an error for the batch."""
+    robot = gripper[0]
+    q, v, a, _ = _states(robot, "pin", n=3, seed=4)
+    bad = q.clone()
+    bad[1, -1] = float("nan")
+    for name, call in (("forward_dynamics", lambda x: robot.forward_dynamics(x, v, a)), ("minv", robot.minv)):
+        good, out = call(q), call(bad)
+        assert torch.isnan(out[1]).all(), name
+        assert torch.equal(out[[0, 2]], good[[0, 2]]), name

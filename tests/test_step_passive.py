@@ -277,3 +277,50 @@ def test_nonlinear_passive_coefficients_are_refused_and_invdiscrete_is_named():
     m = mujoco.MjModel.from_xml_string(SWITCHED.format('invdiscrete="enable"'))
     with pytest.warns(UserWarning, match="invdiscrete"):
         from_mujoco(m)
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+def test_a_nan_sample_stays_in_its_sample_through_the_damped_euler_composition(damped, convention):
+    """MuJoCo's Euler step solves with M + dt D: under autograd (the torch composition) a sample whose matrix
+    cannot be factored (a NaN in its state) is NaN alone, as in the kernel, instead of failing the batch."""
+    robot = damped["floating"][0]
+    view, nv = getattr(robot, convention), robot.nv
+    g = torch.Generator().manual_seed(5)
+    q = view.random_configuration(3, generator=g)
+    q[1, -1] = float("nan")
+    qd, tau = (torch.randn(3, nv, dtype=torch.float64, generator=g) for _ in range(2))
+    kernel = view.step(q, qd, tau, 0.01) + view.step_derivatives(q, qd, tau, 0.01)
+    tau_grad = tau.clone().requires_grad_(True)
+    composed = view.step(q, qd, tau_grad, 0.01) + view.step_derivatives(q, qd, tau_grad, 0.01)
+    hessian = view.step_second_derivatives(q, qd, tau, 0.01)
+    for k, c in zip(kernel, composed):
+        assert torch.isnan(c[1]).all() and torch.isnan(k[1]).all()
+        assert rel_err(c[[0, 2]].detach(), k[[0, 2]]) <= 1e-12
+    # the Hessian's entries along tau alone are zero whatever the state
+    assert torch.isnan(hessian[1, :, :2 * nv, :2 * nv]).all() and torch.isfinite(hessian[[0, 2]]).all()
+    (grad,) = torch.autograd.grad(composed[1][[0, 2]].sum(), tau_grad)
+    assert torch.isfinite(grad[[0, 2]]).all()
+
+
+def test_passive_forces_check_their_arguments(damped):
+    """The passive forces, which no kernel checks, refuse what every function refuses, naming the function
+    that reads them."""
+    robot = damped["floating"][0]
+    q, qd = robot.random_configuration(2), torch.zeros(2, robot.nv, dtype=torch.float64)
+    cases = [
+        (TypeError, r"passive_forces: q must be float32 or float64, got torch.int64", lambda: robot.passive_forces(q.long(), qd)),
+        (TypeError, r"passive_forces: qd has dtype torch.float32 but q has torch.float64", lambda: robot.passive_forces(q, qd.float())),
+        (ValueError, rf"passive_forces: qd must have shape \(\.\.\., {robot.nv}\), got \(2, 1\)", lambda: robot.passive_forces(q, qd[:, :1])),
+        (ValueError, rf"passive_forces: q must have shape \(\.\.\., {robot.nq}\)", lambda: robot.passive_forces(q[:, 1:], qd)),
+        (TypeError, r"forward_dynamics: tau must be float32 or float64, got torch.bool",
+         lambda: robot.forward_dynamics(q, qd, qd.bool())),
+        (TypeError, r"forward_dynamics_derivatives: tau must be float32 or float64, got torch.int64",
+         lambda: robot.forward_dynamics_derivatives(q, qd, qd.long())),
+        (TypeError, r"step: tau has dtype torch.float32 but q has torch.float64",
+         lambda: robot.step(q, qd.requires_grad_(True), qd.float(), 0.01)),
+        (TypeError, r"inverse_dynamics_second_derivatives: q must be float32 or float64",
+         lambda: robot.mujoco.inverse_dynamics_second_derivatives(q.long(), qd, qd)),
+    ]
+    for exc, message, call in cases:
+        with pytest.raises(exc, match=message):
+            call()

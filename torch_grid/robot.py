@@ -88,7 +88,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
     def forward_dynamics(self, q, qd, tau, f_ext=None, params=None) -> torch.Tensor:
         """Joint accelerations qdd (..., nv) by the articulated-body algorithm, under tau (+ passive_forces,
         when included); f_ext and params as in inverse_dynamics."""
-        tau = tau + self._robot._passive(q, qd) if self._robot._with_passive else tau
+        tau = self._robot._passive.added("forward_dynamics", q, qd, tau) if self._robot._with_passive else tau
         return dispatch(self, "forward_dynamics", q, qd, tau, f_ext, self._parameters(params))
 
     aba = forward_dynamics
@@ -159,6 +159,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         In the MuJoCo convention, d/dq_k of its Jacobian (qvel's frame) along mj_integratePos's tangent."""
         index, ref = self._robot.frame_index(frame, "frame"), reference_code("frame_kinematic_hessian", reference)
         if self._differs():
+            check_tensor("frame_kinematic_hessian", "q", q, (self._robot.nq,), q)
             return mujoco_second_order.frame_kinematic_hessian(self._robot, q, index, ref)
         return dispatch(self, "frame_kinematic_hessian", q, index, ref)
 
@@ -197,8 +198,8 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         if not self._robot._with_passive:
             return dispatch(self, "forward_dynamics_derivatives", q, qd, tau, f_ext, params)
         # qdd = FD(q, qd, tau + passive(q, qd)): the chain rule through the passive forces' diagonals.
-        dq, dqd, minv = dispatch(self, "forward_dynamics_derivatives", q, qd, tau + self._robot._passive(q, qd), f_ext,
-                                 params)
+        dq, dqd, minv = dispatch(self, "forward_dynamics_derivatives", q, qd,
+                                 self._robot._passive.added("forward_dynamics_derivatives", q, qd, tau), f_ext, params)
         damping, stiffness, _ = self._robot._passive.coefficients(minv)
         return dq - minv * stiffness, dqd - minv * damping, minv
 
@@ -219,6 +220,8 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         """
         params = self._parameters(params)
         if self._differs():
+            for name, x, n in (("q", q, self._robot.nq), ("qd", qd, self._robot.nv), ("qdd", qdd, self._robot.nv)):
+                check_tensor("inverse_dynamics_second_derivatives", name, x, (n,), q)
             return mujoco_second_order.inverse_dynamics_second_derivatives_mujoco(self._robot, q, qd, qdd, f_ext, params)
         return dispatch(self, "inverse_dynamics_second_derivatives", q, qd, qdd, f_ext, params)
 
@@ -249,6 +252,8 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         coupling = self._robot._coupling
         if coupling is None:
             return self._robot._passive(q, qd)
+        check_tensor("passive_forces", "q", q, (self._robot.nq,), q)
+        check_tensor("passive_forces", "qd", qd, (self._robot.nv,), q)
         return coupling.rows(self._robot._passive(coupling.q(q), coupling.v(qd)), -1)
 
     def inverse_dynamics_external_force_derivatives(self, q) -> torch.Tensor:
@@ -340,7 +345,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
             qdd = self.forward_dynamics(q, qd, tau, params=params)
             return -(self.minv(q, params) @ self.inverse_dynamics_regressor(q, qd, qdd))
         if self._robot._with_passive:
-            tau = tau + self._robot._passive(q, qd)
+            tau = self._robot._passive.added("forward_dynamics_parameter_derivatives", q, qd, tau)
         return dispatch(self, "forward_dynamics_parameter_derivatives", q, qd, tau, params)
 
     def inertial_parameters(self, dtype: torch.dtype = torch.float64, device="cpu") -> torch.Tensor:

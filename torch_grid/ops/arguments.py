@@ -94,7 +94,8 @@ def check_dt(op: str, dt, q: torch.Tensor, *others: torch.Tensor) -> None:
         try:
             torch.broadcast_shapes(dt.shape, *(x.shape[:-1] for x in (q, *others) if isinstance(x, torch.Tensor)))
         except RuntimeError:
-            raise ValueError(f"{op}: dt must be a number or a tensor of the batch shape, got shape {tuple(dt.shape)} "
-                             f"with q {tuple(q.shape)}") from None
+            raise ValueError(f"{op}: dt must be a number or a tensor whose shape broadcasts with the batch shape "
+                             f"(a step per sample: the batch shape itself), got shape {tuple(dt.shape)} with q "
+                             f"{tuple(q.shape)}") from None
     elif not isinstance(dt, numbers.Real) or isinstance(dt, bool):
         raise TypeError(f"{op}: dt must be a number or a tensor, got {type(dt).__name__}")

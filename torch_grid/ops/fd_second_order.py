@@ -14,6 +14,14 @@ import torch
 from .levels import transforming
 
 
+def cholesky_or_nan(A: torch.Tensor) -> torch.Tensor:
+    """The Cholesky factor (..., n, n) of symmetric A, NaN for a sample where A is not positive definite (a
+    NaN in its inputs, non-physical inertial parameters) rather than an error for the whole batch: a solve
+    with it is NaN for that sample alone."""
+    L, info = torch.linalg.cholesky_ex(A)
+    return torch.where((info == 0).unsqueeze(-1).unsqueeze(-1), L, torch.nan)
+
+
 def second_order(second: tuple[torch.Tensor, ...], z_q: torch.Tensor, z_qd: torch.Tensor,
                  inverse: torch.Tensor) -> tuple[torch.Tensor, ...]:
     """(d2qdd_dq2, d2qdd_dqd2, d2qdd_dqdqd, d2qdd_dtaudq), each (..., nv, nv, nv), from `second` (the four

@@ -23,6 +23,7 @@ from typing import Callable
 import torch
 
 from ..model.description import Mimic, RobotModel
+from .fd_second_order import cholesky_or_nan
 from .table import OPS, model_sizes
 
 # How each kernel output in full coordinates becomes the coupled one: "rows" G^T X (X's nv axis of
@@ -150,7 +151,7 @@ class Coupling:
 
     def inverse_inertia(self, kernel_call: Callable, q: torch.Tensor, params=None) -> torch.Tensor:
         """(G^T M_full G)^-1 (..., nv, nv), by a Cholesky factorisation."""
-        return torch.cholesky_inverse(torch.linalg.cholesky(self.both(kernel_call("crba", self.q(q), params))))
+        return torch.cholesky_inverse(cholesky_or_nan(self.both(kernel_call("crba", self.q(q), params))))
 
 
 def _resolved(m: Mimic, mimics: tuple[Mimic, ...]) -> Mimic:
@@ -170,7 +171,7 @@ def _forward_dynamics(c: Coupling, call: Callable, q, qd, tau, f_ext=None, param
     bias = c.rows(call("inverse_dynamics", q_full, qd_full, torch.zeros_like(qd_full), f_ext, params), -1)
     # by Cholesky (M is symmetric positive definite): torch.linalg.solve returned garbage under vmap of
     # jacfwd (torch 2.13)
-    return torch.cholesky_solve((tau - bias).unsqueeze(-1), torch.linalg.cholesky(M)).squeeze(-1)
+    return torch.cholesky_solve((tau - bias).unsqueeze(-1), cholesky_or_nan(M)).squeeze(-1)
 
 
 def _minv(c: Coupling, call: Callable, q, params=None):

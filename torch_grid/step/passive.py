@@ -12,7 +12,8 @@ from __future__ import annotations
 import torch
 
 from ..model.description import RobotModel
-from ..ops.fd_second_order import second_order
+from ..ops.arguments import check_tensor
+from ..ops.fd_second_order import cholesky_or_nan, second_order
 
 
 class PassiveForces:
@@ -28,7 +29,7 @@ class PassiveForces:
                 q_index.append(iq)
                 v_index.append(iv)
                 stiffness[iv], springref[iv] = joint.stiffness, joint.springref
-        self.nv = nv
+        self.nq, self.nv = model.nq, nv
         self.any = bool(damping.any() or stiffness.any())
         self.damps = bool(damping.any())
         self.springs = bool(stiffness.any())
@@ -48,10 +49,17 @@ class PassiveForces:
         """(damping, stiffness, springref), each (nv,), in like's dtype and device."""
         return self._on(like)[:3]
 
-    def __call__(self, q: torch.Tensor, qd: torch.Tensor) -> torch.Tensor:
-        """qfrc_passive (..., nv) from q (..., nq) and qd (..., nv)."""
+    def __call__(self, q: torch.Tensor, qd: torch.Tensor, op: str = "passive_forces") -> torch.Tensor:
+        """qfrc_passive (..., nv) from q (..., nq) and qd (..., nv), checked as `op`'s arguments."""
+        check_tensor(op, "q", q, (self.nq,), q)
+        check_tensor(op, "qd", qd, (self.nv,), q)
         damping, stiffness, springref = self.coefficients(q)
         return -(damping * qd + stiffness * (self._stretch(q) - springref))
+
+    def added(self, op: str, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
+        """tau + qfrc_passive, checked as `op`'s arguments (before torch's promotion could take an integer tau)."""
+        check_tensor(op, "tau", tau, (self.nv,), q)
+        return tau + self(q, qd, op)
 
     def spring_energy(self, q: torch.Tensor) -> torch.Tensor:
         """The springs' potential energy (...,): sum of stiffness (q - springref)^2 / 2 (MuJoCo's mj_energyPos)."""
@@ -73,9 +81,10 @@ class PassiveForces:
 # H^-1 in place of M^-1 (fd_second_order.py). `view` is a robot or one of its views.
 
 def damped_factor(view, q: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
-    """The Cholesky factor (..., nv, nv) of H = M(q) + dt D; h the step (..., 1)."""
+    """The Cholesky factor (..., nv, nv) of H = M(q) + dt D; h the step (..., 1); NaN for a sample whose H is
+    not positive definite (a NaN in its state, or dt < 0 with stiff damping: cholesky_or_nan)."""
     damping = view._robot._passive.coefficients(q)[0]
-    return torch.linalg.cholesky(view.crba(q) + torch.diag_embed(h * damping))
+    return cholesky_or_nan(view.crba(q) + torch.diag_embed(h * damping))
 
 
 def damped_acceleration(view, q, qd, tau, h, f_ext=None) -> torch.Tensor:
