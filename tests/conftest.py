@@ -11,7 +11,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # make `import oracles` work from any rootdir
 
 import oracles  # noqa: E402
-from mjcf_models import DAMPED_FLOATING, DAMPED_PLANAR, TREES, ZOO  # noqa: E402
+from mjcf_models import DAMPED_FLOATING, DAMPED_PLANAR, SPINNERS, TREES, ZOO  # noqa: E402
 
 _ERD = oracles.erd_dir()
 
@@ -29,7 +29,8 @@ ROBOT_SPECS = {
 }
 FLOATING = {name: oracles.BUNDLED_FLOATING.get(src, False) if fb is None else fb for name, (src, fb) in ROBOT_SPECS.items()}
 # name -> MJCF text: robots whose MuJoCo oracle is the MJCF itself (no Pinocchio model)
-MJCF_SPECS = {"trees": TREES, "damped_planar": DAMPED_PLANAR, "damped_floating": DAMPED_FLOATING, "zoo": ZOO}
+MJCF_SPECS = {"trees": TREES, "damped_planar": DAMPED_PLANAR, "damped_floating": DAMPED_FLOATING, "zoo": ZOO,
+              "spinners": SPINNERS}
 
 
 class LazyCache:

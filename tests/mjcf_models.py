@@ -133,3 +133,26 @@ ZOO = """
   </worldbody>
 </mujoco>
 """
+
+
+# A free body, a ball joint and a hinge, each alone (no children to fling): Runge-Kutta stages that turn a
+# quaternion joint past pi stay well-posed at several rad per step.
+SPINNERS = """
+<mujoco model="spinners">
+  <option gravity="0 0 -9.81"/>
+  <worldbody>
+    <body name="puck" pos="0 0 1">
+      <freejoint name="root"/>
+      <geom type="box" size="0.2 0.1 0.05" density="500"/>
+    </body>
+    <body name="top" pos="1 0 0">
+      <joint name="pivot" type="ball"/>
+      <geom type="capsule" fromto="0 0 0 0.1 0.05 0.3" size="0.04"/>
+    </body>
+    <body name="arm" pos="-1 0 0">
+      <joint name="hinge" type="hinge" axis="0 1 0"/>
+      <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.03"/>
+    </body>
+  </worldbody>
+</mujoco>
+"""

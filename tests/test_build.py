@@ -360,3 +360,18 @@ def test_the_glue_refuses_a_robot_library_it_cannot_read(tmp_path):
         register("torch_grid_refused_c", library("old", **{**table, "abi": abi - 1}), "fake_table")
     with pytest.raises(RuntimeError, match="other.so was generated from another op table"):
         register("torch_grid_refused_d", library("other", **{**table, "signature": "0123"}), "fake_table")
+
+
+def test_the_glue_key_covers_every_header_it_includes(monkeypatch, tmp_path):
+    """The cached glue is keyed on every header its unit includes, however deep (an edit to one it reached
+    only through another reused a stale glue)."""
+    from torch_grid.ops import codegen
+
+    included = build._included(codegen.glue_unit())
+    assert {"torch/glue.h", "torch/blocks.h", "torch/register.h", "batch/batch.h", "kernels/spatial/spatial.h"} <= set(included)
+    copy = tmp_path / "csrc"
+    shutil.copytree(build.CSRC, copy)
+    monkeypatch.setattr(build, "CSRC", copy)
+    before = build._glue_key(False)
+    (copy / "torch" / "blocks.h").write_text((copy / "torch" / "blocks.h").read_text() + "\n// edited\n")
+    assert build._glue_key(False) != before

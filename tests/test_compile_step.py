@@ -109,3 +109,24 @@ def test_compiled_step_under_torch_func_is_the_eager_one(step_roots, root, integ
         assert len(compiled) == len(eager)
         for ours, ref in zip(compiled, eager):
             assert rel_err(ours, ref) <= 1e-12, name
+
+
+def test_compiled_runge_kutta_jacobians_under_grad_are_the_eager_ones(step_roots):
+    """step_derivatives of a Runge-Kutta scheme on a free root, its inputs requiring grad (the composition,
+    whose carried velocities' Jacobians torch.func takes in reverse mode while compiling, forward mode
+    otherwise): compiled with fullgraph=True, the values and the gradient equal eager's."""
+    robot = step_roots["free"]
+    view = robot.mujoco
+    q, qd, tau = _state(view, robot.nv, 3, 4)
+    tau.requires_grad_(True)
+
+    def loss(q, qd, tau):
+        A, B = view.step_derivatives(q, qd, tau, 0.01, "rk4")
+        return A.square().sum() + B.sum()
+
+    eager = loss(q, qd, tau)
+    (grad,) = torch.autograd.grad(eager, tau)
+    torch._dynamo.reset()
+    compiled = torch.compile(loss, fullgraph=True, backend="aot_eager")(q, qd, tau)
+    (compiled_grad,) = torch.autograd.grad(compiled, tau)
+    assert rel_err(compiled.detach(), eager.detach()) <= 1e-12 and rel_err(compiled_grad, grad) <= 1e-11

@@ -350,3 +350,19 @@ def test_a_nan_sample_stays_in_its_sample(gripper):
         good, out = call(q), call(bad)
         assert torch.isnan(out[1]).all(), name
         assert torch.equal(out[[0, 2]], good[[0, 2]]), name
+
+
+def test_compiled_steps_of_two_couplings_of_one_tree(gripper, tmp_path):
+    """Two robots whose trees are the same and whose couplings differ share their kernels; under
+    torch.compile each robot's step op computes with its own coupling."""
+    robot = gripper[0]
+    path = tmp_path / "gripper.urdf"
+    path.write_text(URDF.replace('multiplier="0.5" offset="-0.2"', 'multiplier="-2" offset="0.3"'))
+    other = torch_grid.load(str(path), floating_base=robot.model.floating_base, mimic=True)
+    assert other._ops.name == robot._ops.name  # the kernels' model leaves the coupling out
+    for r in (robot, other):
+        q, v, a, _ = _states(r, "pin", n=2, seed=9)
+        torch._dynamo.reset()
+        compiled = torch.compile(lambda q, v, a, r=r: r.step(q, v, a, 0.01), fullgraph=True, backend="aot_eager")
+        for got, ref in zip(compiled(q, v, a), r.step(q, v, a, 0.01)):
+            assert rel_err(got, ref) <= 1e-12

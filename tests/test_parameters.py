@@ -333,6 +333,10 @@ def test_with_parameters_view(robots):
     assert torch.equal(view.forward_dynamics(qm, qd, x), robot.mujoco.forward_dynamics(qm, qd, x, params=pi))
     assert torch.equal(view.com(qm), robot.mujoco.com(qm, params=pi))
     assert torch.equal(view.inertial_parameters(), pi.flatten(-2))
+    # in the parameters' own dtype unless asked otherwise (a float32 set came back as a float64 copy)
+    assert robot.with_parameters(pi.float()).inertial_parameters().dtype == torch.float32
+    assert robot.with_parameters(pi.float()).inertial_parameters(torch.float64).dtype == torch.float64
+    assert robot.inertial_parameters().dtype == torch.float64
     # composed functions compute with the view's parameters too
     q_next, qd_next = view.step(qm, qd, x, 0.01)  # the step kernel, with the parameters
     assert rel_err(qd_next, qd + 0.01 * view.forward_dynamics(qm, qd, x)) <= 1e-15

@@ -36,6 +36,10 @@ def test_robot_pickles(robots):
         _check_same(r, torch.load(buffer, weights_only=False)["robot"], q)
     view = pickle.loads(pickle.dumps(robot.mujoco))
     assert torch.equal(view.crba(q), robot.mujoco.crba(q))
+    # the cache it was loaded from travels with it (a worker looks there, not in the default cache)
+    cached = torch_grid.load("go2", cache_dir=torch_grid.ops.build.default_cache_dir())
+    assert cached._cache_dir == str(torch_grid.ops.build.default_cache_dir().resolve())
+    assert pickle.loads(pickle.dumps(cached))._cache_dir == cached._cache_dir
 
 
 def _gravity_in_worker(args):

@@ -2,6 +2,8 @@
 in Pinocchio's or MuJoCo's convention."""
 from __future__ import annotations
 
+import os
+
 import sys as _sys
 from collections.abc import Mapping
 from dataclasses import replace as _replace
@@ -87,13 +89,13 @@ def load(source, *, floating_base: bool | None = None, convention: str = "pin", 
     cache_dir: where compiled kernels are kept (default $TORCH_GRID_CACHE or ~/.cache/torch_grid).
     """
     if not isinstance(enable_mujoco_kernels, bool):
-        raise TypeError(f"enable_mujoco_kernels must be True or False, got {enable_mujoco_kernels!r}")
+        raise TypeError(f"load: enable_mujoco_kernels must be True or False, got {enable_mujoco_kernels!r}")
     if passive_forces is not None and not isinstance(passive_forces, bool):
-        raise TypeError(f"passive_forces must be None, True or False, got {passive_forces!r}")
+        raise TypeError(f"load: passive_forces must be None, True or False, got {passive_forces!r}")
     if eulerdamp is not None and not isinstance(eulerdamp, bool):
-        raise TypeError(f"eulerdamp must be None, True or False, got {eulerdamp!r}")
+        raise TypeError(f"load: eulerdamp must be None, True or False, got {eulerdamp!r}")
     if not isinstance(strict_inertia, bool):
-        raise TypeError(f"strict_inertia must be True or False, got {strict_inertia!r}")
+        raise TypeError(f"load: strict_inertia must be True or False, got {strict_inertia!r}")
     model = source_to_model(source, floating_base, mimic)
     check_triangle_inequality(model, strict=strict_inertia)
     if eulerdamp is not None and eulerdamp != model.eulerdamp:
@@ -102,10 +104,11 @@ def load(source, *, floating_base: bool | None = None, convention: str = "pin", 
         model = with_armature(model, armature)
     convention = convention_name(convention)
     if convention == "mujoco" and model.conventions_differ and not enable_mujoco_kernels:
-        raise ValueError("convention='mujoco' needs enable_mujoco_kernels=True for a robot with a free or ball joint")
+        raise ValueError("load: convention='mujoco' needs enable_mujoco_kernels=True for a robot with a free or ball joint")
     namespace = _build(model.kernel_model, mujoco=enable_mujoco_kernels, cache_dir=cache_dir)
     if namespace not in _AUTOGRAD_DONE:
         register_autograd(namespace, model.kernel_model)
         _AUTOGRAD_DONE.add(namespace)
     return Robot(model, namespace, convention=convention, mujoco_kernels=enable_mujoco_kernels,
-                 passive_forces=passive_forces is not False)
+                 passive_forces=passive_forces is not False,
+                 cache_dir=None if cache_dir is None else os.path.abspath(os.path.expanduser(cache_dir)))

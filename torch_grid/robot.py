@@ -107,7 +107,9 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         return dispatch(self, "generalized_gravity", q, self._parameters(params))
 
     def nonlinear_effects(self, q, qd, params=None) -> torch.Tensor:
-        """C(q, qd) qd + g(q) (..., nv): inverse dynamics at zero acceleration; params as in inverse_dynamics."""
+        """C(q, qd) qd + g(q) (..., nv): the rigid-body inverse dynamics at zero acceleration, without the passive
+        forces inverse_dynamics subtracts where it includes them (MuJoCo's qfrc_bias); params as in
+        inverse_dynamics."""
         return dispatch(self, "nonlinear_effects", q, qd, self._parameters(params))
 
     def energy(self, q, qd, params=None) -> torch.Tensor:
@@ -142,7 +144,8 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         """[x, y, z, roll, pitch, yaw] (..., len(frames), 6) of each listed frame, R = Rz(yaw) Ry(pitch) Rx(roll)."""
         if isinstance(frames, (str, int)):
             raise TypeError(f"end_effector_pose: frames must be a list of frame names or indices, got {frames!r}")
-        return dispatch(self, "end_effector_pose", q, [self._robot.frame_index(f, "frames") for f in frames])
+        indices = [self._robot.frame_index(f, "end_effector_pose: frames") for f in frames]
+        return dispatch(self, "end_effector_pose", q, indices)
 
     def frame_jacobian(self, q, frame: str | int, reference: str = "local_world_aligned") -> torch.Tensor:
         """Jacobian (..., 6, nv), rows [linear; angular], of a frame, as Pinocchio's getFrameJacobian.
@@ -150,14 +153,15 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         reference: "local_world_aligned" (frame origin, world axes), "local" (frame axes) or
         "world" (spatial velocity at the world origin).
         """
-        return dispatch(self, "frame_jacobian", q, self._robot.frame_index(frame, "frame"),
+        return dispatch(self, "frame_jacobian", q, self._robot.frame_index(frame, "frame_jacobian: frame"),
                         reference_code("frame_jacobian", reference))
 
     def frame_kinematic_hessian(self, q, frame: str | int, reference: str = "local_world_aligned") -> torch.Tensor:
         """Kinematic Hessian (..., 6, nv, nv) of a frame: H[..., :, j, k] = d J[..., :, j] / dq_k along the
         tangent, J = frame_jacobian(q, frame, reference) (Pinocchio's getFrameKinematicHessian).
         In the MuJoCo convention, d/dq_k of its Jacobian (qvel's frame) along mj_integratePos's tangent."""
-        index, ref = self._robot.frame_index(frame, "frame"), reference_code("frame_kinematic_hessian", reference)
+        index = self._robot.frame_index(frame, "frame_kinematic_hessian: frame")
+        ref = reference_code("frame_kinematic_hessian", reference)
         if self._differs():
             check_tensor("frame_kinematic_hessian", "q", q, (self._robot.nq,), q)
             return mujoco_second_order.frame_kinematic_hessian(self._robot, q, index, ref)
@@ -166,7 +170,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
     def frame_jacobian_dot(self, q, qd, frame: str | int, reference: str = "local_world_aligned") -> torch.Tensor:
         """Time derivative (..., 6, nv) of frame_jacobian at velocity qd (Pinocchio's
         getFrameJacobianTimeVariation); in MuJoCo's convention, of its Jacobian with qvel fixed."""
-        return dispatch(self, "frame_jacobian_dot", q, qd, self._robot.frame_index(frame, "frame"),
+        return dispatch(self, "frame_jacobian_dot", q, qd, self._robot.frame_index(frame, "frame_jacobian_dot: frame"),
                         reference_code("frame_jacobian_dot", reference))
 
     def body_velocities(self, q, qd) -> torch.Tensor:
@@ -281,7 +285,7 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         fewer than 6 dofs raises ValueError; at a singular configuration of a frame that has 6 or more,
         the entries are inf or NaN, as the inverse of a singular matrix. params as in inverse_dynamics."""
         robot = self._robot
-        index, ref = robot.frame_index(frame, "frame"), reference_code("osc_inertia", reference)
+        index, ref = robot.frame_index(frame, "osc_inertia: frame"), reference_code("osc_inertia", reference)
         dofs = robot._frame_dofs(index)
         if dofs < 6:
             raise ValueError(f"osc_inertia: frame {robot.frame_names[index]!r} is moved by {dofs} dofs; its operational-"
@@ -348,12 +352,14 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
             tau = self._robot._passive.added("forward_dynamics_parameter_derivatives", q, qd, tau)
         return dispatch(self, "forward_dynamics_parameter_derivatives", q, qd, tau, params)
 
-    def inertial_parameters(self, dtype: torch.dtype = torch.float64, device="cpu") -> torch.Tensor:
+    def inertial_parameters(self, dtype: torch.dtype | None = None, device=None) -> torch.Tensor:
         """(10 nbodies,) each body's [m, m c, I_xx, I_xy, I_yy, I_xz, I_yz, I_zz] in Pinocchio's order:
-        c the centre of mass and I the rotational inertia about the joint frame origin; on a view of
-        with_parameters, its parameters, (..., 10 nbodies)."""
+        c the centre of mass and I the rotational inertia about the joint frame origin, float64 on the CPU
+        unless dtype, device say otherwise; on a view of with_parameters, its parameters, (..., 10 nbodies),
+        in their own dtype and on their own device unless dtype, device say otherwise."""
         if self._params is not None:
-            return self._params.flatten(-2).to(dtype=dtype, device=device)
+            return self._params.flatten(-2).to(dtype=dtype or self._params.dtype, device=device or self._params.device)
+        dtype, device = dtype or torch.float64, device or "cpu"
         rows = []
         for j in self._robot.model.joints:
             I = inertia_about_origin(j.mass, j.com, j.inertia)
@@ -484,7 +490,7 @@ class Robot(_Functions):
     """
 
     def __init__(self, model: RobotModel, namespace: str, convention: str = "pin", mujoco_kernels: bool = True,
-                 passive_forces: bool = True):
+                 passive_forces: bool = True, cache_dir: str | None = None):
         self._robot = self  # the description properties read it, joint_names below among them
         self.model = model
         self._coupling = Coupling(model) if model.mimics else None
@@ -495,6 +501,7 @@ class Robot(_Functions):
             raise ValueError(f"robot {model.name!r}: mimic joints together with joint damping or stiffness are not "
                              "supported")
         self._include_passive = passive_forces
+        self._cache_dir = cache_dir  # where its kernels were found or built: a pickled copy looks there too
         self._with_passive = passive_forces and self._passive.any
         # semi_implicit_euler's velocity update solves with M + dt D (mj_Euler), where D is not zero
         self._implicit_damping = self._with_passive and model.eulerdamp and self._passive.damps
@@ -566,7 +573,8 @@ class Robot(_Functions):
     def __reduce__(self):
         """Pickles as its model and options (pickle, copy.deepcopy, torch.save, spawned workers): the
         receiving process loads it again, from its kernel cache or by building it."""
-        return _restore, (self.model.to_json(), self.convention, self._enable_mujoco_kernels, self._include_passive)
+        return _restore, (self.model.to_json(), self.convention, self._enable_mujoco_kernels, self._include_passive,
+                          self._cache_dir)
 
     def _convention_code(self, value: str) -> int:
         code = CONVENTIONS[convention_name(value)]
@@ -579,8 +587,9 @@ class Robot(_Functions):
         return f"<Robot {self.name!r}: {base} base, nq={self.nq}, nv={self.nv}, {self.convention} convention>"
 
 
-def _restore(model_json: str, convention: str, enable_mujoco_kernels: bool, passive_forces: bool = True) -> "Robot":
+def _restore(model_json: str, convention: str, enable_mujoco_kernels: bool, passive_forces: bool = True,
+             cache_dir: str | None = None) -> "Robot":
     from . import load
 
     return load(RobotModel.from_dict(json.loads(model_json)), convention=convention,
-                enable_mujoco_kernels=enable_mujoco_kernels, passive_forces=passive_forces)
+                enable_mujoco_kernels=enable_mujoco_kernels, passive_forces=passive_forces, cache_dir=cache_dir)

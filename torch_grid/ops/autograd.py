@@ -60,7 +60,7 @@ def register_autograd(namespace: str, model: RobotModel) -> None:
             torch.library.register_autograd(f"{namespace}::{spec.name}", no_backward(spec.name),
                                             setup_context=_save_nothing)
         else:
-            torch.library.register_autograd(f"{namespace}::{spec.name}", _backward(spec.name, backward, ops, model),
+            torch.library.register_autograd(f"{namespace}::{spec.name}", _backward(backward, ops, model),
                                             setup_context=_save_inputs)
 
 
@@ -92,7 +92,7 @@ def no_backward(name: str) -> Callable:
     return backward
 
 
-def _backward(name: str, formula: Callable, ops, model: RobotModel) -> Callable:
+def _backward(formula: Callable, ops, model: RobotModel) -> Callable:
     """formula(ops, model, needs, grads, output, *inputs) -> one gradient (or None) per input, where
     needs[i] says whether input i's gradient is wanted (ctx.needs_input_grad). Under create_graph=True
     the formula's ops are recorded, so it is differentiated by their own backwards."""
@@ -577,9 +577,9 @@ BACKWARDS = {
     "difference": difference_backward,
 }
 
-# Ops whose outputs are derivatives and whose backward is made of other ops (their backwards, or the
-# jvp kernels of a first-order gradient) rather than of a kernel of their own on dual numbers.
-# The formulas cover exactly the ops whose entry declares one (backward "formula" or "composed").
+# Ops whose backward is a formula made of other ops (their kernels, backwards or jvp kernels) rather than
+# a kernel of its own on dual numbers: the formulas cover exactly the ops whose entry declares one
+# (backward "formula" or "composed").
 _DECLARED = {op.name for op in OPS.values() if op.backward in ("formula", "composed")}
 if set(BACKWARDS) != _DECLARED:
     raise ValueError(f"autograd: formulas for {sorted(set(BACKWARDS) - _DECLARED)} whose table entries declare none, none for "

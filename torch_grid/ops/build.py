@@ -33,6 +33,7 @@ import torch
 from ..model.description import RobotModel
 from . import codegen
 from . import table as ops
+from .machine import compiler_version, cpu_features, cpu_identity
 from .table import register_fakes
 
 CSRC = Path(__file__).resolve().parent.parent / "csrc"  # the C++ sources, inside the package
@@ -196,15 +197,31 @@ def _check_shared_cxx_runtime(library: Path) -> None:
 
 def _glue_key(cuda: bool) -> str:
     h = hashlib.sha256()
-    h.update(codegen.glue_unit().encode())
-    for name in ("torch/glue.h", "torch/register.h", "batch/batch.h", "kernels/spatial/spatial.h"):
+    unit = codegen.glue_unit()
+    h.update(unit.encode())
+    for name in _included(unit):
+        h.update(name.encode())
         h.update((CSRC / name).read_bytes())
     h.update(f"cuda={cuda} openmp={torch.backends.openmp.is_available()} {_SHARED_CXX_RUNTIME}".encode())
-    h.update(_compiler_version(os.environ.get("CXX", "c++")).encode())
+    h.update(compiler_version(os.environ.get("CXX", "c++")).encode())
     if cuda:
-        h.update(_compiler_version(find_nvcc()).encode())
+        h.update(compiler_version(find_nvcc()).encode())
     h.update(torch.__version__.encode())
     return h.hexdigest()
+
+
+def _included(text: str) -> list[str]:
+    """The headers under CSRC that `text` includes, directly or through them, sorted (a header edited
+    anywhere in the glue's includes changes its key)."""
+    found: set[str] = set()
+    todo = [text]
+    while todo:
+        for line in todo.pop().splitlines():
+            name = line.split('"')[1] if line.startswith('#include "') else None
+            if name and name not in found and (CSRC / name).is_file():
+                found.add(name)
+                todo.append((CSRC / name).read_text())
+    return sorted(found)
 
 
 # -- robot libraries ---------------------------------------------------------------------------------
@@ -292,7 +309,7 @@ def _kernel_headers_digest() -> str:
 
 
 def _nvcc_release() -> str:
-    version = _compiler_version(find_nvcc())
+    version = compiler_version(find_nvcc())
     release = [part.strip() for line in version.splitlines() for part in line.split(",") if part.strip().startswith("release")]
     return release[0] if release else version
 
@@ -339,7 +356,7 @@ def _whole_vector_moves() -> list[str]:
     aggregate in 16-byte pieces, or calls memcpy, and the kernels then load each piece back as one
     wider vector: a failed store-to-load forwarding each time. -mmove-max/-mstore-max (GCC 12) set the
     piece to the lanes' width; a compiler without them keeps its own."""
-    cpu_flags = _cpu_features()
+    cpu_flags = cpu_features()
     bits = 512 if "avx512f" in cpu_flags else 256 if "avx" in cpu_flags else 0
     if not bits:
         return []
@@ -486,7 +503,7 @@ def _cache_key(model: RobotModel, mujoco: bool, cuda: bool) -> str:
     h = hashlib.sha256()
     h.update(model.hash.encode())
     h.update(f"mujoco={mujoco} cuda={cuda} lanes={codegen.cpu_lanes()} flags={_cxx_flags()} {_cxx_flags('backward_f64')} {nvcc_flags() if cuda else ''}".encode())
-    h.update(_cpu_identity().encode())
+    h.update(cpu_identity().encode())
     for path in sorted(CSRC.rglob("*")):
         if path.is_file():
             h.update(path.relative_to(CSRC).as_posix().encode())
@@ -494,50 +511,11 @@ def _cache_key(model: RobotModel, mujoco: bool, cuda: bool) -> str:
     # The generators: the op table and the emitter of the per-robot C++.
     for module in (codegen, ops):
         h.update(Path(module.__file__).read_bytes())
-    h.update(_compiler_version(os.environ.get("CXX", "c++")).encode())
+    h.update(compiler_version(os.environ.get("CXX", "c++")).encode())
     if cuda:
-        h.update(_compiler_version(find_nvcc()).encode())
+        h.update(compiler_version(find_nvcc()).encode())
     h.update(torch.__version__.encode())
     return h.hexdigest()
-
-
-@lru_cache(maxsize=None)
-def _cpuinfo() -> dict[str, str]:
-    """The first processor's model name and feature flags from /proc/cpuinfo (empty where it is absent)."""
-    try:
-        lines = Path("/proc/cpuinfo").read_text().splitlines()
-    except OSError:
-        return {}
-    keep = {}
-    for line in lines:
-        key, _, value = line.partition(":")
-        key = key.strip()
-        if key in ("model name", "flags", "Features", "CPU part") and key not in keep:
-            keep[key] = value.strip()
-    return keep
-
-
-def _cpu_features() -> set[str]:
-    """This CPU's instruction-set features (x86 `flags`, Arm `Features`)."""
-    info = _cpuinfo()
-    return set(info.get("flags", info.get("Features", "")).split())
-
-
-@lru_cache(maxsize=None)
-def _cpu_identity() -> str:
-    """Model name and feature flags of this CPU: a -march=native binary runs only where they match."""
-    keep = _cpuinfo()
-    if not keep:
-        return platform.processor() or platform.machine()
-    return platform.machine() + "|" + "|".join(f"{k}={v}" for k, v in sorted(keep.items()))
-
-
-@lru_cache(maxsize=None)
-def _compiler_version(compiler: str) -> str:
-    try:
-        return subprocess.run([compiler, "--version"], capture_output=True, text=True, timeout=30).stdout
-    except (OSError, subprocess.TimeoutExpired):
-        return "unknown"
 
 
 def find_nvcc() -> str:
@@ -554,12 +532,10 @@ def cuda_home() -> Path | None:
     `nvcc` on the PATH runs and /usr/local/cuda that holds both bin/nvcc and include/cuda_runtime.h.
     torch guesses the folder above `nvcc`, which is wrong where `nvcc` is a wrapper script outside the
     toolkit; nvcc's dry run names the toolkit it runs from (its TOP)."""
-    from shutil import which
-
     from torch.utils import cpp_extension
 
     candidates = [os.environ.get("CUDA_HOME"), os.environ.get("CUDA_PATH"), cpp_extension.CUDA_HOME]
-    nvcc = which("nvcc")
+    nvcc = shutil.which("nvcc")
     if nvcc:
         try:
             dry = subprocess.run([nvcc, "--dryrun", "-x", "cu", "-c", os.devnull, "-o", os.devnull], capture_output=True,

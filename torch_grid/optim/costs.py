@@ -38,7 +38,7 @@ class CostFunctions:
 
     def frame_translation_cost(self, q, qd, frame, target, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = the frame's world position - target (..., 3), weights (..., 3)."""
-        index = self._robot.frame_index(frame)
+        index = self._robot.frame_index(frame, "frame_translation_cost: frame")
         position = self.forward_kinematics(q)[0][..., index, :]
         jacobian = self.frame_jacobian(q, index, "local_world_aligned")[..., :3, :]
         target = _checked("frame_translation_cost", "target", target, (3,))
@@ -48,7 +48,7 @@ class CostFunctions:
         """r = log6(target^-1 oMf) [linear; angular] (Crocoddyl's ResidualModelFramePlacement), target a
         (..., 4, 4) placement, weights (..., 6); J = Jlog6(target^-1 oMf) J_frame(LOCAL)."""
         target = _checked("frame_placement_cost", "target", target, (4, 4))
-        index = self._robot.frame_index(frame)
+        index = self._robot.frame_index(frame, "frame_placement_cost: frame")
         positions, rotations = self.forward_kinematics(q)
         R, p = rotations[..., index, :, :], positions[..., index, :]
         R_ref, p_ref = target[..., :3, :3], target[..., :3, 3]

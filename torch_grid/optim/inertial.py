@@ -71,32 +71,32 @@ def parameters_to_log_cholesky(params: torch.Tensor) -> torch.Tensor:
 
 
 def check_physical(params: torch.Tensor, names: Sequence[str], tolerance: float = 1e-10,
-                   parents: Sequence[int] | None = None) -> None:
+                   parents: Sequence[int] | None = None, op: str = "with_parameters") -> None:
     """Raise ValueError naming the first body whose parameters (..., nbodies, 10) are not physically
     consistent: a parameter that is not finite, a negative mass, a massless body with a first moment or
     an inertia, or a pseudo-inertia with an eigenvalue below -tolerance times its largest entry (the
     inertia about the centre of mass not positive, or a triangle inequality broken). names: the bodies'
     (their joints') names. With `parents` (each body's parent index, -1 for the world), also a joint
     whose bodies, its own and all below it, have no mass: the joint-space inertia matrix is then
-    singular at every configuration."""
+    singular at every configuration. op: the function whose argument params is, named in the error."""
     p = params.detach().to(torch.float64)
     finite = torch.isfinite(p).all(-1).reshape(-1, p.shape[-2]).all(0)  # per body, over the batch
     for body, name in enumerate(names):
         if not bool(finite[body]):
-            raise ValueError(f"params: body {body} ({name!r}) has a parameter that is not finite (nan or inf)")
+            raise ValueError(f"{op}: params: body {body} ({name!r}) has a parameter that is not finite (nan or inf)")
     J = pseudo_inertia(p)
     eigenvalues = torch.linalg.eigvalsh(J)
     scale = J.abs().amax((-2, -1)).clamp_min(torch.finfo(torch.float64).tiny)
     for body, name in enumerate(names):
         mass = p[..., body, 0]
         if bool((mass < 0).any()):
-            raise ValueError(f"params: body {body} ({name!r}) has a negative mass, {float(mass.min()):.6g}")
+            raise ValueError(f"{op}: params: body {body} ({name!r}) has a negative mass, {float(mass.min()):.6g}")
         if bool(((mass == 0) & (p[..., body, 1:] != 0).any(-1)).any()):
-            raise ValueError(f"params: body {body} ({name!r}) has no mass but a first moment or a rotational "
+            raise ValueError(f"{op}: params: body {body} ({name!r}) has no mass but a first moment or a rotational "
                              "inertia, which only mass can have")
         worst = (eigenvalues[..., body, 0] / scale[..., body]).min()
         if float(worst) < -tolerance:
-            raise ValueError(f"params: body {body} ({name!r}) is not physically consistent: its pseudo-inertia "
+            raise ValueError(f"{op}: params: body {body} ({name!r}) is not physically consistent: its pseudo-inertia "
                              f"has a negative eigenvalue ({float(worst):.3g} of its largest entry), so its "
                              "inertia about the centre of mass is not positive or breaks a triangle inequality")
     if parents is not None:
@@ -106,5 +106,5 @@ def check_physical(params: torch.Tensor, names: Sequence[str], tolerance: float 
                 moved[..., parents[body]] += moved[..., body]
         for body, name in enumerate(names):
             if bool((moved[..., body] == 0).any()):
-                raise ValueError(f"params: joint {name!r} (body {body}) moves no mass (its body and those below "
+                raise ValueError(f"{op}: params: joint {name!r} (body {body}) moves no mass (its body and those below "
                                  "it are massless), so the joint-space inertia matrix is singular")

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import torch
 
 from .constants import scalar_or_tensor
@@ -98,12 +100,12 @@ def difference(space: Space, q0: torch.Tensor, q1: torch.Tensor, convention: int
 def d_integrate(space: Space, q: torch.Tensor, v: torch.Tensor, dt, convention: int) -> tuple[torch.Tensor, torch.Tensor]:
     """(J_q, J_v), each (..., nv, nv): the tangent Jacobians of q (+) v dt."""
     q, v = broadcast_batch(q, v)
-    blocks = d_integrate_blocks(space, q, v, dt, convention)
+    blocks = d_integrate_blocks(space, v, dt, convention)
     eye = torch.eye(space.nv, dtype=v.dtype, device=v.device).expand(*v.shape[:-1], space.nv, space.nv)
     return tangent_map(blocks, 0, eye), tangent_map(blocks, 1, eye) * dt_column(dt, v).unsqueeze(-1)
 
 
-def d_integrate_blocks(space: Space, q: torch.Tensor, v: torch.Tensor, dt, convention: int) -> list:
+def d_integrate_blocks(space: Space, v: torch.Tensor, dt, convention: int) -> list:
     """d_integrate without the nv x nv matrices: per quaternion joint (its first velocity index, J_q's
     block, J_v's block / dt); both Jacobians are the identity on the scalar coordinates (J_v: dt)."""
     v = v * dt_column(dt, v)
@@ -185,7 +187,7 @@ def dexp_inverse(space: Space, theta: torch.Tensor, v: torch.Tensor, convention:
     for kind, vi in zip(space.kinds, space.vi):
         n = {"free": 6, "ball": 3}.get(kind, 1)
         parts.append(v[..., vi:vi + n] if kind == "scalar" else
-                     apply_matrix(dexp_inverse_block(kind, theta[..., vi:vi + n], convention), v[..., vi:vi + n]))
+                     apply_matrix(carry_block(kind, theta[..., vi:vi + n], convention), v[..., vi:vi + n]))
     return torch.cat(parts, dim=-1)
 
 
@@ -204,15 +206,17 @@ def d_dexp_inverse_blocks(space: Space, theta: torch.Tensor, v: torch.Tensor, co
         t_b, v_b = theta[..., vi:vi + n], v[..., vi:vi + n]
 
         def carried(t, x, kind=kind):
-            return apply_matrix(dexp_inverse_block(kind, t, convention), x)
+            return apply_matrix(carry_block(kind, t, convention), x)
 
         if outer:
             jac = _reverse_jacobian(carried, t_b, v_b)
         else:
             # contiguous: forward AD cannot write tangents into a broadcast (stride-0) batch
-            jac = torch.func.vmap(torch.func.jacfwd(carried))(t_b.reshape(-1, n).contiguous(),
+            # reverse mode while torch.compile traces, whose forward-mode AD inside vmap fails an internal check
+            jacobian = torch.func.jacrev if torch.compiler.is_compiling() else torch.func.jacfwd
+            jac = torch.func.vmap(jacobian(carried))(t_b.reshape(-1, n).contiguous(),
                                                                v_b.reshape(-1, n).contiguous())
-        blocks.append((vi, jac.reshape(*theta.shape[:-1], n, n), dexp_inverse_block(kind, t_b, convention)))
+        blocks.append((vi, jac.reshape(*theta.shape[:-1], n, n), carry_block(kind, t_b, convention)))
     return blocks
 
 
@@ -225,6 +229,24 @@ def _reverse_jacobian(fn, t: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         out = fn(t, x)
         rows = [torch.autograd.grad(out[..., m].sum(), t, create_graph=True)[0] for m in range(out.shape[-1])]
     return torch.stack(rows, dim=-2)
+
+
+def carry_block(kind: str, theta: torch.Tensor, convention: int) -> torch.Tensor:
+    """The block of dexp_inverse: dexp_inverse_block at the stage's rotation as MuJoCo's Runge-Kutta turns by
+    it, the short way round (|w| <= pi, its quaternion difference's), in MuJoCo's convention; at theta itself
+    in Pinocchio's (csrc/kernels/step/runge_kutta.h: stage_turn)."""
+    if convention:
+        rotation = shortest_turn(theta[..., -3:])
+        theta = rotation if kind == "ball" else torch.cat([theta[..., :3], rotation], dim=-1)
+    return dexp_inverse_block(kind, theta, convention)
+
+
+def shortest_turn(w: torch.Tensor) -> torch.Tensor:
+    """Rotation vectors (..., 3) with whole turns taken off, |w| <= pi: the same rotation, the short way round
+    (piecewise smooth: the number of turns is constant between the odd multiples of pi)."""
+    t = torch.linalg.vector_norm(w, dim=-1, keepdim=True)
+    turns = torch.round(t.detach() / (2 * math.pi))
+    return torch.where(turns > 0, w * (1 - 2 * math.pi * turns / torch.where(turns > 0, t, torch.ones_like(t))), w)
 
 
 def dexp_inverse_block(kind: str, theta: torch.Tensor, convention: int) -> torch.Tensor:

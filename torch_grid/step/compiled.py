@@ -43,9 +43,11 @@ def compiled_step(view, q, qd, tau, dt, integrator: str, f_ext):
 
 
 def _key(robot) -> str:
-    """What the step depends on beyond the kernels: the passive forces, eulerdamp, a mimic coupling."""
+    """What the step depends on beyond the kernels: the passive forces, eulerdamp, a mimic coupling (which the
+    kernels' model leaves out: the whole model's hash tells two couplings of one tree apart)."""
     options = (robot._with_passive, robot._implicit_damping, robot._coupling is not None)
-    return robot._ops.name + "_" + "".join(str(int(x)) for x in options)
+    coupling = "" if robot._coupling is None else "_" + robot.model.hash[:16]
+    return robot._ops.name + "_" + "".join(str(int(x)) for x in options) + coupling
 
 
 def _view(key: str, convention: int):

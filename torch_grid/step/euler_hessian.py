@@ -45,7 +45,7 @@ def euler_step_hessian(view, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tenso
     e_v, h2 = torch.cat([zero, eye, zero], dim=-1), h.unsqueeze(-1)
     dw = h2 * (e_v + h2 * G) if semi else (h2 * e_v).expand(*batch, nv, 3 * nv)
     w = (h * (qd + h * a) if semi else h * qd).expand(*batch, nv)
-    chart_hessian(space, convention, d_integrate_blocks(space, q, w, 1.0, convention), w, dw, out[..., :nv, :, :])
+    chart_hessian(convention, d_integrate_blocks(space, w, 1.0, convention), w, dw, out[..., :nv, :, :])
     return out
 
 
@@ -63,7 +63,7 @@ def chart_jacobian(blocks: list, dw: torch.Tensor) -> torch.Tensor:
     return out
 
 
-def chart_hessian(space, convention: int, blocks: list, w: torch.Tensor, dw: torch.Tensor, out: torch.Tensor,
+def chart_hessian(convention: int, blocks: list, w: torch.Tensor, dw: torch.Tensor, out: torch.Tensor,
                   dJs: list | None = None) -> None:
     """In place: out (..., nv, 3 nv, 3 nv) holds the Hessian of w(z) and becomes that of e(z) (chart_jacobian),
     unchanged on the scalar coordinates; on a quaternion joint J_r Hw + Hpsi[dw, dw] + the bracket. dJs: each

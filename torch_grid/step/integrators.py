@@ -8,8 +8,9 @@ Integrators, with a = forward_dynamics(q, qd, tau, f_ext) and (+) the configurat
   midpoint, rk3, rk4   explicit Runge-Kutta in Munthe-Kaas's form, as MuJoCo 4's mj_RungeKutta
                        (mjINT_RK4): stage i sits at q_i = q (+) theta_i, theta_i = dt sum_j A_ij w_j,
                        qd_i = qd + dt sum_j A_ij a_j, where w_j = dexp(theta_j)^-1 qd_j is stage j's
-                       velocity carried to the chart at q (configuration.dexp_inverse: the identity but
-                       at quaternion joints); the step is q' = q (+) dt sum_j B_j w_j,
+                       velocity carried to the chart at q (space/lie.py's dexp_inverse: the identity but
+                       at quaternion joints, whose turn MuJoCo's convention takes the short way round,
+                       as MuJoCo does); the step is q' = q (+) dt sum_j B_j w_j,
                        qd' = qd + dt sum_j B_j a_j (euler is the one-stage case).
 The Jacobians are along the tangent spaces (the state deviation [dq; dqd], as Crocoddyl's Fx, Fu and
 MuJoCo's mjd_transitionFD A, B), by the chain rule through the stages: forward_dynamics_derivatives at
@@ -113,7 +114,7 @@ class StepFunctions:
                 q_next, qd_next, A, B, _ = self._kernel_call("rk_step_derivatives", q, qd, tau, f_ext, h, params,
                                                              RK_FUSED[integrator], passive)
             return q_next, qd_next, A.flatten(-4, -3).flatten(-2), B.flatten(-3, -2)
-        return _in_chunks(lambda *args: self._step_derivatives(*args, integrator), q, qd, tau, dt, f_ext, params)
+        return _in_chunks(op, lambda *args: self._step_derivatives(*args, integrator), q, qd, tau, dt, f_ext, params)
 
     def _step_derivatives(self, q, qd, tau, dt, f_ext, params, integrator):
         if params is not self._params:  # a piece of the view's parameters (_in_chunks)
@@ -145,7 +146,7 @@ class StepFunctions:
             step = hh * dtheta
             rows = {vi: j_v @ step[..., vi:vi + j_q.shape[-1], :]
                     + torch.nn.functional.pad(j_q, (vi, 3 * nv - vi - j_q.shape[-1]))
-                    for vi, j_q, j_v in d_integrate_blocks(space, q, theta, dt, convention)}
+                    for vi, j_q, j_v in d_integrate_blocks(space, theta, dt, convention)}
             return _with_rows(step + start_q, rows)
 
         a0, da0 = stage(q, qd, None, None)
@@ -192,7 +193,7 @@ class StepFunctions:
         if integrator in FUSED:
             return euler_step_hessian(self, q, qd, tau, dt, f_ext, semi=bool(FUSED[integrator]))
         nv = qd.shape[-1]
-        batch, (q, qd, tau, h, f_ext, params) = _flattened(q, qd, tau, dt, f_ext, self._params)
+        batch, (q, qd, tau, h, f_ext, params) = _flattened("step_second_derivatives", q, qd, tau, dt, f_ext, self._params)
         view = self if params is None else self.with_parameters(params)
         return rk_step_hessian(view, TABLEAUS[integrator], q, qd, tau, h, f_ext).reshape(*batch, 2 * nv, 3 * nv, 3 * nv)
 
@@ -202,7 +203,7 @@ class StepFunctions:
 CHUNK = 256
 
 
-def _flattened(q, qd, tau, dt, f_ext, params=None) -> tuple[torch.Size, list]:
+def _flattened(op: str, q, qd, tau, dt, f_ext, params=None) -> tuple[torch.Size, list]:
     """(the broadcast batch shape, [q, qd, tau, dt, f_ext, params] with that batch flattened to one
     dimension); dt becomes a (n,) tensor, an absent f_ext or params stays None. The inertial parameters'
     batch is part of the samples' (one set per sample, or shared)."""
@@ -212,16 +213,17 @@ def _flattened(q, qd, tau, dt, f_ext, params=None) -> tuple[torch.Size, list]:
         batch = torch.broadcast_shapes(*shapes)
     except RuntimeError:
         names = ["q", "qd", "tau", "dt"] + [n for n, x in (("f_ext", f_ext), ("params", params)) if x is not None]
-        raise ValueError("the batch shapes do not broadcast: " + ", ".join(f"{n} {tuple(b)}" for n, b in zip(names, shapes))) from None
+        raise ValueError(f"{op}: the batch shapes do not broadcast: "
+                         + ", ".join(f"{n} {tuple(b)}" for n, b in zip(names, shapes))) from None
     n = batch.numel()
     return batch, [None if x is None else x.expand(batch + x.shape[x.dim() - k:]).reshape(n, *x.shape[x.dim() - k:])
                    for x, k in ((q, 1), (qd, 1), (tau, 1), (dt, 0), (f_ext, 2), (params, 2))]
 
 
-def _in_chunks(fn, q, qd, tau, dt, f_ext, params):
+def _in_chunks(op: str, fn, q, qd, tau, dt, f_ext, params):
     """fn(q, qd, tau, dt, f_ext, params) -> a tuple of tensors, over a flattened batch in pieces of CHUNK
     samples (params None, or the inertial parameters of each piece's samples)."""
-    batch, flat = _flattened(q, qd, tau, dt, f_ext, params)
+    batch, flat = _flattened(op, q, qd, tau, dt, f_ext, params)
     n = batch.numel()
     if n <= CHUNK:
         return fn(q, qd, tau, dt, f_ext, params)

@@ -4,11 +4,12 @@ Every stage quantity y(z), z = [dq; dqd; dtau], is carried as its value, Jacobia
 Hessian Hy (..., n, 3 nv, 3 nv) at z = 0 (integrators.py names the stages):
   theta_i = sum_j a_ij c_j,  v_i = qd + dqd + dt sum_j a_ij acc_j                  (linear)
   e_i = difference(q_i, (q (+) dq) (+) dt theta_i(z))       the stage's configuration in its own chart,
-                                                            step_hessian.chart_jacobian / chart_hessian
+                                                            euler_hessian.chart_jacobian / chart_hessian
   acc_i = FD(q_i (+) e_i, v_i, tau + dtau):   dacc = G dx,  Hacc = dx^T Ha dx + G Hx,  x = [e_i; v_i; tau]
                                               (G, Ha: forward_dynamics' gradient and Hessian at stage i)
   c_i = dexp(dt theta_i)^-1 v_i               (at quaternion joints: its own Hessian in (dt theta_i, v_i),
-                                               by forward-mode AD of the joint's closed form; else v_i)
+                                               by forward-mode AD of the joint's closed form, the turn
+                                               the short way round in MuJoCo's convention; else v_i)
 and the step's rows: q' in its chart as e with theta = sum_j b_j c_j, qd' = qd + dqd + dt sum_j b_j acc_j.
 The samples go in pieces: a Hessian is nv (3 nv)^2 numbers per sample, and a stage holds a dozen.
 """
@@ -16,7 +17,7 @@ from __future__ import annotations
 
 import torch
 
-from ..space.lie import apply_matrix, d_integrate_blocks, dexp_inverse, dexp_inverse_block
+from ..space.lie import apply_matrix, carry_block, d_integrate_blocks, dexp_inverse
 from .euler_hessian import chart_hessian, chart_jacobian, jacobian_of_j_r, scaled_acceleration_hessian
 
 # Bytes of one Hessian of a piece of the batch (at least one sample): a stage holds a dozen, which at this
@@ -52,7 +53,7 @@ def rk_step_hessian(view, tableau, q, qd, tau, h, f_ext) -> torch.Tensor:
         r = slice(vi, vi + k)
         def jacobian(y, kind=kind, k=k):
             """J = dc/dy of c = dexp(u)^-1 x, y = [u; x], returned twice: jacfwd's output and its aux."""
-            J = torch.func.jacfwd(lambda y: apply_matrix(dexp_inverse_block(kind, y[:k], convention), y[k:]))(y)
+            J = torch.func.jacfwd(lambda y: apply_matrix(carry_block(kind, y[:k], convention), y[k:]))(y)
             return J, J
 
         y = torch.cat([w[:-1, :, r], vs[..., r]], dim=-1).flatten(0, 1)
@@ -113,8 +114,8 @@ def _hessian(view, tableau, q, qd, tau, h, f_ext, stages, w, jets, pool, out):
     def chart(i, dtheta, He):
         """e's Jacobian at stage i (the step's at i = stages); He, dt theta's Hessian, becomes e's."""
         dw = h2 * dtheta
-        blocks = d_integrate_blocks(space, q, w[i], 1.0, convention)
-        chart_hessian(space, convention, blocks, w[i], dw, He, [jet[-1][i] for jet in jets])
+        blocks = d_integrate_blocks(space, w[i], 1.0, convention)
+        chart_hessian(convention, blocks, w[i], dw, He, [jet[-1][i] for jet in jets])
         return chart_jacobian(blocks, dw)
 
     da0, Ha0 = acceleration(0, q, qd)

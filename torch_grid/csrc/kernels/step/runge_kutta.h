@@ -44,10 +44,27 @@ template <class T> TG_HD Vec3<T> right_jacobian_inverse(Vec3<T> w, T beta, Vec3<
   return y + T(0.5) * cross(w, y) + beta * cross(w, cross(w, y));
 }
 
+// The rotation w of a stage, as MuJoCo's Runge-Kutta carries the stage's velocity by it: the short way round
+// (|w| <= pi, the turn its quaternion difference gives), each pass taking one whole turn off; Pinocchio's
+// convention keeps w itself. Where no lane turns past pi, w unchanged.
+template <int C, class Scalar> TG_HD Vec3<Scalar> stage_turn(Vec3<Scalar> w) {
+  if constexpr (C == MUJOCO) {
+    constexpr double pi = 3.14159265358979323846;
+    for (int turns = 0; turns < 64; ++turns) {
+      const Scalar t2 = dot(w, w);
+      const auto over = t2 > Scalar(pi * pi);
+      if (!any(over)) break;
+      w = select(over, Scalar(1) - Scalar(2 * pi) / sqrt(select(over, t2, Scalar(1))), Scalar(1)) * w;
+    }
+  }
+  return w;
+}
+
 // dexp(theta)^-1 x at one quaternion joint (n = 3: ball; n = 6: free, R^3 x SO(3) in MuJoCo's
-// convention, SE(3) in Pinocchio's, where dexp^-1 = [[Jr^-1, -Jr^-1 Q Jr^-1], [0, Jr^-1]]).
+// convention, SE(3) in Pinocchio's, where dexp^-1 = [[Jr^-1, -Jr^-1 Q Jr^-1], [0, Jr^-1]]), at the
+// rotation stage_turn gives.
 template <class T, int C> TG_HD void dexp_inverse_joint(int n, const T* theta, const T* x, T* out) {
-  const Vec3<T> w = load3(theta + n - 3);
+  const Vec3<T> w = stage_turn<C>(load3(theta + n - 3));
   const So3Coefficients<T> k = so3_coefficients(w);
   const Vec3<T> xa = right_jacobian_inverse(w, k.beta, load3(x + n - 3));
   store3(xa, out + n - 3);
@@ -65,10 +82,13 @@ template <class T, int C> TG_HD void dexp_inverse_joint(int n, const T* theta, c
 // products) carrying the three directions. A ball joint (n = 3) or Pinocchio's free joint (n = 6):
 // dexp_inverse_jacobians below adds MuJoCo's free joint.
 template <class Scalar, int C> TG_HD void dexp_inverse_jacobians_lie(int n, const Scalar* theta, const Scalar* x, Scalar* c, Scalar* Dtheta, Scalar* Dx) {
-  const Vec3<Scalar> w = load3(theta + n - 3);
+  Scalar turned[6];  // theta at stage_turn's rotation; the forward-mode pass below reads theta, and turns it itself
+  for (int m = 0; m < n; ++m) turned[m] = theta[m];
+  store3(stage_turn<C>(load3(theta + n - 3)), turned + n - 3);
+  const Vec3<Scalar> w = load3(turned + n - 3);
   const So3Coefficients<Scalar> k = so3_coefficients(w);
   const Mat3<Scalar> Ji = so3_terms(w, Scalar(0.5), k.beta);
-  dexp_inverse_matrix<Scalar, C>(n, theta, k, Dx);
+  dexp_inverse_matrix<Scalar, C>(n, turned, k, Dx);
   if (n == 6) {
     const Mat3<Scalar> JL = mul(Ji, se3_coupling_along_rho(w, mul(Ji, load3(x + 3)), k));
     for (int r = 0; r < 3; ++r)
