@@ -71,9 +71,11 @@ def test_former_names_are_the_functions_with_a_warning(robots):
             assert getattr(torch_grid.conventions, old) is getattr(conventions, new)
     try:
         for old, new in (("pinocchio", "pin"), ("MJX", "mujoco")):
-            with pytest.warns(DeprecationWarning, match=repr(new)):
+            with pytest.warns(DeprecationWarning, match=repr(new)) as record:
                 robot.convention = old
             assert robot.convention == new
+            # attributed to the line that set it, which Python's default filters show
+            assert record[0].filename == __file__, record[0].filename
     finally:
         robot.convention = "pin"
 
@@ -106,6 +108,13 @@ def test_a_view_has_the_robots_sizes(robots, convention):
     assert (view.nq, view.nv, view.nbodies) == (19, 18, 13)
     with pytest.raises(AttributeError):
         view.convention = "pin"  # a view's convention is fixed; the Robot's default is settable
+    # the robot's description and frame lookup, and the same view in either convention, parameters kept
+    assert view.model is robot.model and view.frame_index("FL_foot") == robot.frame_index("FL_foot")
+    assert not view.includes_passive_forces and "passive" not in repr(robot)
+    given = view.with_parameters(robot.inertial_parameters().view(robot.nbodies, 10))
+    for other in ("pin", "mujoco"):
+        switched = getattr(given, other)
+        assert switched.convention == other and switched._params is given._params
 
 
 def test_the_examples_use_the_public_surface_only():

@@ -158,3 +158,16 @@ def test_targets_and_bounds_of_another_shape_are_refused_naming_them(robots):
     for message, call in cases:
         with pytest.raises(ValueError, match=message):
             call()
+    # another dtype than the state's: refused by name (torch promoted some, failed inside others)
+    q32, qd32 = q.float(), qd.float()
+    dtypes = [
+        (r"state_cost: weights is torch.float64 on cpu, expected the state's torch.float32",
+         lambda: view.state_cost(q32, qd32, q32, qd32, ones(2 * nv))),
+        (r"control_cost: tau_ref is torch.float64", lambda: view.control_cost(qd32, ones(nv), ones(nv).float())),
+        (r"com_cost: target is torch.float64", lambda: view.com_cost(q32, qd32, ones(3), ones(3).float())),
+        (r"quadratic_barrier: lower is torch.float64 on cpu, expected x's torch.float32",
+         lambda: torch_grid.quadratic_barrier(ones(2, 5).float(), -ones(5), 1.0, ones(5).float())),
+    ]
+    for message, call in dtypes:
+        with pytest.raises(TypeError, match=message):
+            call()

@@ -392,3 +392,25 @@ def test_log_cholesky_round_trip_and_consistency():
     w = torch.linalg.eigvalsh(Ic)
     assert (w > 0).all() and (w[:, 0] + w[:, 1] >= w[:, 2] - 1e-12).all()
     assert torch.autograd.gradcheck(log_cholesky_to_parameters, (theta[:3].clone().requires_grad_(True),))
+
+
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+def test_parameter_derivatives_with_external_forces(robots, convention):
+    """d qdd / d params where external forces act (they move qdd, where Y is evaluated): against central
+    differences of forward_dynamics along the parameters, and equal to the kernel's where f_ext is zero."""
+    robot = robots["go2"]
+    view = getattr(robot, convention)
+    q, qd, tau = _states(robot, (2,), 21)
+    if convention == "mujoco":
+        q = C.q_pin_to_mujoco(q)
+    f_ext = torch.randn(2, robot.nbodies, 6, dtype=torch.float64, generator=torch.Generator().manual_seed(22))
+    pi = other_parameters(robot, seed=23)
+    ours = view.forward_dynamics_parameter_derivatives(q, qd, tau, f_ext, pi)
+    direction = torch.randn(pi.shape, dtype=torch.float64, generator=torch.Generator().manual_seed(24))
+    h = 1e-6
+    ref = (view.forward_dynamics(q, qd, tau, f_ext, pi + h * direction)
+           - view.forward_dynamics(q, qd, tau, f_ext, pi - h * direction)) / (2 * h)
+    assert rel_err(ours @ direction.reshape(-1), ref) <= 1e-7
+    zero = torch.zeros_like(f_ext)
+    assert rel_err(view.forward_dynamics_parameter_derivatives(q, qd, tau, zero, pi),
+                   view.forward_dynamics_parameter_derivatives(q, qd, tau, params=pi)) <= 1e-12

@@ -211,6 +211,8 @@ def test_energy_holds_the_springs_as_mj_energy_pos(damped, name):
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", "the MJCF model has")
         rigid = torch_grid.load(text, passive_forces=False)
+    assert robot.includes_passive_forces and not rigid.includes_passive_forces
+    assert "passive forces" in repr(robot) and "passive" not in repr(rigid)
     for view, springs in ((robot.mujoco, True), (rigid.mujoco, False)):
         m.opt.disableflags = int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | (0 if springs else int(mujoco.mjtDisableBit.mjDSBL_SPRING))
         energy = view.energy(q, qd)

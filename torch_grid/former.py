@@ -22,12 +22,13 @@ FORMER_NAMES = {
 }
 
 
-def convention_name(value) -> str:
-    """"pin" or "mujoco": a convention's name (any case), a former spelling with a DeprecationWarning."""
+def convention_name(value, stacklevel: int = 3) -> str:
+    """"pin" or "mujoco": a convention's name (any case), a former spelling with a DeprecationWarning
+    attributed `stacklevel` frames up (the user's line, so that Python's default filters show it)."""
     name = value.lower() if isinstance(value, str) else None
     if name in FORMER_CONVENTIONS:
         warnings.warn(f"convention {value!r} is now {FORMER_CONVENTIONS[name]!r}; the former name goes in 0.3",
-                      DeprecationWarning, stacklevel=3)
+                      DeprecationWarning, stacklevel=stacklevel)
         return FORMER_CONVENTIONS[name]
     if name not in CONVENTIONS:
         raise ValueError(f"convention must be 'pin' or 'mujoco', got {value!r}")

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import difflib
 import json
-import math
 import numbers
 import warnings
 from pathlib import Path
@@ -14,7 +13,7 @@ import torch
 from .former import CONVENTIONS, FORMER_NAMES, convention_name
 from .model.description import RobotModel, inertia_about_origin
 from .ops import mujoco_second_order
-from .ops.arguments import check_batch_shape, check_tensor, forward_mode, reference_code
+from .ops.arguments import check_tensor, forward_mode, reference_code
 from .ops.dispatch import dispatch, kernel_call
 from .ops.eager import EagerOps
 from .ops.fd_second_order import second_order
@@ -67,6 +66,10 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
     body_names = property(lambda self: [j.name for j in self._robot.model.joints],
                           doc="The moving bodies, each named by the joint that moves it, mimic joints included: the rows "
                               "of f_ext, params and inertial_parameters(), in order (nbodies of them).")
+    includes_passive_forces = property(
+        lambda self: self._robot._with_passive,
+        doc="Whether the dynamics include the joints' damping and springs (the model has some, and load's "
+            "passive_forces did not turn them off).")
     frame_names = property(lambda self: [f.name for f in self._robot.model.frames],
                            doc="The frames, in the order of forward_kinematics' outputs; a function's `frame` "
                                "argument is one of these names or its index.")
@@ -341,12 +344,14 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         included)."""
         return dispatch(self, "potential_energy_regressor", q)
 
-    def forward_dynamics_parameter_derivatives(self, q, qd, tau, params=None) -> torch.Tensor:
+    def forward_dynamics_parameter_derivatives(self, q, qd, tau, f_ext=None, params=None) -> torch.Tensor:
         """d forward_dynamics / d inertial_parameters (..., nv, 10 nbodies) = -M^-1 Y at qdd = FD, at the
-        parameters params (as in inverse_dynamics)."""
+        parameters params; f_ext and params as in inverse_dynamics."""
         params = self._parameters(params)
-        if forward_mode((q, qd, tau, params)):  # composed of ops that have a forward mode (the kernel has none)
-            qdd = self.forward_dynamics(q, qd, tau, params=params)
+        # composed of ops: under forward mode (the kernel has none), and with external forces (which move
+        # qdd, where the kernel evaluates Y, and nothing else)
+        if f_ext is not None or forward_mode((q, qd, tau, params)):
+            qdd = self.forward_dynamics(q, qd, tau, f_ext, params)
             return -(self.minv(q, params) @ self.inverse_dynamics_regressor(q, qd, qdd))
         if self._robot._with_passive:
             tau = self._robot._passive.added("forward_dynamics_parameter_derivatives", q, qd, tau)
@@ -365,61 +370,6 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
             I = inertia_about_origin(j.mass, j.com, j.inertia)
             rows.append([j.mass, *(j.mass * c for c in j.com), I[0], I[1], I[4], I[2], I[5], I[8]])
         return torch.tensor(rows, dtype=dtype, device=device).reshape(-1)
-
-    def neutral_configuration(self, *batch_shape: int, dtype: torch.dtype = torch.float64,
-                              device="cpu") -> torch.Tensor:
-        """Zero joint positions, identity ball orientations and, for a floating base, the identity
-        orientation at the origin, in this view's convention (quaternion order).
-
-        Args:
-            *batch_shape: leading batch sizes (none: a single configuration).
-            dtype, device: of the result (keyword arguments).
-        Returns:
-            (*batch_shape, nq), every row the same configuration.
-        """
-        batch_shape = check_batch_shape("neutral_configuration", batch_shape)
-        model = self._robot.model
-        q = torch.zeros(*batch_shape, model.nq, dtype=dtype, device=device)
-        for joint, qi in zip(model.joints, model.q_index):
-            if joint.type in ("free", "ball"):
-                quat = qi + (3 if joint.type == "free" else 0)
-                q[..., quat if self._convention else quat + 3] = 1.0  # w, first in MuJoCo's wxyz, last in xyzw
-        return self._reduced(q)
-
-    def random_configuration(self, *batch_shape: int, dtype: torch.dtype = torch.float64, device="cpu",
-                             generator: torch.Generator | None = None) -> torch.Tensor:
-        """Joints uniform within their limits ([-pi, pi] or [-1, 1] when unbounded), a base position in
-        [-1, 1]^3 and uniformly random unit quaternions (free and ball joints), in this view's convention.
-
-        Args:
-            *batch_shape: leading batch sizes (none: a single configuration).
-            dtype, device: of the result (keyword arguments); drawn in float64 on the CPU.
-            generator: the CPU torch.Generator to draw from (None: torch's default).
-        Returns:
-            (*batch_shape, nq).
-        """
-        batch_shape = check_batch_shape("random_configuration", batch_shape)
-        model, cols = self._robot.model, []
-        for joint in model.joints:
-            if joint.type in ("free", "ball"):
-                if joint.type == "free":
-                    cols.append(2 * torch.rand(*batch_shape, 3, dtype=torch.float64, generator=generator) - 1)
-                quat = torch.randn(*batch_shape, 4, dtype=torch.float64, generator=generator)
-                quat = quat / quat.norm(dim=-1, keepdim=True)
-                cols.append(quat[..., [3, 0, 1, 2]] if self._convention else quat)
-                continue
-            default = math.pi if joint.type != "prismatic" else 1.0
-            lo = joint.lower if math.isfinite(joint.lower) else -default
-            hi = joint.upper if math.isfinite(joint.upper) else default
-            if not math.isfinite(hi - lo):  # too wide to draw from
-                lo, hi = -default, default
-            cols.append(lo + (hi - lo) * torch.rand(*batch_shape, 1, dtype=torch.float64, generator=generator))
-        return self._reduced(torch.cat(cols, dim=-1).to(dtype=dtype, device=device))
-
-    def _reduced(self, q: torch.Tensor) -> torch.Tensor:
-        """The coordinates of q that are the robot's own (a coupled mimic joint has none)."""
-        coupling = self._robot._coupling
-        return q if coupling is None else coupling.reduce_q(q)
 
     def with_parameters(self, params: torch.Tensor, check: bool = False) -> "RobotView":
         """A view of these functions computing with the inertial parameters `params` instead of the robot's
@@ -461,8 +411,10 @@ class RobotView(_Functions):
     """A robot's functions in one fixed convention: `robot.pin` (Pinocchio's) or `robot.mujoco` (MuJoCo's).
 
     It has every function of its Robot and the robot's sizes and names (nq, nv, nbodies, nframes,
-    joint_names, body_names, frame_names, floating_base, name), `convention` and `robot`, the Robot itself. A view
-    holds no state of its own: it is cheap to make and safe to share between threads.
+    joint_names, body_names, frame_names, floating_base, name), `frame_index`, `model`, `save`, `convention`
+    and `robot`, the Robot itself; its `pin` and `mujoco` are the same view (its inertial parameters included)
+    in either convention. A view holds no state of its own: it is cheap to make and safe to share between
+    threads.
     """
 
     def __init__(self, robot: "Robot", convention: int, params: torch.Tensor | None = None):
@@ -476,6 +428,30 @@ class RobotView(_Functions):
     def convention(self) -> str:
         """This view's convention: "pin" or "mujoco"."""
         return "mujoco" if self._convention else "pin"
+
+    @property
+    def pin(self) -> "RobotView":
+        """This view in Pinocchio's convention."""
+        return RobotView(self._robot, 0, self._params)
+
+    @property
+    def mujoco(self) -> "RobotView":
+        """This view in MuJoCo's convention (as Robot.mujoco, which raises where the robot was loaded with
+        enable_mujoco_kernels=False and has a free or ball joint)."""
+        return RobotView(self._robot, self._robot._convention_code("mujoco"), self._params)
+
+    @property
+    def model(self) -> RobotModel:
+        """The robot's description (Robot.model)."""
+        return self._robot.model
+
+    def frame_index(self, frame: str | int, argument: str = "frame") -> int:
+        """Index in frame_names of a frame given by name or index (Robot.frame_index)."""
+        return self._robot.frame_index(frame, argument)
+
+    def save(self, path: str | Path) -> None:
+        """Write the robot's model description (Robot.save)."""
+        self._robot.save(path)
 
     def __repr__(self) -> str:
         given = ", given inertial parameters" if self._params is not None else ""
@@ -577,14 +553,15 @@ class Robot(_Functions):
                           self._cache_dir)
 
     def _convention_code(self, value: str) -> int:
-        code = CONVENTIONS[convention_name(value)]
+        code = CONVENTIONS[convention_name(value, stacklevel=4)]  # a former name's warning: the setter's caller
         if code and not self._mujoco_kernels:
             raise ValueError(f"convention='mujoco': robot {self.name!r} was built with enable_mujoco_kernels=False")
         return code
 
     def __repr__(self) -> str:
         base = "floating" if self.floating_base else "fixed"
-        return f"<Robot {self.name!r}: {base} base, nq={self.nq}, nv={self.nv}, {self.convention} convention>"
+        passive = ", passive forces" if self.includes_passive_forces else ""
+        return f"<Robot {self.name!r}: {base} base, nq={self.nq}, nv={self.nv}, {self.convention} convention{passive}>"
 
 
 def _restore(model_json: str, convention: str, enable_mujoco_kernels: bool, passive_forces: bool = True,

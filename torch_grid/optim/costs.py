@@ -14,14 +14,17 @@ from ..space.lie import block_diagonal, dexp_inverse_block, left_jacobian_invers
 
 
 class CostFunctions:
-    """The costs of a robot's views (mixed into robot._Functions)."""
+    """The costs of a robot's views (mixed into robot._Functions). Each state cost returns (value (...,),
+    gradient (..., 2 nv), Gauss-Newton Hessian (..., 2 nv, 2 nv)) along the tangent [dq; dqd]; control_cost
+    returns (value (...,), gradient (..., nv), Hessian (..., nv, nv))."""
 
     def state_cost(self, q, qd, q_ref, qd_ref, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """r = [difference(q_ref, q); qd - qd_ref], weights (..., 2 nv)."""
+        """r = [difference(q_ref, q); qd - qd_ref], weights (..., 2 nv). Returns (value (...,), gradient
+        (..., 2 nv), Gauss-Newton Hessian (..., 2 nv, 2 nv)), as every state cost."""
         nv = qd.shape[-1]
-        w = _checked_weights("state_cost", weights, 2 * nv)
-        _checked("state_cost", "q_ref", q_ref, (q.shape[-1],))
-        _checked("state_cost", "qd_ref", qd_ref, (nv,))
+        w = _checked_weights("state_cost", weights, 2 * nv, qd)
+        _checked("state_cost", "q_ref", q_ref, (q.shape[-1],), q)
+        _checked("state_cost", "qd_ref", qd_ref, (nv,), qd)
         r_q, r_v = self.difference(q_ref, q), qd - qd_ref
         j_q = self.d_difference(q_ref, q)[1]
         # J = [[j_q, 0], [0, I]]: its blocks apart (the dense 2 nv product costs 8x the q block's)
@@ -32,22 +35,23 @@ class CostFunctions:
                 block_diagonal(hess_q.expand(*batch, nv, nv), hess_v.expand(*batch, nv, nv)))
 
     def control_cost(self, tau, tau_ref, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """r = tau - tau_ref, weights (..., nv)."""
-        r = tau - _checked("control_cost", "tau_ref", tau_ref, tuple(tau.shape[-1:]))
-        return _diagonal(r, _checked_weights("control_cost", weights, r.shape[-1]))
+        """r = tau - tau_ref, weights (..., nv). Returns (value (...,), gradient (..., nv), Hessian (..., nv, nv))."""
+        r = tau - _checked("control_cost", "tau_ref", tau_ref, tuple(tau.shape[-1:]), tau)
+        return _diagonal(r, _checked_weights("control_cost", weights, r.shape[-1], tau))
 
     def frame_translation_cost(self, q, qd, frame, target, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = the frame's world position - target (..., 3), weights (..., 3)."""
         index = self._robot.frame_index(frame, "frame_translation_cost: frame")
         position = self.forward_kinematics(q)[0][..., index, :]
         jacobian = self.frame_jacobian(q, index, "local_world_aligned")[..., :3, :]
-        target = _checked("frame_translation_cost", "target", target, (3,))
-        return _weighted(position - target, _state_rows(jacobian, qd), _checked_weights("frame_translation_cost", weights, 3))
+        target = _checked("frame_translation_cost", "target", target, (3,), q)
+        return _weighted(position - target, _state_rows(jacobian, qd),
+                         _checked_weights("frame_translation_cost", weights, 3, q))
 
     def frame_placement_cost(self, q, qd, frame, target, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = log6(target^-1 oMf) [linear; angular] (Crocoddyl's ResidualModelFramePlacement), target a
         (..., 4, 4) placement, weights (..., 6); J = Jlog6(target^-1 oMf) J_frame(LOCAL)."""
-        target = _checked("frame_placement_cost", "target", target, (4, 4))
+        target = _checked("frame_placement_cost", "target", target, (4, 4), q)
         index = self._robot.frame_index(frame, "frame_placement_cost: frame")
         positions, rotations = self.forward_kinematics(q)
         R, p = rotations[..., index, :, :], positions[..., index, :]
@@ -57,21 +61,21 @@ class CostFunctions:
         p_rel = R_ref.mT @ (p - p_ref).unsqueeze(-1)
         r = torch.cat([(left_jacobian_inverse(w) @ p_rel).squeeze(-1), w], dim=-1)
         jacobian = dexp_inverse_block("free", r, 0) @ self.frame_jacobian(q, index, "local")
-        return _weighted(r, _state_rows(jacobian, qd), _checked_weights("frame_placement_cost", weights, 6))
+        return _weighted(r, _state_rows(jacobian, qd), _checked_weights("frame_placement_cost", weights, 6, q))
 
     def com_cost(self, q, qd, target, weights, params=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = center of mass - target (..., 3), weights (..., 3); params as in inverse_dynamics."""
-        target = _checked("com_cost", "target", target, (3,))
+        target = _checked("com_cost", "target", target, (3,), q)
         return _weighted(self.com(q, params) - target, _state_rows(self.jacobian_com(q, params), qd),
-                         _checked_weights("com_cost", weights, 3))
+                         _checked_weights("com_cost", weights, 3, q))
 
     def momentum_cost(self, q, qd, target, weights, params=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = centroidal momentum h(q, qd) [linear; angular] - target (..., 6), weights (..., 6): both its q
         block (dccrba) and its qd block (A); params as in inverse_dynamics."""
-        target = _checked("momentum_cost", "target", target, (6,))
+        target = _checked("momentum_cost", "target", target, (6,), q)
         A, h = self.ccrba(q, qd, params)
         return _weighted(h - target, torch.cat([self.dccrba(q, qd, params), A], dim=-1),
-                         _checked_weights("momentum_cost", weights, 6))
+                         _checked_weights("momentum_cost", weights, 6, q))
 
 
 def quadratic_barrier(x: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, weights: torch.Tensor):
@@ -119,24 +123,34 @@ def _state_rows(jacobian: torch.Tensor, qd: torch.Tensor) -> torch.Tensor:
     return torch.cat([jacobian, torch.zeros_like(jacobian)], dim=-1)
 
 
-def _checked_weights(cost: str, weights, n: int) -> torch.Tensor:
+def _checked_weights(cost: str, weights, n: int, like: torch.Tensor) -> torch.Tensor:
     if not isinstance(weights, torch.Tensor) or weights.shape[-1:] != (n,):
         got = tuple(weights.shape) if isinstance(weights, torch.Tensor) else type(weights).__name__
         raise ValueError(f"{cost}: weights must be a tensor of shape (..., {n}), got {got}")
-    return weights
+    return _like(cost, "weights", weights, like)
 
 
-def _checked(cost: str, name: str, tensor, shape: tuple[int, ...]) -> torch.Tensor:
-    """`tensor` itself, refused unless it is a tensor whose trailing dimensions are `shape`."""
+def _checked(cost: str, name: str, tensor, shape: tuple[int, ...], like: torch.Tensor) -> torch.Tensor:
+    """`tensor` itself, refused unless it is a tensor whose trailing dimensions are `shape`, of like's dtype
+    and device."""
     if not isinstance(tensor, torch.Tensor) or tuple(tensor.shape[max(0, tensor.dim() - len(shape)):]) != shape:
         got = tuple(tensor.shape) if isinstance(tensor, torch.Tensor) else type(tensor).__name__
         want = ", ".join(["..."] + [str(n) for n in shape])
         raise ValueError(f"{cost}: {name} must be a tensor of shape ({want}), got {got}")
+    return _like(cost, name, tensor, like)
+
+
+def _like(cost: str, name: str, tensor: torch.Tensor, like: torch.Tensor, whose: str = "the state's") -> torch.Tensor:
+    """Refuses a tensor of another dtype or device than like's (torch would promote it, or fail deep inside)."""
+    if isinstance(like, torch.Tensor) and (tensor.dtype != like.dtype or tensor.device != like.device):
+        raise TypeError(f"{cost}: {name} is {tensor.dtype} on {tensor.device}, expected {whose} {like.dtype} on "
+                        f"{like.device}")
     return tensor
 
 
 def _checked_bounds(barrier: str, x: torch.Tensor, lower, upper, weights) -> None:
-    """Refuses bounds or weights that do not broadcast with x, naming the argument."""
+    """Refuses bounds or weights that do not broadcast with x, or tensors of another dtype or device than x's,
+    naming the argument."""
     for name, t in (("lower", lower), ("upper", upper), ("weights", weights)):
         shape = tuple(t.shape) if isinstance(t, torch.Tensor) else ()
         try:
@@ -144,6 +158,8 @@ def _checked_bounds(barrier: str, x: torch.Tensor, lower, upper, weights) -> Non
         except RuntimeError:
             raise ValueError(f"{barrier}: {name} of shape {shape} does not broadcast with x's shape "
                              f"{tuple(x.shape)}") from None
+        if isinstance(t, torch.Tensor):
+            _like(barrier, name, t, x, "x's")
 
 
 def _quaternion_of(R: torch.Tensor) -> torch.Tensor:

@@ -25,9 +25,9 @@ class HorizonFunctions:
         q (..., T, nq), qd and tau (..., T, nv); dt a number or a (..., T) tensor. costs: (name, keyword
         arguments) of the state costs (STATE_COSTS, taking (q, qd, **kwargs)) and control costs
         (CONTROL_COSTS, taking (tau, **kwargs)); their references and weights broadcast against (..., T).
-        Returns q_next, qd_next, A (..., T, 2nv, 2nv), B (..., T, 2nv, nv), [H (..., T, 2nv, 3nv, 3nv)],
-        cost (..., T), lx (..., T, 2nv), lu (..., T, nv), lxx (..., T, 2nv, 2nv), luu (..., T, nv, nv) and
-        lxu (..., T, 2nv, nv) (zero: no listed cost couples state and control). params: the inertial
+        Returns a dict with the keys q_next, qd_next, A (..., T, 2nv, 2nv), B (..., T, 2nv, nv),
+        [H (..., T, 2nv, 3nv, 3nv)], cost (..., T), lx (..., T, 2nv), lu (..., T, nv), lxx (..., T, 2nv, 2nv),
+        luu (..., T, nv, nv) and lxu (..., T, 2nv, nv) (zero: no listed cost couples state and control). params: the inertial
         parameters (..., nbodies, 10), broadcast against (..., T) as the states, as in inverse_dynamics.
         """
         if params is not None:

@@ -1,13 +1,16 @@
-"""The configuration-space functions of a robot's views: integrate, difference and their tangent Jacobians, each one
-kernel call, else the composition of space/lie.py, which autograd and the torch.func transforms see through.
+"""The configuration-space functions of a robot's views: the neutral and random configurations, integrate, difference
+and their tangent Jacobians, each one kernel call, else the composition of space/lie.py, which autograd and the
+torch.func transforms see through.
 integrate and difference of a robot with quaternion joints run their kernels under autograd's reverse mode too,
 their backwards one kernel each (differentiable_kernel_runs); the Jacobians' kernels run only
 when nothing differentiates them (fused_kernel_runs)."""
 from __future__ import annotations
 
+import math
+
 import torch
 
-from ..ops.arguments import check_dt, check_tensor
+from ..ops.arguments import check_batch_shape, check_dt, check_tensor
 from ..space import lie
 from .integrators import differentiable_kernel_runs, fused_kernel_runs
 
@@ -52,3 +55,58 @@ class ConfigurationFunctions:
         check_tensor(op, second[0], x, second[1], q)
         check_dt(op, dt, q, x)
         return q, x
+
+    def neutral_configuration(self, *batch_shape: int, dtype: torch.dtype = torch.float64,
+                              device="cpu") -> torch.Tensor:
+        """Zero joint positions, identity ball orientations and, for a floating base, the identity
+        orientation at the origin, in this view's convention (quaternion order).
+
+        Args:
+            *batch_shape: leading batch sizes (none: a single configuration).
+            dtype, device: of the result (keyword arguments).
+        Returns:
+            (*batch_shape, nq), every row the same configuration.
+        """
+        batch_shape = check_batch_shape("neutral_configuration", batch_shape)
+        model = self._robot.model
+        q = torch.zeros(*batch_shape, model.nq, dtype=dtype, device=device)
+        for joint, qi in zip(model.joints, model.q_index):
+            if joint.type in ("free", "ball"):
+                quat = qi + (3 if joint.type == "free" else 0)
+                q[..., quat if self._convention else quat + 3] = 1.0  # w, first in MuJoCo's wxyz, last in xyzw
+        return self._reduced(q)
+
+    def random_configuration(self, *batch_shape: int, dtype: torch.dtype = torch.float64, device="cpu",
+                             generator: torch.Generator | None = None) -> torch.Tensor:
+        """Joints uniform within their limits ([-pi, pi] or [-1, 1] when unbounded), a base position in
+        [-1, 1]^3 and uniformly random unit quaternions (free and ball joints), in this view's convention.
+
+        Args:
+            *batch_shape: leading batch sizes (none: a single configuration).
+            dtype, device: of the result (keyword arguments); drawn in float64 on the CPU.
+            generator: the CPU torch.Generator to draw from (None: torch's default).
+        Returns:
+            (*batch_shape, nq).
+        """
+        batch_shape = check_batch_shape("random_configuration", batch_shape)
+        model, cols = self._robot.model, []
+        for joint in model.joints:
+            if joint.type in ("free", "ball"):
+                if joint.type == "free":
+                    cols.append(2 * torch.rand(*batch_shape, 3, dtype=torch.float64, generator=generator) - 1)
+                quat = torch.randn(*batch_shape, 4, dtype=torch.float64, generator=generator)
+                quat = quat / quat.norm(dim=-1, keepdim=True)
+                cols.append(quat[..., [3, 0, 1, 2]] if self._convention else quat)
+                continue
+            default = math.pi if joint.type != "prismatic" else 1.0
+            lo = joint.lower if math.isfinite(joint.lower) else -default
+            hi = joint.upper if math.isfinite(joint.upper) else default
+            if not math.isfinite(hi - lo):  # too wide to draw from
+                lo, hi = -default, default
+            cols.append(lo + (hi - lo) * torch.rand(*batch_shape, 1, dtype=torch.float64, generator=generator))
+        return self._reduced(torch.cat(cols, dim=-1).to(dtype=dtype, device=device))
+
+    def _reduced(self, q: torch.Tensor) -> torch.Tensor:
+        """The coordinates of q that are the robot's own (a coupled mimic joint has none)."""
+        coupling = self._robot._coupling
+        return q if coupling is None else coupling.reduce_q(q)
