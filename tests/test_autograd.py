@@ -27,7 +27,7 @@ def test_every_differentiable_function_is_checked(robots):
     """Every public function returning tensors of q is in the table above (so gradcheck covers it)."""
     public = {n for n in dir(robots["iiwa14"].pin) if not n.startswith("_") and callable(getattr(robots["iiwa14"].pin, n))}
     not_differentiable = {"inertial_parameters", "neutral_configuration", "random_configuration", "frame_index", "with_parameters",
-                          "rnea", "aba",  # constants and samplers; rnea/aba alias two functions in the table
+                          "save", "rnea", "aba",  # constants, samplers, I/O; rnea/aba alias two functions in the table
                           "inverse_dynamics_second_derivatives", "forward_dynamics_second_derivatives",  # a third derivative
                           "frame_kinematic_hessian", "end_effector_pose_second_derivatives", "step_second_derivatives"}
     # torch compositions of the functions above, gradchecked in test_configuration.py, test_step.py,
