@@ -124,10 +124,7 @@ def _state_rows(jacobian: torch.Tensor, qd: torch.Tensor) -> torch.Tensor:
 
 
 def _checked_weights(cost: str, weights, n: int, like: torch.Tensor) -> torch.Tensor:
-    if not isinstance(weights, torch.Tensor) or weights.shape[-1:] != (n,):
-        got = tuple(weights.shape) if isinstance(weights, torch.Tensor) else type(weights).__name__
-        raise ValueError(f"{cost}: weights must be a tensor of shape (..., {n}), got {got}")
-    return _like(cost, "weights", weights, like)
+    return _checked(cost, "weights", weights, (n,), like)
 
 
 def _checked(cost: str, name: str, tensor, shape: tuple[int, ...], like: torch.Tensor) -> torch.Tensor:
