@@ -400,3 +400,68 @@ def test_zero_ball_quaternion_reads_as_identity(balls, convention):
         x.requires_grad_(True)
         view.inverse_dynamics(x, v, v).square().sum().backward()
     assert torch.isfinite(zero.grad).all() and torch.allclose(zero.grad, ident.grad, rtol=1e-12, atol=1e-12)
+
+
+def test_conventions_of_a_robot_match_mujoco(trees):
+    """conventions.of(robot): a Pinocchio-convention state and force carried into MuJoCo's by the robot's own
+    layout (two free roots, a ball joint) gives mj_forward's qacc, M and a Jacobian in MuJoCo's convention;
+    the other way round gives the state back; the free functions given the same lists agree."""
+    robot, m = trees
+    C, cv = torch_grid.conventions, torch_grid.conventions.of(robot)
+    assert cv.free == C.free_joints(robot.model) and cv.balls == C.ball_joints(robot.model) and cv.free[1] != (0, 0)
+    g = torch.Generator().manual_seed(4)
+    q = robot.pin.random_configuration(2, generator=g)
+    v, tau = (torch.randn(2, robot.nv, dtype=q.dtype, generator=g) for _ in range(2))
+    qdd = robot.pin.forward_dynamics(q, v, tau)
+    qm, vm, taum, am = cv.q_pin_to_mujoco(q), cv.v_pin_to_mujoco(q, v), cv.covector_pin_to_mujoco(q, tau), \
+        cv.a_pin_to_mujoco(q, v, qdd)
+    assert torch.equal(qm, C.q_pin_to_mujoco(q, balls=cv.balls, free=cv.free))
+    d = mujoco.MjData(m)
+    for s in range(2):
+        d.qpos[:], d.qvel[:], d.qfrc_applied[:] = qm[s].numpy(), vm[s].numpy(), taum[s].numpy()
+        mujoco.mj_forward(m, d)
+        M = np.zeros((m.nv, m.nv))
+        mujoco.mj_fullM(m, d, M)
+        assert rel_err(am[s], d.qacc) <= 1e-8
+        assert rel_err(cv.congruence_pin_to_mujoco(q[s], robot.pin.crba(q[s])), M) <= TOL
+        jac, site = np.zeros((6, m.nv)), m.site(m.nsite - 1).name
+        mujoco.mj_jacSite(m, d, jac[:3], jac[3:], m.site(site).id)
+        J = robot.pin.frame_jacobian(q[s], site)
+        assert rel_err(cv.columns_pin_to_mujoco(q[s], J), jac) <= TOL
+    assert torch.equal(cv.q_mujoco_to_pin(qm), q)
+    assert rel_err(cv.v_mujoco_to_pin(q, vm), v) <= 1e-15 and rel_err(cv.covector_mujoco_to_pin(q, taum), tau) <= 1e-15
+    assert rel_err(cv.a_mujoco_to_pin(q, v, am), qdd) <= 1e-14
+    assert torch.equal(C.of(robot.mujoco).q_pin_to_mujoco(q), qm) and torch.equal(C.of(robot.model).q_pin_to_mujoco(q), qm)
+
+
+def test_conventions_of_a_robot_check_their_arguments(trees):
+    robot, _ = trees
+    cv = torch_grid.conventions.of(robot)
+    q = robot.pin.neutral_configuration()
+    with pytest.raises(ValueError, match=rf"of\('{robot.name}'\).q_pin_to_mujoco: q must have nq = {robot.nq} entries.*"
+                                         rf"got shape \({robot.nv},\)"):
+        cv.q_pin_to_mujoco(q[:robot.nv])
+    with pytest.raises(ValueError, match=rf"v_pin_to_mujoco: v must have nv = {robot.nv} entries"):
+        cv.v_pin_to_mujoco(q, q)
+    with pytest.raises(ValueError, match=r"congruence_pin_to_mujoco: M must be \(\.\.\., nv, nv\)"):
+        cv.congruence_pin_to_mujoco(q, torch.zeros(3, robot.nv, dtype=q.dtype))
+    with pytest.raises(TypeError, match="expected a Robot, a RobotView or a RobotModel, got str"):
+        torch_grid.conventions.of("trees")
+
+
+def test_conventions_of_a_robot_with_mimic_joints_take_its_reduced_layout(trees):
+    """With a mimic joint before the second free root and the ball joint, their places in the reduced q and
+    v (what a mimic robot's functions take) are those of the coupling."""
+    from torch_grid.model.description import Mimic
+    from torch_grid.ops.mimic import Coupling
+
+    robot, _ = trees
+    names = [j.name for j in robot.model.joints]
+    model = dataclasses.replace(robot.model, mimics=(Mimic(names[2], names[1], 0.5, 0.1),))
+    coupling, cv = Coupling(model), torch_grid.conventions.of(model)
+    assert (cv.nq, cv.nv) == (coupling.nq, coupling.nv) == (robot.nq - 1, robot.nv - 1)
+    kept = coupling.reduce_q(torch.arange(model.nq, dtype=torch.float64)).tolist()  # the full q index of each
+    reduced = {name: (kept.index(model.q_index[k]), coupling.v_src[model.v_index[k]]) for k, name in enumerate(names)
+               if name != names[2]}
+    assert cv.free == [reduced[j.name] for j in model.joints if j.type == "free"]
+    assert cv.balls == [reduced[j.name][0] for j in model.joints if j.type == "ball"]

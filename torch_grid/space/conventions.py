@@ -13,7 +13,7 @@ a_lin_mujoco = R_f (a_lin_pin + w x v_lin_pin).
 Every function takes any leading batch shape. `q_pin` is a configuration in Pinocchio's layout.
 `free` lists each free joint's (first q index, first v index); by default one free root at (0, 0)
 when floating, none when floating=False. `balls` lists each ball joint's first q index. A robot's
-own lists: `free_joints(model)`, `ball_joints(model)`.
+own lists: `free_joints(model)`, `ball_joints(model)`; `of(robot)` gives every function with them filled in.
 """
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ import torch
 __all__ = [
     "free_joints", "ball_joints", "unit_quaternion", "quaternion_rotation", "base_rotation", "q_mujoco_to_pin",
     "q_pin_to_mujoco", "v_mujoco_to_pin", "v_pin_to_mujoco", "a_mujoco_to_pin", "a_pin_to_mujoco", "covector_mujoco_to_pin",
-    "covector_pin_to_mujoco", "congruence_pin_to_mujoco", "columns_pin_to_mujoco",
+    "covector_pin_to_mujoco", "congruence_pin_to_mujoco", "columns_pin_to_mujoco", "of", "RobotConversions",
 ]
 # The former names (`mjx` for MuJoCo's convention), kept for one release (CHANGELOG.md).
 FORMER_NAMES = {name.replace("mujoco", "mjx"): name for name in __all__ if "mujoco" in name}
@@ -172,6 +172,102 @@ def _linear(x: torch.Tensor, parts: dict[int, torch.Tensor]) -> torch.Tensor:
 
 def _mul(R: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     return (R @ x.unsqueeze(-1)).squeeze(-1)
+
+
+class RobotConversions:
+    """This module's transforms for one robot's layout: its free and ball joints filled in, in the layout of
+    the q and v its functions take (a robot with mimic joints: its independent joints'), and each argument's
+    last dimensions checked against the robot's nq and nv. Made by `of(robot)`."""
+
+    def __init__(self, model):
+        mimic = {m.joint for m in getattr(model, "mimics", ())}
+        self.free: list[tuple[int, int]] = []
+        self.balls: list[int] = []
+        nq = nv = 0
+        for j in model.joints:
+            if j.name in mimic:
+                continue
+            if j.type == "free":
+                self.free.append((nq, nv))
+            elif j.type == "ball":
+                self.balls.append(nq)
+            nq, nv = nq + j.nq, nv + j.nv
+        self.name, self.nq, self.nv = model.name, nq, nv
+
+    def q_mujoco_to_pin(self, q: torch.Tensor) -> torch.Tensor:
+        """MuJoCo qpos (..., nq) -> Pinocchio q (..., nq)."""
+        return q_mujoco_to_pin(self._sized("q_mujoco_to_pin", "q", q, "nq"), balls=self.balls, free=self.free)
+
+    def q_pin_to_mujoco(self, q: torch.Tensor) -> torch.Tensor:
+        """Pinocchio q (..., nq) -> MuJoCo qpos (..., nq)."""
+        return q_pin_to_mujoco(self._sized("q_pin_to_mujoco", "q", q, "nq"), balls=self.balls, free=self.free)
+
+    def v_mujoco_to_pin(self, q_pin: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+        """qvel (..., nv) -> Pinocchio v (..., nv), at Pinocchio's q_pin."""
+        return v_mujoco_to_pin(*self._state("v_mujoco_to_pin", q_pin, v), free=self.free)
+
+    def v_pin_to_mujoco(self, q_pin: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+        """Pinocchio v (..., nv) -> qvel (..., nv), at Pinocchio's q_pin."""
+        return v_pin_to_mujoco(*self._state("v_pin_to_mujoco", q_pin, v), free=self.free)
+
+    def covector_mujoco_to_pin(self, q_pin: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
+        """MuJoCo joint forces (..., nv) -> Pinocchio's, at Pinocchio's q_pin."""
+        return covector_mujoco_to_pin(*self._state("covector_mujoco_to_pin", q_pin, f, "f"), free=self.free)
+
+    def covector_pin_to_mujoco(self, q_pin: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
+        """Pinocchio joint forces (..., nv) -> MuJoCo's, at Pinocchio's q_pin."""
+        return covector_pin_to_mujoco(*self._state("covector_pin_to_mujoco", q_pin, f, "f"), free=self.free)
+
+    def a_mujoco_to_pin(self, q_pin: torch.Tensor, v_pin: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
+        """qacc (..., nv) -> Pinocchio a (..., nv), at Pinocchio's q_pin and v_pin."""
+        q_pin, v_pin = self._state("a_mujoco_to_pin", q_pin, v_pin, "v_pin")
+        return a_mujoco_to_pin(q_pin, v_pin, self._sized("a_mujoco_to_pin", "a", a, "nv"), free=self.free)
+
+    def a_pin_to_mujoco(self, q_pin: torch.Tensor, v_pin: torch.Tensor, a_pin: torch.Tensor) -> torch.Tensor:
+        """Pinocchio a (..., nv) -> qacc (..., nv), at Pinocchio's q_pin and v_pin."""
+        q_pin, v_pin = self._state("a_pin_to_mujoco", q_pin, v_pin, "v_pin")
+        return a_pin_to_mujoco(q_pin, v_pin, self._sized("a_pin_to_mujoco", "a_pin", a_pin, "nv"), free=self.free)
+
+    def congruence_pin_to_mujoco(self, q_pin: torch.Tensor, M: torch.Tensor) -> torch.Tensor:
+        """(..., nv, nv) G M G^T at Pinocchio's q_pin: the mass matrix and its inverse."""
+        M = self._sized("congruence_pin_to_mujoco", "M", M, "nv")
+        if M.dim() < 2 or M.shape[-2] != self.nv:
+            raise ValueError(f"conventions.of({self.name!r}).congruence_pin_to_mujoco: M must be (..., nv, nv) with "
+                             f"nv = {self.nv}, got shape {tuple(M.shape)}")
+        return congruence_pin_to_mujoco(self._sized("congruence_pin_to_mujoco", "q_pin", q_pin, "nq"), M, free=self.free)
+
+    def columns_pin_to_mujoco(self, q_pin: torch.Tensor, J: torch.Tensor) -> torch.Tensor:
+        """(..., rows, nv) J G^T at Pinocchio's q_pin: Jacobians, the centroidal map."""
+        return columns_pin_to_mujoco(self._sized("columns_pin_to_mujoco", "q_pin", q_pin, "nq"),
+                                     self._sized("columns_pin_to_mujoco", "J", J, "nv"), free=self.free)
+
+    def _state(self, function: str, q_pin: torch.Tensor, x: torch.Tensor, name: str = "v"):
+        return self._sized(function, "q_pin", q_pin, "nq"), self._sized(function, name, x, "nv")
+
+    def _sized(self, function: str, name: str, x: torch.Tensor, size: str) -> torch.Tensor:
+        """x, whose last dimension must be the robot's `size` ("nq" or "nv")."""
+        n = getattr(self, size)
+        if not isinstance(x, torch.Tensor) or x.dim() == 0 or x.shape[-1] != n:
+            got = f"shape {tuple(x.shape)}" if isinstance(x, torch.Tensor) else type(x).__name__
+            raise ValueError(f"conventions.of({self.name!r}).{function}: {name} must have {size} = {n} entries in its "
+                             f"last dimension, got {got}")
+        return x
+
+    def __repr__(self) -> str:
+        return f"<conventions of {self.name!r}: free joints at (q, v) {self.free}, ball joints at q {self.balls}>"
+
+
+def of(robot) -> RobotConversions:
+    """This module's transforms for `robot` (a Robot, one of its views or a RobotModel): each function
+    without `floating`, `free` and `balls`, which come from the robot, and with its arguments' sizes checked.
+
+        cv = conventions.of(robot)
+        qpos, qvel = cv.q_pin_to_mujoco(q), cv.v_pin_to_mujoco(q, v)
+    """
+    model = getattr(robot, "model", robot)
+    if not hasattr(model, "joints"):
+        raise TypeError(f"conventions.of: expected a Robot, a RobotView or a RobotModel, got {type(robot).__name__}")
+    return RobotConversions(model)
 
 
 def __getattr__(name: str):
