@@ -302,7 +302,7 @@ def test_mimic_refusals():
     with pytest.raises(ValueError, match="'thumb'.*master 'tool_joint' is not a joint of the model"):
         torch_grid.load(fixed_master, mimic=True)
     bad = URDF.replace('multiplier="0.5"', 'multiplier="half"')
-    with pytest.raises(ValueError, match="multiplier='half' is not a number"):
+    with pytest.raises(ValueError, match="joint 'thumb': <mimic multiplier> must be a decimal number, got 'half'"):
         torch_grid.load(bad, mimic=True)
 
 

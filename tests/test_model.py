@@ -238,6 +238,30 @@ def test_panda_with_mimic_fingers_matches_pinocchio(tmp_path):
     assert np.abs(coupled.inverse_dynamics(q, qd, qdd).numpy() - ref).max() <= 1e-9 * np.abs(ref).max()
 
 
+def test_urdf_axes_off_the_coordinate_axes_move_as_in_pinocchio():
+    """Revolute, continuous and prismatic joints about axes off the coordinate axes (Pinocchio's unaligned
+    joints; a continuous one used to fail to load): each moves its body as Pinocchio's does."""
+    inertia = '<inertial><mass value="1"/><inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial>'
+    limit = '<limit lower="-1" upper="1" effort="1" velocity="1"/>'
+    links = "".join(f'<link name="{n}">{inertia}</link>' for n in "abcd")
+    chain = [("revolute", "0 1 1", limit), ("continuous", "1 2 2", ""), ("prismatic", "3 0 -4", limit)]
+    joints = "".join(f'<joint name="j{k}" type="{kind}"><parent link="{"abcd"[k]}"/><child link="{"abcd"[k + 1]}"/>'
+                     f'<origin xyz="0.1 0.2 0.3" rpy="0.3 -0.2 0.1"/><axis xyz="{axis}"/>{lim}</joint>'
+                     for k, (kind, axis, lim) in enumerate(chain))
+    text = f'<robot name="axes">{links}{joints}</robot>'
+    model = source_to_model(text, False)
+    assert [j.type for j in model.joints] == [kind for kind, _, _ in chain]
+    pm = pin.buildModelFromXML(text)
+    pd = pm.createData()
+    x = np.array([0.7, -2.5, 0.4])
+    pin.forwardKinematics(pm, pd, np.array([x[0], np.cos(x[1]), np.sin(x[1]), x[2]]))
+    for jid, (j, xj) in enumerate(zip(model.joints, x), start=1):
+        axis = np.array(j.axis)
+        motion = pin.SE3(np.eye(3), xj * axis) if j.type == "prismatic" else pin.SE3(pin.exp3(xj * axis), np.zeros(3))
+        ours = pin.SE3(np.array(j.rotation).reshape(3, 3), np.array(j.translation)) * motion
+        assert np.abs(ours.homogeneous - pd.liMi[jid].homogeneous).max() <= 1e-15, j.name
+
+
 def test_kinematic_loop_is_refused():
     loop = URDF_TEMPLATE.format(kind="revolute", extra="").replace(
         "</robot>", '<joint name="j3" type="revolute"><parent link="a"/><child link="c"/><axis xyz="1 0 0"/>'

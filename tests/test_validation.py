@@ -147,6 +147,28 @@ def test_non_unit_axis_is_refused():
     refused(lambda: model(elbow=dict(axis=(0.7071, 0.0, 0.7071))), "joint 'elbow'", "unit vector", "0.7071")
 
 
+@pytest.mark.parametrize("kind", ["PrismaticUnaligned", "RevoluteUnaligned"])
+def test_non_unit_axis_from_pinocchio_model_is_refused(kind):
+    """Pinocchio moves an unaligned joint by its axis as given, not normalised: such a model is refused
+    (it used to be normalised, a prismatic joint then moving half as far as Pinocchio's)."""
+    pm = pin.Model()
+    jid = pm.addJoint(0, getattr(pin, f"JointModel{kind}")(np.array([0.0, 0.0, 2.0])), pin.SE3.Identity(), "slide")
+    pm.appendBodyToJoint(jid, pin.Inertia.FromSphere(1.0, 0.1), pin.SE3.Identity())
+    if kind == "PrismaticUnaligned":
+        pd = pm.createData()
+        pin.forwardKinematics(pm, pd, np.array([0.5]))
+        assert pd.oMi[jid].translation.tolist() == [0.0, 0.0, 1.0]
+    refused(lambda: source_to_model(pm, None), "joint 'slide'", "unit vector", "(0.0, 0.0, 2.0)", "norm 2")
+
+
+def test_angular_gravity_from_pinocchio_model_is_refused():
+    """Pinocchio's gravity is a spatial motion; an angular part would change its dynamics, and a
+    RobotModel's gravity is linear, so it is refused rather than dropped."""
+    pm = pin.buildModelFromXML(urdf())
+    pm.gravity = pin.Motion(np.array([0.0, 0.0, -9.81]), np.array([0.0, 0.5, 0.0]))
+    refused(lambda: source_to_model(pm, None), "model.gravity", "angular part", "(0.0, 0.5, 0.0)")
+
+
 @pytest.mark.parametrize("mass", [-1.0, math.nan, math.inf])
 def test_bad_mass_is_refused(mass):
     refused(lambda: model(elbow=dict(mass=mass)), "joint 'elbow'", "mass", repr(mass))

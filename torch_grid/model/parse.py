@@ -16,6 +16,8 @@ import xml.etree.ElementTree as ET
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from . import mjcf
 from .description import Frame, Joint, Mimic, RobotModel
 
@@ -25,6 +27,8 @@ BUNDLED = {"iiwa14": False, "go2": True, "humanoid": True}  # name -> floating b
 _REVOLUTE = {"JointModelRX": (1.0, 0.0, 0.0), "JointModelRY": (0.0, 1.0, 0.0), "JointModelRZ": (0.0, 0.0, 1.0)}
 _CONTINUOUS = {"JointModelRUBX": (1.0, 0.0, 0.0), "JointModelRUBY": (0.0, 1.0, 0.0), "JointModelRUBZ": (0.0, 0.0, 1.0)}
 _PRISMATIC = {"JointModelPX": (1.0, 0.0, 0.0), "JointModelPY": (0.0, 1.0, 0.0), "JointModelPZ": (0.0, 0.0, 1.0)}
+_UNALIGNED = {"JointModelRevoluteUnaligned": "revolute", "JointModelRevoluteUnboundedUnaligned": "continuous",
+              "JointModelPrismaticUnaligned": "prismatic"}
 _FRAME_KINDS = {"BODY": "body", "JOINT": "joint", "FIXED_JOINT": "fixed_joint", "OP_FRAME": "op", "SENSOR": "sensor"}
 
 
@@ -69,7 +73,7 @@ def from_pinocchio(model, name: str | None = None) -> RobotModel:
     for jid in range(1, model.njoints):
         jm = model.joints[jid]
         jname = model.names[jid]
-        kind, axis = _joint_kind(jm, jname)
+        kind, axis = _joint_kind(jm, jname, model.nq)
         parent = int(model.parents[jid]) - 1
         lo, hi = -math.pi, math.pi
         if kind in ("revolute", "prismatic"):
@@ -94,6 +98,8 @@ def from_pinocchio(model, name: str | None = None) -> RobotModel:
         )
         for f in model.frames
     )
+    if any(float(w) != 0 for w in model.gravity.angular):  # Pinocchio would accelerate the base by it too
+        raise ValueError(f"model.gravity must be linear (angular part 0), got angular part {_vec(model.gravity.angular)}")
     gravity = _vec(model.gravity.linear)
     return RobotModel(name=name or model.name or "robot", joints=tuple(joints), frames=frames, gravity=gravity)
 
@@ -102,7 +108,7 @@ def from_pinocchio(model, name: str | None = None) -> RobotModel:
 _UNBOUNDED = sys.float_info.max
 
 
-def _joint_kind(jm, jname: str) -> tuple[str, tuple[float, float, float]]:
+def _joint_kind(jm, jname: str, nq: int) -> tuple[str, tuple[float, float, float]]:
     short = jm.shortname()
     if short == "JointModelFreeFlyer":
         return "free", (0.0, 0.0, 0.0)
@@ -114,13 +120,14 @@ def _joint_kind(jm, jname: str) -> tuple[str, tuple[float, float, float]]:
         return "continuous", _CONTINUOUS[short]
     if short in _PRISMATIC:
         return "prismatic", _PRISMATIC[short]
-    if short in ("JointModelRevoluteUnaligned", "JointModelRevoluteUnboundedUnaligned", "JointModelPrismaticUnaligned"):
-        axis = _vec(jm.extract().axis)
-        n = math.sqrt(sum(a * a for a in axis))
-        if 0 < n < math.inf:  # a zero or non-finite axis passes through for RobotModel to refuse, naming the joint
-            axis = tuple(a / n for a in axis)
-        kind = {"JointModelRevoluteUnaligned": "revolute", "JointModelPrismaticUnaligned": "prismatic"}
-        return kind.get(short, "continuous"), axis
+    if short in _UNALIGNED:
+        # The axis as Pinocchio moves the joint by it, read from the motion subspace S = [linear; angular]
+        # (the Python binding of RevoluteUnboundedUnaligned has no `axis`). Not normalised: Pinocchio
+        # scales the motion by a non-unit axis, which RobotModel refuses, naming the joint.
+        data = jm.createData()
+        jm.calc(data, np.zeros(nq))
+        kind, motion = _UNALIGNED[short], np.asarray(data.S).reshape(6)
+        return kind, _vec(motion[:3] if kind == "prismatic" else motion[3:])
     raise ValueError(
         f"joint {jname!r} has type {short.replace('JointModel', '')}, which is not supported "
         "(supported: revolute, continuous, prismatic, spherical, fixed, and a free-flyer root)"
@@ -174,20 +181,20 @@ def _mimic_joints(root: ET.Element, couple: bool) -> tuple[Mimic, ...]:
     if not found:
         return ()
     if couple:
-        return tuple(Mimic(joint=name, master=m.get("joint"), multiplier=_urdf_float(m, "multiplier", 1.0),
-                           offset=_urdf_float(m, "offset", 0.0)) for name, m in found)
+        return tuple(Mimic(joint=name, master=m.get("joint"), multiplier=_urdf_float(name, m, "multiplier", 1.0),
+                           offset=_urdf_float(name, m, "offset", 0.0)) for name, m in found)
     listed = ", ".join(f"{name!r} (mimics {m.get('joint')!r})" for name, m in found)
     warnings.warn(f"the URDF's mimic joints {listed} are independent joints, as in pinocchio.buildModelFromUrdf's "
                   "default model (load(..., mimic=True) couples them)", stacklevel=4)
     return ()
 
 
-def _urdf_float(element: ET.Element, attribute: str, default: float) -> float:
+def _urdf_float(joint: str, element: ET.Element, attribute: str, default: float) -> float:
     text = element.get(attribute)
     if text is None:
         return default
     if not _URDF_NUMBER.fullmatch(text):
-        raise ValueError(f"<mimic> {attribute}={text!r} is not a number")
+        raise ValueError(f"joint {joint!r}: <mimic {attribute}> must be a decimal number, got {text!r}")
     return float(text)
 
 
