@@ -50,6 +50,8 @@ URDF = """
     <inertia ixx="0.0002" iyy="0.0003" izz="0.0002" ixy="0" ixz="0" iyz="0"/></inertial></link>
   <joint name="tool_joint" type="fixed"><parent link="hand"/><child link="tool"/><origin xyz="0.12 0 0"/></joint>
   <link name="tool"/>
+  <joint name="camera" type="fixed"><parent link="upper"/><child link="camera"/><origin xyz="0.1 0 0.04"/></joint>
+  <link name="camera"/>
 </robot>
 """
 TOL = 1e-9
@@ -291,6 +293,27 @@ def test_chain_of_mimic_joints(gripper):
     v = torch.randn(3, coupled.nv, dtype=torch.float64, generator=torch.Generator().manual_seed(7))
     assert rel_err(coupled.crba(q), G.mT @ full.crba(q_full) @ G) <= TOL
     assert rel_err(coupled.inverse_dynamics(q, v, v), full.inverse_dynamics(q_full, v @ G.mT, v @ G.mT) @ G) <= TOL
+
+
+def test_a_name_two_frames_share_is_refused(gripper):
+    """A fixed joint and its link both named "camera": frame_index refuses the name, as Pinocchio's getFrameId
+    does, naming each frame's index and kind; by index, each is Pinocchio's frame of its kind."""
+    robot, _, pm = gripper
+    found = [i for i, name in enumerate(robot.frame_names) if name == "camera"]
+    kinds = [robot.model.frames[i].kind for i in found]
+    assert sorted(kinds) == ["body", "fixed_joint"]
+    with pytest.raises(ValueError, match=rf"2 frames named 'camera', at indices {found[0]} \({kinds[0]}\), "
+                                         rf"{found[1]} \({kinds[1]}\); give the frame's index"):
+        robot.frame_jacobian(_states(robot, "pin")[0], "camera")
+    with pytest.raises(ValueError, match="Several frames match"):
+        pm.getFrameId("camera")
+    q = _states(robot, "pin", n=1)[0][0]
+    pos, _ = robot.pin.forward_kinematics(q)
+    pd = pm.createData()
+    pin.framesForwardKinematics(pm, pd, q.numpy())
+    for i, kind in zip(found, kinds):
+        frame = pm.getFrameId("camera", pin.BODY if kind == "body" else pin.FIXED_JOINT)
+        assert rel_err(pos[i], pd.oMf[frame].translation) <= TOL
 
 
 def test_mimic_refusals():
