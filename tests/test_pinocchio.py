@@ -259,3 +259,40 @@ def test_three_ways_to_choose_mujoco_convention(robots):
     q_pin = q_mj.clone()
     q_pin[..., 3:7] = q_mj[..., [4, 5, 6, 3]]
     assert rel_err(robot.pin.crba(q_pin), via_namespace) > 1e-6
+
+
+def test_free_joint_placed_away_from_the_origin(tmp_path):
+    """A pinocchio.Model whose FreeFlyer has a placement: Pinocchio's convention is Pinocchio's (the placement
+    before the joint's motion); MuJoCo's, whose free-joint qpos is the body's world pose, is refused (by load,
+    the Robot's views and conventions.of), naming the joint."""
+    import torch_grid
+    from pin_models import _inertia, _se3
+
+    model = pin.Model()
+    root = model.addJoint(0, pin.JointModelFreeFlyer(), _se3([0.3, -0.2, 0.5], [0.4, -0.1, 0.7]), "placed_root")
+    model.appendBodyToJoint(root, _inertia(2.0, [0.02, 0.01, -0.03], [0.03, 0.04, 0.05]), pin.SE3.Identity())
+    arm = model.addJoint(root, pin.JointModelRY(), _se3([0.1, 0.0, 0.2], [0.2, 0.05, 0.0]), "arm")
+    model.appendBodyToJoint(arm, _inertia(0.7, [0.1, 0.0, 0.01], [0.002, 0.005, 0.006]), pin.SE3.Identity())
+    for joint in (root, arm):
+        model.addJointFrame(joint)
+    converted = torch_grid.from_pinocchio(model)
+    assert converted.placed_free_joint == "placed_root"
+    with pytest.raises(ValueError, match="convention='mujoco' needs each free joint at the world's origin.*'placed_root'"):
+        torch_grid.load(model, convention="mujoco", cache_dir=tmp_path)
+    with pytest.raises(ValueError, match=r"conventions.of\('.*'\): free joint 'placed_root' is placed away"):
+        torch_grid.conventions.of(converted)
+    robot = torch_grid.load(model, cache_dir=tmp_path)
+    for attempt in (lambda: robot.mujoco, lambda: setattr(robot, "convention", "mujoco")):
+        with pytest.raises(ValueError, match="free joint 'placed_root' placed away from the world's origin"):
+            attempt()
+    oracle = PinOracle(model)
+    s = make_states(robot, (3,), seed=5)
+    q, v, a, tau = (s[k].numpy() for k in ("q", "qd", "qdd", "tau"))
+    assert rel_err(robot.inverse_dynamics(s["q"], s["qd"], s["qdd"]), batch_apply(oracle.rnea, q, v, a)) <= TOL[torch.float64]
+    assert rel_err(robot.forward_dynamics(s["q"], s["qd"], s["tau"]), batch_apply(oracle.aba, q, v, tau)) <= TOL[torch.float64]
+    pos, _ = robot.forward_kinematics(s["q"])
+    data = model.createData()
+    for b in range(3):
+        pin.framesForwardKinematics(model, data, q[b])
+        for name in ("placed_root", "arm"):
+            assert rel_err(pos[b, robot.frame_index(name)], data.oMf[model.getFrameId(name)].translation) <= 1e-12

@@ -105,7 +105,11 @@ def load(source, *, floating_base: bool | None = None, convention: str = "pin", 
     convention = convention_name(convention)
     if convention == "mujoco" and model.conventions_differ and not enable_mujoco_kernels:
         raise ValueError("load: convention='mujoco' needs enable_mujoco_kernels=True for a robot with a free or ball joint")
-    namespace = _build(model.kernel_model, mujoco=enable_mujoco_kernels, cache_dir=cache_dir)
+    if convention == "mujoco" and model.placed_free_joint:
+        raise ValueError(f"load: convention='mujoco' needs each free joint at the world's origin (its qpos is its world "
+                         f"pose); free joint {model.placed_free_joint!r} is placed away from it")
+    namespace = _build(model.kernel_model, mujoco=enable_mujoco_kernels and not model.placed_free_joint,
+                       cache_dir=cache_dir)
     if namespace not in _AUTOGRAD_DONE:
         register_autograd(namespace, model.kernel_model)
         _AUTOGRAD_DONE.add(namespace)

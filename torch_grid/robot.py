@@ -485,7 +485,7 @@ class Robot(_Functions):
         self._func = FuncOps(self._ops, model.kernel_model)
         self._eager = EagerOps(self._ops, model.kernel_model)
         self._enable_mujoco_kernels = mujoco_kernels
-        self._mujoco_kernels = mujoco_kernels or not model.conventions_differ
+        self._mujoco_kernels = (mujoco_kernels and not model.placed_free_joint) or not model.conventions_differ
         self._frames_named: dict[str, list[int]] = {}
         for i, f in enumerate(model.frames):
             self._frames_named.setdefault(f.name, []).append(i)
@@ -514,7 +514,8 @@ class Robot(_Functions):
     def mujoco(self) -> RobotView:
         """The robot's functions in MuJoCo's convention, whatever `convention` is (a RobotView).
 
-        Raises ValueError for a robot with a free or ball joint loaded with enable_mujoco_kernels=False.
+        Raises ValueError for a robot with a free or ball joint loaded with enable_mujoco_kernels=False, or with
+        a free joint placed away from the world's origin (a pinocchio.Model's FreeFlyer may be).
         """
         return RobotView(self, self._convention_code("mujoco"))
 
@@ -563,7 +564,10 @@ class Robot(_Functions):
     def _convention_code(self, value: str) -> int:
         code = CONVENTIONS[convention_name(value, stacklevel=4)]  # a former name's warning: the setter's caller
         if code and not self._mujoco_kernels:
-            raise ValueError(f"convention='mujoco': robot {self.name!r} was built with enable_mujoco_kernels=False")
+            placed = self.model.placed_free_joint
+            raise ValueError(f"convention='mujoco': robot {self.name!r} was built with enable_mujoco_kernels=False" if not placed
+                             else f"convention='mujoco': robot {self.name!r} has free joint {placed!r} placed away from "
+                             "the world's origin, where MuJoCo's convention has each free joint (its qpos is its world pose)")
         return code
 
     def __repr__(self) -> str:

@@ -124,6 +124,16 @@ class RobotModel:
         return any(j.type in ("free", "ball") for j in self.joints)
 
     @property
+    def placed_free_joint(self) -> str | None:
+        """The first free joint placed away from the world's origin (a pinocchio.Model's FreeFlyer may be), or
+        None: MuJoCo's convention has none, a free joint's qpos being its body's world pose."""
+        origin = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)  # rotation, translation
+        for j in self.joints:
+            if j.type == "free" and max(abs(a - b) for a, b in zip(j.rotation + j.translation, origin)) > 1e-12:
+                return j.name
+        return None
+
+    @property
     def has_armature(self) -> bool:
         """Whether any joint has a rotor armature (added to M's diagonal)."""
         return any(j.armature for j in self.joints)

@@ -267,6 +267,9 @@ def of(robot) -> RobotConversions:
     model = getattr(robot, "model", robot)
     if not hasattr(model, "joints"):
         raise TypeError(f"conventions.of: expected a Robot, a RobotView or a RobotModel, got {type(robot).__name__}")
+    if model.placed_free_joint:
+        raise ValueError(f"conventions.of({model.name!r}): free joint {model.placed_free_joint!r} is placed away from the "
+                         "world's origin, where MuJoCo's convention has each free joint (its qpos is its world pose)")
     return RobotConversions(model)
 
 
