@@ -26,8 +26,10 @@ are skipped), so the script is exercised without a GPU. The last line printed is
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -178,12 +180,31 @@ class Log:
         self.file.flush()
 
 
+def unpack_prebuilt(archive: Path, folder: Path) -> Path:
+    """The archive's objects in `folder`, unpacked unless an earlier run unpacked this same archive there."""
+    digest = hashlib.sha256(archive.read_bytes()).hexdigest()
+    marker = folder / "archive.sha256"
+    if marker.is_file() and marker.read_text() == digest:
+        return folder
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir(parents=True)
+    with tarfile.open(archive) as tar:
+        tar.extractall(folder, filter="data")  # plain files: the objects
+    marker.write_text(digest)
+    return folder
+
+
 def _spawn(args: list[str], env: dict, timeout: float, log: Log, label: str, wrapper=()) -> tuple[str, str]:
     """Run one stage process (and whatever it starts) within timeout; return (its output, status)."""
     cmd = [*wrapper, sys.executable, str(Path(__file__).resolve()), *args]
     start = time.monotonic()
-    proc = subprocess.Popen(cmd, env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            start_new_session=True)
+    try:
+        proc = subprocess.Popen(cmd, env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                start_new_session=True)
+    except OSError as e:  # a tool missing from the machine fails its stage, not the whole check
+        status = f"not started: {cmd[0]}: {e.strerror or e}"
+        log(f"---- {label}: {status}")
+        return "", status
     try:
         raw, _ = proc.communicate(timeout=max(timeout, 1))
         status = "ok" if proc.returncode == 0 else f"exit {proc.returncode}"
@@ -231,13 +252,13 @@ def main(argv: list[str] | None = None) -> int:
         log(subprocess.run(["nvidia-smi", "--query-gpu=name,memory.total,driver_version,clocks.sm", "--format=csv,noheader"],
                            capture_output=True, text=True).stdout.strip())
         env.setdefault("TORCH_GRID_CUDA_ARCH", "sm_90")
-        env.setdefault("TORCH_GRID_CACHE", tempfile.mkdtemp(prefix="torch_grid_gpu_check_"))
+        # one folder a machine, not one a run: a second call on the machine while it is still lent (--only mpc
+        # figures, say) finds the robots built (an entry's key covers its sources: a changed tree builds anew)
+        env.setdefault("TORCH_GRID_CACHE", str(Path(tempfile.gettempdir()) / "torch_grid_gpu_check"))
         if PREBUILT.exists():
-            prebuilt = Path(tempfile.mkdtemp(prefix="torch_grid_prebuilt_"))
-            with tarfile.open(PREBUILT) as tar:
-                tar.extractall(prebuilt)
+            prebuilt = unpack_prebuilt(PREBUILT, Path(tempfile.gettempdir()) / "torch_grid_prebuilt")
             env["TORCH_GRID_PREBUILT"] = str(prebuilt)
-            log(f"prebuilt CUDA objects: {len(list(prebuilt.iterdir()))} from {PREBUILT.name}")
+            log(f"prebuilt CUDA objects: {len(list(prebuilt.glob('*.o')))} from {PREBUILT.name}")
         else:
             log(f"no {PREBUILT.relative_to(ROOT)}: every CUDA unit is compiled here (bench/gpu_prebuild.py makes it)")
     log(f"TORCH_GRID_CACHE={env.get('TORCH_GRID_CACHE', '(default)')}")
@@ -278,11 +299,18 @@ def main(argv: list[str] | None = None) -> int:
     jobs += [("probe go2 poisoned", ["--stage", "probe", "--robot", "go2", *threads], 60, blocking)] if "go2" in robots else []
     jobs += [("probe runtime", ["--stage", "probe", "--robot", "runtime", *threads], 60, {})]
     if "g1" in robots:
-        jobs += [(kind, ["--stage", kind, *threads], 120, {}) for kind in ("refusal", "reservation")]
+        jobs += [("refusal", ["--stage", "refusal", *threads], 120, {})]
     parallel([j for j in jobs if j[0].split()[0] not in args.skip])
+    # alone on the device: it takes all but 1 GiB of the free memory, and a stage beside it would take, for its own
+    # kernels' local memory, the memory that the first launch it checks must find once torch's cache is emptied
+    if "g1" in robots and "reservation" not in args.skip:
+        stage("reservation", ["--stage", "reservation", *threads], 120)
     for label, args_, extra_env in crashed[:2] if "cuda-gdb" not in args.skip else []:
+        from gpu_figures import _cuda_tool
+
         text, _ = _spawn(args_ + common, {**env, **(extra_env or {})}, min(90, max(deadline - time.monotonic(), 1)), log,
-                         f"{label} under cuda-gdb", ["cuda-gdb", "-q", "-batch", "-ex", "run", "-ex", "bt", "--args"])
+                         f"{label} under cuda-gdb",
+                         [_cuda_tool("cuda-gdb") or "cuda-gdb", "-q", "-batch", "-ex", "run", "-ex", "bt", "--args"])
         print(text[-3000:], flush=True)
     # 3. tools, then 4. the figures, alone on the machine
     if not args.cpu:
@@ -305,7 +333,11 @@ def _tools(stage, log: Log, out: Path, skip: list[str]) -> None:
         for robot in ("go2", "humanoid") if kind == "memcheck" else ("go2",):
             if kind in skip:
                 continue
+            # torch's caching allocator off: each tensor its own allocation, so that an access past an output's end
+            # (else inside a block torch cached) and a read of memory nothing wrote (else written for an earlier
+            # tensor) are seen
             text = stage(f"compute-sanitizer {kind} {robot}", ["--stage", "sanitized_calls", "--robot", robot], 90,
+                         extra_env={"PYTORCH_NO_CUDA_MEMORY_CACHING": "1"},
                          wrapper=[tool("compute-sanitizer"), "--tool", kind, "--error-exitcode", "9", "--print-limit", "20"])
             sanitizer.append(f"==== {kind} {robot}\n{text}")
         if kind == "memcheck" and "ncu" not in skip:

@@ -67,3 +67,46 @@ def test_the_team_calls_run_every_team_op(monkeypatch):
     monkeypatch.setattr(gpu_correctness, "TEAM_CALLS", calls)
     gpu_device.team_calls(robot, torch.device("cpu"))
     assert sorted(called) == sorted(4 * list(calls)), called
+
+
+def _gpu_check():
+    sys.path.insert(0, str(ROOT / "bench"))
+    import gpu_check
+
+    return gpu_check
+
+
+def test_a_stage_whose_tool_is_missing_fails_alone(tmp_path):
+    """A wrapper the machine lacks (compute-sanitizer, ncu, cuda-gdb off the PATH) fails its stage with a status;
+    it does not end the whole check before its summary."""
+    gpu_check = _gpu_check()
+    log = gpu_check.Log(tmp_path / "check.log")
+    text, status = gpu_check._spawn(["--stage", "build"], dict(os.environ), 10, log, "missing tool",
+                                    [str(tmp_path / "no-such-tool")])
+    assert text == "" and status.startswith("not started: ") and "no-such-tool" in status
+    assert "---- missing tool: not started" in (tmp_path / "check.log").read_text()
+
+
+def test_the_prebuilt_objects_are_unpacked_once_per_archive(tmp_path):
+    """A second call on the same machine finds the same archive's objects unpacked; another archive replaces them."""
+    import tarfile
+
+    gpu_check = _gpu_check()
+    archive, folder = tmp_path / "prebuilt.tar.xz", tmp_path / "objects"
+
+    def pack(*names):
+        for name in names:
+            (tmp_path / name).write_bytes(name.encode())
+        with tarfile.open(archive, "w:xz") as tar:
+            for name in names:
+                tar.add(tmp_path / name, arcname=name)
+
+    pack("a.o", "b.o")
+    assert gpu_check.unpack_prebuilt(archive, folder) == folder
+    assert sorted(p.name for p in folder.glob("*.o")) == ["a.o", "b.o"]
+    (folder / "a.o").write_bytes(b"kept")  # not unpacked again: the same archive
+    gpu_check.unpack_prebuilt(archive, folder)
+    assert (folder / "a.o").read_bytes() == b"kept"
+    pack("c.o")
+    gpu_check.unpack_prebuilt(archive, folder)
+    assert sorted(p.name for p in folder.glob("*.o")) == ["c.o"]
