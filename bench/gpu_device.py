@@ -215,21 +215,30 @@ def small_calls(robot, device: torch.device) -> None:
     from gpu_probe import fused
 
     calls = value_calls(robot)
-    for view in (robot.mujoco, robot.pin):
+    for conv, view in (("mujoco", robot.mujoco), ("pin", robot.pin)):
         for dtype in (torch.float64, torch.float32):
             q, qd, x, _ = on(states(view, 2, seed=9), device, dtype)
             for scheme in ("semi_implicit_euler", "midpoint", "rk4"):
+                _calling(conv, dtype, f"fused step_derivatives[{scheme}]")
                 tensors(fused(view, scheme, q, qd, x, 0.01))
         inputs = on(states(view, 2, seed=9), device)
         for name in SANITIZED:
             if name in calls:
+                _calling(conv, torch.float64, name)
                 tensors(calls[name](view, *inputs))
         leaves = [t.clone().requires_grad_(True) for t in inputs]
         for name in ("crba", "frame_jacobian"):
+            _calling(conv, torch.float64, f"{name} and its backward")
             out = tensors(calls[name](view, *leaves))
             torch.autograd.grad(out, leaves, [torch.ones_like(o) for o in out], allow_unused=True)
     if device.type == "cuda":
         torch.cuda.synchronize()
+
+
+def _calling(conv: str, dtype: torch.dtype, what: str) -> None:
+    """A line naming the call about to run, so that a stage a tool slows past its time limit shows how far it got (a
+    launch is asynchronous: the device may still run an earlier call's kernel when the call named last began)."""
+    print(f"CALL {conv} {str(dtype).replace('torch.', '')} {what}", flush=True)
 
 
 def team_calls(robot, device: torch.device) -> None:
@@ -237,10 +246,11 @@ def team_calls(robot, device: torch.device) -> None:
     for compute-sanitizer's racecheck to watch the shared workspace (the stage runs with TORCH_GRID_CUDA_TEAMS=1)."""
     from gpu_correctness import TEAM_CALLS, _inertial_parameters
 
-    for view in (robot.mujoco, robot.pin):
+    for conv, view in (("mujoco", robot.mujoco), ("pin", robot.pin)):
         for dtype in (torch.float64, torch.float32):
             inputs = on((*states(view, 2, seed=9), _inertial_parameters(robot)[:2]), device, dtype)
-            for call in TEAM_CALLS.values():
+            for name, call in TEAM_CALLS.items():
+                _calling(conv, dtype, name)
                 tensors(call(view, *inputs))
     if device.type == "cuda":
         torch.cuda.synchronize()
