@@ -194,6 +194,13 @@ def unpack_prebuilt(archive: Path, folder: Path) -> Path:
     return folder
 
 
+def stage_failed(status: str, text: str) -> bool:
+    """Whether a stage's end is a failure of its own, beside the FAIL lines it printed: a time limit, a tool that could
+    not start, a crash (a signal: the checks after the one under way never ran, whichever failed before it), or an
+    error exit that printed no FAIL line."""
+    return status.startswith(("timed out", "not started", "exit -")) or (status != "ok" and "FAIL " not in text)
+
+
 def _spawn(args: list[str], env: dict, timeout: float, log: Log, label: str, wrapper=()) -> tuple[str, str]:
     """Run one stage process (and whatever it starts) within timeout; return (its output, status)."""
     cmd = [*wrapper, sys.executable, str(Path(__file__).resolve()), *args]
@@ -274,7 +281,7 @@ def main(argv: list[str] | None = None) -> int:
             return ""
         text, status = _spawn(args_ + common, {**env, **(extra_env or {})}, min(limit, left), log, label, wrapper)
         outputs[label] = text
-        if status.startswith("timed out") or (status != "ok" and "FAIL " not in text):
+        if stage_failed(status, text):
             failures.append(f"{label}: {status}")
         if status == f"exit {-signal.SIGSEGV}" and not wrapper and not args.cpu:
             crashed.append((label, args_, extra_env))

@@ -110,3 +110,14 @@ def test_the_prebuilt_objects_are_unpacked_once_per_archive(tmp_path):
     pack("c.o")
     gpu_check.unpack_prebuilt(archive, folder)
     assert sorted(p.name for p in folder.glob("*.o")) == ["c.o"]
+
+
+def test_a_stage_that_crashes_after_a_failed_check_is_a_failure_of_its_own():
+    """A crash (a signal) or a time limit counts beside the FAIL lines printed before it: the checks after it never ran."""
+    gpu_check = _gpu_check()
+    assert gpu_check.stage_failed("exit -11", "PASS a\nFAIL b: why\n")
+    assert gpu_check.stage_failed("timed out after 90 s", "FAIL b: why\n")
+    assert gpu_check.stage_failed("not started: ncu: No such file or directory", "")
+    assert gpu_check.stage_failed("exit 9", "PASS calls under compute-sanitizer\n")
+    assert not gpu_check.stage_failed("exit 1", "PASS a\nFAIL b: why\n")  # counted by its FAIL line
+    assert not gpu_check.stage_failed("ok", "PASS a\n")
