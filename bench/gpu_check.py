@@ -270,6 +270,7 @@ def main(argv: list[str] | None = None) -> int:
             log(f"no {PREBUILT.relative_to(ROOT)}: every CUDA unit is compiled here (bench/gpu_prebuild.py makes it)")
     log(f"TORCH_GRID_CACHE={env.get('TORCH_GRID_CACHE', '(default)')}")
     outputs: dict[str, str] = {}
+    statuses: dict[str, str] = {}
     failures: list[str] = []
     crashed: list[tuple] = []  # stages that died of a segmentation fault, rerun under cuda-gdb for a native stack
 
@@ -280,7 +281,7 @@ def main(argv: list[str] | None = None) -> int:
             log(f"---- {label}: not run, out of time")
             return ""
         text, status = _spawn(args_ + common, {**env, **(extra_env or {})}, min(limit, left), log, label, wrapper)
-        outputs[label] = text
+        outputs[label], statuses[label] = text, status
         if stage_failed(status, text):
             failures.append(f"{label}: {status}")
         if status == f"exit {-signal.SIGSEGV}" and not wrapper and not args.cpu:
@@ -321,7 +322,7 @@ def main(argv: list[str] | None = None) -> int:
         print(text[-3000:], flush=True)
     # 3. tools, then 4. the figures, alone on the machine
     if not args.cpu:
-        _tools(stage, log, out, args.skip)
+        _tools(stage, log, out, args.skip, statuses)
     if "mpc" not in args.skip:
         stage("mpc", ["--stage", "mpc"], 120)
     if "figures" not in args.skip:
@@ -329,7 +330,7 @@ def main(argv: list[str] | None = None) -> int:
     return _summary(log, out, outputs, failures, args.cpu)
 
 
-def _tools(stage, log: Log, out: Path, skip: list[str]) -> None:
+def _tools(stage, log: Log, out: Path, skip: list[str], statuses: dict[str, str]) -> None:
     from gpu_figures import _cuda_tool
 
     tool = lambda name: _cuda_tool(name) or name  # noqa: E731
@@ -339,6 +340,10 @@ def _tools(stage, log: Log, out: Path, skip: list[str]) -> None:
     for kind in ("memcheck", "initcheck"):
         for robot in ("go2", "humanoid") if kind == "memcheck" else ("go2",):
             if kind in skip:
+                continue
+            if robot != "go2" and statuses.get(f"compute-sanitizer {kind} go2", "").startswith("timed out"):
+                # the larger robot under the same tool would time out too: its time left to the stages after it
+                log(f"---- compute-sanitizer {kind} {robot}: not run, the go2 stage timed out")
                 continue
             # torch's caching allocator off: each tensor its own allocation, so that an access past an output's end
             # (else inside a block torch cached) and a read of memory nothing wrote (else written for an earlier

@@ -121,3 +121,27 @@ def test_a_stage_that_crashes_after_a_failed_check_is_a_failure_of_its_own():
     assert gpu_check.stage_failed("exit 9", "PASS calls under compute-sanitizer\n")
     assert not gpu_check.stage_failed("exit 1", "PASS a\nFAIL b: why\n")  # counted by its FAIL line
     assert not gpu_check.stage_failed("ok", "PASS a\n")
+
+
+def test_a_tool_that_timed_out_on_go2_is_not_run_on_the_humanoid(tmp_path):
+    """The second robot under compute-sanitizer's memcheck is left out when the first timed out: its time goes to the
+    tools after it."""
+    gpu_check = _gpu_check()
+    called, statuses = [], {}
+
+    def stage(label, args, limit, extra_env=None, wrapper=()):
+        called.append(label)
+        if "memcheck" in label or "initcheck" in label:  # each tensor its own allocation under the sanitizer
+            assert extra_env == {"PYTORCH_NO_CUDA_MEMORY_CACHING": "1"}, extra_env
+        statuses[label] = "timed out after 90 s" if label == "compute-sanitizer memcheck go2" else "ok"
+        return ""
+
+    skip = ["resources", "ncu"]
+    gpu_check._tools(stage, gpu_check.Log(tmp_path / "check.log"), tmp_path, skip, statuses)
+    assert called == ["compute-sanitizer memcheck go2", "compute-sanitizer initcheck go2",
+                      "compute-sanitizer racecheck go2 teams"], called
+    assert "memcheck humanoid: not run, the go2 stage timed out" in (tmp_path / "check.log").read_text()
+    called.clear()
+    statuses.clear()
+    gpu_check._tools(stage, gpu_check.Log(tmp_path / "check.log"), tmp_path, skip, {})
+    assert "compute-sanitizer memcheck humanoid" in called
