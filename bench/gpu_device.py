@@ -170,14 +170,19 @@ def refusal(checks: Checks, robot, device: torch.device) -> None:
 
 def reservation(checks: Checks, robot, device: torch.device) -> None:
     """In a fresh process: the largest kernel's first launch succeeds after torch's allocator has
-    cached most of the free memory (the launch is retried once after torch's cache is emptied)."""
+    cached most of the free memory (the launch is retried once after torch's cache is emptied).
+
+    The memory is cached as blocks of 1 GiB, as tensors of a program leave it: torch carves the op's outputs
+    (megabytes) out of a cached block, and it releases only blocks wholly free, so that a single block of
+    all the memory would stay held, however often the cache were emptied."""
     if not (found := _cuda_only(checks, "first launch after torch cached the free memory", robot, device, 64, 8)):
         return
     view, q, qd, x = found
 
     def reserve():
         free, total = torch.cuda.mem_get_info()
-        hoard = torch.empty(free - (1 << 30), dtype=torch.uint8, device=device)  # all but 1 GiB
+        gib = 1 << 30
+        hoard = [torch.empty(gib, dtype=torch.uint8, device=device) for _ in range(free // gib - 1)]  # 1-2 GiB left
         del hoard  # cached by torch's allocator, invisible to the driver
         cached = torch.cuda.memory_reserved()
         try:
