@@ -417,6 +417,9 @@ TEAM_MAX_BATCH = {"inverse_dynamics_second_derivatives": 255, "inverse_dynamics_
 # Where a team path's rounding differs from the one thread's and a Runge-Kutta step's Jacobians amplify it: on G1's
 # random states the two differ by up to 5e-11 relative, each within 1.5e-11 of a long-double evaluation
 TEAM_F64_TOL = {f"rk_step_derivatives[{s}]": 1e-10 for s in ("midpoint", "rk3", "rk4")}
+# A team path's float32 error past the op's tolerance may be this many times the one-thread path's on the same inputs
+# (its order of operations differs: M^-1 where one thread solves by M's factor)
+F32_TEAM_FACTOR = 10
 
 
 class TeamPaths:
@@ -456,6 +459,13 @@ def teams(checks: Checks, robot, device: torch.device, sizes: list[int]) -> None
                         got = call(view, *on(rounded, device))
                     ref = call(view, *on(rounded, "cpu", torch.float64))
                     why = compare(got, ref, float("inf"), device, torch.float32)
-                    err = relative_error(got, ref)
-                    return why or (None if err <= f32_tolerance(name) else f"float32 relative error {err:.2e}")
+                    err, tol = relative_error(got, ref), f32_tolerance(name)
+                    if why or err <= tol:
+                        return why
+                    # float32's error grows with the worst-conditioned sample of the batch (G1's derivatives in float
+                    # arithmetic: 3e-4 at 33 samples), so past the op's tolerance the team path is held to the
+                    # one-thread path's error on the same inputs and device
+                    thread = relative_error(call(view, *on(rounded, device)), ref)
+                    return None if err <= F32_TEAM_FACTOR * thread else \
+                        f"float32 relative error {err:.2e} > {tol:.0e} and > {F32_TEAM_FACTOR}x one thread's {thread:.2e}"
                 checks.run(f"{conv} teams float32 batch {size} {name}", f32)
