@@ -92,7 +92,10 @@ def test_nan_mass_in_urdf_is_refused():
         (inertial(izz="1e400"), ["<inertia izz>", "'1e400'"]),
         (inertial(com="nan 0 0.2"), ["<origin xyz>", "'nan 0 0.2'"]),
         ('<inertial><inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial>',
+         ["must hold one <mass> element, got none"]),
+        ('<inertial><mass/><inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial>',
          ["<mass value>", "no such attribute"]),
+        ('<inertial><mass value="1"/></inertial>', ["must hold one <inertia> element, got none"]),
     ],
 )
 def test_unreadable_urdf_inertial_is_refused(forearm, words):

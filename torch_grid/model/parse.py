@@ -216,6 +216,9 @@ def _check_urdf_numbers(root: ET.Element) -> None:
         if inertial is None:
             continue
         where = f"link {link.get('name')!r}: <inertial>"
+        for element in ("mass", "inertia"):
+            if inertial.find(element) is None:
+                raise ValueError(f"{where} must hold one <{element}> element, got none{_URDF_ZEROED}")
         _urdf_pose(where, inertial.find("origin"), _URDF_ZEROED)
         mass = _urdf_number(f"{where}<mass value>", _attribute(inertial.find("mass"), "value"), _URDF_ZEROED)
         if mass < 0:
