@@ -107,6 +107,33 @@ def test_mjmodel_source_is_the_same_robot(zoo, tmp_path):
     assert from_object.name == "zoo"
 
 
+def test_offsets_mujoco_ignores_are_ignored():
+    """Where MuJoCo's compiler marks an inertial frame or a site as its body's frame (body_sameframe,
+    site_sameframe: within about 1e-6, or the MjModel edited after compiling), mj_kinematics takes the
+    body's frame and ignores the stored offset; so does the reading."""
+    edited = mujoco.MjModel.from_xml_string(MODEL)
+    flyer, pendulum = (mujoco.mj_name2id(edited, mujoco.mjtObj.mjOBJ_BODY, b) for b in ("flyer", "pendulum"))
+    assert (edited.body_sameframe[flyer], edited.body_sameframe[pendulum]) == (1, 3)  # the body's frame; its axes
+    tilted = np.array([0.9, 0.1, 0.3, 0.2]) / np.linalg.norm([0.9, 0.1, 0.3, 0.2])
+    edited.body_ipos[flyer], edited.body_iquat[flyer], edited.body_iquat[pendulum] = [0.1, 0.05, 0.0], tilted, tilted
+    original = mujoco.MjModel.from_xml_string(MODEL)
+    for m in (edited, original):
+        rigid_only(m)
+    qpos, qvel, qacc = next(states(original, 1, seed=11))
+    _, M_edited = at_state(edited, mujoco.MjData(edited), qpos, qvel, qacc, mujoco.mj_inverse)
+    _, M = at_state(original, mujoco.MjData(original), qpos, qvel, qacc, mujoco.mj_inverse)
+    assert rel(M_edited, M) <= 1e-15  # MuJoCo ignores the edits
+    assert source_to_model(edited, None) == source_to_model(MODEL, None)
+    # offsets below the compiler's tolerance: MuJoCo simulates the body's frame
+    near = MODEL.replace('pos="0 0.01 -0.2" mass="0.8" diaginertia="0.01 0.012 0.004" quat="0.8 0.6 0 0"',
+                         'pos="3e-7 0 0" mass="0.8" diaginertia="0.01 0.012 0.004"').replace(
+        '<site name="tip" pos="0.05 0.01 0" euler="0 90 0"/>', '<site name="tip" pos="2e-7 0 0" euler="0 0.00001 0"/>')
+    m = mujoco.MjModel.from_xml_string(near)
+    assert m.body_sameframe[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "leg")] == m.site_sameframe[0] == 1
+    exact = near.replace('pos="3e-7 0 0"', 'pos="0 0 0"').replace('pos="2e-7 0 0" euler="0 0.00001 0"', 'pos="0 0 0"')
+    assert source_to_model(near, None) == source_to_model(exact, None)
+
+
 def test_pin_convention_is_the_same_dynamics(zoo):
     """pin and MuJoCo views of one MJCF model differ only by the conventions' transforms."""
     robot, m = zoo

@@ -84,15 +84,19 @@ def from_mujoco(m, name: str | None = None) -> RobotModel:
             p = -anchor  # the body frame, seen from its last joint's frame
         carrier.append((body, R, p))
         if body >= 0:  # bodies welded to the world do not move
-            Ri = R @ _quat(m.body_iquat[b])
-            own = _Inertia(float(m.body_mass[b]), R @ m.body_ipos[b] + p, Ri @ np.diag(m.body_inertia[b]) @ Ri.T)
+            ipos, iquat = _used_pose(m.body_ipos[b], m.body_iquat[b], m.body_sameframe[b])
+            Ri = R @ _quat(iquat)
+            own = _Inertia(float(m.body_mass[b]), R @ ipos + p, Ri @ np.diag(m.body_inertia[b]) @ Ri.T)
             joints[body]["inertia"] = joints[body]["inertia"] + own
     frames = [Frame(name=names.body(b), parent=carrier[b][0], rotation=_tuple(carrier[b][1].reshape(-1)),
                     translation=_tuple(carrier[b][2]), kind="body") for b in range(m.nbody)]
     for s in range(m.nsite):
-        body, R, p = carrier[m.site_bodyid[s]]
-        frames.append(Frame(name=names.site(s), parent=body, rotation=_tuple((R @ _quat(m.site_quat[s])).reshape(-1)),
-                            translation=_tuple(R @ m.site_pos[s] + p), kind="op"))
+        b = m.site_bodyid[s]
+        body, R, p = carrier[b]
+        pos, quat = _used_pose(m.site_pos[s], m.site_quat[s], m.site_sameframe[s],
+                               _used_pose(m.body_ipos[b], m.body_iquat[b], m.body_sameframe[b]))
+        frames.append(Frame(name=names.site(s), parent=body, rotation=_tuple((R @ _quat(quat)).reshape(-1)),
+                            translation=_tuple(R @ pos + p), kind="op"))
     gravity = np.zeros(3) if m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_GRAVITY) else m.opt.gravity
     return RobotModel(
         name=name or names.model() or "robot",
@@ -251,6 +255,26 @@ def _warn_unmodelled(mujoco, m, names: _Names) -> None:
     if found:
         warnings.warn(f"the MJCF model has {'; '.join(found)}: torch_grid computes the rigid-body dynamics "
                       "without them", stacklevel=4)
+
+
+_IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+
+
+def _used_pose(pos, quat, sameframe: int, inertial=None) -> tuple[np.ndarray, np.ndarray]:
+    """The pose in its body's frame that MuJoCo's kinematics use (mj_local2Global): where the compiler
+    marked the frame as the body's or the inertial frame (mjtSameFrame: within its ~1e-6 tolerance, or
+    pos and quat edited on the MjModel after compiling), MuJoCo takes that frame and ignores the
+    stored pos or quat. inertial: the body's inertial pose, for a site."""
+    pos, quat = np.asarray(pos, dtype=float), np.asarray(quat, dtype=float)
+    if sameframe == 1:  # mjSAMEFRAME_BODY
+        return np.zeros(3), _IDENTITY
+    if sameframe == 2:  # mjSAMEFRAME_INERTIA
+        return inertial
+    if sameframe == 3:  # mjSAMEFRAME_BODYROT
+        return pos, _IDENTITY
+    if sameframe == 4:  # mjSAMEFRAME_INERTIAROT
+        return pos, inertial[1]
+    return pos, quat
 
 
 def _quat(q) -> np.ndarray:
