@@ -7,6 +7,8 @@ of them on a free joint; the model's own gravity.
 """
 from __future__ import annotations
 
+import warnings
+
 import mujoco
 import numpy as np
 import pytest
@@ -330,6 +332,33 @@ def test_unmodelled_features_are_listed_once():
         "</worldbody>", "</worldbody><actuator><plugin joint='knee' plugin='mujoco.pid' instance='pid'/></actuator>")
     with pytest.warns(UserWarning, match=r"1 plugins \(the forces they apply\)"):
         source_to_model(pid, None)
+
+
+def test_constraints_mujoco_turns_off_are_neither_refused_nor_listed():
+    """<flag constraint="disable"/> turns off MuJoCo's whole constraint solver (contacts, limits, friction
+    loss, equality constraints), equality="disable" the equality constraints: the model is then the
+    rigid-body dynamics."""
+    untied = with_joint('range="-1 1" limited="true" frictionloss="0.3"')
+    tied = untied.replace("</worldbody>", "</worldbody><equality><joint name='tie' joint1='knee' joint2='swing'/>"
+                          "</equality>")
+    each = 'equality="disable" contact="disable" limit="disable" frictionloss="disable"'
+    for flags in ('constraint="disable"', each):
+        off, plain, free = (text.replace('<option gravity="0.5 -1 -7"/>', f'<option gravity="0.5 -1 -7"><flag {flags}/>'
+                                         '</option>') for text in (tied, MODEL, untied))
+        m, m_plain = mujoco.MjModel.from_xml_string(off), mujoco.MjModel.from_xml_string(plain)
+        d, d_plain = mujoco.MjData(m), mujoco.MjData(m_plain)
+        qpos, qvel, _ = next(states(m, 1, seed=12))
+        qpos[-1] = 2.0  # past swing's limit
+        for model, data in ((m, d), (m_plain, d_plain)):
+            data.qpos[:], data.qvel[:] = qpos, qvel
+            mujoco.mj_forward(model, data)
+        assert rel(d.qacc, d_plain.qacc) <= 1e-15
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            assert source_to_model(off, None) == source_to_model(free, None)  # the same limits
+    with pytest.raises(ValueError, match="equality constraint 'tie'"):
+        source_to_model(tied.replace('<option gravity="0.5 -1 -7"/>',
+                                     '<option gravity="0.5 -1 -7"><flag contact="disable"/></option>'), None)
 
 
 def test_floating_base_must_agree():

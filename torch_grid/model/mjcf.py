@@ -193,7 +193,9 @@ class _Names:
 def _refuse_unmodelled_couplings(mujoco, m, names: _Names) -> None:
     """Raise for what would change the dynamics torch_grid computes without it being modelled."""
     obj = mujoco.mjtObj
-    for e in range(m.neq):
+    # MuJoCo applies no equality constraint under <flag equality="disable"/> or constraint="disable"
+    off = int(m.opt.disableflags) & int(mujoco.mjtDisableBit.mjDSBL_EQUALITY | mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
+    for e in range(0 if off else m.neq):
         ename = mujoco.mj_id2name(m, obj.mjOBJ_EQUALITY, e) or f"equality{e}"
         raise ValueError(f"MJCF equality constraint {ename!r} couples bodies or joints, which is not supported")
     for t in range(m.ntendon):
@@ -230,8 +232,10 @@ def _refuse_unmodelled_couplings(mujoco, m, names: _Names) -> None:
 
 def _warn_unmodelled(mujoco, m, names: _Names) -> None:
     """One warning listing what MuJoCo simulates beyond the rigid-body dynamics torch_grid computes."""
-    off = int(m.opt.disableflags)
     bits = {k: int(v) for k, v in mujoco.mjtDisableBit.__members__.items()}
+    off = int(m.opt.disableflags)
+    if off & bits["mjDSBL_CONSTRAINT"]:  # the whole constraint solver: contacts, limits and friction loss
+        off |= bits["mjDSBL_CONTACT"] | bits["mjDSBL_LIMIT"] | bits["mjDSBL_FRICTIONLOSS"]
     found = []
     if m.nu:
         found.append(f"{m.nu} actuators")
