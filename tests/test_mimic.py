@@ -261,6 +261,35 @@ def test_per_sample_jacobians_and_hessians_by_vmap(gripper, convention):
             assert rel_err(got, ref) <= 1e-10, label
 
 
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+def test_forward_mode_through_the_reduced_inverse_inertia(gripper, convention):
+    """jvp of what inverts the reduced M (M^-1, the forward-dynamics derivatives, the operational-space inertia,
+    d qdd / d params) along q's tangent and along the inertial parameters, against central differences
+    (torch.cholesky_inverse's forward-mode derivative is wrong, which made these O(1) off)."""
+    robot = gripper[0]
+    view = getattr(robot, convention)
+    q, v, tau, _ = _states(robot, convention, n=2, seed=5)
+    g = torch.Generator().manual_seed(6)
+    pi = robot.inertial_parameters().view(robot.nbodies, 10)
+    t_pi = torch.randn(pi.shape, dtype=pi.dtype, generator=g) * pi.abs()
+    t_q = torch.randn(robot.nv, dtype=q.dtype, generator=g)
+    functions = {"minv": lambda q, p: view.minv(q, params=p),
+                 "forward_dynamics_derivatives": lambda q, p: view.forward_dynamics_derivatives(q, v, tau, params=p),
+                 "forward_dynamics_parameter_derivatives":
+                     lambda q, p: view.forward_dynamics_parameter_derivatives(q, v, tau, params=p)}
+    if robot.floating_base:  # only the floating gripper's frames have 6 dofs
+        functions["osc_inertia"] = lambda q, p: view.osc_inertia(q, "tool", params=p)
+    h = 1e-6
+    for name, f in functions.items():
+        flat = lambda z, p: torch.cat([x.flatten() for x in torch.utils._pytree.tree_leaves(  # noqa: E731
+            f(view.integrate(q, z.expand(2, robot.nv)), p))])
+        zero = torch.zeros(robot.nv, dtype=q.dtype)
+        for tangents in ((t_q, torch.zeros_like(pi)), (zero, t_pi)):
+            forward = torch.func.jvp(flat, (zero, pi), tangents)[1]
+            fd = (flat(h * tangents[0], pi + h * tangents[1]) - flat(-h * tangents[0], pi - h * tangents[1])) / (2 * h)
+            assert rel_err(forward, fd) <= 1e-6, name
+
+
 def test_serialization_keeps_the_coupling(gripper, tmp_path):
     robot, _, _ = gripper
     again = pickle.loads(pickle.dumps(robot))

@@ -150,8 +150,10 @@ class Coupling:
         return x
 
     def inverse_inertia(self, kernel_call: Callable, q: torch.Tensor, params=None) -> torch.Tensor:
-        """(G^T M_full G)^-1 (..., nv, nv), by a Cholesky factorisation."""
-        return torch.cholesky_inverse(cholesky_or_nan(self.both(kernel_call("crba", self.q(q), params))))
+        """(G^T M_full G)^-1 (..., nv, nv), by a Cholesky factorisation. A solve against the identity, not
+        torch.cholesky_inverse, whose forward-mode derivative is wrong (torch 2.13: jvp, jacfwd)."""
+        L = cholesky_or_nan(self.both(kernel_call("crba", self.q(q), params)))
+        return torch.cholesky_solve(torch.eye(self.nv, dtype=L.dtype, device=L.device), L)
 
 
 def _resolved(m: Mimic, mimics: tuple[Mimic, ...]) -> Mimic:
