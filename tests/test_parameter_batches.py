@@ -124,3 +124,25 @@ def test_check_refuses_what_no_body_can_be(robots):
     ok = pi.clone()
     ok[-2] = 0.0
     robot.with_parameters(torch.stack([pi, ok]), check=True)
+
+
+def test_functions_composed_in_torch_check_their_parameters(robots):
+    """centroidal_map_derivatives and MuJoCo's second-order inverse dynamics of a robot with a free joint are
+    composed in torch: their params (and f_ext) are refused as an op's are, naming the function and the
+    argument, where a 1-d tensor had raised an IndexError and a batch that does not broadcast torch's own error."""
+    robot = robots["go2"]
+    q, qd, qdd = _states(robot, (4,), 5)
+    q = C.q_pin_to_mujoco(q)
+    pi = own_parameters(robot)
+    calls = {"centroidal_map_derivatives": lambda p, f=None: robot.mujoco.centroidal_map_derivatives(q, params=p),
+             "inverse_dynamics_second_derivatives":
+                 lambda p, f=None: robot.mujoco.inverse_dynamics_second_derivatives(q, qd, qdd, f, params=p)}
+    for name, call in calls.items():
+        with pytest.raises(ValueError, match=rf"{name}: params must have shape \(\.\.\., 13, 10\), got \(130,\)"):
+            call(pi.flatten())
+        with pytest.raises(TypeError, match=f"{name}: params must be a torch.Tensor, got list"):
+            call(pi.tolist())
+        with pytest.raises(ValueError, match=rf"{name}: the leading batch shapes do not broadcast: q \(4,\), .*params \(3,\)"):
+            call(pi.expand(3, *pi.shape))
+    with pytest.raises(ValueError, match=r"inverse_dynamics_second_derivatives: f_ext must have shape \(\.\.\., 13, 6\)"):
+        calls["inverse_dynamics_second_derivatives"](pi, torch.zeros(4, 12, 6, dtype=torch.float64))

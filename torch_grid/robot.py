@@ -13,7 +13,7 @@ import torch
 from .former import CONVENTIONS, FORMER_NAMES, convention_name
 from .model.description import RobotModel, inertia_about_origin
 from .ops import mujoco_second_order
-from .ops.arguments import check_tensor, forward_mode, reference_code
+from .ops.arguments import check_arguments, check_tensor, forward_mode, reference_code
 from .ops.dispatch import dispatch, kernel_call
 from .ops.eager import EagerOps
 from .ops.fd_second_order import second_order
@@ -226,9 +226,11 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         tensors (torch_grid/ops/mujoco_second_order.py).
         """
         params = self._parameters(params)
-        if self._differs():
-            for name, x, n in (("q", q, self._robot.nq), ("qd", qd, self._robot.nv), ("qdd", qdd, self._robot.nv)):
-                check_tensor("inverse_dynamics_second_derivatives", name, x, (n,), q)
+        if self._differs():  # composed in torch: its arguments checked here, as an op's are
+            nv, nbodies = self._robot.nv, self._robot.nbodies
+            check_arguments("inverse_dynamics_second_derivatives", (
+                ("q", q, (self._robot.nq,)), ("qd", qd, (nv,)), ("qdd", qdd, (nv,)), ("f_ext", f_ext, (nbodies, 6)),
+                ("params", params, (nbodies, 10))))
             return mujoco_second_order.inverse_dynamics_second_derivatives_mujoco(self._robot, q, qd, qdd, f_ext, params)
         return dispatch(self, "inverse_dynamics_second_derivatives", q, qd, qdd, f_ext, params)
 
@@ -317,7 +319,8 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         dccrba at each unit velocity: nv times its cost. params as in inverse_dynamics."""
         params = self._parameters(params)
         nv = self._robot.nv
-        check_tensor("centroidal_map_derivatives", "q", q, (self._robot.nq,), q)
+        check_arguments("centroidal_map_derivatives", (("q", q, (self._robot.nq,)),
+                                                       ("params", params, (self._robot.nbodies, 10))))
         unit = torch.eye(nv, dtype=q.dtype, device=q.device)
         dh = self.dccrba(q.unsqueeze(-2).expand(*q.shape[:-1], nv, q.shape[-1]), unit.expand(*q.shape[:-1], nv, nv),
                          None if params is None else params.unsqueeze(-3))

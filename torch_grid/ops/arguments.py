@@ -27,6 +27,21 @@ def check_tensor(op: str, name: str, x, trailing: tuple[int, ...], q) -> None:
         raise ValueError(f"{op}: {name} must have shape ({want}), got {tuple(x.shape)}")
 
 
+def check_arguments(op: str, arguments) -> None:
+    """Refuse the (name, tensor or None, trailing shape) arguments of a function composed in torch, q first, as
+    `checked` refuses an op's: each by check_tensor, and their leading batch shapes unless they broadcast."""
+    q = arguments[0][1]
+    given = [(name, x, tuple(trailing)) for name, x, trailing in arguments if x is not None]
+    for name, x, trailing in given:
+        check_tensor(op, name, x, trailing, q)
+    shapes = [(name, tuple(x.shape[:x.dim() - len(trailing)])) for name, x, trailing in given]
+    try:
+        torch.broadcast_shapes(*(shape for _, shape in shapes))
+    except RuntimeError:
+        raise ValueError(f"{op}: the leading batch shapes do not broadcast: "
+                         + ", ".join(f"{name} {shape}" for name, shape in shapes)) from None
+
+
 def checked(op: str, tensor_args, args) -> list:
     """The arguments checked (each error names the argument, what was expected and what was received),
     with every tensor expanded to the broadcast of their leading batch shapes."""
