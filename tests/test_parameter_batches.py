@@ -146,3 +146,20 @@ def test_functions_composed_in_torch_check_their_parameters(robots):
             call(pi.expand(3, *pi.shape))
     with pytest.raises(ValueError, match=r"inverse_dynamics_second_derivatives: f_ext must have shape \(\.\.\., 13, 6\)"):
         calls["inverse_dynamics_second_derivatives"](pi, torch.zeros(4, 12, 6, dtype=torch.float64))
+
+
+@pytest.mark.parametrize("integrator", ["euler", "rk4"])
+def test_one_state_many_parameter_sets_that_require_grad(robots, integrator):
+    """One state under a batch of parameter sets that require grad (the composed step): q' has the batch of
+    the parameters, as the fused kernel's, and each is the step with its own set (explicit Euler's q' had
+    kept the state's batch shape, (1, nq) for (3, nq))."""
+    robot = robots["go2"]
+    q, qd, tau = _states(robot, (1,), 6)
+    pis = _parameter_sets(robot, 3)
+    for call in (lambda p: robot.step(q, qd, tau, 0.01, integrator, params=p),
+                 lambda p: (robot.horizon(q, qd, tau, 0.01, integrator, params=p)["q_next"],)):
+        fused = call(pis)
+        composed = call(pis.clone().requires_grad_(True))
+        for f, c in zip(fused, composed):
+            assert c.shape == f.shape == (3, f.shape[-1])
+            assert torch.allclose(f, c.detach(), **TOL)

@@ -87,7 +87,8 @@ class StepFunctions:
             v = qd + h * _combine(row, acc)
             acc.append(self.forward_dynamics(self.integrate(q, theta, dt), v, tau, f_ext))
             carried.append(dexp_inverse(space, h * theta, v, convention))
-        return self.integrate(q, _combine(weights, carried), dt), qd + h * _combine(weights, acc)
+        qd_next = qd + h * _combine(weights, acc)
+        return _on_batch(self.integrate(q, _combine(weights, carried), dt), qd_next), qd_next
 
     def step_derivatives(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dt,
                          integrator: str = "semi_implicit_euler",
@@ -170,7 +171,8 @@ class StepFunctions:
                                             for vi, j_theta, j_v in blocks}))
         theta = _combine(weights, carried)
         dq_next = advance(theta, _combine(weights, dcarried))
-        return ((self.integrate(q, theta, dt), qd + h * _combine(weights, acc))
+        qd_next = qd + h * _combine(weights, acc)
+        return ((_on_batch(self.integrate(q, theta, dt), qd_next), qd_next)
                 + _split(dq_next, hh * _combine(weights, dacc) + start_v, nv))
 
     def step_second_derivatives(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dt,
@@ -296,6 +298,12 @@ def _with_rows(x: torch.Tensor, rows: dict) -> torch.Tensor:
         start = vi + rows[vi].shape[-2]
     parts.append(x[..., start:, :])
     return torch.cat([p.expand(*batch, *p.shape[-2:]) for p in parts], dim=-2)
+
+
+def _on_batch(q_next: torch.Tensor, qd_next: torch.Tensor) -> torch.Tensor:
+    """q' expanded to qd''s batch shape, the step's: explicit Euler's q' reads q and qd alone, so without it a
+    larger batch of tau, f_ext or params would leave q' on q's and qd's, unlike the fused kernel's."""
+    return q_next.expand(*qd_next.shape[:-1], q_next.shape[-1])
 
 
 def _split(dq: torch.Tensor, dv: torch.Tensor, nv: int) -> tuple[torch.Tensor, torch.Tensor]:
