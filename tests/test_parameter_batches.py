@@ -148,6 +148,21 @@ def test_functions_composed_in_torch_check_their_parameters(robots):
         calls["inverse_dynamics_second_derivatives"](pi, torch.zeros(4, 12, 6, dtype=torch.float64))
 
 
+def test_steps_name_themselves_in_a_params_error(robots):
+    """step, its derivatives and the horizon take params through a view of them: a wrong shape's error names the
+    function called, not with_parameters."""
+    robot = robots["go2"]
+    q, qd, tau = _states(robot, (2,), 7)
+    bad = own_parameters(robot).flatten()
+    calls = {"step": lambda: robot.step(q, qd, tau, 0.01, "rk4", params=bad),
+             "step_derivatives": lambda: robot.step_derivatives(q, qd, tau, 0.01, "rk4", params=bad),
+             "step_second_derivatives": lambda: robot.step_second_derivatives(q, qd, tau, 0.01, "euler", params=bad),
+             "horizon": lambda: robot.horizon(q, qd, tau, 0.01, "euler", params=bad)}
+    for name, call in calls.items():
+        with pytest.raises(ValueError, match=rf"^{name}: params must be a tensor of shape \(\.\.\., 13, 10\), got \(130,\)"):
+            call()
+
+
 @pytest.mark.parametrize("integrator", ["euler", "rk4"])
 def test_one_state_many_parameter_sets_that_require_grad(robots, integrator):
     """One state under a batch of parameter sets that require grad (the composed step): q' has the batch of

@@ -393,12 +393,17 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         Returns:
             A RobotView in this one's convention.
         """
+        view = self._with(params, "with_parameters")
+        if check:
+            check_physical(params, self.body_names, parents=[j.parent for j in self._robot.model.joints])
+        return view
+
+    def _with(self, params: torch.Tensor, function: str) -> "RobotView":
+        """with_parameters(params) for `function`, which a wrong shape's error names."""
         nbodies = self._robot.nbodies
         if not isinstance(params, torch.Tensor) or params.dim() < 2 or tuple(params.shape[-2:]) != (nbodies, 10):
             shape = tuple(params.shape) if isinstance(params, torch.Tensor) else type(params).__name__
-            raise ValueError(f"with_parameters: params must be a tensor of shape (..., {nbodies}, 10), got {shape}")
-        if check:
-            check_physical(params, self.body_names, parents=[j.parent for j in self._robot.model.joints])
+            raise ValueError(f"{function}: params must be a tensor of shape (..., {nbodies}, 10), got {shape}")
         return RobotView(self._robot, self._convention, params)
 
     def _parameters(self, params: torch.Tensor | None) -> torch.Tensor | None:

@@ -31,7 +31,7 @@ class HorizonFunctions:
         parameters (..., nbodies, 10), broadcast against (..., T) as the states, as in inverse_dynamics.
         """
         if params is not None:
-            return self.with_parameters(params).horizon(q, qd, tau, dt, integrator, costs, step_hessian, f_ext)
+            return self._with(params, "horizon").horizon(q, qd, tau, dt, integrator, costs, step_hessian, f_ext)
         q_next, qd_next, A, B = self._step_and_derivatives(q, qd, tau, dt, integrator, f_ext, "horizon")
         out = {"q_next": q_next, "qd_next": qd_next, "A": A, "B": B}
         if step_hessian:

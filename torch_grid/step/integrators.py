@@ -61,7 +61,7 @@ class StepFunctions:
         on (MuJoCo's Euler step, `load(..., eulerdamp=...)`). params: the inertial parameters, as in
         inverse_dynamics."""
         if params is not None:
-            return self.with_parameters(params).step(q, qd, tau, dt, integrator, f_ext)
+            return self._with(params, "step").step(q, qd, tau, dt, integrator, f_ext)
         _check(self, "step", integrator, q, qd, tau, dt)
         # one op, not the composition's nodes (the op computes with the robot's own inertial parameters)
         if torch.compiler.is_compiling() and opaque() and self._params is None:
@@ -97,7 +97,7 @@ class StepFunctions:
         """(A `(..., 2 nv, 2 nv)`, B `(..., 2 nv, nv)`): the derivatives of step's [q'; qd'] with respect to
         [q; qd] and tau, along the tangent spaces (q' compared by difference, q moved by integrate); params
         as in step."""
-        view = self if params is None else self.with_parameters(params)
+        view = self if params is None else self._with(params, "step_derivatives")
         return view._step_and_derivatives(q, qd, tau, dt, integrator, f_ext)[2:]
 
     def _step_and_derivatives(self, q, qd, tau, dt, integrator, f_ext, op="step_derivatives"):
@@ -119,7 +119,7 @@ class StepFunctions:
 
     def _step_derivatives(self, q, qd, tau, dt, f_ext, params, integrator):
         if params is not self._params:  # a piece of the view's parameters (_in_chunks)
-            return self.with_parameters(params)._step_derivatives(q, qd, tau, dt, f_ext, params, integrator)
+            return self._with(params, "step_derivatives")._step_derivatives(q, qd, tau, dt, f_ext, params, integrator)
         h = dt_column(dt, qd)
         hh, nv = h.unsqueeze(-1), qd.shape[-1]
         space, convention = self._robot._space, self._convention
@@ -184,7 +184,7 @@ class StepFunctions:
         schemes: the second-order chain rule through the stages, from each stage's forward-dynamics gradient
         and second derivatives and the configuration space's closed forms (rk_hessian.py). params as in step."""
         if params is not None:
-            return self.with_parameters(params).step_second_derivatives(q, qd, tau, dt, integrator, f_ext)
+            return self._with(params, "step_second_derivatives").step_second_derivatives(q, qd, tau, dt, integrator, f_ext)
         _check(self, "step_second_derivatives", integrator, q, qd, tau, dt)
         if _differentiated(q, qd, tau, dt, f_ext, self._params):
             if transforming():
@@ -196,7 +196,7 @@ class StepFunctions:
             return euler_step_hessian(self, q, qd, tau, dt, f_ext, semi=bool(FUSED[integrator]))
         nv = qd.shape[-1]
         batch, (q, qd, tau, h, f_ext, params) = _flattened("step_second_derivatives", q, qd, tau, dt, f_ext, self._params)
-        view = self if params is None else self.with_parameters(params)
+        view = self if params is None else self._with(params, "step_second_derivatives")
         return rk_step_hessian(view, TABLEAUS[integrator], q, qd, tau, h, f_ext).reshape(*batch, 2 * nv, 3 * nv, 3 * nv)
 
 
