@@ -260,7 +260,8 @@ def main(argv: list[str] | None = None) -> int:
                            capture_output=True, text=True).stdout.strip())
         env.setdefault("TORCH_GRID_CUDA_ARCH", "sm_90")
         # one folder a machine, not one a run: a second call on the machine while it is still lent (--only mpc
-        # figures, say) finds the robots built (an entry's key covers its sources: a changed tree builds anew)
+        # figures, say) finds the robots built (the same tree: an entry's key covers the kernels' sources, codegen
+        # and the op table, not every module of the build)
         env.setdefault("TORCH_GRID_CACHE", str(Path(tempfile.gettempdir()) / "torch_grid_gpu_check"))
         if PREBUILT.exists():
             prebuilt = unpack_prebuilt(PREBUILT, Path(tempfile.gettempdir()) / "torch_grid_prebuilt")

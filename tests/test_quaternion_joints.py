@@ -445,8 +445,11 @@ def test_conventions_of_a_robot_check_their_arguments(trees):
         cv.v_pin_to_mujoco(q, q)
     with pytest.raises(ValueError, match=r"congruence_pin_to_mujoco: M must be \(\.\.\., nv, nv\)"):
         cv.congruence_pin_to_mujoco(q, torch.zeros(3, robot.nv, dtype=q.dtype))
-    with pytest.raises(TypeError, match="expected a Robot, a RobotView or a RobotModel, got str"):
-        torch_grid.conventions.of("trees")
+    with pytest.raises(ValueError, match=r"columns_pin_to_mujoco: J must be \(\.\.\., rows, nv\)"):
+        cv.columns_pin_to_mujoco(q, torch.zeros(robot.nv, dtype=q.dtype))
+    for other in ("trees", pin.buildSampleModelManipulator()):  # a pinocchio.Model has joints, not a RobotModel's
+        with pytest.raises(TypeError, match=f"expected a Robot, a RobotView or a RobotModel, got {type(other).__name__}"):
+            torch_grid.conventions.of(other)
 
 
 def test_conventions_of_a_robot_with_mimic_joints_take_its_reduced_layout(trees):

@@ -60,7 +60,9 @@ def load(source, *, floating_base: bool | None = None, convention: str = "pin", 
     floating_base: None takes the source's own choice (a bundled robot's default, fixed for a URDF,
     floating when an MJCF's first joint is free); True adds a free-flyer root to a URDF (an MJCF must
     declare its own free joint).
-    convention: default convention of the returned handle, "pin" or "mujoco".
+    convention: default convention of the returned handle, "pin" or "mujoco" (refused for a robot with a free
+    joint placed away from the world's origin, as a pinocchio.Model's FreeFlyer may be: MuJoCo's qpos of a
+    free joint is its body's world pose).
     enable_mujoco_kernels: False builds Pinocchio-convention kernels only (a smaller build); a
     floating robot then refuses convention="mujoco".
     armature: rotor inertia per joint name, replacing the source's (an MJCF's `armature`, a
@@ -103,11 +105,11 @@ def load(source, *, floating_base: bool | None = None, convention: str = "pin", 
     if armature is not None:
         model = with_armature(model, armature)
     convention = convention_name(convention)
-    if convention == "mujoco" and model.conventions_differ and not enable_mujoco_kernels:
-        raise ValueError("load: convention='mujoco' needs enable_mujoco_kernels=True for a robot with a free or ball joint")
     if convention == "mujoco" and model.placed_free_joint:
         raise ValueError(f"load: convention='mujoco' needs each free joint at the world's origin (its qpos is its world "
                          f"pose); free joint {model.placed_free_joint!r} is placed away from it")
+    if convention == "mujoco" and model.conventions_differ and not enable_mujoco_kernels:
+        raise ValueError("load: convention='mujoco' needs enable_mujoco_kernels=True for a robot with a free or ball joint")
     namespace = _build(model.kernel_model, mujoco=enable_mujoco_kernels and not model.placed_free_joint,
                        cache_dir=cache_dir)
     if namespace not in _AUTOGRAD_DONE:

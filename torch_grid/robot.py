@@ -445,7 +445,7 @@ class RobotView(_Functions):
     @property
     def mujoco(self) -> "RobotView":
         """This view in MuJoCo's convention (as Robot.mujoco, which raises where the robot was loaded with
-        enable_mujoco_kernels=False and has a free or ball joint)."""
+        enable_mujoco_kernels=False and has a free or ball joint, or has a free joint placed away from the origin)."""
         return RobotView(self._robot, self._robot._convention_code("mujoco"), self._params)
 
     @property

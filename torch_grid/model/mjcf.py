@@ -240,7 +240,9 @@ def _warn_unmodelled(mujoco, m, names: _Names) -> None:
     if m.nu:
         found.append(f"{m.nu} actuators")
     if m.ntendon:
-        found.append(f"{m.ntendon} tendons (actuation, limits and friction loss)")
+        acts = ["actuation"] + [what for what, bit in (("limits", "mjDSBL_LIMIT"), ("friction loss", "mjDSBL_FRICTIONLOSS"))
+                                if not off & bits[bit]]
+        found.append(f"{m.ntendon} tendons ({', '.join(acts)})")
     if not off & bits["mjDSBL_CONTACT"] and (m.npair or np.any((m.geom_contype != 0) | (m.geom_conaffinity != 0))):
         found.append(f"contacts{f' ({m.npair} explicit pairs)' if m.npair else ''}")
     limited = [names.joint(j) for j in range(m.njnt) if m.jnt_limited[j]]

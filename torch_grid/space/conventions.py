@@ -13,7 +13,7 @@ a_lin_mujoco = R_f (a_lin_pin + w x v_lin_pin).
 Every function takes any leading batch shape. `q_pin` is a configuration in Pinocchio's layout.
 `free` lists each free joint's (first q index, first v index); by default one free root at (0, 0)
 when floating, none when floating=False. `balls` lists each ball joint's first q index. A robot's
-own lists: `free_joints(model)`, `ball_joints(model)`; `of(robot)` gives every function with them filled in.
+own lists: `free_joints(model)`, `ball_joints(model)`; `of(robot)` gives the transforms with them filled in.
 """
 from __future__ import annotations
 
@@ -21,6 +21,8 @@ import warnings
 from typing import Sequence
 
 import torch
+
+from ..model.description import RobotModel
 
 __all__ = [
     "free_joints", "ball_joints", "unit_quaternion", "quaternion_rotation", "base_rotation", "q_mujoco_to_pin",
@@ -179,8 +181,11 @@ class RobotConversions:
     the q and v its functions take (a robot with mimic joints: its independent joints'), and each argument's
     last dimensions checked against the robot's nq and nv. Made by `of(robot)`."""
 
-    def __init__(self, model):
-        mimic = {m.joint for m in getattr(model, "mimics", ())}
+    def __init__(self, model: RobotModel):
+        if model.placed_free_joint:
+            raise ValueError(f"conventions.of({model.name!r}): free joint {model.placed_free_joint!r} is placed away from "
+                             "the world's origin, where MuJoCo's convention has each free joint (its qpos is its world pose)")
+        mimic = {m.joint for m in model.mimics}
         self.free: list[tuple[int, int]] = []
         self.balls: list[int] = []
         nq = nv = 0
@@ -238,8 +243,11 @@ class RobotConversions:
 
     def columns_pin_to_mujoco(self, q_pin: torch.Tensor, J: torch.Tensor) -> torch.Tensor:
         """(..., rows, nv) J G^T at Pinocchio's q_pin: Jacobians, the centroidal map."""
-        return columns_pin_to_mujoco(self._sized("columns_pin_to_mujoco", "q_pin", q_pin, "nq"),
-                                     self._sized("columns_pin_to_mujoco", "J", J, "nv"), free=self.free)
+        J = self._sized("columns_pin_to_mujoco", "J", J, "nv")
+        if J.dim() < 2:
+            raise ValueError(f"conventions.of({self.name!r}).columns_pin_to_mujoco: J must be (..., rows, nv), got shape "
+                             f"{tuple(J.shape)}")
+        return columns_pin_to_mujoco(self._sized("columns_pin_to_mujoco", "q_pin", q_pin, "nq"), J, free=self.free)
 
     def _state(self, function: str, q_pin: torch.Tensor, x: torch.Tensor, name: str = "v"):
         return self._sized(function, "q_pin", q_pin, "nq"), self._sized(function, name, x, "nv")
@@ -264,12 +272,9 @@ def of(robot) -> RobotConversions:
         cv = conventions.of(robot)
         qpos, qvel = cv.q_pin_to_mujoco(q), cv.v_pin_to_mujoco(q, v)
     """
-    model = getattr(robot, "model", robot)
-    if not hasattr(model, "joints"):
+    model = robot if isinstance(robot, RobotModel) else getattr(robot, "model", None)
+    if not isinstance(model, RobotModel):
         raise TypeError(f"conventions.of: expected a Robot, a RobotView or a RobotModel, got {type(robot).__name__}")
-    if model.placed_free_joint:
-        raise ValueError(f"conventions.of({model.name!r}): free joint {model.placed_free_joint!r} is placed away from the "
-                         "world's origin, where MuJoCo's convention has each free joint (its qpos is its world pose)")
     return RobotConversions(model)
 
 
