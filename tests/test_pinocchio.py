@@ -10,6 +10,7 @@ import pinocchio as pin
 import pytest
 import torch
 
+from torch_grid import conventions
 from oracles import PinOracle, batch_apply, rel_err, to_pin_q
 
 ROBOTS = ["iiwa14", "go2", "g1", "tiago"]
@@ -169,6 +170,26 @@ def test_end_effector_pose(robots, pin_models, robot_name, dtype):
     ref = reference(robot, pm, s, lambda o, q: o.end_effector_pose(q, ids), [])
     check("end_effector_pose(names)", robot.end_effector_pose(s["q"].to(dtype), frames), ref, TOL[dtype], dtype)
     check("end_effector_pose(indices)", robot.end_effector_pose(s["q"].to(dtype), ids), ref, TOL[dtype], dtype)
+
+
+def _rpy_matrix(rpy):
+    """Rz(yaw) Ry(pitch) Rx(roll) of angles (..., 3)."""
+    return torch.stack([torch.tensor(pin.rpy.rpyToMatrix(*a)) for a in rpy.reshape(-1, 3).tolist()]).reshape(*rpy.shape, 3)
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32], ids=["f64", "f32"])
+def test_end_effector_pose_at_pitch_of_a_right_angle(robots, dtype):
+    """At pitch +-pi/2 R fixes only roll -+ yaw: the angles must still give back the frame's rotation (they were
+    each read from rounding noise there)."""
+    robot = robots["go2"]
+    q = robot.pin.neutral_configuration(4, dtype=torch.float64)
+    for k, angles in enumerate([(0.3, np.pi / 2, 0.2), (0.3, -np.pi / 2, 0.2), (-2.0, np.pi / 2, 1.0), (0.4, 0.5, 0.6)]):
+        q[k, 3:7] = torch.tensor(pin.Quaternion(pin.rpy.rpyToMatrix(*angles)).coeffs())  # the base's, xyzw
+    for view, qv in ((robot.pin, q), (robot.mujoco, conventions.of(robot).q_pin_to_mujoco(q))):
+        rotation = view.forward_kinematics(qv)[1][:, robot.frame_index("base")]
+        pose = view.end_effector_pose(qv.to(dtype), ["base"])[:, 0].double()
+        assert rel_err(_rpy_matrix(pose[:, 3:]), rotation) <= TOL[dtype] / 10
+        assert rel_err(pose[:, 4].abs()[:3], torch.full((3,), np.pi / 2, dtype=torch.float64)) <= TOL[dtype] / 10
 
 
 def test_energy_is_sum(robots, robot_name):

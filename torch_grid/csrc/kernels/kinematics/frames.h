@@ -18,11 +18,15 @@ template <class Robot, class Scalar> TG_HD void frames_forward_kinematics(const 
   }
 }
 
-// Roll-pitch-yaw angles with R = Rz(yaw) Ry(pitch) Rx(roll), pitch in [-pi/2, pi/2].
+// Roll-pitch-yaw angles with R = Rz(yaw) Ry(pitch) Rx(roll), pitch in [-pi/2, pi/2]. Roll is read from
+// Rz(-yaw) R = Ry(pitch) Rx(roll), not from R's last row: at pitch +-pi/2 that row and R's first column are
+// rounding noise, and the two angles taken apart from them would not give back R (which fixes only
+// roll -+ yaw there).
 template <class Scalar> TG_HD Vec3<Scalar> rpy(const Mat3<Scalar>& R) {
-  const Scalar r = atan2(R.m[7], R.m[8]);
   const Scalar p = atan2(-R.m[6], sqrt(R.m[7] * R.m[7] + R.m[8] * R.m[8]));
   const Scalar y = atan2(R.m[3], R.m[0]);
+  const Scalar sy = sin(y), cy = cos(y);
+  const Scalar r = atan2(sy * R.m[2] - cy * R.m[5], cy * R.m[4] - sy * R.m[1]);
   return v3(r, p, y);
 }
 
