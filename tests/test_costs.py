@@ -68,6 +68,32 @@ def test_gradients_and_hessians(robots, convention):
         assert rel_err(hess, _tangent_differences(view, q, qd, lambda a, b: fn(a, b)[1], h=1e-5)) <= 1e-6, name
 
 
+def test_a_batch_of_targets_or_velocities_gives_every_output_its_batch(robots):
+    """One state against a batch of targets (which reach the residual alone), and a batch of velocities
+    against one configuration (which reach only the Jacobian's zero q̇ block): each output has the batch
+    shape, its samples the one-sample calls' values (the Hessian was one matrix, the value one number)."""
+    robot = robots["go2"]
+    view, nv, frame = robot.pin, robot.nv, robot.nframes - 1
+    g = torch.Generator().manual_seed(2)
+    q, qd = view.random_configuration(generator=g), torch.randn(4, nv, dtype=torch.float64, generator=g)
+    targets = {k: torch.randn(4, k, dtype=torch.float64, generator=g) for k in (3, 6)}
+    placement = torch.eye(4, dtype=torch.float64).repeat(4, 1, 1)
+    placement[:, :3, 3] = targets[3]
+    ones = {k: torch.ones(k, dtype=torch.float64) for k in (3, 6)}
+    costs = {
+        "frame_translation_cost": lambda qd, b: view.frame_translation_cost(q, qd, frame, targets[3][b], ones[3]),
+        "frame_placement_cost": lambda qd, b: view.frame_placement_cost(q, qd, frame, placement[b], ones[6]),
+        "com_cost": lambda qd, b: view.com_cost(q, qd, targets[3][b], ones[3]),
+        "momentum_cost": lambda qd, b: view.momentum_cost(q, qd, targets[6][b], ones[6]),
+    }
+    for name, cost in costs.items():
+        for outputs, one in ((cost(qd[0], slice(None)), lambda b: cost(qd[0], b)),  # the targets batched
+                             (cost(qd, 0), lambda b: cost(qd[b], 0))):  # the velocities batched
+            assert [x.shape for x in outputs] == [(4,), (4, 2 * nv), (4, 2 * nv, 2 * nv)], name
+            for b in range(4):
+                assert all(rel_err(x[b], y) <= 1e-14 for x, y in zip(outputs, one(b))), (name, b)
+
+
 def test_placement_residual_is_pinocchios_log6(robots, pin_models):
     """value = sum(w r^2) / 2 with r = pin.log6(target^-1 oMf) (Crocoddyl's placement residual)."""
     robot, model = robots["go2"], pin_models["go2"]
