@@ -27,19 +27,11 @@ def check_tensor(op: str, name: str, x, trailing: tuple[int, ...], q) -> None:
         raise ValueError(f"{op}: {name} must have shape ({want}), got {tuple(x.shape)}")
 
 
-def check_arguments(op: str, arguments) -> None:
+def check_arguments(op: str, arguments) -> tuple[int, ...]:
     """Refuse the (name, tensor or None, trailing shape) arguments of a function composed in torch, q first, as
-    `checked` refuses an op's: each by check_tensor, and their leading batch shapes unless they broadcast."""
-    q = arguments[0][1]
+    `checked` refuses an op's; returns the broadcast of their leading batch shapes."""
     given = [(name, x, tuple(trailing)) for name, x, trailing in arguments if x is not None]
-    for name, x, trailing in given:
-        check_tensor(op, name, x, trailing, q)
-    shapes = [(name, tuple(x.shape[:x.dim() - len(trailing)])) for name, x, trailing in given]
-    try:
-        torch.broadcast_shapes(*(shape for _, shape in shapes))
-    except RuntimeError:
-        raise ValueError(f"{op}: the leading batch shapes do not broadcast: "
-                         + ", ".join(f"{name} {shape}" for name, shape in shapes)) from None
+    return _batch_shape(op, given, arguments[0][1])[1]
 
 
 def checked(op: str, tensor_args, args) -> list:
@@ -50,25 +42,30 @@ def checked(op: str, tensor_args, args) -> list:
     for k, _ in tensor_args:
         if args[k] is None and not spec[k].optional:
             raise TypeError(f"{op}: {names[k]} must be a torch.Tensor, got None")
-    q = args[0]
-    for k, trailing in tensor_args:
-        if args[k] is not None:
-            check_tensor(op, names[k], args[k], tuple(trailing), q)
-    shapes = {k: tuple(args[k].shape[: args[k].dim() - len(trailing)]) for k, trailing in tensor_args
-              if args[k] is not None}
-    # torch's broadcasting rule on the batch shapes (torch.broadcast_shapes costs tens of µs)
-    batch = [1] * max(len(s) for s in shapes.values())
-    for shape in shapes.values():
-        for axis, size in enumerate(shape, len(batch) - len(shape)):
-            if size != batch[axis] and size != 1 and batch[axis] != 1:
-                listed = ", ".join(f"{names[k]} {s}" for k, s in shapes.items())
-                raise ValueError(f"{op}: the leading batch shapes do not broadcast: {listed}")
-            batch[axis] = size if size != 1 else batch[axis]
+    given = [(k, tuple(trailing)) for k, trailing in tensor_args if args[k] is not None]
+    shapes, batch = _batch_shape(op, [(names[k], args[k], trailing) for k, trailing in given], args[0])
     args = list(args)
-    for k, trailing in tensor_args:
-        if args[k] is not None and shapes[k] != tuple(batch):
+    for (k, trailing), shape in zip(given, shapes):
+        if shape != batch:
             args[k] = args[k].expand(*batch, *trailing)
     return args
+
+
+def _batch_shape(op: str, given, q) -> tuple[list[tuple[int, ...]], tuple[int, ...]]:
+    """Each (name, tensor, trailing shape) checked by check_tensor against q; their leading batch shapes and
+    the broadcast of them, refused where they do not broadcast."""
+    for name, x, trailing in given:
+        check_tensor(op, name, x, trailing, q)
+    shapes = [tuple(x.shape[: x.dim() - len(trailing)]) for _, x, trailing in given]
+    # torch's broadcasting rule on the batch shapes (torch.broadcast_shapes costs tens of µs)
+    batch = [1] * max(len(s) for s in shapes)
+    for shape in shapes:
+        for axis, size in enumerate(shape, len(batch) - len(shape)):
+            if size != batch[axis] and size != 1 and batch[axis] != 1:
+                listed = ", ".join(f"{name} {s}" for (name, _, _), s in zip(given, shapes))
+                raise ValueError(f"{op}: the leading batch shapes do not broadcast: {listed}")
+            batch[axis] = size if size != 1 else batch[axis]
+    return shapes, tuple(batch)
 
 
 def check_batch_shape(op: str, batch_shape: tuple) -> tuple[int, ...]:
