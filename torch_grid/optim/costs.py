@@ -107,10 +107,11 @@ def log_barrier(x: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, weigh
 
 def _weighted(r: torch.Tensor, J: torch.Tensor, w: torch.Tensor):
     wr = w * r
-    # each output on the batch shape of all three: a target's reaches r alone, a velocity's J alone
-    batch = torch.broadcast_shapes(r.shape[:-1], J.shape[:-2], w.shape[:-1])
-    value, grad, hess = 0.5 * (wr * r).sum(-1), (J.mT @ wr.unsqueeze(-1)).squeeze(-1), J.mT @ (w.unsqueeze(-1) * J)
-    return value.expand(batch), grad.expand(*batch, grad.shape[-1]), hess.expand(*batch, *hess.shape[-2:])
+    # each output on the batch shape of all three, the gradient's (J^T w r reads them all): a target's reaches r
+    # alone, a velocity's J alone
+    grad = (J.mT @ wr.unsqueeze(-1)).squeeze(-1)
+    hess = J.mT @ (w.unsqueeze(-1) * J)
+    return (0.5 * (wr * r).sum(-1)).expand(grad.shape[:-1]), grad, hess.expand(*grad.shape[:-1], *hess.shape[-2:])
 
 
 def _diagonal(r: torch.Tensor, w: torch.Tensor):
