@@ -105,13 +105,13 @@ def load(source, *, floating_base: bool | None = None, convention: str = "pin", 
     if armature is not None:
         model = with_armature(model, armature)
     convention = convention_name(convention)
-    if convention == "mujoco" and model.placed_free_joint:
+    placed = model.placed_free_joint
+    if convention == "mujoco" and placed:
         raise ValueError(f"load: convention='mujoco' needs each free joint at the world's origin (its qpos is its world "
-                         f"pose); free joint {model.placed_free_joint!r} is placed away from it")
+                         f"pose); free joint {placed!r} is placed away from it")
     if convention == "mujoco" and model.conventions_differ and not enable_mujoco_kernels:
         raise ValueError("load: convention='mujoco' needs enable_mujoco_kernels=True for a robot with a free or ball joint")
-    namespace = _build(model.kernel_model, mujoco=enable_mujoco_kernels and not model.placed_free_joint,
-                       cache_dir=cache_dir)
+    namespace = _build(model.kernel_model, mujoco=enable_mujoco_kernels and not placed, cache_dir=cache_dir)
     if namespace not in _AUTOGRAD_DONE:
         register_autograd(namespace, model.kernel_model)
         _AUTOGRAD_DONE.add(namespace)
