@@ -451,7 +451,7 @@ def _arg_names(op: OpSpec) -> list[str]:
 
 
 def _wrapper(index: int, op: OpSpec) -> str:
-    body = [f'  tg::Call call(r, "{op.name}", q, convention);']
+    body = [f'  tg::Call call(r, r.ops[{index}], "{op.name}", q, convention);']
     for a in op.tensor_args:
         dims = ", ".join(_SIZE.get(d, str(d)) for d in a.trailing)
         body.append(f'  call.batch_of({a.name}, "{a.name}", {{{dims}}});')
@@ -466,7 +466,7 @@ def _wrapper(index: int, op: OpSpec) -> str:
     for name, o in zip(outs, op.outputs):
         make = "workspace" if o.kind == "workspace" else "output"
         body.append(f"  at::Tensor {name} = call.{make}({{{', '.join(_SIZE.get(d, str(d)) for d in o.shape)}}});")
-    body.append(f"  call.run(r.ops[{index}]);")
+    body.append("  call.run();")
     if op.negated_products:
         factor, *products = (outs[[o.name for o in op.outputs].index(n)] for n in op.negated_products)
         body.append(f"  call.negated_products({factor}, {{{', '.join('&' + x for x in products)}}});")

@@ -55,14 +55,18 @@ inline bool set_cpu_lanes(bool on) { return cpu_lanes_enabled().exchange(on); }
 
 class Call {
  public:
-  // `q` fixes the dtype and device every other argument must share.
-  Call(const RobotTable& robot, const char* op, const at::Tensor& q, int64_t convention)
-      : robot_(robot), op_(op), convention_(convention) {
+  // `q` fixes the dtype and device every other argument must share; `kernels` are the op's, of which the
+  // call runs the one of that dtype, device and convention.
+  Call(const RobotTable& robot, const OpKernels& kernels, const char* op, const at::Tensor& q, int64_t convention)
+      : robot_(robot), kernels_(kernels), op_(op), convention_(convention) {
     dtype_ = q.scalar_type();
     device_ = q.device();
     TORCH_CHECK(dtype_ == at::kFloat || dtype_ == at::kDouble, op_, ": q must be float32 or float64, got ", dtype_);
     TORCH_CHECK(device_.is_cpu() || device_.is_cuda(), op_, ": q must be on the CPU or a CUDA device, got ", device_);
     TORCH_CHECK(convention == PIN || convention == MUJOCO, op_, ": convention must be 0 (pin) or 1 (mujoco), got ", convention);
+#ifdef TG_WITH_CUDA
+    if (device_.is_cuda()) prepare_first_launch();
+#endif
   }
 
   // First, every tensor input's shape (*batch, *trailing): the batch shapes broadcast, as in torch.
@@ -224,7 +228,8 @@ class Call {
     return t.expand(shape);
   }
 
-  void run(const OpKernels& kernels) {
+  void run() {
+    const OpKernels& kernels = kernels_;
     if (n_ == 0) return;
     batch_.poisoned = poisoned();
     const int s = dtype_ == at::kDouble ? 1 : 0;
@@ -290,54 +295,64 @@ class Call {
 
  private:
 #ifdef TG_WITH_CUDA
+  // The kernel of this call's dtype and convention on CUDA (null where the build has none: run refuses it).
+  CudaFn cuda_kernel() const {
+    const int s = dtype_ == at::kDouble ? 1 : 0, c = convention_ == MUJOCO && robot_.converts ? 1 : 0;
+    return robot_.cuda ? kernels_.cuda[s][c] : nullptr;
+  }
   // Before a kernel's first launch on a device, its local memory (stack) is checked against what the
   // device would reserve for it: every resident thread gets that much, for the life of the process. The
   // driver grows the device's local memory at that launch (G1's largest kernel: about 16 GB); memory
-  // torch's caching allocator holds is invisible to it, so a launch that fails for want of memory is
-  // retried once after torch's cache is emptied. That first launch may not be captured in a CUDA graph
+  // torch's caching allocator holds is invisible to it. So where the device lacks the reservation, torch's
+  // cache is emptied before the call copies an input or takes its outputs, which would otherwise be cut
+  // from cached blocks that then could not be freed; a launch that still fails for want of memory is
+  // retried once after emptying the cache again. That first launch may not be captured in a CUDA graph
   // (a capture records no growth, and the device's properties and the kernel's attributes are read then).
+  void prepare_first_launch() {
+    const CudaFn fn = cuda_kernel();
+    if (!fn || launched(fn, device_.index())) return;
+    first_ = true;
+    const c10::cuda::CUDAGuard guard(device_);
+    const cudaStream_t stream = c10::cuda::getCurrentCUDAStream().stream();
+    cudaStreamCaptureStatus capture = cudaStreamCaptureStatusNone;
+    const cudaError_t err = cudaStreamIsCapturing(stream, &capture);
+    TORCH_CHECK(err == cudaSuccess, op_, ": cannot query the stream's capture status: ", cudaGetErrorString(err));
+    TORCH_CHECK(capture == cudaStreamCaptureStatusNone, op_, ": the first launch of this kernel on ", device_,
+                " cannot be captured in a CUDA graph (it grows the device's local memory): call the op once, "
+                "outside the capture, before capturing it");
+    const Device d = device(device_.index());
+    const CudaAttributes a = attributes(fn);
+    constexpr int64_t kPerThreadLimit = int64_t(512) << 10;  // the hardware's local memory per thread
+    const int64_t resident = int64_t(d.threads_per_sm) * d.sms;
+    const int64_t budget = local_budget(d);
+    reserve_ = a.local_bytes * resident;
+    // numbers as text: the message is built from strings alone
+    TORCH_CHECK(a.local_bytes <= kPerThreadLimit, op_, ": this robot's kernel needs ", std::to_string(a.local_bytes),
+                " bytes of local memory per CUDA thread, above the device's limit of ", std::to_string(kPerThreadLimit));
+    TORCH_CHECK(reserve_ <= budget, op_, ": this robot's kernel needs ", std::to_string(a.local_bytes),
+                " bytes of local memory per CUDA thread; for ", std::to_string(resident),
+                " resident threads the device would reserve ", std::to_string(reserve_ >> 20), " MiB, above the budget of ",
+                std::to_string(budget >> 20), " MiB (TORCH_GRID_CUDA_LOCAL_MEMORY_MB; default a quarter of the device memory)");
+    size_t free = 0, total = 0;
+    if (cudaMemGetInfo(&free, &total) == cudaSuccess && static_cast<int64_t>(free) < reserve_)
+      c10::cuda::CUDACachingAllocator::emptyCache();
+  }
   void launch(CudaFn fn) {
     const c10::cuda::CUDAGuard guard(device_);
     const cudaStream_t stream = c10::cuda::getCurrentCUDAStream().stream();
-    const bool first = !launched(fn, device_.index());
     const Device d = device(device_.index());
-    int64_t reserve = 0;  // bytes of local memory the driver reserves at this launch (first launch only)
-    if (first) {
-      cudaStreamCaptureStatus capture = cudaStreamCaptureStatusNone;
-      const cudaError_t err = cudaStreamIsCapturing(stream, &capture);
-      TORCH_CHECK(err == cudaSuccess, op_, ": cannot query the stream's capture status: ", cudaGetErrorString(err));
-      TORCH_CHECK(capture == cudaStreamCaptureStatusNone, op_, ": the first launch of this kernel on ", device_,
-                  " cannot be captured in a CUDA graph (it grows the device's local memory): call the op once, "
-                  "outside the capture, before capturing it");
-      const CudaAttributes a = attributes(fn);
-      constexpr int64_t kPerThreadLimit = int64_t(512) << 10;  // the hardware's local memory per thread
-      const int64_t resident = int64_t(d.threads_per_sm) * d.sms;
-      const int64_t budget = local_budget(d);
-      reserve = a.local_bytes * resident;
-      // numbers as text: the message is built from strings alone
-      TORCH_CHECK(a.local_bytes <= kPerThreadLimit, op_, ": this robot's kernel needs ", std::to_string(a.local_bytes),
-                  " bytes of local memory per CUDA thread, above the device's limit of ", std::to_string(kPerThreadLimit));
-      TORCH_CHECK(reserve <= budget, op_, ": this robot's kernel needs ", std::to_string(a.local_bytes),
-                  " bytes of local memory per CUDA thread; for ", std::to_string(resident),
-                  " resident threads the device would reserve ", std::to_string(reserve >> 20), " MiB, above the budget of ",
-                  std::to_string(budget >> 20), " MiB (TORCH_GRID_CUDA_LOCAL_MEMORY_MB; default a quarter of the device memory)");
-      // torch's cache emptied first where it holds what the device lacks for the reservation
-      size_t free = 0, total = 0;
-      if (cudaMemGetInfo(&free, &total) == cudaSuccess && static_cast<int64_t>(free) < reserve)
-        c10::cuda::CUDACachingAllocator::emptyCache();
-    }
     int err = fn(batch_, stream, d.sms, nullptr);
-    if (first && err == cudaErrorMemoryAllocation) {
+    if (first_ && err == cudaErrorMemoryAllocation) {
       c10::cuda::CUDACachingAllocator::emptyCache();
       err = fn(batch_, stream, d.sms, nullptr);
       size_t free = 0, total = 0;
       if (err == cudaErrorMemoryAllocation && cudaMemGetInfo(&free, &total) == cudaSuccess)
         TORCH_CHECK(false, op_, ": CUDA kernel launch failed: out of memory at its first launch, which reserves ",
-                    std::to_string(reserve >> 20), " MiB of local memory; ", std::to_string(free >> 20),
+                    std::to_string(reserve_ >> 20), " MiB of local memory; ", std::to_string(free >> 20),
                     " MiB are free after emptying torch's cache");
     }
     TORCH_CHECK(err == 0, op_, ": CUDA kernel launch failed: ", cudaGetErrorString(static_cast<cudaError_t>(err)));
-    if (first) mark_launched(fn, device_.index());
+    if (first_) mark_launched(fn, device_.index());
   }
   // Whether fn has been launched on the device (by any call site) in this process.
   static std::mutex& launched_mutex() {
@@ -569,6 +584,7 @@ class Call {
   }
 
   const RobotTable& robot_;
+  const OpKernels& kernels_;
   const char* op_;
   int64_t convention_;
   std::vector<int64_t> batch_shape_;
@@ -582,6 +598,10 @@ class Call {
   at::Tensor keep_[kMaxIn];  // contiguous copies
   int64_t in_size_[kMaxIn] = {};  // elements of one sample of each input
   Batch batch_;
+#ifdef TG_WITH_CUDA
+  bool first_ = false;   // this call launches its CUDA kernel for the first time on the device
+  int64_t reserve_ = 0;  // bytes of local memory the driver reserves at that launch
+#endif
 };
 
 }  // namespace tg
