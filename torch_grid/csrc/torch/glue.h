@@ -33,14 +33,15 @@
 
 #include "batch/batch.h"
 #include "torch/blocks.h"
+#ifdef TG_WITH_CUDA
+#include "torch/cuda_device.h"
+#endif
 
 #ifdef TG_WITH_CUDA
 #include <c10/cuda/CUDACachingAllocator.h>
 #include <c10/cuda/CUDAGuard.h>
 #include <c10/cuda/CUDAStream.h>
 #include <cuda_runtime_api.h>
-
-#include <unordered_map>
 #endif
 
 namespace tg {
@@ -310,7 +311,7 @@ class Call {
   // (a capture records no growth, and the device's properties and the kernel's attributes are read then).
   void prepare_first_launch() {
     const CudaFn fn = cuda_kernel();
-    if (!fn || launched(fn, device_.index())) return;
+    if (!fn || cuda_launched(fn, device_.index())) return;
     first_ = true;
     const c10::cuda::CUDAGuard guard(device_);
     const cudaStream_t stream = c10::cuda::getCurrentCUDAStream().stream();
@@ -320,11 +321,11 @@ class Call {
     TORCH_CHECK(capture == cudaStreamCaptureStatusNone, op_, ": the first launch of this kernel on ", device_,
                 " cannot be captured in a CUDA graph (it grows the device's local memory): call the op once, "
                 "outside the capture, before capturing it");
-    const Device d = device(device_.index());
-    const CudaAttributes a = attributes(fn);
+    const CudaDevice d = cuda_device(device_.index(), op_);
+    const CudaAttributes a = cuda_attributes(fn, op_);
     constexpr int64_t kPerThreadLimit = int64_t(512) << 10;  // the hardware's local memory per thread
     const int64_t resident = int64_t(d.threads_per_sm) * d.sms;
-    const int64_t budget = local_budget(d);
+    const int64_t budget = cuda_local_budget(d);
     reserve_ = a.local_bytes * resident;
     // numbers as text: the message is built from strings alone
     TORCH_CHECK(a.local_bytes <= kPerThreadLimit, op_, ": this robot's kernel needs ", std::to_string(a.local_bytes),
@@ -340,7 +341,7 @@ class Call {
   void launch(CudaFn fn) {
     const c10::cuda::CUDAGuard guard(device_);
     const cudaStream_t stream = c10::cuda::getCurrentCUDAStream().stream();
-    const Device d = device(device_.index());
+    const CudaDevice d = cuda_device(device_.index(), op_);
     int err = fn(batch_, stream, d.sms, nullptr);
     if (first_ && err == cudaErrorMemoryAllocation) {
       c10::cuda::CUDACachingAllocator::emptyCache();
@@ -352,66 +353,7 @@ class Call {
                     " MiB are free after emptying torch's cache");
     }
     TORCH_CHECK(err == 0, op_, ": CUDA kernel launch failed: ", cudaGetErrorString(static_cast<cudaError_t>(err)));
-    if (first_) mark_launched(fn, device_.index());
-  }
-  // Whether fn has been launched on the device (by any call site) in this process.
-  static std::mutex& launched_mutex() {
-    static std::mutex mutex;
-    return mutex;
-  }
-  static std::vector<std::pair<CudaFn, int>>& launched_list() {
-    static std::vector<std::pair<CudaFn, int>> list;
-    return list;
-  }
-  static bool launched(CudaFn fn, int index) {
-    std::lock_guard<std::mutex> lock(launched_mutex());
-    const auto& list = launched_list();
-    return std::find(list.begin(), list.end(), std::make_pair(fn, index)) != list.end();
-  }
-  static void mark_launched(CudaFn fn, int index) {
-    std::lock_guard<std::mutex> lock(launched_mutex());
-    auto& list = launched_list();
-    if (std::find(list.begin(), list.end(), std::make_pair(fn, index)) == list.end()) list.emplace_back(fn, index);
-  }
-  // What a launch needs of a device, read once per device.
-  struct Device {
-    int sms = 0, threads_per_sm = 0;
-    int64_t memory = 0;
-  };
-  Device device(int index) {
-    return once<int, Device>(index, [this](int i) {
-      Device d;
-      size_t free = 0, total = 0;
-      cudaError_t err = cudaDeviceGetAttribute(&d.sms, cudaDevAttrMultiProcessorCount, i);
-      if (err == cudaSuccess) err = cudaDeviceGetAttribute(&d.threads_per_sm, cudaDevAttrMaxThreadsPerMultiProcessor, i);
-      if (err == cudaSuccess) err = cudaMemGetInfo(&free, &total);
-      TORCH_CHECK(err == cudaSuccess, op_, ": cannot read the CUDA device's properties: ", cudaGetErrorString(err));
-      d.memory = static_cast<int64_t>(total);
-      return d;
-    });
-  }
-  CudaAttributes attributes(CudaFn fn) {
-    return once<CudaFn, CudaAttributes>(fn, [this](CudaFn f) {
-      CudaAttributes a;
-      const int err = f(Batch{}, nullptr, 1, &a);
-      TORCH_CHECK(err == 0, op_, ": cannot read the CUDA kernel's attributes: ",
-                  cudaGetErrorString(static_cast<cudaError_t>(err)));
-      return a;
-    });
-  }
-  // compute(key), computed once per key (and call site) for the process.
-  template <class K, class V, class F> static V once(K key, F compute) {
-    static std::mutex mutex;
-    static std::unordered_map<K, V> known;
-    std::lock_guard<std::mutex> lock(mutex);
-    auto it = known.find(key);
-    if (it == known.end()) it = known.emplace(key, compute(key)).first;
-    return it->second;
-  }
-  static int64_t local_budget(const Device& d) {
-    const char* env = std::getenv("TORCH_GRID_CUDA_LOCAL_MEMORY_MB");
-    if (env && *env) return std::atoll(env) << 20;
-    return d.memory / 4;
+    if (first_) cuda_mark_launched(fn, device_.index());
   }
 #endif
 
