@@ -302,3 +302,22 @@ def test_bad_load_options_raise():
         torch_grid.load("iiwa14", floating_base="yes")
     with pytest.raises(TypeError, match="enable_mujoco_kernels"):
         torch_grid.load("iiwa14", enable_mujoco_kernels=1)
+
+
+def test_frame_index_reads_names_and_indices_and_names_the_argument():
+    """The model layer finds frames for every function that takes one: a name, an index (numpy's too), and
+    errors that name the caller's argument, suggest near names and give the valid range."""
+    model = RobotModel.load(ROBOTS_DIR / "go2.json")
+    index = [f.name for f in model.frames].index("FL_foot")
+    assert model.frame_index("FL_foot") == index
+    assert model.frame_index(np.int64(index)) == index and model.frame_index(index) == index
+    with pytest.raises(ValueError, match=r"frame_jacobian: frame: 'go2' has no frame named 'FL_fot'; did you mean 'FL_foot'"):
+        model.frame_index("FL_fot", "frame_jacobian: frame")
+    with pytest.raises(ValueError, match=rf"frame index {len(model.frames)} is out of range \[0, {len(model.frames)}\)"):
+        model.frame_index(len(model.frames))
+    with pytest.raises(ValueError, match=r"frame index -1 is out of range"):
+        model.frame_index(-1)
+    for wrong in (True, 1.0, None):
+        with pytest.raises(TypeError, match=f"frames must be a frame name or index, got {type(wrong).__name__}"):
+            model.frame_index(wrong, "frames")
+    assert RobotModel.from_dict(model.to_dict()).frame_index("FL_foot") == index  # the lookup is not saved, rebuilt

@@ -1,9 +1,7 @@
 """`Robot`: a built robot's ops as torch functions, in Pinocchio's or MuJoCo's convention."""
 from __future__ import annotations
 
-import difflib
 import json
-import numbers
 import warnings
 from pathlib import Path
 from typing import Sequence
@@ -495,9 +493,6 @@ class Robot(_Functions):
         self._eager = EagerOps(self._ops, model.kernel_model)
         self._enable_mujoco_kernels = mujoco_kernels
         self._mujoco_kernels = (mujoco_kernels and not model.placed_free_joint) or not model.conventions_differ
-        self._frames_named: dict[str, list[int]] = {}
-        for i, f in enumerate(model.frames):
-            self._frames_named.setdefault(f.name, []).append(i)
         sizes = model_sizes(model)
         # op -> (position, trailing shape) of each tensor argument, for the checks of every call
         self._tensor_args = {name: [(k, torch.Size(sizes.get(d, d) for d in a.trailing))
@@ -531,23 +526,7 @@ class Robot(_Functions):
     def frame_index(self, frame: str | int, argument: str = "frame") -> int:
         """Index in frame_names of a frame given by name or index; a name several frames share (a URDF link and
         a joint, say) is refused, as Pinocchio's getFrameId refuses it, naming their indices."""
-        if isinstance(frame, bool) or not isinstance(frame, (str, numbers.Integral)):
-            raise TypeError(f"{argument} must be a frame name or index, got {type(frame).__name__}")
-        if isinstance(frame, numbers.Integral):
-            frame = int(frame)
-            if not 0 <= frame < self.nframes:
-                raise ValueError(f"{argument}: frame index {frame} is out of range [0, {self.nframes})")
-            return frame
-        if frame not in self._frames_named:
-            close = difflib.get_close_matches(frame, self._frames_named, n=3)
-            hint = f"; did you mean {', '.join(map(repr, close))}?" if close else ""
-            raise ValueError(f"{argument}: {self.name!r} has no frame named {frame!r}{hint}")
-        found = self._frames_named[frame]
-        if len(found) > 1:  # a URDF link and joint of one name, say: Pinocchio's getFrameId refuses it too
-            which = ", ".join(f"{i} ({self.model.frames[i].kind})" for i in found)
-            raise ValueError(f"{argument}: {self.name!r} has {len(found)} frames named {frame!r}, at indices {which}; "
-                             "give the frame's index")
-        return found[0]
+        return self.model.frame_index(frame, argument)
 
     def _frame_dofs(self, index: int) -> int:
         """Number of dofs on the chain from frame `index` to the root: those that move it (a mimic joint

@@ -6,9 +6,11 @@ joints are already merged into their parent body, exactly as Pinocchio's model d
 """
 from __future__ import annotations
 
+import difflib
 import hashlib
 import json
 import math
+import numbers
 import warnings
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, replace
@@ -91,6 +93,10 @@ class RobotModel:
     def __post_init__(self) -> None:
         validate(self)
         object.__setattr__(self, "_hash", hashlib.sha256(self.to_json().encode()).hexdigest())
+        named: dict[str, list[int]] = {}  # frame name -> indices, for frame_index (not a field: not saved)
+        for i, f in enumerate(self.frames):
+            named.setdefault(f.name, []).append(i)
+        object.__setattr__(self, "_frames_named", named)
 
     # -- sizes and layout --------------------------------------------------------------------
     @property
@@ -152,6 +158,28 @@ class RobotModel:
     def hash(self) -> str:
         """Content hash (sha256 hex) of the canonical JSON description."""
         return self._hash
+
+    def frame_index(self, frame: str | int, argument: str = "frame") -> int:
+        """Index in `frames` of a frame given by name or index; a name several frames share (a URDF link and a
+        joint, say) is refused, as Pinocchio's getFrameId refuses it, naming their indices. `argument` names
+        the caller's argument in the errors."""
+        if isinstance(frame, bool) or not isinstance(frame, (str, numbers.Integral)):
+            raise TypeError(f"{argument} must be a frame name or index, got {type(frame).__name__}")
+        if isinstance(frame, numbers.Integral):
+            frame = int(frame)
+            if not 0 <= frame < len(self.frames):
+                raise ValueError(f"{argument}: frame index {frame} is out of range [0, {len(self.frames)})")
+            return frame
+        if frame not in self._frames_named:
+            close = difflib.get_close_matches(frame, self._frames_named, n=3)
+            hint = f"; did you mean {', '.join(map(repr, close))}?" if close else ""
+            raise ValueError(f"{argument}: {self.name!r} has no frame named {frame!r}{hint}")
+        found = self._frames_named[frame]
+        if len(found) > 1:
+            which = ", ".join(f"{i} ({self.frames[i].kind})" for i in found)
+            raise ValueError(f"{argument}: {self.name!r} has {len(found)} frames named {frame!r}, at indices {which}; "
+                             "give the frame's index")
+        return found[0]
 
     # -- serialization -----------------------------------------------------------------------
     def to_dict(self) -> dict:
