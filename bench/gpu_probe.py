@@ -4,7 +4,8 @@ leaves the others'; the item that may crash the process (an error message format
 
 - step_derivatives in the MuJoCo convention (non-finite A and B on CUDA, right on the CPU): per robot and
   scheme, the non-finite entries and the largest difference from the CPU build, at dt = 0.01 and 0, with
-  the rows and columns the non-finite entries fall in; the stage runs with and without poisoned outputs.
+  the rows and columns the non-finite entries fall in, on one thread a sample and on the team path; the
+  stage runs with and without poisoned outputs.
 - the fused Runge-Kutta kernel's workspace on the device, region by region (rk_workspace).
 - the C++ runtime: the host compiler, which libstdc++ the process has mapped, whether the glue defines
   iostream symbols of its own (a static copy), its link flags and the libstdc++ files in their folders.
@@ -19,7 +20,7 @@ from pathlib import Path
 
 import torch
 
-from gpu_correctness import fused, kernel_outputs, on, states
+from gpu_correctness import TeamPaths, fused, kernel_outputs, on, states
 
 SCHEMES = ("euler", "semi_implicit_euler", "midpoint", "rk4")
 
@@ -55,12 +56,16 @@ def _pattern(bad: torch.Tensor) -> str:
 
 
 def step_derivatives(name: str, robot, device: torch.device, poisoned: bool) -> None:
-    for conv, view in (("mujoco", robot.mujoco), ("pin", robot.pin)):
+    # MuJoCo's convention also on the team path (a warp a sample, runge_kutta_team.h, its workspace in shared
+    # memory): whether the non-finite entries follow the thread path's code or the convention's
+    for conv, view, teams in (("mujoco", robot.mujoco, "0"), ("mujoco", robot.mujoco, "1"), ("pin", robot.pin, "0")):
         q, qd, x, _ = states(view, 3, seed=21)
+        path = f"{conv}{' teams' if teams == '1' else ''}"
         for scheme in SCHEMES:
             for dt in (0.01, 0.0):
                 def one():
-                    got = [t.cpu() for t in fused(view, scheme, *on((q, qd, x), device), dt)]
+                    with TeamPaths(teams):
+                        got = [t.cpu() for t in fused(view, scheme, *on((q, qd, x), device), dt)]
                     ref = fused(view, scheme, q, qd, x, dt)
                     parts = []
                     for label, g, r in zip(("A", "B"), got, ref):
@@ -71,9 +76,9 @@ def step_derivatives(name: str, robot, device: torch.device, poisoned: bool) -> 
                         if bad.any():
                             text += f" ({_pattern(bad[0].flatten(0, 1).flatten(1))})"
                         parts.append(text)
-                    print(f"INFO probe {name} {conv} {scheme} dt={dt} {'poisoned' if poisoned else 'plain'}: "
+                    print(f"INFO probe {name} {path} {scheme} dt={dt} {'poisoned' if poisoned else 'plain'}: "
                           + "; ".join(parts), flush=True)
-                _guarded(f"{name} {conv} {scheme} dt={dt}", one)
+                _guarded(f"{name} {path} {scheme} dt={dt}", one)
 
 
 def rk_workspace(name: str, robot, device: torch.device) -> None:

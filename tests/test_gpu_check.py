@@ -145,3 +145,20 @@ def test_a_tool_that_timed_out_on_go2_is_not_run_on_the_humanoid(tmp_path):
     statuses.clear()
     gpu_check._tools(stage, gpu_check.Log(tmp_path / "check.log"), tmp_path, skip, {})
     assert "compute-sanitizer memcheck humanoid" in called
+
+
+def test_the_probe_reports_the_step_derivatives_of_each_path(robots, capsys):
+    """The diagnostics stage's step_derivatives lines (gpu_probe.py), here on the CPU build of go2: one per
+    path (MuJoCo's convention on one thread and on the team path, Pinocchio's), scheme and dt, each with
+    its counts of non-finite entries, which the CPU build has none of."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    import gpu_probe
+    import torch
+
+    gpu_probe.step_derivatives("go2", robots["go2"], torch.device("cpu"), False)
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("INFO probe go2 ")]
+    paths = [line.split(" dt=")[0].removeprefix("INFO probe go2 ") for line in lines]
+    schemes = gpu_probe.SCHEMES
+    assert paths == [f"{p} {s}" for p in ("mujoco", "mujoco teams", "pin") for s in schemes for _ in range(2)], lines
+    assert all(re.search(r": A 0/3888 non-finite, max diff 0\.0e\+00; B 0/1944 non-finite, max diff 0\.0e\+00$", line)
+               for line in lines), lines
