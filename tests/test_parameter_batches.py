@@ -87,6 +87,22 @@ def test_runge_kutta_step_hessian_with_batched_parameters(robots, convention):
         view.step_second_derivatives(q, qd, tau, 0.01, "rk4", params=torch.cat([pis, pis]))
 
 
+def test_runge_kutta_step_hessian_in_pieces_gives_each_piece_its_parameters(robots, monkeypatch):
+    """A batch above one piece of the Runge-Kutta step Hessian (here pieces of two samples, as a humanoid's
+    are at the default size) with one parameter set per sample: each piece computes with its samples' sets."""
+    import torch_grid.step.rk_hessian as rk_hessian
+
+    robot = robots["go2"]
+    nv = robot.nv
+    q, qd, tau = _states(robot, (3,), 5)
+    pis = torch.stack([other_parameters(robot, seed=s) for s in range(3)])
+    monkeypatch.setattr(rk_hessian, "PIECE_BYTES", 2 * 8 * nv * (3 * nv) ** 2)
+    H = robot.step_second_derivatives(q, qd, tau, 0.01, "midpoint", params=pis)
+    for k in range(3):
+        single = robot.step_second_derivatives(q[k], qd[k], tau[k], 0.01, "midpoint", params=pis[k])
+        assert torch.allclose(H[k], single, **TOL), k
+
+
 def test_mujoco_inverse_dynamics_second_derivatives_with_batched_parameters(robots):
     """MuJoCo's second-order inverse dynamics of a robot with a free joint (reframed from Pinocchio's):
     the parameters' batch is part of the result's."""

@@ -27,7 +27,7 @@ PIECE_BYTES = 4 << 20
 
 def rk_step_hessian(view, tableau, q, qd, tau, h, f_ext) -> torch.Tensor:
     """(n, 2 nv, 3 nv, 3 nv): step_second_derivatives of the scheme (a rows, b) over a flat batch: q (n, nq),
-    qd, tau (n, nv), h (n,), f_ext (n, nbodies, 6) or None."""
+    qd, tau (n, nv), h (n,), f_ext (n, nbodies, 6) or None; the view's inertial parameters (n, nbodies, 10) or None."""
     space, convention = view._robot._space, view._convention
     rows, weights = tableau
     nv, n = qd.shape[-1], qd.shape[0]
@@ -66,9 +66,11 @@ def rk_step_hessian(view, tableau, q, qd, tau, h, f_ext) -> torch.Tensor:
     # the pieces' Hessians, in buffers all pieces share: 3 temporaries, each stage's acceleration and carried
     # velocity (the first's is qd, without one)
     pool = torch.empty(2 * len(weights) + 2, step, nv, 3 * nv, 3 * nv, dtype=qd.dtype, device=qd.device)
+    params = view._params  # one set per sample (integrators._flattened) or None: each piece takes its own
     for s in range(0, n, step):
         p = slice(s, s + step)
-        _hessian(view, tableau, q[p], qd[p], tau[p], h[p], None if f_ext is None else f_ext[p],
+        piece = view if params is None else view._with(params[p], "step_second_derivatives")
+        _hessian(piece, tableau, q[p], qd[p], tau[p], h[p], None if f_ext is None else f_ext[p],
                  [(qi[p], v[p]) for qi, v in stages], w[:, p], [(vi, k, K[:, p], J[:, p], dJ[:, p])
                                                              for vi, k, K, J, dJ in jets],
                  pool[:, :out[p].shape[0]], out[p])
