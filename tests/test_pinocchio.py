@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from torch_grid import conventions
-from oracles import PinOracle, batch_apply, rel_err, to_pin_q
+from oracles import PinOracle, batch_apply, pin_forces, rel_err, to_pin_q
 
 ROBOTS = ["iiwa14", "go2", "g1", "tiago"]
 TOL = {torch.float64: 1e-9, torch.float32: 1e-4}
@@ -317,3 +317,20 @@ def test_free_joint_placed_away_from_the_origin(tmp_path):
         pin.framesForwardKinematics(model, data, q[b])
         for name in ("placed_root", "arm"):
             assert rel_err(pos[b, robot.frame_index(name)], data.oMf[model.getFrameId(name)].translation) <= 1e-12
+    # the derivatives, with external forces: Pinocchio's, and the step's along integrate (placement not moved)
+    f = s["f_ext"]
+    dq, dv = robot.inverse_dynamics_derivatives(s["q"], s["qd"], s["qdd"], f)
+    gq, gv, _ = robot.forward_dynamics_derivatives(s["q"], s["qd"], s["tau"], f)
+    for b in range(3):
+        ref = pin.computeRNEADerivatives(model, data, q[b], v[b], a[b], pin_forces(model, f[b]))
+        assert rel_err(dq[b], ref[0]) <= 1e-9 and rel_err(dv[b], ref[1]) <= 1e-9
+        pin.computeABADerivatives(model, data, q[b], v[b], tau[b], pin_forces(model, f[b]))
+        assert rel_err(gq[b], data.ddq_dq) <= 1e-8 and rel_err(gv[b], data.ddq_dv) <= 1e-8
+    nv, h, eye = robot.nv, 1e-6, torch.eye(2 * robot.nv, dtype=torch.float64)
+    x0, v0, u0 = s["q"][0], s["qd"][0], s["tau"][0]
+    for integrator in ("semi_implicit_euler", "rk4"):
+        A = robot.step_derivatives(x0, v0, u0, 0.01, integrator)[0]
+        ends = [robot.step(robot.integrate(x0.expand(2 * nv, -1), sign * h * eye[:, :nv]), v0 + sign * h * eye[:, nv:],
+                           u0, 0.01, integrator) for sign in (1, -1)]
+        fd = torch.cat([robot.difference(ends[1][0], ends[0][0]), ends[0][1] - ends[1][1]], -1).T / (2 * h)
+        assert rel_err(A, fd) <= 1e-6, integrator
