@@ -417,6 +417,27 @@ def test_runge_kutta_hessian_in_pieces(robots, monkeypatch):
                                                                                              3 * nv)
 
 
+@pytest.mark.parametrize("convention", ["pin", "mujoco"])
+def test_euler_step_hessian_with_more_steps_than_states(robots, convention):
+    """dt of a batch beyond the state's (one state at several steps, or states (3,) against dt (2, 1)): each
+    sample of the Euler schemes' Hessian is its own dt's, the q-q block of the acceleration's included."""
+    robot = robots["go2"]
+    view = getattr(robot, convention)
+    q, qd, tau = _state(view, robot, 3, 31)
+    dt = torch.tensor([[0.01], [0.03]], dtype=torch.float64)
+    for integrator in ("euler", "semi_implicit_euler"):
+        H = view.step_second_derivatives(q[0], qd[0], tau[0], dt[:, 0], integrator)
+        for j in range(2):
+            single = view.step_second_derivatives(q[0], qd[0], tau[0], float(dt[j, 0]), integrator)
+            assert rel_err(H[j], single) <= 1e-13, (integrator, j)
+        H = view.step_second_derivatives(q, qd, tau, dt, integrator)
+        assert H.shape == (2, 3, 2 * robot.nv, 3 * robot.nv, 3 * robot.nv)
+        for j in range(2):
+            for k in range(3):
+                single = view.step_second_derivatives(q[k], qd[k], tau[k], float(dt[j, 0]), integrator)
+                assert rel_err(H[j, k], single) <= 1e-13, (integrator, j, k)
+
+
 @pytest.mark.parametrize("integrator", ["semi_implicit_euler", "rk4"])
 def test_step_hessian_refuses_a_derivative(robots, integrator):
     """step_second_derivatives has no backward (a third derivative) and does not run under vmap (it is

@@ -87,8 +87,9 @@ def scaled_acceleration_hessian(second, hh: torch.Tensor, out: torch.Tensor) -> 
     d2q, d2v, dqdv, dtaudq = second
     nv = d2q.shape[-1]
     q, v, t = slice(0, nv), slice(nv, 2 * nv), slice(2 * nv, 3 * nv)
-    torch.add(d2q, d2q.transpose(-1, -2), out=out[..., q, q])
-    out[..., q, q] *= 0.5 * hh
+    # by assignment, which broadcasts the tensors' batch to out's (a dt batch beyond the state's), as mul's out= does
+    block = out[..., q, q]
+    block.copy_(d2q).add_(d2q.transpose(-1, -2)).mul_(0.5 * hh)
     for (r, c), x in (((q, v), dqdv), ((q, t), dtaudq.transpose(-1, -2)), ((v, q), dqdv.transpose(-1, -2)),
                       ((v, v), d2v), ((t, q), dtaudq)):
         torch.mul(x, hh, out=out[..., r, c])
