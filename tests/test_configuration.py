@@ -285,6 +285,23 @@ def test_integrate_and_difference_kernels_are_the_composition(robots, pin_models
         raw.sum().backward()
 
 
+def test_integrate_composition_with_more_steps_than_states(robots):
+    """dt of a batch beyond q's and v's (one state at several steps, states (3,) against dt (2, 1)): the
+    compositions of integrate and d_integrate take the batch of all three, as the kernels do (they failed on a
+    quaternion joint's product and at their Jacobians' identity blocks)."""
+    robot = robots["go2"]
+    g = torch.Generator().manual_seed(12)
+    for view in (robot.pin, robot.mujoco):
+        q = view.random_configuration(3, generator=g)
+        v = torch.randn(robot.nv, dtype=torch.float64, generator=g)
+        for q, dt in ((q[0], torch.tensor([0.1, 0.5, 2.0], dtype=torch.float64)),
+                      (q, torch.tensor([[0.1], [2.0]], dtype=torch.float64))):
+            _assert_same(view.integrate(q, v, dt), integrate(robot._space, q, v, dt, view._convention))
+            for fused, composed in zip(view.d_integrate(q, v, dt), view.d_integrate(q, v.clone().requires_grad_(), dt)):
+                assert composed.shape == fused.shape
+                _assert_same(fused, composed)
+
+
 def test_a_continuous_joint_differs_by_the_shorter_turn(robots, pin_models):
     """A continuous joint's coordinate is an angle: difference wraps it to (-pi, pi], Pinocchio's difference of its
     (cos, sin) joint, in the kernel and in the composition, in both views (MuJoCo has no continuous joint), angles far

@@ -56,8 +56,7 @@ class Space:
 
 def integrate(space: Space, q: torch.Tensor, v: torch.Tensor, dt, convention: int) -> torch.Tensor:
     """(..., nq): q (+) v dt, for q (..., nq), v (..., nv) and dt a number or a (...,) tensor."""
-    q, v = broadcast_batch(q, v)
-    v = v * dt_column(dt, v)
+    q, v = broadcast_batch(q, v * dt_column(dt, v))  # dt's batch may reach beyond q's and v's
     parts = []
     for kind, qi, vi in zip(space.kinds, space.qi, space.vi):
         if kind == "scalar":
@@ -99,10 +98,12 @@ def difference(space: Space, q0: torch.Tensor, q1: torch.Tensor, convention: int
 
 def d_integrate(space: Space, q: torch.Tensor, v: torch.Tensor, dt, convention: int) -> tuple[torch.Tensor, torch.Tensor]:
     """(J_q, J_v), each (..., nv, nv): the tangent Jacobians of q (+) v dt."""
-    q, v = broadcast_batch(q, v)
+    h = dt_column(dt, v)
+    batch = torch.broadcast_shapes(q.shape[:-1], v.shape[:-1], h.shape[:-1])  # dt's may reach beyond q's and v's
+    v = v.expand(*batch, v.shape[-1])
     blocks = d_integrate_blocks(space, v, dt, convention)
-    eye = torch.eye(space.nv, dtype=v.dtype, device=v.device).expand(*v.shape[:-1], space.nv, space.nv)
-    return tangent_map(blocks, 0, eye), tangent_map(blocks, 1, eye) * dt_column(dt, v).unsqueeze(-1)
+    eye = torch.eye(space.nv, dtype=v.dtype, device=v.device).expand(*batch, space.nv, space.nv)
+    return tangent_map(blocks, 0, eye), tangent_map(blocks, 1, eye) * h.unsqueeze(-1)
 
 
 def d_integrate_blocks(space: Space, v: torch.Tensor, dt, convention: int) -> list:
