@@ -279,3 +279,18 @@ def test_a_batch_written_through_the_buffer_equals_small_batches(robots):
         for a, b, c in zip(big, again, small):
             assert torch.equal(a[s:s + 2], c) and torch.equal(b[s:s + 2], c)
     assert (big[0] == 0).float().mean() > 0.3  # the zeros are there to be kept
+
+
+def test_fd_second_order_chunks_write_results_where_the_batch_does_not_flatten_to_a_view():
+    """second_order writes its chunks over the inverse-dynamics tensors: where their batch cannot be flattened
+    in place (a transposed batch), the results are still returned, equal to the closed form in one piece."""
+    from torch_grid.ops import fd_second_order
+
+    g = torch.Generator().manual_seed(3)
+    nv = 3
+    second = [torch.randn(2, 3, nv, nv, nv, dtype=torch.float64, generator=g).transpose(0, 1) for _ in range(4)]
+    z_q, z_qd, inverse = (torch.randn(3, 2, nv, nv, dtype=torch.float64, generator=g) for _ in range(3))
+    expected = fd_second_order._closed_form(*(t.clone() for t in second), z_q, z_qd, inverse)
+    with torch.no_grad():
+        got = fd_second_order.second_order(tuple(t.clone() for t in second), z_q, z_qd, inverse)
+    assert all(a.shape == (3, 2, nv, nv, nv) and torch.allclose(a, b, rtol=0, atol=1e-12) for a, b in zip(got, expected))

@@ -30,7 +30,8 @@ def second_order(second: tuple[torch.Tensor, ...], z_q: torch.Tensor, z_qd: torc
     if traced or (torch.is_grad_enabled() and any(t.requires_grad for t in second)):
         return _closed_form(*second, z_q, z_qd, inverse)
     # Chunks of samples, written over the inverse-dynamics tensors (kept blocks, already mapped):
-    # whole-batch temporaries of nv^3 per sample would each be mapped and zeroed afresh.
+    # whole-batch temporaries of nv^3 per sample would each be mapped and zeroed afresh. The results are
+    # returned from `flat`, which is `second` itself where the batch flattens to a view, else its copy.
     nv = inverse.shape[-1]
     flat = [t.reshape(-1, nv, nv, nv) for t in second]
     z_q, z_qd, inverse = (t.expand(*second[0].shape[:-3], nv, nv).reshape(-1, nv, nv) for t in (z_q, z_qd, inverse))
@@ -40,7 +41,7 @@ def second_order(second: tuple[torch.Tensor, ...], z_q: torch.Tensor, z_qd: torc
         results = _closed_form(*(t[rows] for t in flat), z_q[rows], z_qd[rows], inverse[rows])
         for t, r in zip(flat, results):
             t[rows] = r
-    return second
+    return tuple(f.view(t.shape) for f, t in zip(flat, second))
 
 
 def _closed_form(d2q, d2qd, dqdqd, dM, z_q, z_qd, inverse):
