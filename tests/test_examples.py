@@ -53,6 +53,25 @@ def test_horizon_is_the_per_knot_calls(robots):
         assert single[k].shape == out[k][0, 0].shape and torch.allclose(single[k], out[k][0, 0], rtol=1e-14, atol=1e-15), k
 
 
+def test_horizon_outputs_share_the_batch_of_the_cost_references(robots):
+    """One trajectory against a batch of state references: every output of the horizon call has the references'
+    batch (A and B the trajectory's at each sample), as the per-sample calls would."""
+    robot = robots["go2"]
+    view, nv = robot.pin, robot.nv
+    g = torch.Generator().manual_seed(1)
+    q = view.random_configuration(3, generator=g)
+    qd, tau = (torch.randn(3, nv, dtype=torch.float64, generator=g) for _ in range(2))
+    refs = view.random_configuration(4, 1, generator=g)  # (4, 1, nq) against the knots (3,)
+    costs = [("state_cost", {"q_ref": refs, "qd_ref": torch.zeros(nv, dtype=torch.float64),
+                             "weights": torch.ones(2 * nv, dtype=torch.float64)})]
+    out = view.horizon(q, qd, tau, 0.02, "semi_implicit_euler", costs)
+    assert {k: tuple(x.shape[:2]) for k, x in out.items()} == {k: (4, 3) for k in out}, {k: x.shape for k, x in out.items()}
+    for b in range(4):
+        one = view.horizon(q, qd, tau, 0.02, "semi_implicit_euler", [("state_cost", {**costs[0][1], "q_ref": refs[b]})])
+        for k in one:
+            assert torch.equal(out[k][b], one[k]), k
+
+
 @pytest.mark.parametrize("problem", ["reach", "balance"])
 def test_ilqr_example_lowers_the_cost(problem):
     """The cost falls; every iteration reports the step sizes accepted, and the last line the outcome."""

@@ -27,7 +27,8 @@ class HorizonFunctions:
         (CONTROL_COSTS, taking (tau, **kwargs)); their references and weights broadcast against (..., T).
         Returns a dict with the keys q_next, qd_next, A (..., T, 2nv, 2nv), B (..., T, 2nv, nv),
         [H (..., T, 2nv, 3nv, 3nv)], cost (..., T), lx (..., T, 2nv), lu (..., T, nv), lxx (..., T, 2nv, 2nv),
-        luu (..., T, nv, nv) and lxu (..., T, 2nv, nv) (zero: no listed cost couples state and control). params: the inertial
+        luu (..., T, nv, nv) and lxu (..., T, 2nv, nv) (zero: no listed cost couples state and control), all on
+        the batch of the states and the costs' arguments together. params: the inertial
         parameters (..., nbodies, 10), broadcast against (..., T) as the states, as in inverse_dynamics.
         """
         if params is not None:
@@ -50,4 +51,9 @@ class HorizonFunctions:
                 raise ValueError(f"horizon: costs must name one of {STATE_COSTS + CONTROL_COSTS}, got {name!r}")
             for key, x in zip(keys, (value, grad, hess)):
                 terms[key] = terms[key] + x
-        return {**out, **terms}
+        # every output on one batch shape: a cost's references or weights may carry a batch beyond the states'
+        trailing = {"q_next": 1, "qd_next": 1, "A": 2, "B": 2, "H": 3, "cost": 0, "lx": 1, "lu": 1, "lxx": 2,
+                    "luu": 2, "lxu": 2}
+        result = {**out, **terms}
+        shape = torch.broadcast_shapes(*(x.shape[:x.dim() - trailing[k]] for k, x in result.items()))
+        return {k: x.expand((*shape, *x.shape[x.dim() - trailing[k]:])) for k, x in result.items()}
