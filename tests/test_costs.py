@@ -197,3 +197,42 @@ def test_targets_and_bounds_of_another_shape_are_refused_naming_them(robots):
     for message, call in dtypes:
         with pytest.raises(TypeError, match=message):
             call()
+
+
+def test_states_controls_and_x_of_another_size_or_dtype_are_refused_naming_them(robots):
+    robot = robots["go2"]
+    view, nv, frame = robot.pin, robot.nv, robot.nframes - 1
+    q, qd = view.random_configuration(2), torch.zeros(2, nv, dtype=torch.float64)
+    ones = lambda *shape: torch.ones(*shape, dtype=torch.float64)  # noqa: E731
+    # the frame, com and momentum costs read qd's batch alone: a qd of another size or dtype was taken
+    # silently (a gradient of q's dtype and 2 nv entries), state_cost's weights were blamed for it, an
+    # integer tau gave a float32 value beside an integer gradient, an integer x a barrier of integers
+    cases = [
+        (ValueError, r"state_cost: qd must have shape \(\.\.\., 18\), got \(2, 17\)",
+         lambda: view.state_cost(q, qd[:, 1:], q, qd[:, 1:], ones(2 * nv - 2))),
+        (TypeError, r"state_cost: qd has dtype torch.float32 but q has torch.float64",
+         lambda: view.state_cost(q, qd.float(), q, qd.float(), ones(2 * nv).float())),
+        (ValueError, r"frame_translation_cost: qd must have shape \(\.\.\., 18\), got \(2, 17\)",
+         lambda: view.frame_translation_cost(q, qd[:, 1:], frame, ones(3), ones(3))),
+        (TypeError, r"frame_placement_cost: qd has dtype torch.float32 but q has torch.float64",
+         lambda: view.frame_placement_cost(q, qd.float(), frame, torch.eye(4, dtype=torch.float64), ones(6))),
+        (TypeError, r"com_cost: qd must be a torch.Tensor, got list",
+         lambda: view.com_cost(q, qd.tolist(), ones(3), ones(3))),
+        (TypeError, r"momentum_cost: q must be float32 or float64, got torch.int64",
+         lambda: view.momentum_cost(q.long(), qd, ones(6), ones(6))),
+        (ValueError, r"control_cost: tau must have shape \(\.\.\., 18\), got \(2, 17\)",
+         lambda: view.control_cost(qd[:, 1:], ones(nv - 1), ones(nv - 1))),
+        (TypeError, r"control_cost: tau must be float32 or float64, got torch.int64",
+         lambda: view.control_cost(qd.long(), ones(nv).long(), ones(nv).long())),
+        (TypeError, r"quadratic_barrier: x must be a float tensor of shape \(\.\.\., n\), got torch.int64",
+         lambda: torch_grid.quadratic_barrier(torch.tensor([[0, 2]]), -1, 1, 1)),
+        (TypeError, r"log_barrier: x must be a float tensor of shape \(\.\.\., n\), got list",
+         lambda: torch_grid.log_barrier([0.0, 2.0], -1.0, 1.0, 1.0)),
+        (TypeError, r"log_barrier: x must be a float tensor of shape \(\.\.\., n\), got torch.float64 of shape \(\)",
+         lambda: torch_grid.log_barrier(ones(()), -1.0, 1.0, 1.0)),
+        (TypeError, r"quadratic_barrier: lower must be a number or a tensor, got ndarray",
+         lambda: torch_grid.quadratic_barrier(ones(2, 5), -ones(4).numpy(), 1.0, 1.0)),
+    ]
+    for error, message, call in cases:
+        with pytest.raises(error, match=message):
+            call()

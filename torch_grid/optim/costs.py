@@ -8,8 +8,11 @@ different goals) costs sum(w r^2) / 2, gradient J^T (w r), Gauss-Newton Hessian 
 """
 from __future__ import annotations
 
+import numbers
+
 import torch
 
+from ..ops.arguments import check_tensor
 from ..space.lie import block_diagonal, dexp_inverse_block, left_jacobian_inverse, log3
 
 
@@ -21,7 +24,7 @@ class CostFunctions:
     def state_cost(self, q, qd, q_ref, qd_ref, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = [difference(q_ref, q); qd - qd_ref], weights (..., 2 nv). Returns (value (...,), gradient
         (..., 2 nv), Gauss-Newton Hessian (..., 2 nv, 2 nv)), as every state cost."""
-        nv = qd.shape[-1]
+        nv = _state("state_cost", self, q, qd)
         w = _checked_weights("state_cost", weights, 2 * nv, qd)
         _checked("state_cost", "q_ref", q_ref, (q.shape[-1],), q)
         _checked("state_cost", "qd_ref", qd_ref, (nv,), qd)
@@ -36,11 +39,15 @@ class CostFunctions:
 
     def control_cost(self, tau, tau_ref, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = tau - tau_ref, weights (..., nv). Returns (value (...,), gradient (..., nv), Hessian (..., nv, nv))."""
-        r = tau - _checked("control_cost", "tau_ref", tau_ref, tuple(tau.shape[-1:]), tau)
+        # the robot's nv (a bare CostFunctions, without a robot: tau's own size)
+        nv = getattr(self, "nv", tau.shape[-1] if isinstance(tau, torch.Tensor) and tau.dim() else 0)
+        check_tensor("control_cost", "tau", tau, (nv,), tau)
+        r = tau - _checked("control_cost", "tau_ref", tau_ref, (nv,), tau)
         return _diagonal(r, _checked_weights("control_cost", weights, r.shape[-1], tau))
 
     def frame_translation_cost(self, q, qd, frame, target, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = the frame's world position - target (..., 3), weights (..., 3)."""
+        _state("frame_translation_cost", self, q, qd)
         index = self._robot.frame_index(frame, "frame_translation_cost: frame")
         position = self.forward_kinematics(q)[0][..., index, :]
         jacobian = self.frame_jacobian(q, index, "local_world_aligned")[..., :3, :]
@@ -51,6 +58,7 @@ class CostFunctions:
     def frame_placement_cost(self, q, qd, frame, target, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = log6(target^-1 oMf) [linear; angular] (Crocoddyl's ResidualModelFramePlacement), target a
         (..., 4, 4) placement, weights (..., 6); J = Jlog6(target^-1 oMf) J_frame(LOCAL)."""
+        _state("frame_placement_cost", self, q, qd)
         target = _checked("frame_placement_cost", "target", target, (4, 4), q)
         index = self._robot.frame_index(frame, "frame_placement_cost: frame")
         positions, rotations = self.forward_kinematics(q)
@@ -65,6 +73,7 @@ class CostFunctions:
 
     def com_cost(self, q, qd, target, weights, params=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = center of mass - target (..., 3), weights (..., 3); params as in inverse_dynamics."""
+        _state("com_cost", self, q, qd)
         target = _checked("com_cost", "target", target, (3,), q)
         return _weighted(self.com(q, params) - target, _state_rows(self.jacobian_com(q, params), qd),
                          _checked_weights("com_cost", weights, 3, q))
@@ -72,6 +81,7 @@ class CostFunctions:
     def momentum_cost(self, q, qd, target, weights, params=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = centroidal momentum h(q, qd) [linear; angular] - target (..., 6), weights (..., 6): both its q
         block (dccrba) and its qd block (A); params as in inverse_dynamics."""
+        _state("momentum_cost", self, q, qd)
         target = _checked("momentum_cost", "target", target, (6,), q)
         A, h = self.ccrba(q, qd, params)
         return _weighted(h - target, torch.cat([self.dccrba(q, qd, params), A], dim=-1),
@@ -127,6 +137,14 @@ def _state_rows(jacobian: torch.Tensor, qd: torch.Tensor) -> torch.Tensor:
     return torch.cat([jacobian, torch.zeros_like(jacobian)], dim=-1)
 
 
+def _state(cost: str, view, q, qd) -> int:
+    """The robot's nv, q (..., nq) and qd (..., nv) refused by name unless float tensors of one dtype and device
+    (a cost reads qd's size and batch, and the frame, com and momentum costs nothing else of it)."""
+    check_tensor(cost, "q", q, (view.nq,), q)
+    check_tensor(cost, "qd", qd, (view.nv,), q)
+    return view.nv
+
+
 def _checked_weights(cost: str, weights, n: int, like: torch.Tensor) -> torch.Tensor:
     return _checked(cost, "weights", weights, (n,), like)
 
@@ -150,9 +168,14 @@ def _like(cost: str, name: str, tensor: torch.Tensor, like: torch.Tensor, whose:
 
 
 def _checked_bounds(barrier: str, x: torch.Tensor, lower, upper, weights) -> None:
-    """Refuses bounds or weights that do not broadcast with x, or tensors of another dtype or device than x's,
-    naming the argument."""
+    """Refuses an x that is not a float tensor (..., n), bounds or weights that are neither numbers nor tensors
+    broadcasting with x, or tensors of another dtype or device than x's, naming the argument."""
+    if not isinstance(x, torch.Tensor) or not x.is_floating_point() or x.dim() == 0:
+        got = f"{x.dtype} of shape {tuple(x.shape)}" if isinstance(x, torch.Tensor) else type(x).__name__
+        raise TypeError(f"{barrier}: x must be a float tensor of shape (..., n), got {got}")
     for name, t in (("lower", lower), ("upper", upper), ("weights", weights)):
+        if not isinstance(t, (torch.Tensor, numbers.Real)) or isinstance(t, bool):
+            raise TypeError(f"{barrier}: {name} must be a number or a tensor, got {type(t).__name__}")
         shape = tuple(t.shape) if isinstance(t, torch.Tensor) else ()
         try:
             torch.broadcast_shapes(x.shape, shape)
