@@ -394,6 +394,28 @@ def test_log_cholesky_round_trip_and_consistency():
     assert torch.autograd.gradcheck(log_cholesky_to_parameters, (theta[:3].clone().requires_grad_(True),))
 
 
+def test_log_cholesky_helpers_refuse_integer_tensors_and_wrong_sizes_naming_them():
+    # an integer tensor gave float32 results (its values truncated first), a wrong size an unpacking error
+    params = log_cholesky_to_parameters(torch.zeros(2, 10, dtype=torch.float64))
+    cases = [
+        (TypeError, r"pseudo_inertia: params must be a float tensor, got torch.int64", lambda: pseudo_inertia(params.long())),
+        (ValueError, r"pseudo_inertia: params must have shape \(\.\.\., 10\), got \(2, 9\)",
+         lambda: pseudo_inertia(params[:, :9])),
+        (TypeError, r"log_cholesky_to_parameters: theta must be a float tensor, got torch.int64",
+         lambda: log_cholesky_to_parameters(torch.zeros(2, 10, dtype=torch.long))),
+        (ValueError, r"log_cholesky_to_parameters: theta must have shape \(\.\.\., 10\), got \(2, 11\)",
+         lambda: log_cholesky_to_parameters(torch.zeros(2, 11, dtype=torch.float64))),
+        (ValueError, r"parameters_to_log_cholesky: params must have shape \(\.\.\., 10\), got \(10, 1\)",
+         lambda: parameters_to_log_cholesky(params[0].unsqueeze(-1))),
+        (TypeError, r"parameters_to_log_cholesky: params must be a torch.Tensor, got list",
+         lambda: parameters_to_log_cholesky(params.tolist())),
+    ]
+    for error, message, call in cases:
+        with pytest.raises(error, match=message):
+            call()
+    assert pseudo_inertia(params.float()).dtype == torch.float32 and pseudo_inertia(params[:0]).shape == (0, 4, 4)
+
+
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
 def test_parameter_derivatives_with_external_forces(robots, convention):
     """d qdd / d params where external forces act (they move qdd, where Y is evaluated): against central

@@ -22,6 +22,7 @@ import torch
 
 def pseudo_inertia(params: torch.Tensor) -> torch.Tensor:
     """(..., 4, 4): each body's pseudo-inertia J from its parameters (..., 10)."""
+    _checked("pseudo_inertia", "params", params, (10,))
     m, h = params[..., 0], params[..., 1:4]
     xx, xy, yy, xz, yz, zz = params[..., 4:].unbind(-1)
     inertia = torch.stack([torch.stack([xx, xy, xz], -1), torch.stack([xy, yy, yz], -1),
@@ -35,6 +36,7 @@ def pseudo_inertia(params: torch.Tensor) -> torch.Tensor:
 
 def parameters_from_pseudo_inertia(J: torch.Tensor) -> torch.Tensor:
     """(..., 10): the parameters of the pseudo-inertias J (..., 4, 4); I = tr(Sigma) 1 - Sigma."""
+    _checked("parameters_from_pseudo_inertia", "J", J, (4, 4))
     sigma = J[..., :3, :3]
     trace = sigma.diagonal(dim1=-2, dim2=-1).sum(-1, keepdim=True)
     inertia = trace.unsqueeze(-1) * torch.eye(3, dtype=J.dtype, device=J.device) - sigma
@@ -45,6 +47,7 @@ def parameters_from_pseudo_inertia(J: torch.Tensor) -> torch.Tensor:
 def log_cholesky_to_parameters(theta: torch.Tensor) -> torch.Tensor:
     """(..., 10) physically consistent parameters from theta (..., 10) = [alpha, d1, d2, d3, s12, s23, s13,
     t1, t2, t3], any real values (differentiable)."""
+    _checked("log_cholesky_to_parameters", "theta", theta, (10,))
     alpha, d1, d2, d3, s12, s23, s13, t1, t2, t3 = theta.unbind(-1)
     zero, one = torch.zeros_like(alpha), torch.ones_like(alpha)
     U = torch.stack([torch.stack([d1.exp(), s12, s13, t1], -1), torch.stack([zero, d2.exp(), s23, t2], -1),
@@ -57,6 +60,7 @@ def parameters_to_log_cholesky(params: torch.Tensor) -> torch.Tensor:
     """theta (..., 10) with log_cholesky_to_parameters(theta) = params, for parameters (..., 10) whose
     pseudo-inertia is positive definite (a positive mass, an inertia strictly within its triangle
     inequalities); raises ValueError otherwise."""
+    _checked("parameters_to_log_cholesky", "params", params, (10,))
     J = pseudo_inertia(params)
     flip = torch.arange(3, -1, -1, device=params.device)
     L, info = torch.linalg.cholesky_ex(J[..., flip, :][..., :, flip])  # J = U U^T, U upper: flipped Cholesky
@@ -68,6 +72,18 @@ def parameters_to_log_cholesky(params: torch.Tensor) -> torch.Tensor:
     V = U / scale[..., None, None]
     return torch.stack([scale.log(), V[..., 0, 0].log(), V[..., 1, 1].log(), V[..., 2, 2].log(), V[..., 0, 1],
                         V[..., 1, 2], V[..., 0, 2], V[..., 0, 3], V[..., 1, 3], V[..., 2, 3]], -1)
+
+
+def _checked(function: str, name: str, x, trailing: tuple[int, ...]) -> None:
+    """Refuses x unless a float tensor (..., *trailing), naming it (an integer one gave float32 results, a wrong
+    size an unpacking error)."""
+    if not isinstance(x, torch.Tensor):
+        raise TypeError(f"{function}: {name} must be a torch.Tensor, got {type(x).__name__}")
+    if not x.is_floating_point():
+        raise TypeError(f"{function}: {name} must be a float tensor, got {x.dtype}")
+    if tuple(x.shape[max(0, x.dim() - len(trailing)):]) != trailing:
+        want = ", ".join(["..."] + [str(n) for n in trailing])
+        raise ValueError(f"{function}: {name} must have shape ({want}), got {tuple(x.shape)}")
 
 
 def check_physical(params: torch.Tensor, names: Sequence[str], tolerance: float = 1e-10,
