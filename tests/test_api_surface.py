@@ -140,13 +140,17 @@ def test_neutral_configuration_takes_a_batch_shape(robots, convention):
 
 
 @pytest.mark.parametrize("sampler", ["neutral_configuration", "random_configuration"])
-def test_samplers_refuse_a_positional_dtype(robots, sampler):
+def test_samplers_refuse_a_positional_dtype_and_an_integer_one(robots, sampler):
     view = robots["iiwa14"].pin
     with pytest.raises(TypeError, match=rf"{sampler}: batch_shape must be non-negative integers \(dtype=, device= "
                                         r"are keyword arguments\), got torch.float32"):
         getattr(view, sampler)(torch.float32)
     with pytest.raises(TypeError, match=rf"{sampler}: batch_shape must be non-negative integers .*got -1"):
         getattr(view, sampler)(2, -1)
+    # an integer dtype truncated the draws (random_configuration's unit quaternions to zeros)
+    for dtype in (torch.int64, torch.bool):
+        with pytest.raises(TypeError, match=rf"{sampler}: dtype must be torch.float32 or torch.float64, got {dtype}"):
+            getattr(robots["go2"].mujoco, sampler)(2, dtype=dtype)
 
 
 STATUE = """<robot name="statue">

@@ -68,6 +68,7 @@ class ConfigurationFunctions:
             (*batch_shape, nq), every row the same configuration.
         """
         batch_shape = check_batch_shape("neutral_configuration", batch_shape)
+        _check_dtype("neutral_configuration", dtype)
         model = self._robot.model
         q = torch.zeros(*batch_shape, model.nq, dtype=dtype, device=device)
         for joint, qi in zip(model.joints, model.q_index):
@@ -89,6 +90,7 @@ class ConfigurationFunctions:
             (*batch_shape, nq).
         """
         batch_shape = check_batch_shape("random_configuration", batch_shape)
+        _check_dtype("random_configuration", dtype)
         model, cols = self._robot.model, []
         for joint in model.joints:
             if joint.type in ("free", "ball"):
@@ -110,3 +112,10 @@ class ConfigurationFunctions:
         """The coordinates of q that are the robot's own (a coupled mimic joint has none)."""
         coupling = self._robot._coupling
         return q if coupling is None else coupling.reduce_q(q)
+
+
+def _check_dtype(op: str, dtype) -> None:
+    """A sampler's dtype: float32 or float64, as every function takes (an integer dtype truncated the draws, the
+    unit quaternions to zero)."""
+    if dtype not in (torch.float32, torch.float64):
+        raise TypeError(f"{op}: dtype must be torch.float32 or torch.float64, got {dtype}")
