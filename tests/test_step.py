@@ -491,6 +491,28 @@ def test_malformed_dt_is_refused(robots, fn):
             call(q, qd, tau, dt, "rk4")
 
 
+@pytest.mark.parametrize("fn", ["step", "step_derivatives", "step_second_derivatives", "horizon"])
+def test_malformed_f_ext_and_params_are_refused_by_name(robots, fn):
+    """f_ext and params name the entry point, whichever path runs (a Runge-Kutta scheme's derivatives named
+    their kernel, rk_step_derivatives, the composition under autograd forward_dynamics; a list f_ext raised an
+    AttributeError in step_second_derivatives)."""
+    robot = robots["go2"]
+    q, qd, tau = (x.float() for x in _state(robot.pin, robot, 2, 5))
+    call = getattr(robot, fn)
+    f_ext = torch.zeros(2, robot.nbodies, 6)
+    params = robot.inertial_parameters(dtype=torch.float32).reshape(robot.nbodies, 10)
+    for kwargs, error, message in ((dict(f_ext=f_ext.double()), TypeError, "f_ext has dtype torch.float64 but q"),
+                                   (dict(f_ext=f_ext.tolist()), TypeError, "f_ext must be a torch.Tensor, got list"),
+                                   (dict(f_ext=f_ext[..., :5]), ValueError, r"f_ext must have shape \(\.\.\., 13, 6\)"),
+                                   (dict(params=params.double()), TypeError, "params has dtype torch.float64 but q"),
+                                   (dict(params=params.long()), TypeError, "params must be float32 or float64")):
+        for grad in (False, True):
+            if grad and fn == "step_second_derivatives":
+                continue
+            with pytest.raises(error, match=f"^{fn}: {message}"):
+                call(q.clone().requires_grad_(grad), qd, tau, 0.01, "rk4", **kwargs)
+
+
 @pytest.mark.parametrize("convention", ["pin", "mujoco"])
 def test_step_derivatives_under_vmap_and_forward_ad(robots, convention):
     """step_derivatives of every scheme (the torch composition under a transform) on a floating base: vmap

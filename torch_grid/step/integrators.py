@@ -25,7 +25,7 @@ from __future__ import annotations
 import torch
 from torch.autograd import forward_ad
 
-from ..ops.arguments import check_dt, check_tensor
+from ..ops.arguments import check_arguments, check_dt
 from ..ops.levels import dual, kernels_kept_off, transforming
 from ..space.constants import scalar_or_tensor
 from ..space.lie import d_dexp_inverse_blocks, d_integrate_blocks, dexp_inverse, dt_column, tangent_map
@@ -62,7 +62,7 @@ class StepFunctions:
         inverse_dynamics."""
         if params is not None:
             return self._with(params, "step").step(q, qd, tau, dt, integrator, f_ext)
-        _check(self, "step", integrator, q, qd, tau, dt)
+        _check(self, "step", integrator, q, qd, tau, dt, f_ext)
         # one op, not the composition's nodes (the op computes with the robot's own inertial parameters)
         if torch.compiler.is_compiling() and opaque() and self._params is None:
             return compiled_step(self, q, qd, tau, dt, integrator, f_ext)
@@ -103,7 +103,7 @@ class StepFunctions:
     def _step_and_derivatives(self, q, qd, tau, dt, integrator, f_ext, op="step_derivatives"):
         """(q', qd', A, B): step and step_derivatives from one pass over the stages; in one kernel call
         when nothing asks for their derivatives (the kernels have no backward)."""
-        _check(self, op, integrator, q, qd, tau, dt)
+        _check(self, op, integrator, q, qd, tau, dt, f_ext)
         params = self._params  # a view's of with_parameters
         if fused_kernel_runs(self, q, qd, tau, dt, f_ext):
             h = dt_column(dt, qd)
@@ -185,7 +185,7 @@ class StepFunctions:
         and second derivatives and the configuration space's closed forms (rk_hessian.py). params as in step."""
         if params is not None:
             return self._with(params, "step_second_derivatives").step_second_derivatives(q, qd, tau, dt, integrator, f_ext)
-        _check(self, "step_second_derivatives", integrator, q, qd, tau, dt)
+        _check(self, "step_second_derivatives", integrator, q, qd, tau, dt, f_ext)
         if _differentiated(q, qd, tau, dt, f_ext, self._params):
             if transforming():
                 raise NotImplementedError("step_second_derivatives does not run under torch.func transforms (vmap, "
@@ -277,12 +277,14 @@ def _differentiated(*args) -> bool:
     return not torch.compiler.is_compiling() and (transforming() or dual(tensors))
 
 
-def _check(view, op: str, integrator, q, qd, tau, dt) -> None:
-    """The integrator's name, q, qd and tau (before a composition's first op could name itself), and dt."""
+def _check(view, op: str, integrator, q, qd, tau, dt, f_ext) -> None:
+    """The integrator's name, q, qd, tau, f_ext and the view's params (before a composition's first op, or the
+    kernel of a Runge-Kutta scheme's derivatives, could name itself), and dt."""
     if integrator not in INTEGRATORS:
         raise ValueError(f"{op}: integrator must be one of {INTEGRATORS}, got {integrator!r}")
-    for name, x, n in (("q", q, view.nq), ("qd", qd, view.nv), ("tau", tau, view.nv)):
-        check_tensor(op, name, x, (n,), q)
+    nbodies = view.model.nbodies
+    check_arguments(op, [("q", q, (view.nq,)), ("qd", qd, (view.nv,)), ("tau", tau, (view.nv,)),
+                         ("f_ext", f_ext, (nbodies, 6)), ("params", view._params, (nbodies, 10))])
     check_dt(op, dt, q, qd, tau)
 
 
