@@ -447,6 +447,17 @@ def test_conventions_of_a_robot_check_their_arguments(trees):
         cv.congruence_pin_to_mujoco(q, torch.zeros(3, robot.nv, dtype=q.dtype))
     with pytest.raises(ValueError, match=r"columns_pin_to_mujoco: J must be \(\.\.\., rows, nv\)"):
         cv.columns_pin_to_mujoco(q, torch.zeros(robot.nv, dtype=q.dtype))
+    # an argument of another dtype than q_pin's failed inside torch or was promoted (a float64 acceleration
+    # from a float32 velocity), an integer one too
+    v = torch.zeros(robot.nv, dtype=q.dtype)
+    with pytest.raises(TypeError, match=r"a_pin_to_mujoco: v_pin is torch.float32 on cpu, expected q_pin's torch.float64"):
+        cv.a_pin_to_mujoco(q, v.float(), v)
+    with pytest.raises(TypeError, match=r"v_mujoco_to_pin: v is torch.float64 on cpu, expected q_pin's torch.float32"):
+        cv.v_mujoco_to_pin(q.float(), v)
+    with pytest.raises(TypeError, match=r"columns_pin_to_mujoco: J must be a float tensor, got torch.int64"):
+        cv.columns_pin_to_mujoco(q, torch.zeros(6, robot.nv, dtype=torch.long))
+    with pytest.raises(TypeError, match=r"q_mujoco_to_pin: q must be a float tensor, got torch.int64"):
+        cv.q_mujoco_to_pin(q.long())
     for other in ("trees", pin.buildSampleModelManipulator()):  # a pinocchio.Model has joints, not a RobotModel's
         with pytest.raises(TypeError, match=f"expected a Robot, a RobotView or a RobotModel, got {type(other).__name__}"):
             torch_grid.conventions.of(other)

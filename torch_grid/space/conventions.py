@@ -226,39 +226,47 @@ class RobotConversions:
     def a_mujoco_to_pin(self, q_pin: torch.Tensor, v_pin: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
         """qacc (..., nv) -> Pinocchio a (..., nv), at Pinocchio's q_pin and v_pin."""
         q_pin, v_pin = self._state("a_mujoco_to_pin", q_pin, v_pin, "v_pin")
-        return a_mujoco_to_pin(q_pin, v_pin, self._sized("a_mujoco_to_pin", "a", a, "nv"), free=self.free)
+        return a_mujoco_to_pin(q_pin, v_pin, self._sized("a_mujoco_to_pin", "a", a, "nv", q_pin), free=self.free)
 
     def a_pin_to_mujoco(self, q_pin: torch.Tensor, v_pin: torch.Tensor, a_pin: torch.Tensor) -> torch.Tensor:
         """Pinocchio a (..., nv) -> qacc (..., nv), at Pinocchio's q_pin and v_pin."""
         q_pin, v_pin = self._state("a_pin_to_mujoco", q_pin, v_pin, "v_pin")
-        return a_pin_to_mujoco(q_pin, v_pin, self._sized("a_pin_to_mujoco", "a_pin", a_pin, "nv"), free=self.free)
+        return a_pin_to_mujoco(q_pin, v_pin, self._sized("a_pin_to_mujoco", "a_pin", a_pin, "nv", q_pin), free=self.free)
 
     def congruence_pin_to_mujoco(self, q_pin: torch.Tensor, M: torch.Tensor) -> torch.Tensor:
         """(..., nv, nv) G M G^T at Pinocchio's q_pin: the mass matrix and its inverse."""
-        M = self._sized("congruence_pin_to_mujoco", "M", M, "nv")
+        q_pin = self._sized("congruence_pin_to_mujoco", "q_pin", q_pin, "nq")
+        M = self._sized("congruence_pin_to_mujoco", "M", M, "nv", q_pin)
         if M.dim() < 2 or M.shape[-2] != self.nv:
             raise ValueError(f"conventions.of({self.name!r}).congruence_pin_to_mujoco: M must be (..., nv, nv) with "
                              f"nv = {self.nv}, got shape {tuple(M.shape)}")
-        return congruence_pin_to_mujoco(self._sized("congruence_pin_to_mujoco", "q_pin", q_pin, "nq"), M, free=self.free)
+        return congruence_pin_to_mujoco(q_pin, M, free=self.free)
 
     def columns_pin_to_mujoco(self, q_pin: torch.Tensor, J: torch.Tensor) -> torch.Tensor:
         """(..., rows, nv) J G^T at Pinocchio's q_pin: Jacobians, the centroidal map."""
-        J = self._sized("columns_pin_to_mujoco", "J", J, "nv")
+        q_pin = self._sized("columns_pin_to_mujoco", "q_pin", q_pin, "nq")
+        J = self._sized("columns_pin_to_mujoco", "J", J, "nv", q_pin)
         if J.dim() < 2:
             raise ValueError(f"conventions.of({self.name!r}).columns_pin_to_mujoco: J must be (..., rows, nv), got shape "
                              f"{tuple(J.shape)}")
-        return columns_pin_to_mujoco(self._sized("columns_pin_to_mujoco", "q_pin", q_pin, "nq"), J, free=self.free)
+        return columns_pin_to_mujoco(q_pin, J, free=self.free)
 
     def _state(self, function: str, q_pin: torch.Tensor, x: torch.Tensor, name: str = "v"):
-        return self._sized(function, "q_pin", q_pin, "nq"), self._sized(function, name, x, "nv")
+        q_pin = self._sized(function, "q_pin", q_pin, "nq")
+        return q_pin, self._sized(function, name, x, "nv", q_pin)
 
-    def _sized(self, function: str, name: str, x: torch.Tensor, size: str) -> torch.Tensor:
-        """x, whose last dimension must be the robot's `size` ("nq" or "nv")."""
+    def _sized(self, function: str, name: str, x: torch.Tensor, size: str, like: torch.Tensor | None = None) -> torch.Tensor:
+        """x, whose last dimension must be the robot's `size` ("nq" or "nv"), a float tensor of like's dtype and
+        device (torch promoted an integer or mixed argument in some transforms and failed inside others)."""
         n = getattr(self, size)
+        where = f"conventions.of({self.name!r}).{function}: {name}"
         if not isinstance(x, torch.Tensor) or x.dim() == 0 or x.shape[-1] != n:
             got = f"shape {tuple(x.shape)}" if isinstance(x, torch.Tensor) else type(x).__name__
-            raise ValueError(f"conventions.of({self.name!r}).{function}: {name} must have {size} = {n} entries in its "
-                             f"last dimension, got {got}")
+            raise ValueError(f"{where} must have {size} = {n} entries in its last dimension, got {got}")
+        if not x.is_floating_point():
+            raise TypeError(f"{where} must be a float tensor, got {x.dtype}")
+        if like is not None and (x.dtype != like.dtype or x.device != like.device):
+            raise TypeError(f"{where} is {x.dtype} on {x.device}, expected q_pin's {like.dtype} on {like.device}")
         return x
 
     def __repr__(self) -> str:
