@@ -131,6 +131,13 @@ def test_convention_selection(robots):
         (lambda r, q, v: r.osc_inertia(q, "base", "global"), ValueError, ["osc_inertia: reference"]),
         (lambda r, q, v: r.end_effector_pose(q, "FL_foot"), TypeError, ["frames"]),
         (lambda r, q, v: r.end_effector_pose(q, ["FL_foot", 3.5]), TypeError, ["end_effector_pose: frames"]),
+        # the pose derivatives named end_effector_pose, which they call first
+        (lambda r, q, v: r.end_effector_pose_derivatives(q, ["FL_fot"]), ValueError,
+         ["end_effector_pose_derivatives: frames", "FL_foot"]),
+        (lambda r, q, v: r.end_effector_pose_second_derivatives(q.long(), ["FL_foot"]), TypeError,
+         ["end_effector_pose_second_derivatives: q must be float32 or float64"]),
+        (lambda r, q, v: r.end_effector_pose_derivatives(q, []), ValueError,
+         ["end_effector_pose_derivatives: frames must list at least one frame"]),
     ],
 )
 def test_bad_arguments_raise_clear_errors(robots, call, exc, words):

@@ -7,6 +7,7 @@ from typing import Sequence
 import torch
 
 from ..space.rpy import rpy_rate_solve
+from .arguments import check_tensor
 
 
 class PoseDerivatives:
@@ -19,8 +20,7 @@ class PoseDerivatives:
         xyz rows are the LOCAL_WORLD_ALIGNED linear Jacobian rows; rpy rows are E^-1 J_angular with
         E the rpy rate matrix (singular at pitch = +-pi/2, as rpy itself).
         """
-        if isinstance(frames, (str, int)):
-            raise TypeError(f"end_effector_pose_derivatives: frames must be a list of frame names or indices, got {frames!r}")
+        frames = _checked(self, "end_effector_pose_derivatives", q, frames)
         rpy = self.end_effector_pose(q, frames)[..., 3:]
         J = torch.stack([self.frame_jacobian(q, f, "local_world_aligned") for f in frames], dim=-3)
         return torch.cat([J[..., :3, :], rpy_rate_solve(rpy, J[..., 3:, :])], dim=-2)
@@ -30,9 +30,7 @@ class PoseDerivatives:
         [..., r, j, k] = d/dq_k (end_effector_pose_derivatives)[..., r, j]. xyz rows are the linear rows of
         the LOCAL_WORLD_ALIGNED kinematic Hessian; rpy rows differentiate E^-1 J_angular, with E the
         rpy rate matrix: E^-1 (dJ_angular/dq_k - dE/dq_k E^-1 J_angular)."""
-        if isinstance(frames, (str, int)):
-            raise TypeError("end_effector_pose_second_derivatives: frames must be a list of frame names or indices, "
-                            f"got {frames!r}")
+        frames = _checked(self, "end_effector_pose_second_derivatives", q, frames)
         rpy = self.end_effector_pose(q, frames)[..., 3:]
         J = torch.stack([self.frame_jacobian(q, f, "local_world_aligned") for f in frames], dim=-3)
         H = torch.stack([self.frame_kinematic_hessian(q, f, "local_world_aligned") for f in frames], dim=-4)
@@ -50,3 +48,15 @@ class PoseDerivatives:
         nv = J.shape[-1]
         rot = rpy_rate_solve(rpy, inner.flatten(-2)).unflatten(-1, (nv, nv))
         return torch.cat([H[..., :3, :, :], rot], dim=-3)
+
+
+def _checked(view, op: str, q, frames) -> list[int]:
+    """The frames' indices, q and frames refused naming `op` (end_effector_pose, which the derivatives call first,
+    named itself)."""
+    if isinstance(frames, (str, int)):
+        raise TypeError(f"{op}: frames must be a list of frame names or indices, got {frames!r}")
+    check_tensor(op, "q", q, (view.nq,), q)
+    indices = [view._robot.frame_index(f, f"{op}: frames") for f in frames]
+    if not indices:
+        raise ValueError(f"{op}: frames must list at least one frame")
+    return indices
