@@ -46,6 +46,10 @@ def test_horizon_is_the_per_knot_calls(robots):
     assert out["lxu"].shape == (2, 3, 2 * nv, nv) and not out["lxu"].any()
     with pytest.raises(ValueError, match="horizon: costs must name one of"):
         view.horizon(q, qd, tau, 0.02, costs=[("torque_cost", {})])
+    # one (name, kwargs) pair where a list of them is expected raised Python's "too many values to unpack"
+    with pytest.raises(TypeError, match=r"horizon: costs must be a sequence of \(name, keyword arguments\) pairs.*"
+                                        r"got an entry 'control_cost'"):
+        view.horizon(q, qd, tau, 0.02, costs=costs[1])
     # one knot without a batch dimension: the same numbers up to the order of a product's terms (torch's
     # matrix-vector and batched products may sum in different orders: 6e-17 apart on lx on one CPU)
     single = view.horizon(q[0, 0], qd[0, 0], tau[0, 0], 0.02, "rk4", costs)

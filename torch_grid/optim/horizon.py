@@ -5,6 +5,7 @@ step, its derivatives and the costs are batched over it (no Python loop over T).
 """
 from __future__ import annotations
 
+import reprlib
 from typing import Sequence
 
 import torch
@@ -40,7 +41,11 @@ class HorizonFunctions:
         nv, batch = qd.shape[-1], A.shape[:-2]
         zeros = {"cost": (), "lx": (2 * nv,), "lu": (nv,), "lxx": (2 * nv, 2 * nv), "luu": (nv, nv), "lxu": (2 * nv, nv)}
         terms = {k: torch.zeros((*batch, *shape), dtype=qd.dtype, device=qd.device) for k, shape in zeros.items()}
-        for name, kwargs in costs:
+        for entry in costs:
+            if not (isinstance(entry, (tuple, list)) and len(entry) == 2 and isinstance(entry[1], dict)):
+                raise TypeError("horizon: costs must be a sequence of (name, keyword arguments) pairs, such as "
+                                f"[('control_cost', dict(tau_ref=..., weights=...))], got an entry {reprlib.repr(entry)}")
+            name, kwargs = entry
             if name in STATE_COSTS:
                 value, grad, hess = getattr(self, name)(q, qd, **kwargs)
                 keys = ("cost", "lx", "lxx")
