@@ -337,6 +337,10 @@ def test_with_parameters_view(robots):
     assert robot.with_parameters(pi.float()).inertial_parameters().dtype == torch.float32
     assert robot.with_parameters(pi.float()).inertial_parameters(torch.float64).dtype == torch.float64
     assert robot.inertial_parameters().dtype == torch.float64
+    # an integer dtype truncated the parameters (masses of 0 kg)
+    for source in (robot, view):
+        with pytest.raises(TypeError, match="inertial_parameters: dtype must be torch.float32 or torch.float64, got torch.int64"):
+            source.inertial_parameters(torch.int64)
     # composed functions compute with the view's parameters too
     q_next, qd_next = view.step(qm, qd, x, 0.01)  # the step kernel, with the parameters
     assert rel_err(qd_next, qd + 0.01 * view.forward_dynamics(qm, qd, x)) <= 1e-15

@@ -364,6 +364,8 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         c the centre of mass and I the rotational inertia about the joint frame origin, float64 on the CPU
         unless dtype, device say otherwise; on a view of with_parameters, its parameters, (..., 10 nbodies),
         in their own dtype and on their own device unless dtype, device say otherwise."""
+        if dtype is not None and dtype not in (torch.float32, torch.float64):  # an integer dtype truncated them
+            raise TypeError(f"inertial_parameters: dtype must be torch.float32 or torch.float64, got {dtype}")
         if self._params is not None:
             return self._params.flatten(-2).to(dtype=dtype or self._params.dtype, device=device or self._params.device)
         dtype, device = dtype or torch.float64, device or "cpu"
