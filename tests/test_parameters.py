@@ -369,6 +369,11 @@ def test_check_names_the_body(robots):
     robot = robots["iiwa14"]
     pi = own_parameters(robot).clone()
     robot.with_parameters(pi, check=True)
+    # an empty batch has nothing to refuse (it failed in a min() of nothing); an integer set is refused by its
+    # dtype (check=True read its truncated masses and blamed a joint that moves no mass)
+    robot.with_parameters(pi.expand(0, *pi.shape), check=True)
+    with pytest.raises(TypeError, match="with_parameters: params must be float32 or float64, got torch.int64"):
+        robot.with_parameters(pi.long(), check=True)
     bad = pi.clone()
     bad[3, 0] = -1.0
     with pytest.raises(ValueError, match=f"body 3 \\({robot.joint_names[3]!r}\\) has a negative mass"):

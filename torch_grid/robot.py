@@ -405,6 +405,8 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
         if not isinstance(params, torch.Tensor) or params.dim() < 2 or tuple(params.shape[-2:]) != (nbodies, 10):
             shape = tuple(params.shape) if isinstance(params, torch.Tensor) else type(params).__name__
             raise ValueError(f"{function}: params must be a tensor of shape (..., {nbodies}, 10), got {shape}")
+        if params.dtype not in (torch.float32, torch.float64):  # check=True read truncated masses
+            raise TypeError(f"{function}: params must be float32 or float64, got {params.dtype}")
         return RobotView(self._robot, self._convention, params)
 
     def _parameters(self, params: torch.Tensor | None) -> torch.Tensor | None:

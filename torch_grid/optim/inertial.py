@@ -110,7 +110,8 @@ def check_physical(params: torch.Tensor, names: Sequence[str], tolerance: float 
         if bool(((mass == 0) & (p[..., body, 1:] != 0).any(-1)).any()):
             raise ValueError(f"{op}: params: body {body} ({name!r}) has no mass but a first moment or a rotational "
                              "inertia, which only mass can have")
-        worst = (eigenvalues[..., body, 0] / scale[..., body]).min()
+        ratios = eigenvalues[..., body, 0] / scale[..., body]
+        worst = ratios.min() if ratios.numel() else 0.0  # an empty batch has nothing to refuse
         if float(worst) < -tolerance:
             raise ValueError(f"{op}: params: body {body} ({name!r}) is not physically consistent: its pseudo-inertia "
                              f"has a negative eigenvalue ({float(worst):.3g} of its largest entry), so its "
