@@ -25,7 +25,7 @@ from __future__ import annotations
 import torch
 from torch.autograd import forward_ad
 
-from ..ops.arguments import check_arguments, check_dt
+from ..ops.arguments import check_dt, check_tensor
 from ..ops.levels import dual, kernels_kept_off, transforming
 from ..space.constants import scalar_or_tensor
 from ..space.lie import d_dexp_inverse_blocks, d_integrate_blocks, dexp_inverse, dt_column, tangent_map
@@ -282,9 +282,11 @@ def _check(view, op: str, integrator, q, qd, tau, dt, f_ext) -> None:
     kernel of a Runge-Kutta scheme's derivatives, could name itself), and dt."""
     if integrator not in INTEGRATORS:
         raise ValueError(f"{op}: integrator must be one of {INTEGRATORS}, got {integrator!r}")
-    nbodies = view.model.nbodies
-    check_arguments(op, [("q", q, (view.nq,)), ("qd", qd, (view.nv,)), ("tau", tau, (view.nv,)),
-                         ("f_ext", f_ext, (nbodies, 6)), ("params", view._params, (nbodies, 10))])
+    for name, x, n in (("q", q, view.nq), ("qd", qd, view.nv), ("tau", tau, view.nv)):
+        check_tensor(op, name, x, (n,), q)
+    for name, x, n in (("f_ext", f_ext, 6), ("params", view._params, 10)):
+        if x is not None:
+            check_tensor(op, name, x, (view.model.nbodies, n), q)
     check_dt(op, dt, q, qd, tau)
 
 
