@@ -493,9 +493,9 @@ def test_malformed_dt_is_refused(robots, fn):
 
 @pytest.mark.parametrize("fn", ["step", "step_derivatives", "step_second_derivatives", "horizon"])
 def test_malformed_f_ext_and_params_are_refused_by_name(robots, fn):
-    """f_ext and params name the entry point, whichever path runs (a Runge-Kutta scheme's derivatives named
-    their kernel, rk_step_derivatives, the composition under autograd forward_dynamics; a list f_ext raised an
-    AttributeError in step_second_derivatives)."""
+    """f_ext and params, and a batch of them that does not broadcast, name the entry point, whichever path runs (a
+    Runge-Kutta scheme's derivatives named their kernel, rk_step_derivatives, the composition under autograd
+    forward_dynamics; a list f_ext raised an AttributeError in step_second_derivatives)."""
     robot = robots["go2"]
     q, qd, tau = (x.float() for x in _state(robot.pin, robot, 2, 5))
     call = getattr(robot, fn)
@@ -505,7 +505,9 @@ def test_malformed_f_ext_and_params_are_refused_by_name(robots, fn):
                                    (dict(f_ext=f_ext.tolist()), TypeError, "f_ext must be a torch.Tensor, got list"),
                                    (dict(f_ext=f_ext[..., :5]), ValueError, r"f_ext must have shape \(\.\.\., 13, 6\)"),
                                    (dict(params=params.double()), TypeError, "params has dtype torch.float64 but q"),
-                                   (dict(params=params.long()), TypeError, "params must be float32 or float64")):
+                                   (dict(params=params.long()), TypeError, "params must be float32 or float64"),
+                                   (dict(f_ext=f_ext[:1].expand(3, -1, -1)), ValueError,
+                                    r"the batch shapes do not broadcast: q \(2,\), qd \(2,\), tau \(2,\), dt \(\), f_ext \(3,\)")):
         for grad in (False, True):
             if grad and fn == "step_second_derivatives":
                 continue

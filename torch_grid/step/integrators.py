@@ -210,16 +210,23 @@ def _flattened(op: str, q, qd, tau, dt, f_ext, params=None) -> tuple[torch.Size,
     dimension); dt becomes a (n,) tensor, an absent f_ext or params stays None. The inertial parameters'
     batch is part of the samples' (one set per sample, or shared)."""
     dt = scalar_or_tensor(dt, qd.dtype, qd.device)
-    shapes = [q.shape[:-1], qd.shape[:-1], tau.shape[:-1], dt.shape] + [x.shape[:-2] for x in (f_ext, params) if x is not None]
+    batch = _broadcast(op, q, qd, tau, dt, f_ext, params)
+    n = batch.numel()
+    return batch, [None if x is None else x.expand(batch + x.shape[x.dim() - k:]).reshape(n, *x.shape[x.dim() - k:])
+                   for x, k in ((q, 1), (qd, 1), (tau, 1), (dt, 0), (f_ext, 2), (params, 2))]
+
+
+def _broadcast(op: str, q, qd, tau, dt, f_ext, params) -> torch.Size:
+    """The batch shape of a step's arguments (dt a number or a tensor), refused naming op and every shape where
+    they do not broadcast."""
+    shapes = [q.shape[:-1], qd.shape[:-1], tau.shape[:-1], dt.shape if isinstance(dt, torch.Tensor) else ()]
+    shapes += [x.shape[:-2] for x in (f_ext, params) if x is not None]
     try:
-        batch = torch.broadcast_shapes(*shapes)
+        return torch.broadcast_shapes(*shapes)
     except RuntimeError:
         names = ["q", "qd", "tau", "dt"] + [n for n, x in (("f_ext", f_ext), ("params", params)) if x is not None]
         raise ValueError(f"{op}: the batch shapes do not broadcast: "
                          + ", ".join(f"{n} {tuple(b)}" for n, b in zip(names, shapes))) from None
-    n = batch.numel()
-    return batch, [None if x is None else x.expand(batch + x.shape[x.dim() - k:]).reshape(n, *x.shape[x.dim() - k:])
-                   for x, k in ((q, 1), (qd, 1), (tau, 1), (dt, 0), (f_ext, 2), (params, 2))]
 
 
 def _in_chunks(op: str, fn, q, qd, tau, dt, f_ext, params):
@@ -278,15 +285,19 @@ def _differentiated(*args) -> bool:
 
 
 def _check(view, op: str, integrator, q, qd, tau, dt, f_ext) -> None:
-    """The integrator's name, q, qd, tau, f_ext and the view's params (before a composition's first op, or the
-    kernel of a Runge-Kutta scheme's derivatives, could name itself), and dt."""
+    """The integrator's name, q, qd, tau, f_ext and the view's params, dt, and their batch shapes (before a
+    composition's first op, or the kernel of a Runge-Kutta scheme's derivatives, could name itself)."""
     if integrator not in INTEGRATORS:
         raise ValueError(f"{op}: integrator must be one of {INTEGRATORS}, got {integrator!r}")
     for name, x, n in (("q", q, view.nq), ("qd", qd, view.nv), ("tau", tau, view.nv)):
         check_tensor(op, name, x, (n,), q)
-    for name, x, n in (("f_ext", f_ext, 6), ("params", view._params, 10)):
+    params, batch = view._params, q.shape[:-1]
+    for name, x, n in (("f_ext", f_ext, 6), ("params", params, 10)):
         if x is not None:
             check_tensor(op, name, x, (view.model.nbodies, n), q)
+    if (qd.shape[:-1] != batch or tau.shape[:-1] != batch or (f_ext is not None and f_ext.shape[:-2] != batch)
+            or (params is not None and params.shape[:-2] != batch)):  # broadcast (tens of µs) only where they differ
+        _broadcast(op, q, qd, tau, dt, f_ext, params)
     check_dt(op, dt, q, qd, tau)
 
 
