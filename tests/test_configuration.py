@@ -200,6 +200,13 @@ def test_robot_methods(robots):
         robot.difference(q, q1.float())
     with pytest.raises(TypeError, match="dt must be a number or a tensor"):
         robot.integrate(q, v, "0.1")
+    # batches that do not broadcast: named here, whichever path runs (a tensor dt was blamed, and under autograd
+    # the Jacobians' composition raised torch's own error)
+    for grad in (False, True):
+        with pytest.raises(ValueError, match=r"^d_integrate: the leading batch shapes do not broadcast: q \(4,\), v \(2,\)"):
+            robot.d_integrate(q.clone().requires_grad_(grad), v[0, :, :].expand(2, -1), torch.tensor(0.1, dtype=torch.float64))
+        with pytest.raises(ValueError, match=r"^d_difference: the leading batch shapes do not broadcast: q0 \(4,\), q1 \(2,\)"):
+            robot.d_difference(q.clone().requires_grad_(grad), q1[:2])
 
 
 @pytest.mark.parametrize("name", ["go2", "trees"])

@@ -51,8 +51,15 @@ class ConfigurationFunctions:
     def _configuration_checked(self, op: str, q: torch.Tensor, x: torch.Tensor, dt=1.0) -> tuple[torch.Tensor, torch.Tensor]:
         space = self._robot._space
         second = ("v", (space.nv,)) if op.endswith("integrate") else ("q1", (space.nq,))
-        check_tensor(op, "q0" if second[0] == "q1" else "q", q, (space.nq,), q)
+        first = "q0" if second[0] == "q1" else "q"
+        check_tensor(op, first, q, (space.nq,), q)
         check_tensor(op, second[0], x, second[1], q)
+        if q.shape[:-1] != x.shape[:-1]:  # named here (dt's check, or a composition's op under autograd, blamed others)
+            try:
+                torch.broadcast_shapes(q.shape[:-1], x.shape[:-1])
+            except RuntimeError:
+                raise ValueError(f"{op}: the leading batch shapes do not broadcast: {first} {tuple(q.shape[:-1])}, "
+                                 f"{second[0]} {tuple(x.shape[:-1])}") from None
         check_dt(op, dt, q, x)
         return q, x
 
