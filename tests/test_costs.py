@@ -236,3 +236,25 @@ def test_states_controls_and_x_of_another_size_or_dtype_are_refused_naming_them(
     for error, message, call in cases:
         with pytest.raises(error, match=message):
             call()
+
+
+def test_batches_that_do_not_broadcast_are_refused_naming_every_argument(robots):
+    # torch's broadcasting errors named none of the arguments, or an inner function (difference, ccrba) did
+    robot = robots["go2"]
+    view, nv, frame = robot.pin, robot.nv, robot.nframes - 1
+    q, qd = view.random_configuration(3), torch.zeros(3, nv, dtype=torch.float64)
+    ones = lambda *shape: torch.ones(*shape, dtype=torch.float64)  # noqa: E731
+    cases = [
+        (r"state_cost: the batch shapes do not broadcast: q \(3,\), qd \(3,\), weights \(\), q_ref \(2,\), qd_ref \(3,\)",
+         lambda: view.state_cost(q, qd, q[:2], qd, ones(2 * nv))),
+        (r"frame_placement_cost: the batch shapes do not broadcast: q \(3,\), qd \(3,\), target \(2,\), weights \(\)",
+         lambda: view.frame_placement_cost(q, qd, frame, torch.eye(4, dtype=torch.float64).expand(2, 4, 4), ones(6))),
+        (r"com_cost: the batch shapes do not broadcast: .* weights \(2,\)", lambda: view.com_cost(q, qd, ones(3), ones(2, 3))),
+        (r"momentum_cost: the batch shapes do not broadcast: q \(3,\), qd \(2,\)",
+         lambda: view.momentum_cost(q, qd[:2], ones(6), ones(6))),
+        (r"control_cost: the batch shapes do not broadcast: tau \(3,\), tau_ref \(2,\), weights \(\)",
+         lambda: view.control_cost(qd, ones(2, nv), ones(nv))),
+    ]
+    for message, call in cases:
+        with pytest.raises(ValueError, match=message):
+            call()

@@ -24,10 +24,9 @@ class CostFunctions:
     def state_cost(self, q, qd, q_ref, qd_ref, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = [difference(q_ref, q); qd - qd_ref], weights (..., 2 nv). Returns (value (...,), gradient
         (..., 2 nv), Gauss-Newton Hessian (..., 2 nv, 2 nv)), as every state cost."""
-        nv = _state("state_cost", self, q, qd)
-        w = _checked_weights("state_cost", weights, 2 * nv, qd)
-        _checked("state_cost", "q_ref", q_ref, (q.shape[-1],), q)
-        _checked("state_cost", "qd_ref", qd_ref, (nv,), qd)
+        nv = self.nv
+        w, q_ref, qd_ref = _arguments("state_cost", self, q, qd, ("weights", weights, (2 * nv,)),
+                                      ("q_ref", q_ref, (self.nq,)), ("qd_ref", qd_ref, (nv,)))
         r_q, r_v = self.difference(q_ref, q), qd - qd_ref
         j_q = self.d_difference(q_ref, q)[1]
         # J = [[j_q, 0], [0, I]]: its blocks apart (the dense 2 nv product costs 8x the q block's)
@@ -42,24 +41,25 @@ class CostFunctions:
         # the robot's nv (a bare CostFunctions, without a robot: tau's own size)
         nv = getattr(self, "nv", tau.shape[-1] if isinstance(tau, torch.Tensor) and tau.dim() else 0)
         check_tensor("control_cost", "tau", tau, (nv,), tau)
-        r = tau - _checked("control_cost", "tau_ref", tau_ref, (nv,), tau)
-        return _diagonal(r, _checked_weights("control_cost", weights, r.shape[-1], tau))
+        tau_ref = _checked("control_cost", "tau_ref", tau_ref, (nv,), tau)
+        weights = _checked_weights("control_cost", weights, nv, tau)
+        _broadcast("control_cost", [("tau", tau, 1), ("tau_ref", tau_ref, 1), ("weights", weights, 1)])
+        return _diagonal(tau - tau_ref, weights)
 
     def frame_translation_cost(self, q, qd, frame, target, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = the frame's world position - target (..., 3), weights (..., 3)."""
-        _state("frame_translation_cost", self, q, qd)
+        target, weights = _arguments("frame_translation_cost", self, q, qd, ("target", target, (3,)),
+                                     ("weights", weights, (3,)))
         index = self._robot.frame_index(frame, "frame_translation_cost: frame")
         position = self.forward_kinematics(q)[0][..., index, :]
         jacobian = self.frame_jacobian(q, index, "local_world_aligned")[..., :3, :]
-        target = _checked("frame_translation_cost", "target", target, (3,), q)
-        return _weighted(position - target, _state_rows(jacobian, qd),
-                         _checked_weights("frame_translation_cost", weights, 3, q))
+        return _weighted(position - target, _state_rows(jacobian, qd), weights)
 
     def frame_placement_cost(self, q, qd, frame, target, weights) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = log6(target^-1 oMf) [linear; angular] (Crocoddyl's ResidualModelFramePlacement), target a
         (..., 4, 4) placement, weights (..., 6); J = Jlog6(target^-1 oMf) J_frame(LOCAL)."""
-        _state("frame_placement_cost", self, q, qd)
-        target = _checked("frame_placement_cost", "target", target, (4, 4), q)
+        target, weights = _arguments("frame_placement_cost", self, q, qd, ("target", target, (4, 4)),
+                                     ("weights", weights, (6,)))
         index = self._robot.frame_index(frame, "frame_placement_cost: frame")
         positions, rotations = self.forward_kinematics(q)
         R, p = rotations[..., index, :, :], positions[..., index, :]
@@ -69,23 +69,21 @@ class CostFunctions:
         p_rel = R_ref.mT @ (p - p_ref).unsqueeze(-1)
         r = torch.cat([(left_jacobian_inverse(w) @ p_rel).squeeze(-1), w], dim=-1)
         jacobian = dexp_inverse_block("free", r, 0) @ self.frame_jacobian(q, index, "local")
-        return _weighted(r, _state_rows(jacobian, qd), _checked_weights("frame_placement_cost", weights, 6, q))
+        return _weighted(r, _state_rows(jacobian, qd), weights)
 
     def com_cost(self, q, qd, target, weights, params=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = center of mass - target (..., 3), weights (..., 3); params as in inverse_dynamics."""
-        _state("com_cost", self, q, qd)
-        target = _checked("com_cost", "target", target, (3,), q)
-        return _weighted(self.com(q, params) - target, _state_rows(self.jacobian_com(q, params), qd),
-                         _checked_weights("com_cost", weights, 3, q))
+        target, weights = _arguments("com_cost", self, q, qd, ("target", target, (3,)), ("weights", weights, (3,)),
+                                     *_params(self, params))[:2]
+        return _weighted(self.com(q, params) - target, _state_rows(self.jacobian_com(q, params), qd), weights)
 
     def momentum_cost(self, q, qd, target, weights, params=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """r = centroidal momentum h(q, qd) [linear; angular] - target (..., 6), weights (..., 6): both its q
         block (dccrba) and its qd block (A); params as in inverse_dynamics."""
-        _state("momentum_cost", self, q, qd)
-        target = _checked("momentum_cost", "target", target, (6,), q)
+        target, weights = _arguments("momentum_cost", self, q, qd, ("target", target, (6,)),
+                                     ("weights", weights, (6,)), *_params(self, params))[:2]
         A, h = self.ccrba(q, qd, params)
-        return _weighted(h - target, torch.cat([self.dccrba(q, qd, params), A], dim=-1),
-                         _checked_weights("momentum_cost", weights, 6, q))
+        return _weighted(h - target, torch.cat([self.dccrba(q, qd, params), A], dim=-1), weights)
 
 
 def quadratic_barrier(x: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, weights: torch.Tensor):
@@ -137,12 +135,32 @@ def _state_rows(jacobian: torch.Tensor, qd: torch.Tensor) -> torch.Tensor:
     return torch.cat([jacobian, torch.zeros_like(jacobian)], dim=-1)
 
 
-def _state(cost: str, view, q, qd) -> int:
-    """The robot's nv, q (..., nq) and qd (..., nv) refused by name unless float tensors of one dtype and device
-    (a cost reads qd's size and batch, and the frame, com and momentum costs nothing else of it)."""
+def _arguments(cost: str, view, q, qd, *named) -> list[torch.Tensor]:
+    """The tensors of named (name, tensor, trailing shape), refused by name unless of that shape and q's dtype and
+    device, after q (..., nq) and qd (..., nv) (the frame, com and momentum costs read qd's batch alone), and
+    where the batch shapes of them all do not broadcast."""
     check_tensor(cost, "q", q, (view.nq,), q)
     check_tensor(cost, "qd", qd, (view.nv,), q)
-    return view.nv
+    tensors = [_checked(cost, name, x, shape, q) for name, x, shape in named]
+    _broadcast(cost, [("q", q, 1), ("qd", qd, 1)] + [(name, x, len(shape)) for (name, _, shape), x in zip(named, tensors)])
+    return tensors
+
+
+def _params(view, params) -> list:
+    """A cost's params as one of _arguments' named tensors (none when absent)."""
+    return [] if params is None else [("params", params, (view.model.nbodies, 10))]
+
+
+def _broadcast(cost: str, named) -> None:
+    """Refuses (name, tensor, number of trailing dimensions) whose batch shapes do not broadcast, naming each
+    (torch's own error, or an inner function's, named none of them)."""
+    shapes = [(name, tuple(x.shape[:x.dim() - k])) for name, x, k in named]
+    if any(shape != shapes[0][1] for _, shape in shapes):
+        try:
+            torch.broadcast_shapes(*(shape for _, shape in shapes))
+        except RuntimeError:
+            raise ValueError(f"{cost}: the batch shapes do not broadcast: "
+                             + ", ".join(f"{name} {shape}" for name, shape in shapes)) from None
 
 
 def _checked_weights(cost: str, weights, n: int, like: torch.Tensor) -> torch.Tensor:
