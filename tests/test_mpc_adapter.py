@@ -37,6 +37,16 @@ def test_grad_input_has_a_backward(robots):
     assert torch.autograd.gradcheck(lambda x, u: dyn.grad_input(x, u), (x, u))
 
 
+def test_a_state_of_another_size_is_refused_naming_x(robots):
+    # one entry short was reported as step's qd (..., 7), an argument the caller never passed
+    robot = robots["iiwa14"]
+    dyn = MPCDynamics(robot.pin, 0.05)
+    x, u = torch.zeros(2, robot.nq + robot.nv - 1, dtype=torch.float64), torch.zeros(2, robot.nv, dtype=torch.float64)
+    for method in ("forward", "grad_input"):
+        with pytest.raises(ValueError, match=rf"MPCDynamics.{method}: x must have shape \(\.\.\., nq \+ nv = 14\), got \(2, 13\)"):
+            getattr(dyn, method)(x, u)
+
+
 def test_mpc_pytorch_solve_and_gradients_match_autodiff(robots):
     """A joint-space goal for two iiwa14 arms over 10 knots: the solution and d(final q)/d(goal) with
     ANALYTIC (our R, S and their backward) against AUTO_DIFF (autograd through forward)."""

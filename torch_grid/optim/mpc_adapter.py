@@ -28,12 +28,12 @@ class MPCDynamics(torch.nn.Module):
 
     def forward(self, x: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         """(..., nq + nv): the next state."""
-        q, qd = x[..., :self.nq], x[..., self.nq:]
+        q, qd = self._split("forward", x)
         return torch.cat(self.view.step(q, qd, u, self.dt, self.integrator), dim=-1)
 
     def grad_input(self, x: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(R (..., n, n), S (..., n, nv)), n = nq + nv: the Jacobians of forward in x's coordinates."""
-        q, qd = x[..., :self.nq], x[..., self.nq:]
+        q, qd = self._split("grad_input", x)
         q_next, _, A, B = self.view._step_and_derivatives(q, qd, u, self.dt, self.integrator, None)
         out, into = chart_maps(self.view, q_next)[0], chart_maps(self.view, q)[1]
         nv = self.nv
@@ -41,6 +41,14 @@ class MPCDynamics(torch.nn.Module):
                        torch.cat([A[..., nv:, :nv] @ into, A[..., nv:, nv:]], dim=-1)], dim=-2)
         S = torch.cat([out @ B[..., :nv, :], B[..., nv:, :]], dim=-2)
         return R, S
+
+    def _split(self, method: str, x) -> tuple[torch.Tensor, torch.Tensor]:
+        """(q, qd) of x (..., nq + nv), refused by name otherwise (a wrong size was reported as step's qd)."""
+        n = self.nq + self.nv
+        if not isinstance(x, torch.Tensor) or x.dim() == 0 or x.shape[-1] != n:
+            got = tuple(x.shape) if isinstance(x, torch.Tensor) else type(x).__name__
+            raise ValueError(f"MPCDynamics.{method}: x must have shape (..., nq + nv = {n}), got {got}")
+        return x[..., :self.nq], x[..., self.nq:]
 
 
 def chart_maps(view, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
