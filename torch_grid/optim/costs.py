@@ -155,7 +155,7 @@ def _broadcast(cost: str, named) -> None:
     """Refuses (name, tensor, number of trailing dimensions) whose batch shapes do not broadcast, naming each
     (torch's own error, or an inner function's, named none of them)."""
     shapes = [(name, tuple(x.shape[:x.dim() - k])) for name, x, k in named]
-    if any(shape != shapes[0][1] for _, shape in shapes):
+    if len({shape for _, shape in shapes if shape}) > 1:  # one batch shape beside unbatched ones broadcasts
         try:
             torch.broadcast_shapes(*(shape for _, shape in shapes))
         except RuntimeError:
