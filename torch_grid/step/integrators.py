@@ -291,12 +291,12 @@ def _check(view, op: str, integrator, q, qd, tau, dt, f_ext) -> None:
         raise ValueError(f"{op}: integrator must be one of {INTEGRATORS}, got {integrator!r}")
     for name, x, n in (("q", q, view.nq), ("qd", qd, view.nv), ("tau", tau, view.nv)):
         check_tensor(op, name, x, (n,), q)
-    params, batch = view._params, q.shape[:-1]
+    params = view._params
     for name, x, n in (("f_ext", f_ext, 6), ("params", params, 10)):
         if x is not None:
             check_tensor(op, name, x, (view.model.nbodies, n), q)
-    if (qd.shape[:-1] != batch or tau.shape[:-1] != batch or (f_ext is not None and f_ext.shape[:-2] != batch)
-            or (params is not None and params.shape[:-2] != batch)):  # broadcast (tens of µs) only where they differ
+    batches = {x.shape[:x.dim() - k] for x, k in ((q, 1), (qd, 1), (tau, 1), (f_ext, 2), (params, 2)) if x is not None}
+    if len(batches - {torch.Size()}) > 1:  # broadcast (10 µs) only where two batched shapes differ
         _broadcast(op, q, qd, tau, dt, f_ext, params)
     check_dt(op, dt, q, qd, tau)
 
