@@ -155,7 +155,8 @@ def _broadcast(cost: str, named) -> None:
     """Refuses (name, tensor, number of trailing dimensions) whose batch shapes do not broadcast, naming each
     (torch's own error, or an inner function's, named none of them)."""
     shapes = [(name, tuple(x.shape[:x.dim() - k])) for name, x, k in named]
-    if len({shape for _, shape in shapes if shape}) > 1:  # one batch shape beside unbatched ones broadcasts
+    batched = [shape for _, shape in shapes if shape]
+    if any(shape != batched[0] for shape in batched[1:]):  # one batch shape beside unbatched ones broadcasts
         try:
             torch.broadcast_shapes(*(shape for _, shape in shapes))
         except RuntimeError:

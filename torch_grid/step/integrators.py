@@ -295,8 +295,9 @@ def _check(view, op: str, integrator, q, qd, tau, dt, f_ext) -> None:
     for name, x, n in (("f_ext", f_ext, 6), ("params", params, 10)):
         if x is not None:
             check_tensor(op, name, x, (view.model.nbodies, n), q)
-    batches = {x.shape[:x.dim() - k] for x, k in ((q, 1), (qd, 1), (tau, 1), (f_ext, 2), (params, 2)) if x is not None}
-    if len(batches - {torch.Size()}) > 1:  # broadcast (10 µs) only where two batched shapes differ
+    batched = [x.shape[:x.dim() - k] for x, k in ((q, 1), (qd, 1), (tau, 1), (f_ext, 2), (params, 2))
+               if x is not None and x.dim() > k]
+    if any(shape != batched[0] for shape in batched[1:]):  # broadcast (10 µs) only where two batched shapes differ
         _broadcast(op, q, qd, tau, dt, f_ext, params)
     check_dt(op, dt, q, qd, tau)
 
