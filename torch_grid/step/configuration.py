@@ -10,7 +10,7 @@ import math
 
 import torch
 
-from ..ops.arguments import check_batch_shape, check_dt, check_tensor
+from ..ops.arguments import check_arguments, check_batch_shape, check_dt
 from ..space import lie
 from .integrators import differentiable_kernel_runs, fused_kernel_runs
 
@@ -51,15 +51,8 @@ class ConfigurationFunctions:
     def _configuration_checked(self, op: str, q: torch.Tensor, x: torch.Tensor, dt=1.0) -> tuple[torch.Tensor, torch.Tensor]:
         space = self._robot._space
         second = ("v", (space.nv,)) if op.endswith("integrate") else ("q1", (space.nq,))
-        first = "q0" if second[0] == "q1" else "q"
-        check_tensor(op, first, q, (space.nq,), q)
-        check_tensor(op, second[0], x, second[1], q)
-        if q.dim() > 1 and x.dim() > 1 and q.shape[:-1] != x.shape[:-1]:  # named here (dt's check, or torch, blamed others)
-            try:
-                torch.broadcast_shapes(q.shape[:-1], x.shape[:-1])
-            except RuntimeError:
-                raise ValueError(f"{op}: the leading batch shapes do not broadcast: {first} {tuple(q.shape[:-1])}, "
-                                 f"{second[0]} {tuple(x.shape[:-1])}") from None
+        # their batch shapes named here, before dt's check (or torch) could blame another argument
+        check_arguments(op, [("q0" if second[0] == "q1" else "q", q, (space.nq,)), (second[0], x, second[1])])
         check_dt(op, dt, q, x)
         return q, x
 
