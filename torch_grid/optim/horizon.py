@@ -57,8 +57,7 @@ class HorizonFunctions:
             for key, x in zip(keys, (value, grad, hess)):
                 terms[key] = terms[key] + x
         # every output on one batch shape: a cost's references or weights may carry a batch beyond the states'
-        trailing = {"q_next": 1, "qd_next": 1, "A": 2, "B": 2, "H": 3, "cost": 0, "lx": 1, "lu": 1, "lxx": 2,
-                    "luu": 2, "lxu": 2}
+        trailing = {"q_next": 1, "qd_next": 1, "A": 2, "B": 2, "H": 3, **{k: len(shape) for k, shape in zeros.items()}}
         result = {**out, **terms}
         shape = torch.broadcast_shapes(*(x.shape[:x.dim() - trailing[k]] for k, x in result.items()))
         return {k: x.expand((*shape, *x.shape[x.dim() - trailing[k]:])) for k, x in result.items()}
