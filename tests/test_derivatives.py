@@ -259,13 +259,21 @@ def test_coriolis_matrix_vs_pinocchio(robots, pin_models, name):
 
 
 @pytest.mark.parametrize("name", FLOATING)
-def test_mujoco_coriolis_matrix_gives_bias_force(robots, mj_sims, name):
+def test_mujoco_coriolis_matrix_gives_bias_force_and_skew_rate(robots, mj_sims, name):
     robot, sim = robots[name], mj_sims[name]
     q, qd, _, _ = _states(robot, batch=2, seed=17, convention="mujoco")
     bias = robot.mujoco.coriolis_matrix(q, qd) @ qd.unsqueeze(-1)
     bias = bias.squeeze(-1) + robot.mujoco.generalized_gravity(q)
     for b in range(2):
         assert rel_err(bias[b], sim.qfrc_bias(q[b].numpy(), qd[b].numpy())) <= 1e-9
+    # dM/dt - 2 C is skew-symmetric, dM/dt by central differences of mj_fullM along mj_integratePos
+    qpos, v, h = q[0].numpy(), qd[0].numpy(), 1e-6
+    moved = [qpos.copy(), qpos.copy()]
+    for x, step in zip(moved, (h, -h)):
+        mujoco.mj_integratePos(sim.m, x, v, step)
+    Mdot = (sim.full_m(moved[0]) - sim.full_m(moved[1])) / (2 * h)
+    N = Mdot - 2 * robot.mujoco.coriolis_matrix(q[0], qd[0]).numpy()
+    assert np.abs(N + N.T).max() <= 1e-6 * np.abs(Mdot).max()
 
 
 # --------------------------------------------------------------------------------------------

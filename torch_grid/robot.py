@@ -327,8 +327,9 @@ class _Functions(ConfigurationFunctions, StepFunctions, CostFunctions, HorizonFu
 
     def coriolis_matrix(self, q, qd, params=None) -> torch.Tensor:
         """C (..., nv, nv) with C qd + g = nonlinear_effects: Pinocchio's computeCoriolisMatrix (dM/dt - 2C
-        skew-symmetric). In MuJoCo's convention C = G (C_pin G^T + M K), K qd the base acceleration
-        MuJoCo's qacc = 0 means, so that C qd + g is MuJoCo's bias force. params as in inverse_dynamics."""
+        skew-symmetric). In MuJoCo's convention C = G (C_pin G^T + M K) with K = d(G^T)/dt (G maps Pinocchio's
+        velocities to MuJoCo's), so that C qd + g is MuJoCo's bias force and dM/dt - 2C is skew-symmetric there
+        too. params as in inverse_dynamics."""
         return dispatch(self, "coriolis_matrix", q, qd, self._parameters(params))
 
     def inverse_dynamics_regressor(self, q, qd, qdd) -> torch.Tensor:

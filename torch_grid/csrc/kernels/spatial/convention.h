@@ -132,17 +132,21 @@ template <class Robot, class Scalar, int C> struct Conv {
       }
     }
   }
-  // Coriolis matrix out: C_mujoco = G (C G^T + M K) with K qd = [v_lin x w; 0] per free joint, Pinocchio's
-  // acceleration at MuJoCo's qacc = 0, so that C_mujoco qd + g_mujoco = MuJoCo's bias force; Mb as below.
+  // Coriolis matrix out: C_mujoco = G (C G^T + M K) with K = d(G^T)/dt, whose free-joint linear block is
+  // d(R^T)/dt = -[w]x R^T. K qd = [v_lin x w; 0] is Pinocchio's acceleration at MuJoCo's qacc = 0, so
+  // C_mujoco qd + g_mujoco = MuJoCo's bias force, and dM_mujoco/dt = C_mujoco + C_mujoco^T as
+  // Pinocchio's dM/dt = C + C^T (M_mujoco = G M G^T); Mb as below.
   TG_HD void coriolis_out(const Scalar* v, const Scalar* Mb, Scalar* Cq) const {
     if constexpr (active) {
       columns_out(Cq, Robot::NV);
       for (int f = 0; f < Robot::NFREE; ++f) {
         const int b = vi[f];
-        const Vec3<Scalar> vl = load3(v + b);
+        const Vec3<Scalar> w = load3(v + b + 3);
+        Vec3<Scalar> k[3];  // K's columns: (R^T e_c) x w
+        for (int c = 0; c < 3; ++c) k[c] = cross(mulT(R[f], unit3<Scalar>(c)), w);
         for (int r = 0; r < Robot::NV; ++r) {
           const Vec3<Scalar> m = load3(Mb + NB3 * r + 3 * f);
-          for (int c = 0; c < 3; ++c) Cq[Robot::NV * r + b + 3 + c] += dot(m, cross(vl, unit3<Scalar>(c)));
+          for (int c = 0; c < 3; ++c) Cq[Robot::NV * r + b + c] += dot(m, k[c]);
         }
       }
       force_rows_out(Cq, Robot::NV);
