@@ -270,6 +270,23 @@ def test_kinematic_loop_is_refused():
         torch_grid.load(loop)
 
 
+def test_closed_chain_no_root_reaches_is_refused():
+    """Links a and b each the child of one joint, but of each other: no root reaches them, and Pinocchio's
+    URDF reader built the robot without them (nor their child d), silently."""
+    joint = ('<joint name="{}" type="revolute"><parent link="{}"/><child link="{}"/><axis xyz="0 0 1"/>'
+             '<limit lower="-1" upper="1" effort="1" velocity="1"/></joint>')
+    text = URDF_TEMPLATE.format(kind="revolute", extra="").replace("</robot>", "".join(
+        [f'<link name="{n}"><inertial><mass value="1"/><inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/>'
+         "</inertial></link>" for n in ("x", "y", "z")]
+        + [joint.format(*names) for names in (("k1", "x", "y"), ("k2", "y", "x"), ("k3", "y", "z"))]) + "</robot>")
+    assert list(pin.buildModelFromXML(text).names) == ["universe", "j1", "j2"]  # k1, k2, k3 dropped
+    with pytest.raises(ValueError, match=r"joints 'k\d', 'k\d' form a closed chain of links \(. <- . <- .\) that no root"):
+        torch_grid.load(text)
+    alone = URDF_TEMPLATE.format(kind="revolute", extra="").replace("</robot>", joint.format("k", "x", "x") + "</robot>")
+    with pytest.raises(ValueError, match=r"joints 'k' form a closed chain of links \(x <- x\)"):
+        torch_grid.load(alone.replace("</robot>", '<link name="x"/></robot>'))
+
+
 def test_unsupported_mjcf_joint_feature_is_refused(tmp_path):
     path = tmp_path / "ball.xml"
     path.write_text(ARM_MJCF.format(free="").replace('type="slide" axis="0.6 0 0.8"', 'type="ball" stiffness="3"'))

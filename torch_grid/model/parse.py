@@ -170,6 +170,31 @@ def _reject_urdf_features(root: ET.Element) -> None:
         if c in seen:
             raise ValueError(f"link {c!r} is the child of several joints (a kinematic loop), which is not supported")
         seen.add(c)
+    _reject_closed_chains(root)
+
+
+def _reject_closed_chains(root: ET.Element) -> None:
+    """Refuse joints whose links lead back to themselves (a joint from a link to itself, or a closed chain
+    of them): no root reaches them, and Pinocchio's URDF reader dropped them, with every link and joint
+    they carry, without a word."""
+    up: dict[str, tuple[str, str]] = {}  # child link -> (joint, parent link)
+    for j in root.iter("joint"):
+        parent, child = j.find("parent"), j.find("child")
+        if parent is not None and child is not None:
+            up[child.get("link")] = (j.get("name"), parent.get("link"))
+    rooted: set[str] = set()  # links whose ancestors end at a root
+    for start in up:
+        path, link = [], start
+        while link in up and link not in rooted:
+            if link in path:
+                chain = path[path.index(link):] + [link]
+                joints = ", ".join(repr(up[c][0]) for c in chain[:-1])
+                raise ValueError(f"joints {joints} form a closed chain of links ({' <- '.join(chain)}) that no root link "
+                                 "reaches, which is not supported (Pinocchio's URDF reader drops them, and every link "
+                                 "below them)")
+            path.append(link)
+            link = up[link][1]
+        rooted.update(path)
 
 
 def _mimic_joints(root: ET.Element, couple: bool) -> tuple[Mimic, ...]:
