@@ -287,6 +287,25 @@ def test_closed_chain_no_root_reaches_is_refused():
         torch_grid.load(alone.replace("</robot>", '<link name="x"/></robot>'))
 
 
+@pytest.mark.parametrize("change, words", [
+    (('<limit lower="-1" upper="1" effort="1" velocity="1"/>{extra}</joint>\n</robot>', "{extra}</joint>\n</robot>"),
+     "joint 'j2': a revolute joint needs a <limit>"),
+    (('effort="1" velocity="1"/>{extra}', 'velocity="1"/>{extra}'), "joint 'j2': <limit> has no effort"),
+    (('<child link="c"/>', '<child link="d"/>'), "joint 'j2': its child link 'd' is not a <link> of the URDF"),
+    (('name="j2" type="{kind}"', 'name="j1" type="{kind}"'), "joint 'j1' is declared more than once"),
+    (("\n</robot>", '<link name="d"/></robot>'), "one root link (the child of no joint), got 2: 'a', 'd'"),
+])
+def test_urdf_pinocchio_refuses_names_the_reason(change, words):
+    """urdfdom, Pinocchio's URDF reader, prints why it refuses a URDF on the C++ stderr only (unseen in a
+    notebook); the error says it."""
+    text = URDF_TEMPLATE.replace(*change).format(kind="revolute", extra="")
+    with pytest.raises(ValueError, match="URDF"):
+        pin.buildModelFromXML(text)
+    with pytest.raises(ValueError) as info:
+        torch_grid.load(text)
+    assert "Pinocchio could not parse the URDF" in str(info.value) and words in str(info.value)
+
+
 def test_unsupported_mjcf_joint_feature_is_refused(tmp_path):
     path = tmp_path / "ball.xml"
     path.write_text(ARM_MJCF.format(free="").replace('type="slide" axis="0.6 0 0.8"', 'type="ball" stiffness="3"'))

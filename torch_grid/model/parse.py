@@ -330,8 +330,67 @@ def _parse_urdf(text: str, floating: bool, name: str) -> RobotModel:
         else:
             model = pin.buildModelFromXML(text)
     except Exception as e:  # Pinocchio raises a bare RuntimeError/ValueError with its own message
-        raise ValueError(f"source: Pinocchio could not parse the URDF: {e}") from None
+        # urdfdom, its reader, prints why on the C++ stderr only (unseen in a notebook): say it here
+        problem = _urdf_structure_problem(ET.fromstring(text))
+        raise ValueError(f"source: Pinocchio could not parse the URDF: {e}" + (f" ({problem})" if problem else "")) from None
     return from_pinocchio(model, name)
+
+
+_URDF_JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed", "floating", "planar")
+
+
+def _urdf_structure_problem(root: ET.Element) -> str | None:
+    """The first of the errors urdfdom refuses a URDF for but reports on stderr only, or None."""
+    if not root.get("name"):
+        return "<robot> has no name"
+    links = [link.get("name") for link in root.findall("link")]
+    joints = root.findall("joint")
+    if not links:
+        return "the URDF has no <link>"
+    for what, names in (("link", links), ("joint", [j.get("name") for j in joints])):
+        if not all(names):
+            return f"a <{what}> has no name"
+        repeated = sorted({n for n in names if names.count(n) > 1})
+        if repeated:
+            return f"{what} {repeated[0]!r} is declared more than once"
+    children = set()
+    for j in joints:
+        problem = _urdf_joint_problem(j, set(links))
+        if problem:
+            return f"joint {j.get('name')!r}: {problem}"
+        children.add(j.find("child").get("link"))
+    roots = [link for link in links if link not in children]
+    if len(roots) != 1:
+        return f"a URDF has one root link (the child of no joint), got {len(roots)}: {', '.join(map(repr, roots))}"
+    return None
+
+
+def _urdf_joint_problem(j: ET.Element, links: set[str]) -> str | None:
+    kind = j.get("type")
+    if kind not in _URDF_JOINT_TYPES:
+        return f"type must be one of {', '.join(_URDF_JOINT_TYPES)}, got {kind!r}"
+    for end in ("parent", "child"):
+        link = _attribute(j.find(end), "link")
+        if link is None:
+            return f"has no <{end} link=...>"
+        if link not in links:
+            return f"its {end} link {link!r} is not a <link> of the URDF"
+    limit = j.find("limit")
+    if limit is None and kind in ("revolute", "prismatic"):
+        return f"a {kind} joint needs a <limit>"
+    needed = (("limit", ("effort", "velocity"), ()), ("mimic", (), ("multiplier", "offset")),
+              ("dynamics", (), ("damping", "friction")))
+    for tag, required, optional in needed:
+        element = j.find(tag)
+        for name in (required + optional) if element is not None else ():
+            value = element.get(name)
+            if value is None and name in required:
+                return f"<{tag}> has no {name}"
+            if value is not None and not _URDF_NUMBER.fullmatch(value):
+                return f"<{tag} {name}> must be a decimal number, got {value!r}"
+    if j.find("mimic") is not None and not j.find("mimic").get("joint"):
+        return "<mimic> names no joint"
+    return None
 
 
 def _bundled(name: str, floating_base: bool | None) -> RobotModel:
