@@ -428,3 +428,22 @@ def _assert_same(kernel: torch.Tensor, composed: torch.Tensor) -> None:
     assert torch.equal(torch.isnan(kernel), torch.isnan(composed))
     finite = torch.isfinite(composed)
     torch.testing.assert_close(kernel[finite], composed[finite], rtol=0, atol=1e-13)
+
+
+def test_random_configuration_keeps_a_one_sided_limit():
+    """A joint bounded on one side only (a pinocchio.Model's limit left at +-DBL_MAX on the other) is drawn
+    within Pinocchio's limits, from its bound, rather than between the bound and the default [-pi, pi]."""
+    import torch_grid
+
+    model = pin.Model()
+    inertia = pin.Inertia(1.0, np.array([0.1, 0.0, 0.0]), np.diag([0.01, 0.02, 0.03]))
+    for name, joint, parent in (("slide", pin.JointModelPZ(), 0), ("hinge", pin.JointModelRY(), 1)):
+        jid = model.addJoint(parent, joint, pin.SE3.Identity(), name)
+        model.appendBodyToJoint(jid, inertia, pin.SE3.Identity())
+    model.lowerPositionLimit[0], model.upperPositionLimit[1] = 5.0, -4.0  # slide >= 5, hinge <= -4
+    robot = torch_grid.load(model)
+    assert (robot.model.joints[0].upper, robot.model.joints[1].lower) == (math.inf, -math.inf)
+    for view in (robot.pin, robot.mujoco):
+        q = view.random_configuration(1000, generator=torch.Generator().manual_seed(0)).numpy()
+        assert (q >= model.lowerPositionLimit).all() and (q <= model.upperPositionLimit).all()
+        assert q[:, 0].max() > 5 + 1.5 and q[:, 1].min() < -4 - 2 * math.pi + 0.5  # a width of 2 and 2 pi

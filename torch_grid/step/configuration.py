@@ -10,9 +10,25 @@ import math
 
 import torch
 
+from ..model.description import Joint
 from ..ops.arguments import check_arguments, check_batch_shape, check_dt
 from ..space import lie
 from .integrators import differentiable_kernel_runs, fused_kernel_runs
+
+
+def _drawn_range(joint: Joint) -> tuple[float, float]:
+    """The range random_configuration draws a one-dof joint from: its limits, a width 2 pi (a revolute joint) or 2
+    (a prismatic one) from its one bound when the other is infinite, and [-pi, pi] or [-1, 1] when both are (or the
+    range is too wide to draw from)."""
+    half = math.pi if joint.type != "prismatic" else 1.0
+    lo, hi = joint.lower, joint.upper
+    if math.isfinite(lo) and not math.isfinite(hi):
+        hi = lo + 2 * half
+    elif math.isfinite(hi) and not math.isfinite(lo):
+        lo = hi - 2 * half
+    if not math.isfinite(hi - lo):
+        lo, hi = -half, half
+    return lo, hi
 
 
 class ConfigurationFunctions:
@@ -79,7 +95,8 @@ class ConfigurationFunctions:
 
     def random_configuration(self, *batch_shape: int, dtype: torch.dtype = torch.float64, device="cpu",
                              generator: torch.Generator | None = None) -> torch.Tensor:
-        """Joints uniform within their limits ([-pi, pi] or [-1, 1] when unbounded), a base position in
+        """Joints uniform within their limits ([-pi, pi] or [-1, 1] when unbounded, a width of 2 pi or 2
+        from the one bound of a joint bounded on one side), a base position in
         [-1, 1]^3 and uniformly random unit quaternions (free and ball joints), in this view's convention.
 
         Args:
@@ -100,11 +117,7 @@ class ConfigurationFunctions:
                 quat = quat / quat.norm(dim=-1, keepdim=True)
                 cols.append(quat[..., [3, 0, 1, 2]] if self._convention else quat)
                 continue
-            default = math.pi if joint.type != "prismatic" else 1.0
-            lo = joint.lower if math.isfinite(joint.lower) else -default
-            hi = joint.upper if math.isfinite(joint.upper) else default
-            if not math.isfinite(hi - lo):  # too wide to draw from
-                lo, hi = -default, default
+            lo, hi = _drawn_range(joint)
             cols.append(lo + (hi - lo) * torch.rand(*batch_shape, 1, dtype=torch.float64, generator=generator))
         return self._reduced(torch.cat(cols, dim=-1).to(dtype=dtype, device=device))
 
