@@ -356,6 +356,17 @@ def test_mimic_refusals():
     bad = URDF.replace('multiplier="0.5"', 'multiplier="half"')
     with pytest.raises(ValueError, match="joint 'thumb': <mimic multiplier> must be a decimal number, got 'half'"):
         torch_grid.load(bad, mimic=True)
+    itself = URDF.replace('<mimic joint="wrist"', '<mimic joint="thumb"')
+    with pytest.raises(ValueError, match="mimic joint 'thumb': mimics itself"):
+        torch_grid.load(itself, mimic=True)
+
+
+def test_pinocchio_mimic_model_refusal_points_to_the_urdf(gripper):
+    """Pinocchio's mimic model holds JointModelMimic joints, which are not read: the error says how to load
+    the coupling instead."""
+    _, _, pm = gripper
+    with pytest.raises(ValueError, match="has type Mimic.*load the URDF itself with mimic=True"):
+        torch_grid.load(pm)
 
 
 def test_mujoco_second_order_with_a_free_joint_refuses(gripper):

@@ -322,7 +322,9 @@ def _check_mimics(model: RobotModel) -> None:
                 raise ValueError(f"{who}: {role} {name!r} is not a joint of the model")
             if kinds[name] not in ("revolute", "continuous", "prismatic"):
                 raise ValueError(f"{who}: {role} {name!r} is a {kinds[name]} joint; only one-dof joints can be coupled")
-        if m.joint == m.master or m.joint in coupled:
+        if m.joint == m.master:
+            raise ValueError(f"{who}: mimics itself; a mimic joint follows another joint")
+        if m.joint in coupled:
             raise ValueError(f"{who}: mimics {m.master!r}, but a joint can mimic one other joint only once")
         for name in ("multiplier", "offset"):
             _check_number(f"{who}: {name}", getattr(m, name))

@@ -128,9 +128,11 @@ def _joint_kind(jm, jname: str, nq: int) -> tuple[str, tuple[float, float, float
         jm.calc(data, np.zeros(nq))
         kind, motion = _UNALIGNED[short], np.asarray(data.S).reshape(6)
         return kind, _vec(motion[:3] if kind == "prismatic" else motion[3:])
+    hint = ("; a pinocchio.Model with mimic joints is not read: load the URDF itself with mimic=True"
+            if short == "JointModelMimic" else "")
     raise ValueError(
         f"joint {jname!r} has type {short.replace('JointModel', '')}, which is not supported "
-        "(supported: revolute, continuous, prismatic, spherical, fixed, and a free-flyer root)"
+        f"(supported: revolute, continuous, prismatic, spherical, fixed, and a free-flyer root){hint}"
     )
 
 
