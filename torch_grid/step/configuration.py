@@ -75,7 +75,9 @@ class ConfigurationFunctions:
     def neutral_configuration(self, *batch_shape: int, dtype: torch.dtype = torch.float64,
                               device="cpu") -> torch.Tensor:
         """Zero joint positions, identity ball orientations and, for a floating base, the identity
-        orientation at the origin, in this view's convention (quaternion order).
+        orientation at the origin, in this view's convention (quaternion order). For a model read from
+        MJCF that is qpos = 0, not MuJoCo's qpos0 (which holds each joint's ref and each free body's
+        initial pose): take `MjModel.qpos0` for that.
 
         Args:
             *batch_shape: leading batch sizes (none: a single configuration).
