@@ -434,6 +434,28 @@ def test_conventions_of_a_robot_match_mujoco(trees):
     assert torch.equal(C.of(robot.mujoco).q_pin_to_mujoco(q), qm) and torch.equal(C.of(robot.model).q_pin_to_mujoco(q), qm)
 
 
+def test_conventions_of_a_robot_broadcast_a_batch_of_configurations(trees):
+    """A batch of configurations against one velocity, force, acceleration, mass matrix or Jacobian (the batch
+    of q_pin beyond the other argument's had raised torch's concatenation error): each sample is the
+    one-configuration call's."""
+    robot, _ = trees
+    cv = torch_grid.conventions.of(robot)
+    g = torch.Generator().manual_seed(6)
+    q = robot.pin.random_configuration(3, generator=g)
+    v, a = (torch.randn(robot.nv, dtype=q.dtype, generator=g) for _ in range(2))
+    M, J = robot.pin.crba(q[0]), torch.randn(6, robot.nv, dtype=q.dtype, generator=g)
+    calls = {"v_pin_to_mujoco": lambda q: cv.v_pin_to_mujoco(q, v), "v_mujoco_to_pin": lambda q: cv.v_mujoco_to_pin(q, v),
+             "covector_pin_to_mujoco": lambda q: cv.covector_pin_to_mujoco(q, v),
+             "a_pin_to_mujoco": lambda q: cv.a_pin_to_mujoco(q, v, a), "a_mujoco_to_pin": lambda q: cv.a_mujoco_to_pin(q, v, a),
+             "congruence_pin_to_mujoco": lambda q: cv.congruence_pin_to_mujoco(q, M),
+             "columns_pin_to_mujoco": lambda q: cv.columns_pin_to_mujoco(q, J)}
+    for name, call in calls.items():
+        batched = call(q)
+        assert batched.shape[0] == 3, name
+        for s in range(3):
+            assert rel_err(batched[s], call(q[s])) <= 1e-14, name
+
+
 def test_conventions_of_a_robot_check_their_arguments(trees):
     robot, _ = trees
     cv = torch_grid.conventions.of(robot)

@@ -136,7 +136,7 @@ def columns_pin_to_mujoco(q_pin: torch.Tensor, J: torch.Tensor, floating: bool =
     for vi in sorted(cols):
         parts += [J[..., :, k:vi], cols[vi]]
         k = vi + 3
-    return torch.cat(parts + [J[..., :, k:]], dim=-1)
+    return _cat_broadcast(parts + [J[..., :, k:]], 2)
 
 
 def _free(floating: bool, free: Free | None) -> list[tuple[int, int]]:
@@ -169,7 +169,14 @@ def _linear(x: torch.Tensor, parts: dict[int, torch.Tensor]) -> torch.Tensor:
     for vi in sorted(parts):
         pieces += [x[..., k:vi], parts[vi]]
         k = vi + 3
-    return torch.cat(pieces + [x[..., k:]], dim=-1)
+    return _cat_broadcast(pieces + [x[..., k:]], 1)
+
+
+def _cat_broadcast(pieces: list[torch.Tensor], trailing: int) -> torch.Tensor:
+    """The pieces joined along their last dimension, each first expanded to their common batch shape (all but
+    the `trailing` last dimensions): a piece of x keeps x's batch, a rotated one q_pin's and x's together."""
+    batch = torch.broadcast_shapes(*(p.shape[:p.dim() - trailing] for p in pieces))
+    return torch.cat([p.expand(*batch, *p.shape[p.dim() - trailing:]) for p in pieces], dim=-1)
 
 
 def _mul(R: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
