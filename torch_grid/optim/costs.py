@@ -88,10 +88,11 @@ class CostFunctions:
 
 def quadratic_barrier(x: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, weights: torch.Tensor):
     """Crocoddyl's quadratic barrier: sum(w (min(x - lower, 0)^2 + max(x - upper, 0)^2)) / 2, zero inside
-    [lower, upper]; (value (...,), gradient (..., n), Hessian (..., n, n), diagonal)."""
+    [lower, upper]; (value (...,), gradient (..., n), Hessian (..., n, n), diagonal). A NaN in x or a bound
+    is NaN in all three (its entry of the Hessian too, which is w or 0 elsewhere)."""
     _checked_bounds("quadratic_barrier", x, lower, upper, weights)
     r = torch.clamp(x - lower, max=0) + torch.clamp(x - upper, min=0)
-    outside = ((x < lower) | (x > upper)).to(x.dtype)
+    outside = torch.where(torch.isnan(r), r, ((x < lower) | (x > upper)).to(x.dtype))
     value = 0.5 * (weights * r * r).sum(-1)
     return value, weights * r, torch.diag_embed(weights * outside)
 
