@@ -158,15 +158,17 @@ def test_control_cost_and_barriers():
 
 
 @pytest.mark.parametrize("argument", ["x", "lower", "upper"])
-def test_barriers_are_nan_where_x_or_a_bound_is(argument):
+@pytest.mark.parametrize("barrier", [torch_grid.quadratic_barrier, torch_grid.log_barrier])
+def test_barriers_are_nan_where_x_or_a_bound_is(barrier, argument):
     """A NaN in x or a bound is NaN in the barrier's value, gradient and Hessian entry of its sample (the
-    quadratic barrier's Hessian was 0 there, as inside the bounds), the other samples unchanged."""
+    quadratic barrier's Hessian was 0 there, as inside the bounds; the log barrier was +inf with a gradient
+    of -inf, as below the lower bound), the other samples unchanged."""
     x = torch.tensor([[0.5, -2.0, 3.0], [0.2, 0.5, 0.9], [-1.5, 0.0, 2.5]], dtype=torch.float64)
     args = {"x": x, "lower": torch.full_like(x, -1.0), "upper": torch.full_like(x, 2.0), "weights": torch.full_like(x, 3.0)}
-    clean = torch_grid.quadratic_barrier(**args)
+    clean = barrier(**args)
     args[argument] = args[argument].clone()
     args[argument][1, 1] = float("nan")
-    value, grad, hess = torch_grid.quadratic_barrier(**args)
+    value, grad, hess = barrier(**args)
     assert value[1].isnan() and grad[1, 1].isnan() and hess[1, 1, 1].isnan()
     for got, expected in zip((value, grad, hess), clean):
         assert torch.equal(got[[0, 2]], expected[[0, 2]])

@@ -101,13 +101,13 @@ def log_barrier(x: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, weigh
     """The logarithmic barrier of joint position, velocity or torque limits (as GRiD's):
     -sum(w (log(x - lower) + log(upper - x))), lower < upper; infinite outside (lower, upper), with an
     infinite gradient and Hessian there rather than a NaN: the gradient is -inf at or below lower and +inf
-    at or above upper, its limits from inside. (value (...,), gradient (..., n), Hessian (..., n, n),
-    diagonal, exact)."""
+    at or above upper, its limits from inside; NaN where x or a bound is NaN, on neither side. (value (...,),
+    gradient (..., n), Hessian (..., n, n), diagonal, exact)."""
     _checked_bounds("log_barrier", x, lower, upper, weights)
     a, b = x - lower, upper - x
     inside = (a > 0) & (b > 0)
     a_s, b_s = torch.where(inside, a, torch.ones_like(a)), torch.where(inside, b, torch.ones_like(b))
-    inf = torch.full_like(x, float("inf"))
+    inf = torch.where(torch.isnan(a) | torch.isnan(b), torch.nan, torch.full_like(x, float("inf")))
     value = torch.where(inside, -weights * (torch.log(a_s) + torch.log(b_s)), inf).sum(-1)
     grad = torch.where(inside, weights * (1 / b_s - 1 / a_s), torch.where(a > 0, inf, -inf))
     hess = torch.where(inside, weights * (1 / (a_s * a_s) + 1 / (b_s * b_s)), inf)
