@@ -15,7 +15,7 @@ import torch
 import oracles
 from pin_models import pin_ball_model
 from test_quaternion_joints import BALLS, random_qpos
-from torch_grid.space.lie import Space, d_difference, d_integrate, difference, integrate
+from torch_grid.space.lie import Space, d_difference, d_integrate, dexp_inverse, difference, integrate
 
 TOL = 1e-10  # Pinocchio and MuJoCo evaluate the same formulas in another order (log near pi)
 # rotation scales: generic, beyond pi (the short way back), tiny and zero (the Taylor branches)
@@ -447,3 +447,25 @@ def test_random_configuration_keeps_a_one_sided_limit():
         q = view.random_configuration(1000, generator=torch.Generator().manual_seed(0)).numpy()
         assert (q >= model.lowerPositionLimit).all() and (q <= model.upperPositionLimit).all()
         assert q[:, 0].max() > 5 + 1.5 and q[:, 1].min() < -4 - 2 * math.pi + 0.5  # a width of 2 and 2 pi
+
+
+@pytest.mark.parametrize("angle", [0.0101, 0.03, 0.3, math.pi - 1e-6])
+def test_float32_jacobians_and_their_derivatives_follow_float64(angle):
+    """In float32 the tangent Jacobians of a free joint in Pinocchio's convention, and their derivatives (those of the
+    step Hessians and of autograd through them), keep float32's digits just above the small-angle series' range and
+    near a half turn, where their closed forms cancel: against float64 at the same (rounded) inputs."""
+    space, gen = Space.of(["free"]), torch.Generator().manual_seed(5)
+    axis = torch.randn(8, 3, generator=gen, dtype=torch.float64)
+    v = torch.cat([torch.randn(8, 3, generator=gen, dtype=torch.float64),
+                   angle * axis / axis.norm(dim=-1, keepdim=True)], dim=-1).float().double()
+    q = torch.cat([torch.randn(8, 3, dtype=torch.float64), torch.tensor([[0.0, 0.0, 0.0, 1.0]]).expand(8, 4)], dim=-1)
+    q1 = integrate(space, q, v, 1.0, 0).float().double()
+
+    def derivatives(q, v, q1):
+        j_v = torch.func.vmap(torch.func.jacfwd(lambda u: d_integrate(space, q[0], u, 1.0, 0)[1]))(v)
+        carried = torch.func.jacfwd(torch.func.jacfwd(lambda u: dexp_inverse(space, u, q[0, :6], 0)))  # Runge-Kutta's
+        return d_integrate(space, q, v, 1.0, 0)[1], j_v, d_difference(space, q, q1, 0)[1], torch.func.vmap(carried)(v)
+
+    for low, high in zip(derivatives(q.float(), v.float(), q1.float()), derivatives(q, v, q1)):
+        scale = high.flatten(1).abs().amax(1).view(-1, *[1] * (high.dim() - 1))
+        assert ((low.double() - high).abs() / scale).max() < 1e-5

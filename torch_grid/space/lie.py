@@ -267,11 +267,13 @@ _SMALL = 1e-4  # below this angle squared, the Taylor series (error ~ angle^6) a
 
 def _coefficients(w: torch.Tensor, exact, series) -> torch.Tensor:
     """exact(theta) where the angle |w| is large enough, series(theta^2) near zero: both evaluated only
-    where they are safe, so that gradients through the other branch stay finite."""
+    where they are safe, so that gradients through the other branch stay finite. exact runs in float64
+    for a float32 w: its forms cancel (1 - cos t, t - sin t) just above the series' range, and their
+    derivatives the more, which lost float32 most of its digits there."""
     t2 = (w * w).sum(-1, keepdim=True)
     small = t2 < _SMALL
-    theta = torch.sqrt(torch.where(small, torch.ones_like(t2), t2))
-    return torch.where(small, series(t2), exact(theta))
+    theta = torch.sqrt(torch.where(small, torch.ones_like(t2), t2).to(torch.float64))
+    return torch.where(small, series(t2), exact(theta).to(t2.dtype))
 
 
 def skew(w: torch.Tensor) -> torch.Tensor:
