@@ -469,3 +469,16 @@ def test_float32_jacobians_and_their_derivatives_follow_float64(angle):
     for low, high in zip(derivatives(q.float(), v.float(), q1.float()), derivatives(q, v, q1)):
         scale = high.flatten(1).abs().amax(1).view(-1, *[1] * (high.dim() - 1))
         assert ((low.double() - high).abs() / scale).max() < 1e-5
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_difference_gradient_at_a_half_turn(dtype):
+    """Two orientations a half turn apart (the relative quaternion's w exactly 0, as for a target flipped about an
+    axis): the reverse-mode Jacobian of difference is finite, the forward-mode one."""
+    space = Space.of(["ball"])
+    q0, q1 = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=dtype), torch.tensor([0.0, 0.0, 1.0, 0.0], dtype=dtype)
+    forward = torch.func.jacfwd(lambda a, b: difference(space, a, b, 0), argnums=(0, 1))(q0, q1)
+    reverse = torch.func.jacrev(lambda a, b: difference(space, a, b, 0), argnums=(0, 1))(q0, q1)
+    for f, r in zip(forward, reverse):
+        assert torch.isfinite(r).all()
+        torch.testing.assert_close(r, f)

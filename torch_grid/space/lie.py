@@ -297,8 +297,9 @@ def log3(quat: torch.Tensor) -> torch.Tensor:
     s2 = (xyz * xyz).sum(-1, keepdim=True)
     small = s2 < _SMALL
     s = torch.sqrt(torch.where(small, torch.ones_like(s2), s2))
-    r2 = s2 / (w * w)
-    factor = torch.where(small, 2 / w * (1 - r2 / 3 + r2 * r2 / 5), 2 * torch.atan2(s, w) / s)
+    w_small = torch.where(small, w, torch.ones_like(w))  # w = 0 at a half turn: 2 / w there would make gradients NaN
+    r2 = s2 / (w_small * w_small)
+    factor = torch.where(small, 2 / w_small * (1 - r2 / 3 + r2 * r2 / 5), 2 * torch.atan2(s, w) / s)
     return factor * xyz
 
 
