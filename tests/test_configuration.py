@@ -482,3 +482,16 @@ def test_difference_gradient_at_a_half_turn(dtype):
     for f, r in zip(forward, reverse):
         assert torch.isfinite(r).all()
         torch.testing.assert_close(r, f)
+
+
+def test_dexp_inverse_second_derivative_at_a_half_turn():
+    """dexp^-1's second derivative (the Runge-Kutta step Hessians') at a rotation of pi, where the cotangent of
+    its closed form turns infinite: against central differences of its first derivative."""
+    space = Space.of(["ball"])
+    u = torch.tensor([0.6, 0.0, 0.8], dtype=torch.float64) * torch.pi
+    w = torch.tensor([0.3, -1.2, 0.7], dtype=torch.float64)
+    jacobian = torch.func.jacfwd(lambda x: dexp_inverse(space, x, w, 0))
+    hessian = torch.func.jacfwd(jacobian)(u)
+    h = 1e-5
+    fd = torch.stack([(jacobian(u + h * e) - jacobian(u - h * e)) / (2 * h) for e in torch.eye(3, dtype=u.dtype)], -1)
+    assert ((hessian - fd).abs().max() / fd.abs().max()) < 1e-7

@@ -333,7 +333,8 @@ def _minus_sin_series(t2):
 
 
 def _cot_term(t):
-    return (1 - t / 2 / torch.tan(t / 2)) / (t * t)
+    # cot as cos / sin: tan's derivatives at a half turn (tan(t / 2) -> inf) cancel to nothing
+    return (1 - t / 2 * torch.cos(t / 2) / torch.sin(t / 2)) / (t * t)
 
 
 def _cot_series(t2):
