@@ -474,7 +474,7 @@ def test_float32_jacobians_and_their_derivatives_follow_float64(angle):
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
 def test_difference_gradient_at_a_half_turn(dtype):
     """Two orientations a half turn apart (the relative quaternion's w exactly 0, as for a target flipped about an
-    axis): the reverse-mode Jacobian of difference is finite, the forward-mode one."""
+    axis): the reverse-mode Jacobian of difference is finite and equals the forward-mode one."""
     space = Space.of(["ball"])
     q0, q1 = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=dtype), torch.tensor([0.0, 0.0, 1.0, 0.0], dtype=dtype)
     forward = torch.func.jacfwd(lambda a, b: difference(space, a, b, 0), argnums=(0, 1))(q0, q1)

@@ -156,7 +156,6 @@ def test_control_cost_and_barriers():
         robot_free.control_cost(x, ref, w[:, :3])
 
 
-
 @pytest.mark.parametrize("argument", ["x", "lower", "upper"])
 @pytest.mark.parametrize("barrier", [torch_grid.quadratic_barrier, torch_grid.log_barrier])
 def test_barriers_are_nan_where_x_or_a_bound_is(barrier, argument):
@@ -172,6 +171,7 @@ def test_barriers_are_nan_where_x_or_a_bound_is(barrier, argument):
     assert value[1].isnan() and grad[1, 1].isnan() and hess[1, 1, 1].isnan()
     for got, expected in zip((value, grad, hess), clean):
         assert torch.equal(got[[0, 2]], expected[[0, 2]])
+
 
 def test_targets_and_bounds_of_another_shape_are_refused_naming_them(robots):
     robot = robots["go2"]

@@ -166,24 +166,21 @@ def _reject_urdf_features(root: ET.Element) -> None:
     for j in root.iter("joint"):
         if j.get("type") in ("planar", "floating", "spherical"):
             raise ValueError(f"joint {j.get('name')!r} has type {j.get('type')}, which is not supported")
-    children = [j.find("child").get("link") for j in root.iter("joint") if j.find("child") is not None]
-    seen = set()
-    for c in children:
-        if c in seen:
-            raise ValueError(f"link {c!r} is the child of several joints (a kinematic loop), which is not supported")
-        seen.add(c)
-    _reject_closed_chains(root)
-
-
-def _reject_closed_chains(root: ET.Element) -> None:
-    """Refuse joints whose links lead back to themselves (a joint from a link to itself, or a closed chain
-    of them): no root reaches them, and Pinocchio's URDF reader dropped them, with every link and joint
-    they carry, without a word."""
-    up: dict[str, tuple[str, str]] = {}  # child link -> (joint, parent link)
+    up: dict[str, tuple[str, str | None]] = {}  # child link -> (joint, parent link)
     for j in root.iter("joint"):
-        parent, child = j.find("parent"), j.find("child")
-        if parent is not None and child is not None:
-            up[child.get("link")] = (j.get("name"), parent.get("link"))
+        if j.find("child") is None:
+            continue
+        child = j.find("child").get("link")
+        if child in up:
+            raise ValueError(f"link {child!r} is the child of several joints (a kinematic loop), which is not supported")
+        up[child] = (j.get("name"), _attribute(j.find("parent"), "link"))
+    _reject_closed_chains(up)
+
+
+def _reject_closed_chains(up: dict[str, tuple[str, str | None]]) -> None:
+    """Refuse joints whose links lead back to themselves (a joint from a link to itself, or a closed chain
+    of them), given each child link's (joint, parent link): no root reaches them, and Pinocchio's URDF
+    reader dropped them, with every link and joint they carry, without a word."""
     rooted: set[str] = set()  # links whose ancestors end at a root
     for start in up:
         path, link = [], start
